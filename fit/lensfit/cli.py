@@ -1,0 +1,166 @@
+"""The ``lensfit`` command line.
+
+    lensfit list                         lenses in lensdb with their paraxial focal length
+    lensfit info LENS [--json]           paraxial table
+    lensfit draw LENS -o FILE.png        cross-section with ray fans
+    lensfit import FILE.json [-o DIR]    convert a lentil-format JSON lens table to TOML
+    lensfit check [LENS ...]             validate prescriptions and their EFL
+
+LENS is a lensdb id (``0001``), a file stem in lensdb, or a path to a TOML file.
+Errors go to stderr as one line naming file, surface and key; the exit code is 2.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+from pathlib import Path
+
+from lensfit.errors import LensError
+from lensfit.glass import UnknownGlassError
+
+
+def _fmt(v: float | None, unit: str = "", digits: int = 4) -> str:
+    if v is None or (isinstance(v, float) and not math.isfinite(v)):
+        return "inf"
+    return f"{v:.{digits}f}{(' ' + unit) if unit else ''}"
+
+
+def cmd_info(args: argparse.Namespace) -> int:
+    from lensfit.paraxial import stop_radius_for_f_number, table
+    from lensfit.prescription import load_lens
+
+    lens = load_lens(args.lens)
+    stop = None
+    if args.f_number is not None:
+        try:
+            stop = stop_radius_for_f_number(lens, args.f_number)
+        except ValueError as e:
+            raise LensError(str(e), file=lens.source_file, key="--f-number") from None
+    t = table(lens, stop_radius_mm=stop)
+    if args.json:
+        print(json.dumps(t, indent=2))
+        return 0
+    ep, xp = t["entrance_pupil"], t["exit_pupil"]
+    print(f"{lens.name}  ({lens.source_file})")
+    print(f"  surfaces            {t['surfaces']} (stop at surface {t['stop_index']})")
+    print(f"  EFL                 {_fmt(t['efl_mm'], 'mm')}   (at {t['wavelength_nm']:.2f} nm)")
+    if t["anamorphic"]:
+        for m, d in t["meridians"].items():
+            print(f"    {m}-z meridian      EFL {_fmt(d['efl_mm'], 'mm')}  BFD {_fmt(d['bfd_mm'], 'mm')}")
+        print(f"    squeeze (EFLx/EFLy) {_fmt(t['anamorphic_squeeze'], '', 4)}")
+    print(f"  BFD                 {_fmt(t['bfd_mm'], 'mm')}")
+    print(f"  FFD                 {_fmt(t['ffd_mm'], 'mm')}")
+    print(f"  stop radius         {_fmt(t['stop_radius_mm'], 'mm')}  (widest {_fmt(t['stop_radius_max_mm'], 'mm')})")
+    print(f"  f-number            f/{_fmt(t['f_number'], '', 3)}")
+    print(f"  entrance pupil      z = {_fmt(ep['position_mm'], 'mm')}, radius {_fmt(ep['radius_mm'], 'mm')}")
+    print(f"  exit pupil          z = {_fmt(xp['position_mm'], 'mm')}, radius {_fmt(xp['radius_mm'], 'mm')}")
+    print(f"  total track         {_fmt(t['total_track_mm'], 'mm')} (first vertex to sensor)")
+    print(f"  sensor defocus      {_fmt(t['sensor_defocus_mm'], 'mm')} (sensor minus paraxial focus)")
+    return 0
+
+
+def cmd_draw(args: argparse.Namespace) -> int:
+    from lensfit.draw import draw_lens
+    from lensfit.prescription import load_lens
+
+    lens = load_lens(args.lens)
+    out = Path(args.output)
+    if out.suffix.lower() != ".png":
+        raise LensError(f"expected a .png output file, found {out.name!r}", key="-o")
+    draw_lens(lens, out, field_deg=args.field, rays=args.rays, f_number=args.f_number)
+    print(f"wrote {out}")
+    return 0
+
+
+def cmd_import(args: argparse.Namespace) -> int:
+    from lensfit.prescription import lens_from_dict
+    from lensfit.prescription.lentil import convert_entry, load_lentil_json, slug, to_toml
+
+    data = load_lentil_json(args.json_file)
+    ids = args.id or sorted(data)
+    outdir = Path(args.output)
+    outdir.mkdir(parents=True, exist_ok=True)
+    for lens_id in ids:
+        if lens_id not in data:
+            raise LensError(f"no entry with id {lens_id!r}", file=args.json_file, key="--id")
+        conv = convert_entry(lens_id, data[lens_id], source=args.json_file)
+        lens_from_dict(conv, file=f"{args.json_file}#{lens_id}")  # validate before writing
+        path = outdir / f"{slug(conv)}.toml"
+        tmp = path.with_suffix(".toml.tmp")
+        tmp.write_text(to_toml(conv), encoding="utf-8")
+        tmp.replace(path)
+        print(f"wrote {path}")
+    return 0
+
+
+def cmd_list(args: argparse.Namespace) -> int:
+    from lensfit.paraxial import paraxial
+    from lensfit.prescription import list_lenses, load_lens
+
+    for p in list_lenses():
+        lens = load_lens(p)
+        efl = paraxial(lens).efl_mm
+        print(f"{p.stem:48s} EFL {_fmt(efl, 'mm', 2):>12s}  {lens.name}")
+    return 0
+
+
+def cmd_check(args: argparse.Namespace) -> int:
+    from lensfit.prescription import list_lenses
+    from lensfit.validate import efl_check
+
+    paths = args.lens or [str(p) for p in list_lenses()]
+    bad = 0
+    for p in paths:
+        ok, msg = efl_check(p)
+        bad += not ok
+        print(("ok    " if ok else "FAIL  ") + msg)
+    return 1 if bad else 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    ap = argparse.ArgumentParser(prog="lensfit", description=__doc__.split("\n\n")[0])
+    sub = ap.add_subparsers(dest="cmd", required=True)
+
+    p = sub.add_parser("info", help="paraxial table of a lens")
+    p.add_argument("lens")
+    p.add_argument("--json", action="store_true", help="print a JSON object")
+    p.add_argument("--f-number", type=float, help="stop the lens down to this f-number")
+    p.set_defaults(func=cmd_info)
+
+    p = sub.add_parser("draw", help="draw the cross-section with ray fans")
+    p.add_argument("lens")
+    p.add_argument("-o", "--output", required=True, help="PNG file to write")
+    p.add_argument("--field", type=float, default=None, help="off-axis field angle in degrees")
+    p.add_argument("--rays", type=int, default=11, help="rays per fan")
+    p.add_argument("--f-number", type=float, default=None, help="stop down to this f-number")
+    p.set_defaults(func=cmd_draw)
+
+    p = sub.add_parser("import", help="convert a lentil-format lens JSON to lensdb TOML")
+    p.add_argument("json_file")
+    p.add_argument("--id", action="append", help="entry id to convert (repeatable; default all)")
+    p.add_argument("-o", "--output", default="lensdb", help="output folder")
+    p.set_defaults(func=cmd_import)
+
+    p = sub.add_parser("list", help="list the lenses in lensdb")
+    p.set_defaults(func=cmd_list)
+
+    p = sub.add_parser("check", help="validate lenses and check EFL against the patent")
+    p.add_argument("lens", nargs="*")
+    p.set_defaults(func=cmd_check)
+    return ap
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    try:
+        return args.func(args)
+    except (LensError, UnknownGlassError, ValueError) as e:
+        print(f"lensfit: error: {e}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())

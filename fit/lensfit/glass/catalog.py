@@ -1,0 +1,255 @@
+"""Glass dispersion: Sellmeier catalog glasses, the nd/vd (Abbe) model and air.
+
+Wavelengths are in nanometres at every public entry point. Catalog Sellmeier
+coefficients are stored as published: ``n² = 1 + Σ B_i λ²/(λ² − C_i)`` with λ in
+micrometres and C_i in µm² (see ``lensdb/glass/README.md``). All indices are
+relative to air, the convention of glass catalogs and lens prescriptions.
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+import os
+import pathlib
+import tomllib
+from dataclasses import dataclass, field
+from typing import Protocol, runtime_checkable
+
+import numpy as np
+import numpy.typing as npt
+
+__all__ = [
+    "AIR",
+    "AbbeGlass",
+    "Air",
+    "LAMBDA_C_NM",
+    "LAMBDA_D_NM",
+    "LAMBDA_F_NM",
+    "LAMBDA_G_NM",
+    "Medium",
+    "SellmeierGlass",
+    "UnknownGlassError",
+    "abbe_glass",
+    "abbe_number",
+    "catalog_glass",
+    "catalog_path",
+    "known_glass_names",
+]
+
+#: Fraunhofer/spectral lines used for nd, vd and partial dispersion, in nm.
+LAMBDA_D_NM = 587.56  # He d
+LAMBDA_F_NM = 486.13  # H F
+LAMBDA_C_NM = 656.27  # H C
+LAMBDA_G_NM = 435.83  # Hg g
+
+#: Schott "normal line" of relative partial dispersion P_g,F = a + b * vd
+#: (through K7 and F2; SCHOTT, Optical Glass: Properties, TIE-29).
+_NORMAL_LINE_A = 0.6438
+_NORMAL_LINE_B = -0.001682
+#: vd is clipped to this value before entering the normal line, which keeps
+#: P_g,F >= 0.4756; the model is monotonic over 380-780 nm for P_g,F >= 0.323.
+_NORMAL_LINE_VD_MAX = 100.0
+
+_ENV_CATALOG = "LENSFIT_GLASS_CATALOG"
+
+FloatArray = npt.NDArray[np.float64]
+
+
+@runtime_checkable
+class Medium(Protocol):
+    """Anything with a name and a refractive index n(λ) (λ in nm, relative to air)."""
+
+    @property
+    def name(self) -> str: ...
+
+    def n(self, wavelength_nm: npt.ArrayLike) -> FloatArray:
+        """Refractive index, float64, same shape as ``wavelength_nm``."""
+        ...
+
+
+def _wavelengths(wavelength_nm: npt.ArrayLike) -> FloatArray:
+    """Validate and convert wavelengths (nm) to a float64 array."""
+    lam = np.asarray(wavelength_nm, dtype=np.float64)
+    if not np.all(np.isfinite(lam)) or np.any(lam <= 0.0):
+        raise ValueError("wavelengths must be finite and > 0 nm")
+    return lam
+
+
+@dataclass(frozen=True)
+class Air:
+    """The reference medium: n == 1.0 exactly (catalog indices are relative to air)."""
+
+    name: str = "air"
+
+    def n(self, wavelength_nm: npt.ArrayLike) -> FloatArray:
+        """Return 1.0 at every wavelength."""
+        return np.ones_like(_wavelengths(wavelength_nm))[()]
+
+
+AIR = Air()
+
+
+@dataclass(frozen=True)
+class SellmeierGlass:
+    """A catalog glass: 3-term Sellmeier with C in µm², plus its catalog nd/vd."""
+
+    name: str
+    maker: str
+    B: tuple[float, float, float]
+    C: tuple[float, float, float]  # µm²
+    nd: float
+    vd: float
+    range_nm: tuple[float, float]
+    source: str
+
+    def n(self, wavelength_nm: npt.ArrayLike) -> FloatArray:
+        """Refractive index at ``wavelength_nm`` (nm), float64, same shape."""
+        lam_um2 = (_wavelengths(wavelength_nm) * 1e-3) ** 2
+        n2 = np.ones_like(lam_um2)
+        for b, c in zip(self.B, self.C, strict=True):
+            n2 = n2 + b * lam_um2 / (lam_um2 - c)
+        return np.sqrt(n2)
+
+
+@dataclass(frozen=True)
+class AbbeGlass:
+    """A glass known only by nd and vd (see README: "nd/vd model").
+
+    n(λ) = A + B/λ² + C/λ⁴ (λ in µm), fixed by n(λd) = nd, (nd − 1)/(nF − nC) = vd and
+    a relative partial dispersion P_g,F on the Schott normal line
+    P_g,F = 0.6438 − 0.001682·min(vd, 100).
+    """
+
+    nd: float
+    vd: float
+    name: str = ""
+    _coef: tuple[float, float, float] = field(init=False, repr=False, compare=False)
+
+    def __post_init__(self) -> None:
+        nd, vd = float(self.nd), float(self.vd)
+        if not (math.isfinite(nd) and math.isfinite(vd)):
+            raise ValueError(f"nd and vd must be finite, got nd={self.nd!r}, vd={self.vd!r}")
+        if nd < 1.0:
+            raise ValueError(f"nd must be >= 1 (index relative to air), got nd={nd!r}")
+        if vd <= 0.0:
+            raise ValueError(f"vd (Abbe number) must be > 0, got vd={vd!r}")
+        object.__setattr__(self, "nd", nd)
+        object.__setattr__(self, "vd", vd)
+        if not self.name:
+            object.__setattr__(self, "name", f"nd={nd:.5f} vd={vd:.2f}")
+        object.__setattr__(self, "_coef", _abbe_coefficients(nd, vd))
+
+    def n(self, wavelength_nm: npt.ArrayLike) -> FloatArray:
+        """Refractive index at ``wavelength_nm`` (nm), float64, same shape."""
+        u = (_wavelengths(wavelength_nm) * 1e-3) ** -2
+        a, b, c = self._coef
+        return a + u * (b + u * c)
+
+
+def _abbe_coefficients(nd: float, vd: float) -> tuple[float, float, float]:
+    """Coefficients (A, B, C) of n = A + B u + C u², u = 1/λ² (λ in µm)."""
+    ud, uf, uc, ug = (
+        (1e3 / lam) ** 2 for lam in (LAMBDA_D_NM, LAMBDA_F_NM, LAMBDA_C_NM, LAMBDA_G_NM)
+    )
+    p_gf = _NORMAL_LINE_A + _NORMAL_LINE_B * min(vd, _NORMAL_LINE_VD_MAX)
+    d_fc = (nd - 1.0) / vd  # nF - nC
+    # nF - nC = (uF - uC) (B + C (uF + uC));  ng - nF = (ug - uF) (B + C (ug + uF))
+    k1 = d_fc / (uf - uc)
+    k2 = p_gf * d_fc / (ug - uf)
+    c = (k2 - k1) / (ug - uc)
+    b = k1 - c * (uf + uc)
+    a = nd - ud * (b + ud * c)
+    return a, b, c
+
+
+def abbe_glass(nd: float, vd: float) -> AbbeGlass:
+    """Model glass from catalog nd and vd; ValueError for nd < 1, vd <= 0 or non-finite."""
+    return AbbeGlass(nd=nd, vd=vd)
+
+
+def abbe_number(medium: Medium) -> float:
+    """vd = (nd − 1)/(nF − nC) of ``medium`` evaluated from its n(λ)."""
+    nd, nf, nc = medium.n(np.array([LAMBDA_D_NM, LAMBDA_F_NM, LAMBDA_C_NM]))
+    return float((nd - 1.0) / (nf - nc))
+
+
+class UnknownGlassError(KeyError):
+    """Raised for a glass name that is not in the catalog; ``.name`` is the name asked for."""
+
+    def __init__(self, name: str, known: list[str]) -> None:
+        super().__init__(name)
+        self.name = name
+        self.known = list(known)
+
+    def __str__(self) -> str:
+        hint = ""
+        if _normalise(self.name) == "AIR":
+            hint = " (air is not a catalog glass; use lensfit.glass.AIR)"
+        return f"unknown glass {self.name!r}{hint}; known glasses: {', '.join(self.known)}"
+
+
+def catalog_path() -> pathlib.Path:
+    """Path of the catalog TOML ($LENSFIT_GLASS_CATALOG, else lensdb/glass/catalog.toml)."""
+    env = os.environ.get(_ENV_CATALOG)
+    if env:
+        return pathlib.Path(env)
+    return pathlib.Path(__file__).resolve().parents[3] / "lensdb" / "glass" / "catalog.toml"
+
+
+def _normalise(name: str) -> str:
+    """Lookup key: upper case, hyphens, underscores and blanks removed."""
+    return "".join(ch for ch in name.upper() if ch not in "-_ \t")
+
+
+def _triple(entry: dict[str, object], key: str) -> tuple[float, float, float]:
+    values = entry[key]
+    if not isinstance(values, list) or len(values) != 3:
+        raise ValueError(f"glass {entry.get('name')!r}: {key} must be a list of 3 numbers")
+    a, b, c = (float(v) for v in values)
+    return a, b, c
+
+
+@functools.cache
+def _load_catalog(path: pathlib.Path) -> dict[str, SellmeierGlass]:
+    """Parse the catalog once per path; keys are normalised names."""
+    with path.open("rb") as fh:
+        data = tomllib.load(fh)
+    glasses: dict[str, SellmeierGlass] = {}
+    for entry in data.get("glass", []):
+        lo, hi = (float(v) for v in entry["range_nm"])
+        glass = SellmeierGlass(
+            name=str(entry["name"]),
+            maker=str(entry["maker"]),
+            B=_triple(entry, "B"),
+            C=_triple(entry, "C"),
+            nd=float(entry["nd"]),
+            vd=float(entry["vd"]),
+            range_nm=(lo, hi),
+            source=str(entry["source"]),
+        )
+        key = _normalise(glass.name)
+        if key in glasses:
+            raise ValueError(
+                f"{path}: glass names {glasses[key].name!r} and "
+                f"{glass.name!r} collide after normalisation"
+            )
+        glasses[key] = glass
+    return glasses
+
+
+def known_glass_names() -> list[str]:
+    """Catalog glass names, as spelled in the catalog, in catalog order."""
+    return [g.name for g in _load_catalog(catalog_path()).values()]
+
+
+def catalog_glass(name: str) -> SellmeierGlass:
+    """Look up a catalog glass, case-insensitively and ignoring hyphens ("slah59").
+
+    Raises UnknownGlassError for names not in the catalog (never falls back to air).
+    """
+    glasses = _load_catalog(catalog_path())
+    try:
+        return glasses[_normalise(name)]
+    except KeyError:
+        raise UnknownGlassError(name, [g.name for g in glasses.values()]) from None

@@ -1,0 +1,252 @@
+"""Import lens tables in the JSON layout of the lentil lens database.
+
+That layout (see ``../shared/lensdata/README.md``) lists elements from scene to sensor
+with ``radius`` (0 or a huge value for a flat), ``thickness`` (a list for zoom
+positions: the first is taken), ``material`` (a glass name, ``abbe`` for nd/vd only,
+``air``, ``iris`` for the stop), ``ior`` and ``abbe`` (nd, vd), ``housing-radius``
+(a radius) and ``lens-geometry`` (``spherical``, ``aspherical``, ``cyl-x``, ``cyl-y``).
+
+Choices made by the importer, each written into the lens's notes:
+
+* A named glass uses its catalog Sellmeier data when the catalog (also tried with the
+  Schott ``N-`` prefix) has it with nd within ``GLASS_ND_MATCH`` of the table's value;
+  otherwise the table's nd/vd are kept and the name becomes a ``glass_label``. Patents
+  give nd and vd, so that is the number to stay faithful to.
+* ``cyl-x`` becomes ``cylinder-x`` (cylinder axis along x, power in y) and ``cyl-y``
+  becomes ``cylinder-y``, following the axis naming of lentil's cylinder intersection.
+* Aspheres get conic 0 (the layout has no conic) and A4..A10 from
+  ``aspherical-equation``.
+* A housing radius larger than |radius| is reduced to 99.9% of |radius| (a
+  hemisphere is the most a spherical surface can be).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+import re
+from pathlib import Path
+from typing import Any
+
+from lensfit.errors import LensError
+from lensfit.glass import UnknownGlassError, catalog_glass
+
+# Catalog melts vary by about 1e-3 in nd; a larger gap means a different glass.
+GLASS_ND_MATCH = 1e-3
+FLAT_RADIUS = 1e4  # |radius| at or above this (lentil writes 99999) is a flat
+COATED_FROM_YEAR = 1940  # single-layer MgF2 became common in the 1940s
+
+
+def load_lentil_json(path: str | Path) -> dict[str, Any]:
+    p = Path(path)
+    try:
+        data = json.loads(p.read_text(encoding="utf-8"))
+    except (OSError, json.JSONDecodeError) as e:
+        raise LensError(f"cannot read lentil JSON: {e}", file=str(p)) from None
+    if not isinstance(data, dict):
+        raise LensError("expected an object of lens entries keyed by id", file=str(p))
+    return data
+
+
+def _glass(name: str, nd: float | None, vd: float | None) -> tuple[dict[str, Any], str | None]:
+    """Material keys for a named glass, and a note when the name was not used."""
+    candidates = [name, "N-" + name]
+    for cand in candidates:
+        try:
+            g = catalog_glass(cand)
+        except UnknownGlassError:
+            continue
+        if nd is None or abs(g.nd - nd) <= GLASS_ND_MATCH:
+            return {"material": g.name}, None
+    if nd is None or vd is None:
+        raise ValueError(f"glass {name!r} is not in the catalog and has no nd/vd")
+    note = f"{name}: table nd {nd} vd {vd} kept (no catalog glass within {GLASS_ND_MATCH} in nd)"
+    return {"nd": nd, "vd": vd, "glass_label": name}, note
+
+
+def convert_entry(
+    lens_id: str, entry: dict[str, Any], *, source: str, scale: float = 1.0
+) -> dict[str, Any]:
+    """One lentil entry as plain data in the lensdb TOML layout."""
+    elements = entry.get("optical-elements-patent") or entry.get("optical-elements-adjusted")
+    if not elements:
+        raise LensError("entry has no optical elements", file=source, key=f"{lens_id}")
+    notes: list[str] = []
+    surfaces: list[dict[str, Any]] = []
+    for i, e in enumerate(elements):
+        s: dict[str, Any] = {}
+        mat = str(e.get("material", "")).strip()
+        radius = float(e.get("radius") or 0.0)
+        geometry = e.get("lens-geometry", "spherical")
+        flat = radius == 0.0 or abs(radius) >= FLAT_RADIUS or mat.lower() == "iris"
+        if flat:
+            s["shape"] = "plane"
+        elif geometry == "aspherical":
+            s["shape"] = "asphere"
+        elif geometry in ("cyl-x", "cyl-y"):
+            s["shape"] = "cylinder-" + geometry[-1]
+        elif geometry == "spherical":
+            s["shape"] = "sphere"
+        else:
+            raise LensError(
+                f"unknown lens-geometry {geometry!r}", file=source, surface=i, key="lens-geometry"
+            )
+        if not flat:
+            s["radius"] = radius
+        thickness = e.get("thickness")
+        if isinstance(thickness, list):
+            notes.append(f"surface {i}: zoom thicknesses {thickness}, first one used")
+            thickness = thickness[0]
+        s["thickness"] = float(thickness)
+        if mat.lower() in ("air", "iris"):
+            s["material"] = "air"
+        elif mat.lower() == "abbe":
+            s["nd"], s["vd"] = float(e["ior"]), float(e["abbe"])
+        else:
+            keys, note = _glass(mat, e.get("ior"), e.get("abbe"))
+            s.update(keys)
+            if note:
+                notes.append(f"surface {i}: {note}")
+        sd = float(e["housing-radius"])
+        if not flat and sd >= abs(radius):
+            notes.append(f"surface {i}: housing radius {sd} reduced to 0.999*|radius|")
+            sd = 0.999 * abs(radius)
+        s["semi_diameter"] = sd
+        if s["shape"] == "asphere":
+            s["conic"] = 0.0
+            s["aspheric"] = [float(a) for a in (e.get("aspherical-equation") or [])]
+        if mat.lower() == "iris":
+            s["stop"] = True
+        surfaces.append(s)
+
+    if not any(s.get("stop") for s in surfaces):
+        _add_front_stop(surfaces, notes, source)
+    _separate_crossing(surfaces, notes, source)
+
+    year = int(entry.get("year") or 0)
+    company = str(entry.get("company") or "unknown")
+    product = str(entry.get("product-name") or "lens")
+    info: dict[str, Any] = {
+        "id": lens_id,
+        "name": f"{company.title()} {product.replace('-', ' ')} ({year})",
+        "maker": company,
+        "year": year,
+        "source": f"lentil lens database entry {lens_id} (zpelgrims/lentil, MIT)",
+    }
+    if entry.get("patent-number"):
+        info["patent"] = str(entry["patent-number"])
+    if entry.get("focal-length-mm-patent"):
+        info["focal_length_mm"] = float(entry["focal-length-mm-patent"])
+    if scale != 1.0:
+        info["scale"] = scale
+    text = " ".join(str(entry.get(k) or "") for k in ("notes",)).strip()
+    info["notes"] = " ".join([text, *[n + "." for n in notes]]).strip()
+    coated = year >= COATED_FROM_YEAR
+    return {
+        "schema_version": 1,
+        "lens": info,
+        "coating": {"default": "mgf2" if coated else "none", "design_wavelength_nm": 550.0},
+        "surface": surfaces,
+    }
+
+
+def _add_front_stop(surfaces: list[dict[str, Any]], notes: list[str], source: str) -> None:
+    """A table without an iris (an attachment) gets a stop plane just in front of its
+    first surface, as wide as that surface, so that it can be traced on its own."""
+    from lensfit.prescription.load import _surface
+
+    first = _surface(surfaces[0], 0, source, 1.0)
+    sd = first.semi_diameter_mm
+    h = [sd * j / 64 for j in range(65)]
+    lowest = min(min(float(first.sag(x, 0.0)), float(first.sag(0.0, x))) for x in h)
+    gap = round(max(0.0, -lowest) + 0.001, 3)
+    surfaces.insert(
+        0,
+        {"shape": "plane", "thickness": gap, "material": "air", "semi_diameter": sd, "stop": True},
+    )
+    notes.append(
+        f"the table has no iris: a stop plane of radius {sd} was added {gap} mm in front of "
+        "the first surface (later surface numbers in these notes count it)"
+    )
+
+
+def _separate_crossing(surfaces: list[dict[str, Any]], notes: list[str], source: str) -> None:
+    """Housing radii in the source are estimates; where two neighbouring surfaces
+    would cross inside them, shrink both to 98% of the height where they first meet."""
+    from lensfit.prescription.load import CROSSING_TOLERANCE_MM, _surface, first_crossing
+
+    for _ in range(4 * len(surfaces)):
+        built = [_surface(s, i, source, 1.0) for i, s in enumerate(surfaces)]
+        changed = False
+        for i in range(len(built) - 1):
+            gap, _h = first_crossing(built[i], built[i + 1])
+            if gap >= -CROSSING_TOLERANCE_MM:
+                continue
+            # Find the height where the gap first closes, by bisection on [0, h_common]
+            lo, hi = 0.0, min(built[i].semi_diameter_mm, built[i + 1].semi_diameter_mm)
+            for _ in range(60):
+                mid = 0.5 * (lo + hi)
+                trial = [dataclasses.replace(b, semi_diameter_mm=mid) for b in built[i : i + 2]]
+                if first_crossing(*trial)[0] < -CROSSING_TOLERANCE_MM:
+                    hi = mid
+                else:
+                    lo = mid
+            new_sd = round(0.98 * lo, 3)
+            for j in (i, i + 1):
+                if surfaces[j]["semi_diameter"] > new_sd:
+                    notes.append(
+                        f"surface {j}: housing radius {surfaces[j]['semi_diameter']} reduced to "
+                        f"{new_sd} so that surfaces {i} and {i + 1} do not cross"
+                    )
+                    surfaces[j]["semi_diameter"] = new_sd
+            changed = True
+            break
+        if not changed:
+            return
+
+
+def slug(data: dict[str, Any]) -> str:
+    info = data["lens"]
+    words = f"{info['id']} {info['name'].split('(')[0]}"
+    s = re.sub(r"[^a-z0-9]+", "-", words.lower()).strip("-")
+    return re.sub(r"-+", "-", s)
+
+
+def _toml_value(v: Any) -> str:
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, int):
+        return str(v)
+    if isinstance(v, float):
+        if not math.isfinite(v):
+            raise ValueError(f"cannot write {v} to TOML")
+        return repr(v)
+    if isinstance(v, str):
+        return json.dumps(v, ensure_ascii=False)
+    if isinstance(v, list):
+        return "[" + ", ".join(_toml_value(x) for x in v) + "]"
+    if isinstance(v, dict):
+        return "{ " + ", ".join(f"{k} = {_toml_value(x)}" for k, x in v.items()) + " }"
+    raise TypeError(f"cannot write {type(v).__name__} to TOML")
+
+
+
+def to_toml(data: dict[str, Any]) -> str:
+    """Write lensdb data as TOML (deterministic: same data, same bytes)."""
+    lines = [
+        "# Lens prescription for lensfit; format: lensdb/README.md.",
+        "# Lengths in mm, wavelengths in nm; surfaces from the scene to the sensor.",
+        f"schema_version = {data['schema_version']}",
+        "",
+    ]
+    for table in ("lens", "coating"):
+        if table in data:
+            lines.append(f"[{table}]")
+            lines += [f"{k} = {_toml_value(v)}" for k, v in data[table].items()]
+            lines.append("")
+    for i, s in enumerate(data["surface"]):
+        lines.append(f"[[surface]]  # {i}")
+        lines += [f"{k} = {_toml_value(v)}" for k, v in s.items()]
+        lines.append("")
+    return "\n".join(lines)

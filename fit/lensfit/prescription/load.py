@@ -1,0 +1,415 @@
+"""Load and validate lens prescriptions (TOML, see lensdb/README.md).
+
+Validation runs in three steps, each error naming file, surface index and key:
+
+1. TOML syntax (line and column from the parser);
+2. structure against ``lensdb/schema.json`` (types, required and unknown keys);
+3. meaning: finite numbers, positive sizes, one stop, known glasses, surfaces that
+   do not cross, a sensor behind the last surface.
+"""
+
+from __future__ import annotations
+
+import copy
+import functools
+import json
+import math
+import os
+import tomllib
+from pathlib import Path
+from typing import Any
+
+import jsonschema
+import numpy as np
+
+from lensfit.errors import LensError
+from lensfit.glass import AIR, Medium, UnknownGlassError, abbe_glass, catalog_glass
+from lensfit.prescription.model import BARE, Coating, Layer, Lens, Surface
+
+# Surfaces may touch (cemented doublets) but not overlap: 1 nm of slack for rounding.
+CROSSING_TOLERANCE_MM = 1e-6
+
+
+def repo_root() -> Path:
+    return Path(__file__).resolve().parents[3]
+
+
+def lensdb_dir() -> Path:
+    """The lens database folder (override with LENSFIT_LENSDB)."""
+    return Path(os.environ.get("LENSFIT_LENSDB", repo_root() / "lensdb"))
+
+
+@functools.cache
+def _schema() -> dict[str, Any]:
+    with open(lensdb_dir() / "schema.json", encoding="utf-8") as f:
+        return json.load(f)
+
+
+def find_lens_file(name: str) -> Path:
+    """Resolve a lens name: a path to a TOML file, an id ('0001') or a file stem."""
+    p = Path(name)
+    if p.suffix == ".toml" and p.exists():
+        return p
+    db = lensdb_dir()
+    candidates = sorted(db.glob("*.toml"))
+    for c in candidates:
+        if c.stem == name or c.stem.split("-", 1)[0] == name:
+            return c
+    known = ", ".join(c.stem for c in candidates)
+    raise LensError(f"unknown lens '{name}' (not a .toml file and not in {db}; known: {known})")
+
+
+def list_lenses() -> list[Path]:
+    return sorted(lensdb_dir().glob("*.toml"))
+
+
+def load_lens(name: str | os.PathLike[str]) -> Lens:
+    """Load, validate and resolve a prescription from a file path or a lensdb name."""
+    path = find_lens_file(os.fspath(name))
+    label = os.path.relpath(path) if not os.path.isabs(os.fspath(name)) else os.fspath(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as e:
+        raise LensError(f"cannot read: {e}", file=label) from None
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as e:
+        raise LensError(f"malformed TOML: {e}", file=label) from None
+    return lens_from_dict(data, file=label)
+
+
+def _schema_error(err: jsonschema.ValidationError, file: str) -> LensError:
+    """Turn a JSON-schema error into a message with surface index and key."""
+    path = list(err.absolute_path)
+    surface = None
+    key = None
+    if len(path) >= 2 and path[0] == "surface" and isinstance(path[1], int):
+        surface = path[1]
+        rest = path[2:]
+    else:
+        rest = path
+    if rest:
+        key = ".".join(str(p) for p in rest)
+    if err.validator == "required":
+        missing = [r for r in err.validator_value if r not in err.instance]
+        where = key + "." if key else ""
+        return LensError(f"missing key '{where}{missing[0]}'", file=file, surface=surface)
+    if err.validator == "additionalProperties":
+        allowed = set(err.schema.get("properties", {}))
+        extra = sorted(k for k in err.instance if k not in allowed)
+        return LensError(
+            f"unknown key '{extra[0]}' (allowed: {', '.join(sorted(allowed))})",
+            file=file,
+            surface=surface,
+            key=key,
+        )
+    if err.validator == "type":
+        return LensError(
+            f"expected {err.validator_value}, found {err.instance!r}",
+            file=file,
+            surface=surface,
+            key=key,
+        )
+    if err.validator in ("enum", "const"):
+        allowed = err.validator_value
+        return LensError(
+            f"expected one of {allowed!r}, found {err.instance!r}",
+            file=file,
+            surface=surface,
+            key=key,
+        )
+    return LensError(err.message, file=file, surface=surface, key=key)
+
+
+def _walk_numbers(obj: Any, path: list[Any]):
+    if isinstance(obj, dict):
+        for k, v in obj.items():
+            yield from _walk_numbers(v, [*path, k])
+    elif isinstance(obj, list):
+        for i, v in enumerate(obj):
+            yield from _walk_numbers(v, [*path, i])
+    elif isinstance(obj, float):
+        yield path, obj
+
+
+def lens_from_dict(data: dict[str, Any], *, file: str = "<memory>") -> Lens:
+    """Validate plain data in the TOML layout and build a ``Lens`` (the inverse of
+    ``Lens.to_dict``)."""
+    # Step 1: every number finite (TOML allows nan and inf)
+    for path, value in _walk_numbers(data, []):
+        if not math.isfinite(value):
+            surface = path[1] if len(path) > 1 and path[0] == "surface" else None
+            rest = path[2:] if surface is not None else path
+            raise LensError(
+                f"expected a finite number, found {value}",
+                file=file,
+                surface=surface,
+                key=".".join(str(p) for p in rest),
+            )
+
+    # Step 2: structure against the schema; report the error deepest in the tree first
+    validator = jsonschema.Draft202012Validator(_schema())
+    errors = sorted(validator.iter_errors(data), key=lambda e: (-len(e.absolute_path), str(e.path)))
+    if errors:
+        raise _schema_error(errors[0], file)
+
+    info = data["lens"]
+    scale = float(info.get("scale", 1.0))
+    if scale <= 0:
+        raise LensError(f"expected a positive number, found {scale}", file=file, key="lens.scale")
+    coat = data.get("coating", {})
+    design_nm = float(coat.get("design_wavelength_nm", 550.0))
+    if not 200.0 <= design_nm <= 2000.0:
+        raise LensError(
+            f"expected a wavelength in nm between 200 and 2000, found {design_nm}",
+            file=file,
+            key="coating.design_wavelength_nm",
+        )
+    default_coating = coat.get("default", "mgf2")
+
+    # Step 3: each surface, in order
+    raw_surfaces = data["surface"]
+    surfaces: list[Surface] = []
+    for i, s in enumerate(raw_surfaces):
+        surfaces.append(_surface(s, i, file, scale))
+
+    # The medium in front of each surface is what decides which get the default coating
+    coated: list[Surface] = []
+    for i, s in enumerate(surfaces):
+        before = AIR if i == 0 else surfaces[i - 1].medium
+        spec = raw_surfaces[i].get("coating", "default")
+        coating = _coating(spec, before, s.medium, default_coating, design_nm, file, i)
+        coated.append(_replace(s, coating=coating))
+    surfaces = coated
+
+    stops = [i for i, s in enumerate(surfaces) if s.stop]
+    if not stops:
+        raise LensError(
+            "no aperture stop: mark exactly one surface with 'stop = true'", file=file, key="stop"
+        )
+    if len(stops) > 1:
+        raise LensError(
+            f"more than one aperture stop (surfaces {stops}); mark exactly one",
+            file=file,
+            surface=stops[1],
+            key="stop",
+        )
+    if surfaces[-1].medium is not AIR and surfaces[-1].medium.name != "air":
+        raise LensError(
+            "the last surface must be followed by air (the sensor is in air)",
+            file=file,
+            surface=len(surfaces) - 1,
+            key="material",
+        )
+    if surfaces[-1].thickness_mm <= 0:
+        raise LensError(
+            f"expected a positive distance to the sensor, found {surfaces[-1].thickness_mm}",
+            file=file,
+            surface=len(surfaces) - 1,
+            key="thickness",
+        )
+    _check_crossing(surfaces, file)
+
+    name = info["name"]
+    provenance = {k: v for k, v in info.items()}
+    return Lens(
+        name=name,
+        surfaces=tuple(surfaces),
+        provenance=provenance,
+        design_wavelength_nm=design_nm,
+        source_file=file,
+        raw=copy.deepcopy(data),
+    )
+
+
+def _replace(s: Surface, **kw: Any) -> Surface:
+    import dataclasses
+
+    return dataclasses.replace(s, **kw)
+
+
+def _surface(s: dict[str, Any], i: int, file: str, scale: float) -> Surface:
+    shape = s["shape"]
+
+    def err(msg: str, key: str) -> LensError:
+        return LensError(msg, file=file, surface=i, key=key)
+
+    # Geometry
+    if shape == "plane":
+        if "radius" in s and s["radius"] != 0:
+            raise err(f"a plane has no radius; found {s['radius']}", "radius")
+        radius = math.inf
+    else:
+        if "radius" not in s:
+            raise err(f"missing key (a {shape} needs a radius)", "radius")
+        radius = float(s["radius"])
+        if radius == 0:
+            raise err("expected a non-zero radius (use shape = 'plane' for a flat)", "radius")
+        radius *= scale
+    thickness = float(s["thickness"]) * scale
+    if thickness < 0:
+        raise err(
+            f"negative gap {thickness} mm: surfaces must follow each other along +z",
+            "thickness",
+        )
+    sd = float(s["semi_diameter"]) * scale
+    if sd <= 0:
+        raise err(f"expected a positive semi-diameter, found {sd}", "semi_diameter")
+    if shape in ("sphere", "cylinder-x", "cylinder-y") and sd > abs(radius):
+        raise err(
+            f"semi-diameter {sd} mm is larger than |radius| {abs(radius)} mm",
+            "semi_diameter",
+        )
+    conic = float(s.get("conic", 0.0))
+    aspheric = tuple(float(a) * scale ** (-(2 * j + 3)) for j, a in enumerate(s.get("aspheric", [])))
+    if shape != "asphere" and ("conic" in s or "aspheric" in s):
+        key = "conic" if "conic" in s else "aspheric"
+        raise err(f"only an asphere has '{key}' (shape is {shape!r})", key)
+
+    # Medium behind the surface
+    medium, spec = _medium(s, i, file)
+    stop = bool(s.get("stop", False))
+    if stop and medium.name != "air":
+        raise err("the aperture stop must be in air", "stop")
+    surf = Surface(
+        shape=shape,
+        radius_mm=radius,
+        thickness_mm=thickness,
+        medium=medium,
+        semi_diameter_mm=sd,
+        conic=conic,
+        aspheric=aspheric,
+        stop=stop,
+        material_spec=spec,
+    )
+    edge = surf.sag(sd, 0.0) if shape != "cylinder-x" else surf.sag(0.0, sd)
+    if not np.isfinite(edge):
+        raise err(
+            f"semi-diameter {sd} mm is beyond the edge of this conic/asphere", "semi_diameter"
+        )
+    return surf
+
+
+def _medium(s: dict[str, Any], i: int, file: str) -> tuple[Medium, dict[str, Any]]:
+    has_nd = "nd" in s or "vd" in s
+    if "material" in s and has_nd:
+        raise LensError(
+            "give either 'material' or 'nd' and 'vd', not both", file=file, surface=i, key="nd"
+        )
+    if has_nd:
+        for k in ("nd", "vd"):
+            if k not in s:
+                raise LensError("missing key ('nd' and 'vd' go together)", file=file, surface=i, key=k)
+        nd, vd = float(s["nd"]), float(s["vd"])
+        if not 1.0 <= nd <= 3.0:
+            raise LensError(f"expected 1 <= nd <= 3, found {nd}", file=file, surface=i, key="nd")
+        if not 5.0 <= vd <= 150.0:
+            raise LensError(f"expected 5 <= vd <= 150, found {vd}", file=file, surface=i, key="vd")
+        spec = {"nd": nd, "vd": vd}
+        if "glass_label" in s:
+            spec["glass_label"] = s["glass_label"]
+        return abbe_glass(nd, vd), spec
+    name = s.get("material")
+    if name is None:
+        raise LensError(
+            "missing key (give 'material' or 'nd' and 'vd')", file=file, surface=i, key="material"
+        )
+    if name.lower() == "air":
+        return AIR, {"material": "air"}
+    try:
+        return catalog_glass(name), {"material": name}
+    except UnknownGlassError as e:
+        raise LensError(str(e).strip('"'), file=file, surface=i, key="material") from None
+
+
+def _coating(
+    spec: Any,
+    before: Medium,
+    after: Medium,
+    default: str,
+    design_nm: float,
+    file: str,
+    i: int,
+) -> Coating:
+    glass_air = (before.name == "air") != (after.name == "air")
+    if spec == "default":
+        spec = default if glass_air else "none"
+    if spec == "none":
+        return BARE
+    if spec == "mgf2":
+        spec = {"layers": [{"material": "MgF2", "quarter_wave_nm": design_nm}]}
+        label = f"MgF2 quarter wave at {design_nm:g} nm"
+    else:
+        label = "custom stack"
+    layers = []
+    for j, layer in enumerate(spec["layers"]):
+        key = f"coating.layers.{j}"
+        if ("material" in layer) == ("n" in layer):
+            raise LensError("give exactly one of 'material' or 'n'", file=file, surface=i, key=key)
+        if "material" in layer:
+            try:
+                medium: Medium = catalog_glass(layer["material"])
+            except UnknownGlassError as e:
+                raise LensError(str(e).strip('"'), file=file, surface=i, key=key + ".material") from None
+        else:
+            n = float(layer["n"])
+            if n < 1.0:
+                raise LensError(f"expected n >= 1, found {n}", file=file, surface=i, key=key + ".n")
+            medium = ConstantMedium(n)
+        if ("thickness_nm" in layer) == ("quarter_wave_nm" in layer):
+            raise LensError(
+                "give exactly one of 'thickness_nm' or 'quarter_wave_nm'",
+                file=file,
+                surface=i,
+                key=key,
+            )
+        if "thickness_nm" in layer:
+            t = float(layer["thickness_nm"])
+        else:
+            lam = float(layer["quarter_wave_nm"])
+            t = lam / (4.0 * float(medium.n(lam)))
+        if not 0 < t < 1e5:
+            raise LensError(
+                f"expected a thickness in (0, 1e5) nm, found {t}", file=file, surface=i, key=key
+            )
+        layers.append(Layer(medium, t))
+    return Coating(tuple(layers), label)
+
+
+class ConstantMedium:
+    """A non-dispersive medium (thin-film layers given by a single index)."""
+
+    def __init__(self, n: float) -> None:
+        self.index = float(n)
+        self.name = f"n={n:g}"
+
+    def n(self, wavelength_nm: np.ndarray | float) -> np.ndarray:
+        return np.full(np.shape(wavelength_nm), self.index, dtype=np.float64)
+
+
+def first_crossing(a: Surface, b: Surface) -> tuple[float, float]:
+    """Smallest axial gap between surface ``a`` and the next surface ``b`` within their
+    common clear aperture, and the height where it occurs (mm)."""
+    h = np.linspace(0.0, min(a.semi_diameter_mm, b.semi_diameter_mm), 257)
+    worst, where = np.inf, 0.0
+    for x, y in ((h, 0 * h), (0 * h, h)):
+        g = a.thickness_mm + b.sag(x, y) - a.sag(x, y)
+        j = int(np.argmin(g))
+        if g[j] < worst:
+            worst, where = float(g[j]), float(h[j])
+    return worst, where
+
+
+def _check_crossing(surfaces: list[Surface], file: str) -> None:
+    """Neighbouring surfaces must not cross inside their clear aperture."""
+    for i in range(len(surfaces) - 1):
+        gap, h = first_crossing(surfaces[i], surfaces[i + 1])
+        if gap < -CROSSING_TOLERANCE_MM:
+            raise LensError(
+                f"surfaces {i} and {i + 1} cross inside their clear aperture "
+                f"(gap {gap:.4g} mm at height {h:.4g} mm); check radius, thickness "
+                "and semi_diameter",
+                file=file,
+                surface=i,
+                key="thickness",
+            )

@@ -1,0 +1,160 @@
+"""The lens prescription: surfaces from scene to sensor, resolved media and coatings.
+
+Units: millimetres for every length, nanometres for wavelengths. The optical axis is
++z, light from the scene travels towards +z, the vertex of surface 0 is at z = 0 and
+the sensor is a plane at ``Lens.sensor_z`` (the last surface's thickness behind it).
+
+A ``Surface`` owns the medium that *follows* it (towards the sensor), as in a patent
+table: the medium before surface 0 is air.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from lensfit.glass import AIR, Medium
+
+SHAPES = ("sphere", "asphere", "cylinder-x", "cylinder-y", "plane")
+"""Surface shapes. ``cylinder-x`` has its cylinder axis along x: it is straight along x
+and curved in the y-z plane, so it has power in y only. ``cylinder-y`` is the same turned
+by 90 degrees (power in x only)."""
+
+
+@dataclass(frozen=True)
+class Layer:
+    """One thin homogeneous film of a coating stack."""
+
+    medium: Medium
+    thickness_nm: float
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"material": self.medium.name, "thickness_nm": self.thickness_nm}
+
+
+@dataclass(frozen=True)
+class Coating:
+    """A thin-film stack on a surface, listed from the scene side. Empty means bare."""
+
+    layers: tuple[Layer, ...] = ()
+    label: str = "none"
+
+    @property
+    def bare(self) -> bool:
+        return not self.layers
+
+
+BARE = Coating()
+
+
+@dataclass(frozen=True)
+class Surface:
+    """One refracting surface and the medium behind it."""
+
+    shape: str
+    radius_mm: float  # signed vertex radius of curvature; inf for a plane
+    thickness_mm: float  # axial distance to the next vertex (or to the sensor)
+    medium: Medium  # medium behind the surface
+    semi_diameter_mm: float  # clear radius of the housing at this surface
+    conic: float = 0.0  # conic constant k (asphere only)
+    aspheric: tuple[float, ...] = ()  # even coefficients A4, A6, ... in mm^(1-2j)
+    stop: bool = False
+    coating: Coating = BARE
+    material_spec: dict[str, Any] = field(default_factory=dict, compare=False)
+
+    @property
+    def curvature(self) -> float:
+        """Vertex curvature c = 1/R in 1/mm (0 for a plane)."""
+        if self.shape == "plane" or not math.isfinite(self.radius_mm):
+            return 0.0
+        return 1.0 / self.radius_mm
+
+    @property
+    def curvature_xy(self) -> tuple[float, float]:
+        """Paraxial curvature in the x-z and in the y-z meridian (1/mm)."""
+        c = self.curvature
+        if self.shape == "cylinder-x":
+            return 0.0, c
+        if self.shape == "cylinder-y":
+            return c, 0.0
+        return c, c
+
+    def sag(self, x: np.ndarray | float, y: np.ndarray | float) -> np.ndarray:
+        """Surface height z(x, y) relative to the vertex, in mm (NaN outside the conic)."""
+        x = np.asarray(x, dtype=np.float64)
+        y = np.asarray(y, dtype=np.float64)
+        c = self.curvature
+        if self.shape == "cylinder-x":
+            r2 = y * y
+        elif self.shape == "cylinder-y":
+            r2 = x * x
+        else:
+            r2 = x * x + y * y
+        k = self.conic if self.shape == "asphere" else 0.0
+        with np.errstate(invalid="ignore"):
+            z = c * r2 / (1.0 + np.sqrt(1.0 - (1.0 + k) * c * c * r2))
+        for j, a in enumerate(self.aspheric):
+            z = z + a * r2 ** (j + 2)
+        return z
+
+    def to_dict(self) -> dict[str, Any]:
+        d: dict[str, Any] = {"shape": self.shape}
+        if self.shape != "plane":
+            d["radius"] = self.radius_mm
+        d["thickness"] = self.thickness_mm
+        d.update(self.material_spec)
+        d["semi_diameter"] = self.semi_diameter_mm
+        if self.shape == "asphere":
+            d["conic"] = self.conic
+            d["aspheric"] = list(self.aspheric)
+        if self.stop:
+            d["stop"] = True
+        return d
+
+
+@dataclass(frozen=True)
+class Lens:
+    """A validated prescription. Build one with ``lensfit.prescription.load_lens``."""
+
+    name: str
+    surfaces: tuple[Surface, ...]
+    provenance: dict[str, Any]
+    design_wavelength_nm: float = 550.0
+    source_file: str = "<memory>"
+    raw: dict[str, Any] = field(default_factory=dict, compare=False, repr=False)
+
+    @property
+    def stop_index(self) -> int:
+        return next(i for i, s in enumerate(self.surfaces) if s.stop)
+
+    @property
+    def stop_radius_max_mm(self) -> float:
+        """The widest stop radius the housing allows."""
+        return self.surfaces[self.stop_index].semi_diameter_mm
+
+    @property
+    def vertex_z(self) -> np.ndarray:
+        """z of each surface vertex (mm); surface 0 at 0."""
+        t = np.array([s.thickness_mm for s in self.surfaces], dtype=np.float64)
+        return np.concatenate([[0.0], np.cumsum(t[:-1])])
+
+    @property
+    def sensor_z(self) -> float:
+        return float(sum(s.thickness_mm for s in self.surfaces))
+
+    @property
+    def anamorphic(self) -> bool:
+        return any(s.shape.startswith("cylinder") for s in self.surfaces)
+
+    def medium_before(self, k: int) -> Medium:
+        return AIR if k == 0 else self.surfaces[k - 1].medium
+
+    def medium_after(self, k: int) -> Medium:
+        return self.surfaces[k].medium
+
+    def to_dict(self) -> dict[str, Any]:
+        """The prescription as plain data (the TOML layout, see lensdb/README.md)."""
+        return self.raw

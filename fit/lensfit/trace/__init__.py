@@ -1,0 +1,1 @@
+"""Spectral float64 ray tracing: surfaces, refraction, Fresnel and coatings, paths."""

@@ -1,0 +1,228 @@
+"""Spectral float64 sequential ray tracer, vectorised over rays.
+
+A trace follows a *path*: an ordered list of steps, each naming a surface, the side
+the ray arrives from and whether it refracts or reflects there. The ordinary path runs
+through every surface from scene to sensor; the reverse path from sensor to scene; a
+ghost path reflects at two surfaces (``ghost_path``).
+
+Each ray carries a status. A ray that fails (misses a surface, is totally internally
+reflected, or is clipped by a housing or the stop) keeps the status and the index of
+the surface where it failed, stops moving, and never produces a NaN.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from enum import IntEnum
+
+import numpy as np
+
+from lensfit.prescription.model import Lens
+from lensfit.trace import fresnel, surfaces
+
+
+class Status(IntEnum):
+    OK = 0
+    MISSED = 1  # no intersection with the surface (or an asphere that did not converge)
+    TIR = 2  # total internal reflection where the path wants refraction
+    CLIPPED = 3  # outside the housing or the stop at ``Rays.surface``
+
+
+@dataclass(frozen=True)
+class Step:
+    surface: int
+    from_front: bool = True  # arriving from the scene side of the surface
+    reflect: bool = False
+
+
+@dataclass
+class Rays:
+    """A bundle of N rays. Positions in mm, unit directions, wavelengths in nm."""
+
+    pos: np.ndarray  # (N, 3)
+    dir: np.ndarray  # (N, 3), unit length
+    wavelength_nm: np.ndarray  # (N,)
+    opl_mm: np.ndarray = field(default=None)  # (N,) optical path length so far
+    transmittance: np.ndarray = field(default=None)  # (N,) power transmittance so far
+    status: np.ndarray = field(default=None)  # (N,) Status values (int8)
+    surface: np.ndarray = field(default=None)  # (N,) index where status was set, or -1
+
+    def __post_init__(self) -> None:
+        self.pos = np.array(self.pos, dtype=np.float64, copy=True).reshape(-1, 3)
+        n = len(self.pos)
+        d = np.array(self.dir, dtype=np.float64).reshape(-1, 3)
+        self.dir = d / np.linalg.norm(d, axis=1, keepdims=True)
+        self.wavelength_nm = np.broadcast_to(
+            np.asarray(self.wavelength_nm, dtype=np.float64), (n,)
+        ).copy()
+        if self.opl_mm is None:
+            self.opl_mm = np.zeros(n)
+        if self.transmittance is None:
+            self.transmittance = np.ones(n)
+        if self.status is None:
+            self.status = np.zeros(n, dtype=np.int8)
+        if self.surface is None:
+            self.surface = np.full(n, -1, dtype=np.int16)
+
+    def __len__(self) -> int:
+        return len(self.pos)
+
+    @property
+    def ok(self) -> np.ndarray:
+        return self.status == Status.OK
+
+    def copy(self) -> Rays:
+        return Rays(
+            self.pos.copy(),
+            self.dir.copy(),
+            self.wavelength_nm.copy(),
+            self.opl_mm.copy(),
+            self.transmittance.copy(),
+            self.status.copy(),
+            self.surface.copy(),
+        )
+
+
+def forward_path(lens: Lens) -> list[Step]:
+    """Scene to sensor through every surface."""
+    return [Step(k) for k in range(len(lens.surfaces))]
+
+
+def backward_path(lens: Lens) -> list[Step]:
+    """Sensor to scene through every surface."""
+    return [Step(k, from_front=False) for k in reversed(range(len(lens.surfaces)))]
+
+
+def ghost_path(lens: Lens, first: int, second: int) -> list[Step]:
+    """The two-bounce ghost: reflect at ``second`` going back, then at ``first``
+    (``first < second``) going forward again, then on to the sensor."""
+    n = len(lens.surfaces)
+    if not 0 <= first < second < n:
+        raise ValueError(f"ghost needs 0 <= first < second < {n}, got {first}, {second}")
+    path = [Step(k) for k in range(second)]
+    path.append(Step(second, reflect=True))
+    path += [Step(k, from_front=False) for k in range(second - 1, first, -1)]
+    path.append(Step(first, from_front=False, reflect=True))
+    path += [Step(k) for k in range(first + 1, n)]
+    return path
+
+
+def trace(
+    lens: Lens,
+    rays: Rays,
+    path: list[Step] | None = None,
+    *,
+    stop_radius_mm: float | None = None,
+    clip: bool = True,
+    fresnel_loss: bool = False,
+    end_z: float | None = None,
+) -> Rays:
+    """Trace ``rays`` along ``path`` (default: scene to sensor) and return new rays.
+
+    ``stop_radius_mm`` sets the stop opening (default: the widest the housing allows).
+    With ``clip`` every housing and the stop clip; without, only misses and total
+    internal reflection stop a ray. With ``fresnel_loss`` the power transmittance of each
+    interface (with its coating) multiplies ``Rays.transmittance``; a reflecting step
+    always multiplies by the reflectance. ``end_z`` propagates the survivors to the plane
+    z = end_z at the end (default: the sensor for the forward path).
+    """
+    if path is None:
+        path = forward_path(lens)
+        if end_z is None:
+            end_z = lens.sensor_z
+    out = rays.copy()
+    vz = lens.vertex_z
+    stop_r = lens.stop_radius_max_mm if stop_radius_mm is None else float(stop_radius_mm)
+    if not stop_r > 0:
+        raise ValueError(f"stop radius must be positive, got {stop_radius_mm}")
+
+    for step in path:
+        k = step.surface
+        surf = lens.surfaces[k]
+        alive = np.nonzero(out.status == Status.OK)[0]
+        if alive.size == 0:
+            break
+        lam = out.wavelength_nm[alive]
+        m_front, m_back = lens.medium_before(k), lens.medium_after(k)
+        n1 = (m_front if step.from_front else m_back).n(lam)
+        n2 = (m_back if step.from_front else m_front).n(lam)
+
+        # Compute t at the surface, in its local frame
+        q = out.pos[alive] - np.array([0.0, 0.0, vz[k]])
+        d = out.dir[alive]
+        t, hit = surfaces.intersect(surf, q, d)
+        _fail(out, alive[~hit], Status.MISSED, k)
+        sel = hit
+        idx, q, d, t, n1, n2, lam = alive[sel], q[sel], d[sel], t[sel], n1[sel], n2[sel], lam[sel]
+        p = q + t[:, None] * d
+
+        # Clip at the housing, and at the stop opening
+        if clip:
+            limit = stop_r if surf.stop else surf.semi_diameter_mm
+            inside = p[:, 0] ** 2 + p[:, 1] ** 2 <= limit * limit
+            _fail(out, idx[~inside], Status.CLIPPED, k)
+            idx, q, d, t, n1, n2, lam, p = (
+                a[inside] for a in (idx, q, d, t, n1, n2, lam, p)
+            )
+
+        # Move the ray and add the optical path in the medium it crossed
+        out.pos[idx] = p + np.array([0.0, 0.0, vz[k]])
+        out.opl_mm[idx] += n1 * t
+
+        # Refract or reflect, with the interface's power transmittance
+        nrm = surfaces.normal(surf, p)
+        cos_i = -np.einsum("ij,ij->i", d, nrm)
+        flip = cos_i < 0.0
+        nrm[flip] *= -1.0
+        cos_i = np.abs(cos_i)
+        layers = surf.coating.layers if step.from_front else surf.coating.layers[::-1]
+        need_rt = fresnel_loss or step.reflect
+        if need_rt:
+            if layers:
+                r, tr = fresnel.coated_reflectance(
+                    n1,
+                    n2,
+                    cos_i,
+                    [layer.medium.n(lam) for layer in layers],
+                    [layer.thickness_nm for layer in layers],
+                    lam,
+                )
+            else:
+                r = fresnel.fresnel_reflectance(n1, n2, cos_i)
+                tr = 1.0 - r
+        if step.reflect:
+            out.dir[idx] = fresnel.reflect_direction(d, nrm)
+            out.transmittance[idx] *= r
+            continue
+        eta = n1 / n2
+        k2 = 1.0 - eta * eta * (1.0 - cos_i * cos_i)
+        tir = k2 < 0.0
+        _fail(out, idx[tir], Status.TIR, k)
+        ok = ~tir
+        idx, d, nrm, cos_i, eta, k2 = idx[ok], d[ok], nrm[ok], cos_i[ok], eta[ok], k2[ok]
+        new_d = eta[:, None] * d + (eta * cos_i - np.sqrt(k2))[:, None] * nrm
+        out.dir[idx] = new_d / np.linalg.norm(new_d, axis=1, keepdims=True)
+        if fresnel_loss:
+            out.transmittance[idx] *= tr[ok]
+
+    if end_z is not None:
+        propagate_to_plane(out, end_z)
+    return out
+
+
+def propagate_to_plane(rays: Rays, z: float) -> None:
+    """Move the surviving rays to the plane at ``z`` in air (in place), adding the OPL."""
+    alive = np.nonzero(rays.status == Status.OK)[0]
+    dz = rays.dir[alive, 2]
+    ok = dz != 0.0
+    _fail(rays, alive[~ok], Status.MISSED, -1)
+    alive, dz = alive[ok], dz[ok]
+    t = (z - rays.pos[alive, 2]) / dz
+    rays.pos[alive] += t[:, None] * rays.dir[alive]
+    rays.pos[alive, 2] = z
+    rays.opl_mm[alive] += t
+
+
+def _fail(rays: Rays, idx: np.ndarray, status: Status, k: int) -> None:
+    rays.status[idx] = status
+    rays.surface[idx] = k
