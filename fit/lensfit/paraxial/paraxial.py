@@ -176,7 +176,7 @@ def image_distance(
     n_surf = len(lens.surfaces)
     (a, b), (c, d) = system_matrix(lens, 0, n_surf - 1, meridian, wavelength_nm)
     if math.isinf(object_distance_mm):
-        return -a / c
+        return -a / c if c != 0 else math.inf
     if not object_distance_mm > 0:
         raise ValueError(f"object distance must be positive, got {object_distance_mm}")
     # A ray from the axial object point with slope 1 reaches the first vertex at height L

@@ -65,6 +65,18 @@ def _glass(name: str, nd: float | None, vd: float | None) -> tuple[dict[str, Any
     return {"nd": nd, "vd": vd, "glass_label": name}, note
 
 
+def _number(value: Any, source: str, i: int, key: str, lens_id: str) -> float:
+    """A finite number from an element field, or a LensError naming file, element and key."""
+    if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
+        raise LensError(
+            f"entry {lens_id}: expected a finite number, found {value!r}",
+            file=source,
+            surface=i,
+            key=key,
+        )
+    return float(value)
+
+
 def convert_entry(
     lens_id: str, entry: dict[str, Any], *, source: str, scale: float = 1.0
 ) -> dict[str, Any]:
@@ -95,20 +107,26 @@ def convert_entry(
         if not flat:
             s["radius"] = radius
         thickness = e.get("thickness")
-        if isinstance(thickness, list):
+        if isinstance(thickness, list) and thickness:
             notes.append(f"surface {i}: zoom thicknesses {thickness}, first one used")
             thickness = thickness[0]
-        s["thickness"] = float(thickness)
+        s["thickness"] = _number(thickness, source, i, "thickness", lens_id)
         if mat.lower() in ("air", "iris"):
             s["material"] = "air"
         elif mat.lower() == "abbe":
-            s["nd"], s["vd"] = float(e["ior"]), float(e["abbe"])
+            s["nd"] = _number(e.get("ior"), source, i, "ior", lens_id)
+            s["vd"] = _number(e.get("abbe"), source, i, "abbe", lens_id)
         else:
-            keys, note = _glass(mat, e.get("ior"), e.get("abbe"))
+            try:
+                keys, note = _glass(mat, e.get("ior"), e.get("abbe"))
+            except ValueError as exc:
+                raise LensError(
+                    f"entry {lens_id}: {exc}", file=source, surface=i, key="material"
+                ) from None
             s.update(keys)
             if note:
                 notes.append(f"surface {i}: {note}")
-        sd = float(e["housing-radius"])
+        sd = _number(e.get("housing-radius"), source, i, "housing-radius", lens_id)
         if not flat and sd >= abs(radius):
             notes.append(f"surface {i}: housing radius {sd} reduced to 0.999*|radius|")
             sd = 0.999 * abs(radius)

@@ -16,6 +16,7 @@ import json
 import math
 import os
 import tomllib
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -55,6 +56,8 @@ def find_lens_file(name: str) -> Path:
     for c in candidates:
         if c.stem == name or c.stem.split("-", 1)[0] == name:
             return c
+    if p.suffix == ".toml":
+        raise LensError("cannot read: no such file", file=name)
     known = ", ".join(c.stem for c in candidates)
     raise LensError(f"unknown lens '{name}' (not a .toml file and not in {db}; known: {known})")
 
@@ -90,15 +93,39 @@ def _schema_error(err: jsonschema.ValidationError, file: str) -> LensError:
         rest = path
     if rest:
         key = ".".join(str(p) for p in rest)
+    where = key + "." if key else ""
     if err.validator == "required":
         missing = [r for r in err.validator_value if r not in err.instance]
-        where = key + "." if key else ""
-        return LensError(f"missing key '{where}{missing[0]}'", file=file, surface=surface)
+        return LensError("missing required key", file=file, surface=surface, key=where + missing[0])
     if err.validator == "additionalProperties":
         allowed = set(err.schema.get("properties", {}))
         extra = sorted(k for k in err.instance if k not in allowed)
         return LensError(
-            f"unknown key '{extra[0]}' (allowed: {', '.join(sorted(allowed))})",
+            f"unknown key (allowed: {', '.join(sorted(allowed))})",
+            file=file,
+            surface=surface,
+            key=where + extra[0],
+        )
+    if err.validator in ("oneOf", "anyOf") and err.context:
+        # A value that fits none of the alternatives: report the error inside the
+        # alternative it got furthest into, or else list what the alternatives accept.
+        depth = len(err.absolute_path)
+        deeper = [e for e in err.context if len(e.absolute_path) > depth]
+        if deeper:
+            return _schema_error(max(deeper, key=lambda e: len(e.absolute_path)), file)
+        inner = [e for e in err.context if e.validator not in ("enum", "type")]
+        if inner:
+            return _schema_error(inner[0], file)
+        values: list[str] = []
+        kinds: list[str] = []
+        for e in err.context:
+            if e.validator == "enum":
+                values += [repr(v) for v in e.validator_value]
+            elif e.validator == "type":
+                kinds.append("a table" if e.validator_value == "object" else str(e.validator_value))
+        accepted = " or ".join([", ".join(values), *kinds] if values else kinds)
+        return LensError(
+            f"expected {accepted}; found {err.instance!r}",
             file=file,
             surface=surface,
             key=key,
@@ -376,12 +403,19 @@ def _coating(
     return Coating(tuple(layers), label)
 
 
+@dataclass(frozen=True)
 class ConstantMedium:
-    """A non-dispersive medium (thin-film layers given by a single index)."""
+    """A non-dispersive medium (thin-film layers given by a single index).
 
-    def __init__(self, n: float) -> None:
-        self.index = float(n)
-        self.name = f"n={n:g}"
+    A frozen dataclass so that two loads of the same prescription compare equal."""
+
+    index: float
+    name: str = ""
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "index", float(self.index))
+        if not self.name:
+            object.__setattr__(self, "name", f"n={self.index:g}")
 
     def n(self, wavelength_nm: np.ndarray | float) -> np.ndarray:
         return np.full(np.shape(wavelength_nm), self.index, dtype=np.float64)

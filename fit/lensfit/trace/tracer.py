@@ -116,6 +116,7 @@ def trace(
     clip: bool = True,
     fresnel_loss: bool = False,
     end_z: float | None = None,
+    history: list[np.ndarray] | None = None,
 ) -> Rays:
     """Trace ``rays`` along ``path`` (default: scene to sensor) and return new rays.
 
@@ -124,7 +125,9 @@ def trace(
     internal reflection stop a ray. With ``fresnel_loss`` the power transmittance of each
     interface (with its coating) multiplies ``Rays.transmittance``; a reflecting step
     always multiplies by the reflectance. ``end_z`` propagates the survivors to the plane
-    z = end_z at the end (default: the sensor for the forward path).
+    z = end_z at the end (default: the sensor for the forward path). When ``history``
+    is a list, the positions of all rays after each step are appended to it (for
+    drawing; a failed ray keeps the position where it failed).
     """
     if path is None:
         path = forward_path(lens)
@@ -141,7 +144,9 @@ def trace(
         surf = lens.surfaces[k]
         alive = np.nonzero(out.status == Status.OK)[0]
         if alive.size == 0:
-            break
+            if history is not None:
+                history.append(out.pos.copy())
+            continue
         lam = out.wavelength_nm[alive]
         m_front, m_back = lens.medium_before(k), lens.medium_after(k)
         n1 = (m_front if step.from_front else m_back).n(lam)
@@ -161,6 +166,8 @@ def trace(
             limit = stop_r if surf.stop else surf.semi_diameter_mm
             inside = p[:, 0] ** 2 + p[:, 1] ** 2 <= limit * limit
             _fail(out, idx[~inside], Status.CLIPPED, k)
+            # A clipped ray stays where it met the (extended) surface
+            out.pos[idx[~inside]] = p[~inside] + np.array([0.0, 0.0, vz[k]])
             idx, q, d, t, n1, n2, lam, p = (
                 a[inside] for a in (idx, q, d, t, n1, n2, lam, p)
             )
@@ -193,6 +200,8 @@ def trace(
         if step.reflect:
             out.dir[idx] = fresnel.reflect_direction(d, nrm)
             out.transmittance[idx] *= r
+            if history is not None:
+                history.append(out.pos.copy())
             continue
         eta = n1 / n2
         k2 = 1.0 - eta * eta * (1.0 - cos_i * cos_i)
@@ -204,9 +213,13 @@ def trace(
         out.dir[idx] = new_d / np.linalg.norm(new_d, axis=1, keepdims=True)
         if fresnel_loss:
             out.transmittance[idx] *= tr[ok]
+        if history is not None:
+            history.append(out.pos.copy())
 
     if end_z is not None:
         propagate_to_plane(out, end_z)
+        if history is not None:
+            history.append(out.pos.copy())
     return out
 
 

@@ -1,0 +1,43 @@
+# The front door. `make demo` and `make test` do all set-up on a fresh Debian 12.
+#   make setup   Debian packages (only missing ones) and the .venv with pinned packages
+#   make demo    paraxial table and cross-section of the default lens (0001)
+#   make test    lint and the test suite
+#   make bench   ray-tracer throughput (build/bench/)
+
+PYTHON ?= /usr/bin/python3
+VENV   := .venv
+PY     := $(VENV)/bin/python
+STAMP  := $(VENV)/.installed
+DEMO_LENS ?= 0001
+
+.PHONY: setup demo test bench lint clean
+
+setup: $(STAMP)
+
+$(STAMP): fit/requirements.lock fit/pyproject.toml scripts/setup-system.sh
+	bash scripts/setup-system.sh
+	test -x $(PY) || $(PYTHON) -m venv $(VENV)
+	$(PY) -m pip install --quiet --disable-pip-version-check -r fit/requirements.lock
+	$(PY) -m pip install --quiet --disable-pip-version-check --no-deps -e fit
+	touch $@
+
+demo: setup
+	@mkdir -p build/demo
+	$(VENV)/bin/lensfit info $(DEMO_LENS)
+	$(VENV)/bin/lensfit info $(DEMO_LENS) --json > build/demo/$(DEMO_LENS).json
+	$(VENV)/bin/lensfit draw $(DEMO_LENS) -o build/demo/$(DEMO_LENS).png
+	$(VENV)/bin/lensfit draw $(DEMO_LENS) --f-number 8 --field 15 -o build/demo/$(DEMO_LENS)-f8.png
+	$(VENV)/bin/lensfit check
+
+lint: setup
+	$(VENV)/bin/ruff check --config fit/pyproject.toml fit tests
+
+test: setup lint
+	$(PY) -m pytest tests
+
+bench: setup
+	@mkdir -p build/bench
+	$(PY) -m lensfit.bench --out build/bench
+
+clean:
+	rm -rf build $(VENV)

@@ -1,0 +1,31 @@
+#!/usr/bin/env bash
+# Install the Debian packages the toolkit needs, only those that are missing.
+# Idempotent; uses sudo when not root. Debian 12 (bookworm) is the reference system.
+set -euo pipefail
+
+need=()
+have() { dpkg-query -W -f='${Status}' "$1" 2>/dev/null | grep -q "install ok installed"; }
+
+# python3 with venv and ensurepip (the virtualenv holds the pinned Python packages)
+for pkg in python3 python3-venv; do
+  have "$pkg" || need+=("$pkg")
+done
+# C toolchain and CMake for the runtime
+for pkg in build-essential cmake; do
+  have "$pkg" || need+=("$pkg")
+done
+
+if [ ${#need[@]} -eq 0 ]; then
+  exit 0
+fi
+if ! command -v apt-get >/dev/null 2>&1; then
+  echo "setup: missing packages ${need[*]} and no apt-get: install them by hand" >&2
+  exit 1
+fi
+SUDO=""
+if [ "$(id -u)" -ne 0 ]; then
+  SUDO="sudo"
+fi
+echo "setup: installing ${need[*]}" >&2
+$SUDO apt-get update -qq
+DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq --no-install-recommends "${need[@]}"
