@@ -44,21 +44,33 @@ def cmd_info(args: argparse.Namespace) -> int:
         print(json.dumps(t, indent=2))
         return 0
     ep, xp = t["entrance_pupil"], t["exit_pupil"]
-    print(f"{lens.name}  ({lens.source_file})")
-    print(f"  surfaces            {t['surfaces']} (stop at surface {t['stop_index']})")
-    print(f"  EFL                 {_fmt(t['efl_mm'], 'mm')}   (at {t['wavelength_nm']:.2f} nm)")
+    rows = [
+        ("surfaces", f"{t['surfaces']} (stop at surface {t['stop_index']})"),
+        ("EFL", f"{_fmt(t['efl_mm'], 'mm')}   (at {t['wavelength_nm']:.2f} nm)"),
+    ]
     if t["anamorphic"]:
         for m, d in t["meridians"].items():
-            print(f"    {m}-z meridian      EFL {_fmt(d['efl_mm'], 'mm')}  BFD {_fmt(d['bfd_mm'], 'mm')}")
-        print(f"    squeeze (EFLx/EFLy) {_fmt(t['anamorphic_squeeze'], '', 4)}")
-    print(f"  BFD                 {_fmt(t['bfd_mm'], 'mm')}")
-    print(f"  FFD                 {_fmt(t['ffd_mm'], 'mm')}")
-    print(f"  stop radius         {_fmt(t['stop_radius_mm'], 'mm')}  (widest {_fmt(t['stop_radius_max_mm'], 'mm')})")
-    print(f"  f-number            f/{_fmt(t['f_number'], '', 3)}")
-    print(f"  entrance pupil      z = {_fmt(ep['position_mm'], 'mm')}, radius {_fmt(ep['radius_mm'], 'mm')}")
-    print(f"  exit pupil          z = {_fmt(xp['position_mm'], 'mm')}, radius {_fmt(xp['radius_mm'], 'mm')}")
-    print(f"  total track         {_fmt(t['total_track_mm'], 'mm')} (first vertex to sensor)")
-    print(f"  sensor defocus      {_fmt(t['sensor_defocus_mm'], 'mm')} (sensor minus paraxial focus)")
+            efl, bfd = _fmt(d["efl_mm"], "mm"), _fmt(d["bfd_mm"], "mm")
+            rows.append((f"  {m}-z meridian", f"EFL {efl}  BFD {bfd}"))
+        rows.append(("  squeeze EFLy/EFLx", _fmt(t["anamorphic_squeeze"], "", 4)))
+    widest = _fmt(t["stop_radius_max_mm"], "mm")
+    rows += [
+        ("BFD", _fmt(t["bfd_mm"], "mm")),
+        ("FFD", _fmt(t["ffd_mm"], "mm")),
+        ("stop radius", f"{_fmt(t['stop_radius_mm'], 'mm')}  (widest {widest})"),
+        ("f-number", f"f/{_fmt(t['f_number'], '', 3)}"),
+        (
+            "entrance pupil",
+            f"z = {_fmt(ep['position_mm'], 'mm')}, r = {_fmt(ep['radius_mm'], 'mm')}",
+        ),
+        ("exit pupil", f"z = {_fmt(xp['position_mm'], 'mm')}, r = {_fmt(xp['radius_mm'], 'mm')}"),
+        ("total track", f"{_fmt(t['total_track_mm'], 'mm')} (first vertex to sensor)"),
+        ("sensor defocus", f"{_fmt(t['sensor_defocus_mm'], 'mm')} (sensor minus paraxial focus)"),
+    ]
+    print(f"{lens.name}  ({lens.source_file})")
+    print("  z is measured from the vertex of surface 0; light travels towards +z")
+    for label, value in rows:
+        print(f"  {label:20s}{value}")
     return 0
 
 

@@ -123,8 +123,13 @@ def _draw_section(ax, lens: Lens, axis: int, field_deg: float, n_rays: int, stop
             else:
                 last = int(out.surface[i]) + 1 if out.surface[i] >= 0 else len(path) - 1
                 pts = path[: last + 1, i]
-            ax.plot(pts[:, 2], pts[:, axis], color=color if ok else "tab:red",
-                    lw=0.6 if ok else 0.5, alpha=0.9 if ok else 0.7)
+            ax.plot(
+                pts[:, 2],
+                pts[:, axis],
+                color=color if ok else "tab:red",
+                lw=0.6 if ok else 0.5,
+                alpha=0.9 if ok else 0.7,
+            )
             if out.status[i] == Status.CLIPPED:
                 ax.plot(pts[-1, 2], pts[-1, axis], "x", color="tab:red", ms=4)
     # Frame the lens, not the far ends of the incoming rays

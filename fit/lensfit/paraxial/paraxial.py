@@ -78,7 +78,9 @@ class Paraxial:
 
     def to_dict(self) -> dict[str, Any]:
         d = asdict(self)
-        return {k: (None if isinstance(v, float) and not math.isfinite(v) else v) for k, v in d.items()}
+        return {
+            k: (None if isinstance(v, float) and not math.isfinite(v) else v) for k, v in d.items()
+        }
 
 
 def paraxial(
@@ -213,8 +215,10 @@ def table(lens: Lens, *, stop_radius_mm: float | None = None) -> dict[str, Any]:
         out["meridians"] = {
             m: paraxial(lens, meridian=m, stop_radius_mm=stop_radius_mm).to_dict() for m in "xy"
         }
+        # Squeeze: how much wider the x field is than the y field (EFL_y / EFL_x)
         ex = out["meridians"]["x"]["efl_mm"]
-        out["anamorphic_squeeze"] = (ex / py.efl_mm) if ex and math.isfinite(py.efl_mm) else None
+        ok = ex not in (None, 0.0) and math.isfinite(py.efl_mm)
+        out["anamorphic_squeeze"] = py.efl_mm / ex if ok else None
     return _finite(out)
 
 

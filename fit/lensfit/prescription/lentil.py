@@ -249,7 +249,6 @@ def _toml_value(v: Any) -> str:
     raise TypeError(f"cannot write {type(v).__name__} to TOML")
 
 
-
 def to_toml(data: dict[str, Any]) -> str:
     """Write lensdb data as TOML (deterministic: same data, same bytes)."""
     lines = [

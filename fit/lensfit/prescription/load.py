@@ -221,6 +221,14 @@ def lens_from_dict(data: dict[str, Any], *, file: str = "<memory>") -> Lens:
             surface=stops[1],
             key="stop",
         )
+    s_i = stops[0]
+    if s_i > 0 and surfaces[s_i - 1].medium.name != "air":
+        raise LensError(
+            "the aperture stop must be in air (found glass in front of it)",
+            file=file,
+            surface=s_i,
+            key="stop",
+        )
     if surfaces[-1].medium is not AIR and surfaces[-1].medium.name != "air":
         raise LensError(
             "the last surface must be followed by air (the sensor is in air)",
@@ -288,7 +296,9 @@ def _surface(s: dict[str, Any], i: int, file: str, scale: float) -> Surface:
             "semi_diameter",
         )
     conic = float(s.get("conic", 0.0))
-    aspheric = tuple(float(a) * scale ** (-(2 * j + 3)) for j, a in enumerate(s.get("aspheric", [])))
+    aspheric = tuple(
+        float(a) * scale ** (-(2 * j + 3)) for j, a in enumerate(s.get("aspheric", []))
+    )
     if shape != "asphere" and ("conic" in s or "aspheric" in s):
         key = "conic" if "conic" in s else "aspheric"
         raise err(f"only an asphere has '{key}' (shape is {shape!r})", key)
@@ -297,7 +307,7 @@ def _surface(s: dict[str, Any], i: int, file: str, scale: float) -> Surface:
     medium, spec = _medium(s, i, file)
     stop = bool(s.get("stop", False))
     if stop and medium.name != "air":
-        raise err("the aperture stop must be in air", "stop")
+        raise err("the aperture stop must be in air (air behind it)", "stop")
     surf = Surface(
         shape=shape,
         radius_mm=radius,
@@ -326,7 +336,9 @@ def _medium(s: dict[str, Any], i: int, file: str) -> tuple[Medium, dict[str, Any
     if has_nd:
         for k in ("nd", "vd"):
             if k not in s:
-                raise LensError("missing key ('nd' and 'vd' go together)", file=file, surface=i, key=k)
+                raise LensError(
+                    "missing key ('nd' and 'vd' go together)", file=file, surface=i, key=k
+                )
         nd, vd = float(s["nd"]), float(s["vd"])
         if not 1.0 <= nd <= 3.0:
             raise LensError(f"expected 1 <= nd <= 3, found {nd}", file=file, surface=i, key="nd")
@@ -377,7 +389,9 @@ def _coating(
             try:
                 medium: Medium = catalog_glass(layer["material"])
             except UnknownGlassError as e:
-                raise LensError(str(e).strip('"'), file=file, surface=i, key=key + ".material") from None
+                raise LensError(
+                    str(e).strip('"'), file=file, surface=i, key=key + ".material"
+                ) from None
         else:
             n = float(layer["n"])
             if n < 1.0:

@@ -10,6 +10,7 @@ table: the medium before surface 0 is air.
 
 from __future__ import annotations
 
+import copy
 import math
 from dataclasses import dataclass, field
 from typing import Any
@@ -157,4 +158,4 @@ class Lens:
 
     def to_dict(self) -> dict[str, Any]:
         """The prescription as plain data (the TOML layout, see lensdb/README.md)."""
-        return self.raw
+        return copy.deepcopy(self.raw)

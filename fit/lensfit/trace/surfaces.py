@@ -70,22 +70,17 @@ def quadric_intersect(
     t1 = np.where(s != 0.0, cc / s_safe, np.inf)
     t2 = np.where(a != 0.0, s / a_safe, np.inf)
     best = np.full(len(q), np.inf)
-    # Keep the nearest root ahead of the ray on the vertex sheet
-    scale = 1e-7 * (1.0 + abs(1.0 / c))
-    for t in (t1, t2):
-        tt = np.where(np.isfinite(t), t, 0.0)
-        p = q + tt[:, None] * d
-        with np.errstate(invalid="ignore"):
-            zs = _conic_sag(c, k, _r2(surface, p[:, 0], p[:, 1]))
-            on_sheet = np.abs(p[:, 2] - zs) <= scale
-        valid = real & np.isfinite(t) & (t >= T_MIN_MM) & on_sheet
-        best = np.where(valid & (t < best), t, best)
+    # Keep the nearest root ahead of the ray on the sheet through the vertex: the points
+    # with c (1 + k) z < 1 (the near half of a sphere or ellipsoid, the vertex sheet of
+    # a hyperboloid, all of a paraboloid)
+    ck = c * (1.0 + k)
+    with np.errstate(invalid="ignore"):  # inf * 0 for a root at infinity: not on sheet
+        for t in (t1, t2):
+            on_sheet = ck * (qz + t * dz) < 1.0
+            valid = real & (t >= T_MIN_MM) & on_sheet & np.isfinite(t)
+            best = np.where(valid & (t < best), t, best)
     hit = np.isfinite(best)
     return np.where(hit, best, 0.0), hit
-
-
-def _conic_sag(c: float, k: float, r2: np.ndarray) -> np.ndarray:
-    return c * r2 / (1.0 + np.sqrt(1.0 - (1.0 + k) * c * c * r2))
 
 
 def sag_and_slope(surface: Surface, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, ...]:

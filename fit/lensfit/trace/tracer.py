@@ -139,88 +139,136 @@ def trace(
     if not stop_r > 0:
         raise ValueError(f"stop radius must be positive, got {stop_radius_mm}")
 
+    # The living rays, compacted: idx maps them back to the bundle
+    live = _Live(out)
     for step in path:
         k = step.surface
         surf = lens.surfaces[k]
-        alive = np.nonzero(out.status == Status.OK)[0]
-        if alive.size == 0:
+        if live.n == 0:
             if history is not None:
                 history.append(out.pos.copy())
             continue
-        lam = out.wavelength_nm[alive]
         m_front, m_back = lens.medium_before(k), lens.medium_after(k)
-        n1 = (m_front if step.from_front else m_back).n(lam)
-        n2 = (m_back if step.from_front else m_front).n(lam)
+        n1 = (m_front if step.from_front else m_back).n(live.lam)
+        n2 = (m_back if step.from_front else m_front).n(live.lam)
 
         # Compute t at the surface, in its local frame
-        q = out.pos[alive] - np.array([0.0, 0.0, vz[k]])
-        d = out.dir[alive]
-        t, hit = surfaces.intersect(surf, q, d)
-        _fail(out, alive[~hit], Status.MISSED, k)
-        sel = hit
-        idx, q, d, t, n1, n2, lam = alive[sel], q[sel], d[sel], t[sel], n1[sel], n2[sel], lam[sel]
-        p = q + t[:, None] * d
+        q = live.pos - np.array([0.0, 0.0, vz[k]])
+        t, hit = surfaces.intersect(surf, q, live.dir)
+        p = q + t[:, None] * live.dir
 
         # Clip at the housing, and at the stop opening
+        keep = hit
+        clipped = None
         if clip:
             limit = stop_r if surf.stop else surf.semi_diameter_mm
-            inside = p[:, 0] ** 2 + p[:, 1] ** 2 <= limit * limit
-            _fail(out, idx[~inside], Status.CLIPPED, k)
-            # A clipped ray stays where it met the (extended) surface
-            out.pos[idx[~inside]] = p[~inside] + np.array([0.0, 0.0, vz[k]])
-            idx, q, d, t, n1, n2, lam, p = (
-                a[inside] for a in (idx, q, d, t, n1, n2, lam, p)
-            )
+            clipped = hit & (p[:, 0] ** 2 + p[:, 1] ** 2 > limit * limit)
+            keep = hit & ~clipped
+        if not np.all(keep):
+            live.fail(~hit, Status.MISSED, k)
+            if clipped is not None and clipped.any():
+                # A clipped ray stays where it met the (extended) surface
+                live.pos[clipped] = p[clipped] + np.array([0.0, 0.0, vz[k]])
+                live.fail(clipped, Status.CLIPPED, k)
+            live.compact(keep)
+            n1, n2, p, t = n1[keep], n2[keep], p[keep], t[keep]
 
         # Move the ray and add the optical path in the medium it crossed
-        out.pos[idx] = p + np.array([0.0, 0.0, vz[k]])
-        out.opl_mm[idx] += n1 * t
+        d = live.dir
+        live.pos = p + np.array([0.0, 0.0, vz[k]])
+        live.opl += n1 * t
 
         # Refract or reflect, with the interface's power transmittance
         nrm = surfaces.normal(surf, p)
         cos_i = -np.einsum("ij,ij->i", d, nrm)
-        flip = cos_i < 0.0
-        nrm[flip] *= -1.0
+        nrm *= np.where(cos_i < 0.0, -1.0, 1.0)[:, None]  # face the incoming ray
         cos_i = np.abs(cos_i)
-        layers = surf.coating.layers if step.from_front else surf.coating.layers[::-1]
-        need_rt = fresnel_loss or step.reflect
-        if need_rt:
-            if layers:
-                r, tr = fresnel.coated_reflectance(
-                    n1,
-                    n2,
-                    cos_i,
-                    [layer.medium.n(lam) for layer in layers],
-                    [layer.thickness_nm for layer in layers],
-                    lam,
-                )
-            else:
-                r = fresnel.fresnel_reflectance(n1, n2, cos_i)
-                tr = 1.0 - r
+        if fresnel_loss or step.reflect:
+            layers = surf.coating.layers if step.from_front else surf.coating.layers[::-1]
+            r = _reflectance(n1, n2, cos_i, layers, live.lam)
         if step.reflect:
-            out.dir[idx] = fresnel.reflect_direction(d, nrm)
-            out.transmittance[idx] *= r
-            if history is not None:
-                history.append(out.pos.copy())
-            continue
-        eta = n1 / n2
-        k2 = 1.0 - eta * eta * (1.0 - cos_i * cos_i)
-        tir = k2 < 0.0
-        _fail(out, idx[tir], Status.TIR, k)
-        ok = ~tir
-        idx, d, nrm, cos_i, eta, k2 = idx[ok], d[ok], nrm[ok], cos_i[ok], eta[ok], k2[ok]
-        new_d = eta[:, None] * d + (eta * cos_i - np.sqrt(k2))[:, None] * nrm
-        out.dir[idx] = new_d / np.linalg.norm(new_d, axis=1, keepdims=True)
-        if fresnel_loss:
-            out.transmittance[idx] *= tr[ok]
+            live.dir = fresnel.reflect_direction(d, nrm)
+            live.tr *= r
+        else:
+            eta = n1 / n2
+            k2 = 1.0 - eta * eta * (1.0 - cos_i * cos_i)
+            tir = k2 < 0.0
+            if tir.any():
+                live.fail(tir, Status.TIR, k)
+                ok = ~tir
+                live.compact(ok)
+                d, nrm, cos_i, eta, k2 = d[ok], nrm[ok], cos_i[ok], eta[ok], k2[ok]
+                if fresnel_loss:
+                    r = r[ok]
+            new_d = eta[:, None] * d + (eta * cos_i - np.sqrt(k2))[:, None] * nrm
+            live.dir = new_d / np.linalg.norm(new_d, axis=1, keepdims=True)
+            if fresnel_loss:
+                live.tr *= 1.0 - r
         if history is not None:
+            live.store()
             history.append(out.pos.copy())
 
+    live.store()
     if end_z is not None:
         propagate_to_plane(out, end_z)
         if history is not None:
             history.append(out.pos.copy())
     return out
+
+
+def _reflectance(n1, n2, cos_i, layers, lam) -> np.ndarray:
+    """Unpolarised power reflectance of a bare or coated interface."""
+    if not layers:
+        return fresnel.fresnel_reflectance(n1, n2, cos_i)
+    r, _t = fresnel.coated_reflectance(
+        n1,
+        n2,
+        cos_i,
+        [layer.medium.n(lam) for layer in layers],
+        [layer.thickness_nm for layer in layers],
+        lam,
+    )
+    return r
+
+
+class _Live:
+    """The rays still travelling, as compact arrays; failures are written back at once."""
+
+    def __init__(self, rays: Rays) -> None:
+        self.rays = rays
+        self.idx = np.nonzero(rays.status == Status.OK)[0]
+        self.pos = rays.pos[self.idx]
+        self.dir = rays.dir[self.idx]
+        self.lam = rays.wavelength_nm[self.idx]
+        self.opl = rays.opl_mm[self.idx]
+        self.tr = rays.transmittance[self.idx]
+
+    @property
+    def n(self) -> int:
+        return len(self.idx)
+
+    def fail(self, mask: np.ndarray, status: Status, k: int) -> None:
+        """Record the final state of the rays in ``mask`` (they stop here)."""
+        i = self.idx[mask]
+        r = self.rays
+        r.pos[i], r.dir[i], r.opl_mm[i], r.transmittance[i] = (
+            self.pos[mask],
+            self.dir[mask],
+            self.opl[mask],
+            self.tr[mask],
+        )
+        r.status[i] = status
+        r.surface[i] = k
+
+    def compact(self, keep: np.ndarray) -> None:
+        self.idx = self.idx[keep]
+        self.pos, self.dir = self.pos[keep], self.dir[keep]
+        self.lam, self.opl, self.tr = self.lam[keep], self.opl[keep], self.tr[keep]
+
+    def store(self) -> None:
+        """Write the living rays back into the bundle."""
+        r, i = self.rays, self.idx
+        r.pos[i], r.dir[i], r.opl_mm[i], r.transmittance[i] = self.pos, self.dir, self.opl, self.tr
 
 
 def propagate_to_plane(rays: Rays, z: float) -> None:

@@ -7,6 +7,7 @@ import pathlib
 
 import numpy as np
 import pytest
+
 from lensfit.glass import (
     AIR,
     LAMBDA_C_NM,

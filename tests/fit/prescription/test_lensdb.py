@@ -10,6 +10,7 @@ from typing import Any
 
 import numpy as np
 import pytest
+
 from lensfit.cli import main
 from lensfit.glass import AIR, catalog_glass
 from lensfit.paraxial import paraxial

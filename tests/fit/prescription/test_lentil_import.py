@@ -9,6 +9,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+
 from lensfit.cli import main
 from lensfit.errors import LensError
 from lensfit.glass import catalog_glass

@@ -13,6 +13,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+
 from lensfit.errors import LensError
 from lensfit.glass import AIR, catalog_glass
 from lensfit.paraxial import paraxial
@@ -259,8 +260,7 @@ def test_asphere_semi_diameter_beyond_the_conic(singlet_variant: LensWriter) -> 
     # The conic sag needs (1 + k) c² h² <= 1: with k = 3 and R = 50 mm the surface ends
     # at h = 25 mm. 24 mm must load, 30 mm must be refused.
     front = (
-        'shape = "sphere"\nradius = 50.0\nthickness = 5.0\nmaterial = "N-BK7"\n'
-        "semi_diameter = 10.0"
+        'shape = "sphere"\nradius = 50.0\nthickness = 5.0\nmaterial = "N-BK7"\nsemi_diameter = 10.0'
     )
 
     def asphere(sd: float) -> str:

@@ -11,6 +11,8 @@ from collections.abc import Callable
 
 import numpy as np
 import pytest
+from numpy.typing import ArrayLike
+
 from lensfit.trace.fresnel import (
     coated_reflectance,
     fresnel_amplitudes,
@@ -18,7 +20,6 @@ from lensfit.trace.fresnel import (
     quarter_wave_thickness_nm,
     reflect_direction,
 )
-from numpy.typing import ArrayLike
 
 try:  # reference implementation for the cross-checks; the other tests do not need it
     import tmm

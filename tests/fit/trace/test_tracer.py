@@ -31,11 +31,19 @@ def all_finite(r: Rays) -> bool:
 
 
 def plate(build_lens, t=10.0, gap=5.0, back=20.0, material="N-BK7", sd=40.0):
-    return build_lens([
-        {"shape": "plane", "thickness": gap, "material": "air", "semi_diameter": sd, "stop": True},
-        {"shape": "plane", "thickness": t, "material": material, "semi_diameter": sd},
-        {"shape": "plane", "thickness": back, "material": "air", "semi_diameter": sd},
-    ])
+    return build_lens(
+        [
+            {
+                "shape": "plane",
+                "thickness": gap,
+                "material": "air",
+                "semi_diameter": sd,
+                "stop": True,
+            },
+            {"shape": "plane", "thickness": t, "material": material, "semi_diameter": sd},
+            {"shape": "plane", "thickness": back, "material": "air", "semi_diameter": sd},
+        ]
+    )
 
 
 def pupil_disc(radius: float, n: int = 21) -> np.ndarray:
@@ -72,13 +80,25 @@ def test_single_sphere_aplanatic_points_image_perfectly(build_lens):
     to a virtual point nR from it (same side) without any aberration: refracted rays
     point away from the image and OPL(O->P) - |P - I| is the same for every ray."""
     R, lam = 20.0, 550.0
-    lens = build_lens([
-        {"shape": "plane", "thickness": 60.0, "material": "air", "semi_diameter": 19.0,
-         "stop": True},
-        {"shape": "plane", "thickness": 60.0, "material": "N-BK7", "semi_diameter": 19.0},
-        {"shape": "sphere", "radius": -R, "thickness": 10.0, "material": "air",
-         "semi_diameter": 19.0},
-    ])
+    lens = build_lens(
+        [
+            {
+                "shape": "plane",
+                "thickness": 60.0,
+                "material": "air",
+                "semi_diameter": 19.0,
+                "stop": True,
+            },
+            {"shape": "plane", "thickness": 60.0, "material": "N-BK7", "semi_diameter": 19.0},
+            {
+                "shape": "sphere",
+                "radius": -R,
+                "thickness": 10.0,
+                "material": "air",
+                "semi_diameter": 19.0,
+            },
+        ]
+    )
     n = float(BK7.n(lam))
     z_vertex = lens.vertex_z[2]
     centre = z_vertex - R
@@ -101,8 +121,13 @@ def test_quarter_wave_mgf2_reflectance_through_the_tracer(build_lens):
     lam = 550.0
     lens = build_lens(
         [
-            {"shape": "plane", "thickness": 5.0, "material": "air", "semi_diameter": 10.0,
-             "stop": True},
+            {
+                "shape": "plane",
+                "thickness": 5.0,
+                "material": "air",
+                "semi_diameter": 10.0,
+                "stop": True,
+            },
             {"shape": "plane", "thickness": 5.0, "material": "N-BK7", "semi_diameter": 10.0},
             {"shape": "plane", "thickness": 5.0, "material": "air", "semi_diameter": 10.0},
         ],
@@ -232,12 +257,19 @@ def _brute_force_t(surface, q, d, t_max):
     ],
 )
 def test_intersection_matches_brute_force_root_finding(build_lens, spec):
-    lens = build_lens([
-        {"shape": "plane", "thickness": 10.0, "material": "air", "semi_diameter": 12.0,
-         "stop": True},
-        {**spec, "thickness": 10.0, "material": "N-BK7", "semi_diameter": 12.0},
-        {"shape": "plane", "thickness": 10.0, "material": "air", "semi_diameter": 12.0},
-    ])
+    lens = build_lens(
+        [
+            {
+                "shape": "plane",
+                "thickness": 10.0,
+                "material": "air",
+                "semi_diameter": 12.0,
+                "stop": True,
+            },
+            {**spec, "thickness": 10.0, "material": "N-BK7", "semi_diameter": 12.0},
+            {"shape": "plane", "thickness": 10.0, "material": "air", "semi_diameter": 12.0},
+        ]
+    )
     surf = lens.surfaces[1]
     rng = np.random.default_rng(3)
     n = 40
@@ -259,13 +291,25 @@ def test_intersection_matches_brute_force_root_finding(build_lens, spec):
 
 
 def test_cylindrical_lens_focuses_in_one_axis_only(build_lens):
-    lens = build_lens([
-        {"shape": "plane", "thickness": 2.0, "material": "air", "semi_diameter": 10.0,
-         "stop": True},
-        {"shape": "cylinder-x", "radius": 50.0, "thickness": 4.0, "material": "N-BK7",
-         "semi_diameter": 10.0},
-        {"shape": "plane", "thickness": 90.0, "material": "air", "semi_diameter": 10.0},
-    ])
+    lens = build_lens(
+        [
+            {
+                "shape": "plane",
+                "thickness": 2.0,
+                "material": "air",
+                "semi_diameter": 10.0,
+                "stop": True,
+            },
+            {
+                "shape": "cylinder-x",
+                "radius": 50.0,
+                "thickness": 4.0,
+                "material": "N-BK7",
+                "semi_diameter": 10.0,
+            },
+            {"shape": "plane", "thickness": 90.0, "material": "air", "semi_diameter": 10.0},
+        ]
+    )
     lam = 587.56
     f_y = image_distance(lens, math.inf, meridian="y", wavelength_nm=lam)
     f_x = image_distance(lens, math.inf, meridian="x", wavelength_nm=lam)
@@ -303,12 +347,19 @@ def test_edge_of_total_internal_reflection(build_lens):
     with the status set and nothing NaN on either side."""
     lam = 550.0
     n = float(BK7.n(lam))
-    lens = build_lens([
-        {"shape": "plane", "thickness": 1.0, "material": "air", "semi_diameter": 1e3,
-         "stop": True},
-        {"shape": "plane", "thickness": 5.0, "material": "N-BK7", "semi_diameter": 1e3},
-        {"shape": "plane", "thickness": 5.0, "material": "air", "semi_diameter": 1e3},
-    ])
+    lens = build_lens(
+        [
+            {
+                "shape": "plane",
+                "thickness": 1.0,
+                "material": "air",
+                "semi_diameter": 1e3,
+                "stop": True,
+            },
+            {"shape": "plane", "thickness": 5.0, "material": "N-BK7", "semi_diameter": 1e3},
+            {"shape": "plane", "thickness": 5.0, "material": "air", "semi_diameter": 1e3},
+        ]
+    )
     crit = math.asin(1.0 / n)
     th = crit + np.array([-1e-3, -1e-9, 1e-9, 1e-3, 0.5])
     start = np.zeros((len(th), 3))

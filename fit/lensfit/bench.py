@@ -1,0 +1,163 @@
+"""Ray-tracer benchmark: ray-surface intersections per second (``make bench``).
+
+Every figure comes with a baseline measured in the same run, because the machines are
+shared and noisy: the same tracer called one ray at a time (what a scalar loop over
+rays costs in Python). Ratios are what to compare between runs; absolute figures are
+printed for context. Results go to ``<out>/trace.json`` and ``<out>/trace.md``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from lensfit.prescription import lens_from_dict, load_lens
+from lensfit.prescription.model import Lens
+from lensfit.trace.tracer import Rays, trace
+
+
+def _bundle(lens: Lens, n: int, seed: int = 1) -> Rays:
+    """Rays from a spread of field points through the front element, 380-780 nm."""
+    rng = np.random.default_rng(seed)
+    sd0 = lens.surfaces[0].semi_diameter_mm
+    start = np.c_[rng.uniform(-0.3, 0.3, (n, 2)) * sd0, np.full(n, -20.0)]
+    aim = np.c_[rng.uniform(-0.6, 0.6, (n, 2)) * sd0, np.zeros(n)]
+    return Rays(start, aim - start, rng.uniform(380.0, 780.0, n))
+
+
+def _best_of(fn, repeats: int) -> float:
+    best = float("inf")
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        fn()
+        best = min(best, time.perf_counter() - t0)
+    return best
+
+
+def _intersections(out: Rays, n_surfaces: int) -> int:
+    """Intersections actually computed: a ray stops being traced where it fails."""
+    done = np.where(out.surface >= 0, out.surface + 1, n_surfaces)
+    return int(done.sum())
+
+
+def bench_lens(lens: Lens, n_rays: int, n_scalar: int, fresnel_loss: bool) -> dict[str, Any]:
+    rays = _bundle(lens, n_rays)
+    out = trace(lens, rays, fresnel_loss=fresnel_loss, clip=True)
+    count = _intersections(out, len(lens.surfaces))
+    t_vec = _best_of(lambda: trace(lens, rays, fresnel_loss=fresnel_loss), 3)
+
+    # Baseline: the same tracer, one ray per call
+    singles = [
+        Rays(rays.pos[i : i + 1], rays.dir[i : i + 1], rays.wavelength_nm[i : i + 1])
+        for i in range(n_scalar)
+    ]
+    count_s = _intersections(trace(lens, _bundle(lens, n_scalar)), len(lens.surfaces))
+
+    def scalar() -> None:
+        for r in singles:
+            trace(lens, r, fresnel_loss=fresnel_loss)
+
+    t_s = _best_of(scalar, 2)
+    vec = count / t_vec
+    base = count_s / t_s
+    return {
+        "lens": lens.name,
+        "surfaces": len(lens.surfaces),
+        "rays": n_rays,
+        "fresnel_and_coatings": fresnel_loss,
+        "survivors": int(out.ok.sum()),
+        "intersections_per_second": vec,
+        "baseline_intersections_per_second": base,
+        "speedup_vs_baseline": vec / base,
+        "seconds": t_vec,
+    }
+
+
+def _shape_lens(spec: dict[str, Any]) -> Lens:
+    """A stop and one surface of the given shape, for per-shape intersection figures."""
+    data = {
+        "schema_version": 1,
+        "lens": {
+            "id": "bench",
+            "name": f"{spec['shape']} singlet",
+            "maker": "bench",
+            "year": 2026,
+            "source": "bench",
+        },
+        "coating": {"default": "none"},
+        "surface": [
+            {
+                "shape": "plane",
+                "thickness": 5.0,
+                "material": "air",
+                "semi_diameter": 30.0,
+                "stop": True,
+            },
+            {**spec, "thickness": 12.0, "material": "N-BK7", "semi_diameter": 30.0},
+            {"shape": "plane", "thickness": 50.0, "material": "air", "semi_diameter": 30.0},
+        ],
+    }
+    return lens_from_dict(data, file="<bench>")
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--out", default="build/bench")
+    ap.add_argument("--rays", type=int, default=400_000)
+    ap.add_argument("--scalar-rays", type=int, default=300)
+    args = ap.parse_args(argv)
+    outdir = Path(args.out)
+    outdir.mkdir(parents=True, exist_ok=True)
+
+    results: list[dict[str, Any]] = []
+    for lens_id in ("0001", "0014", "2004"):
+        lens = load_lens(lens_id)
+        for fl in (False, True):
+            results.append(bench_lens(lens, args.rays, args.scalar_rays, fl))
+    shapes = [
+        {"shape": "sphere", "radius": 60.0},
+        {"shape": "asphere", "radius": 60.0, "conic": -0.8, "aspheric": [1e-6, -2e-10, 1e-14]},
+        {"shape": "cylinder-x", "radius": 60.0},
+    ]
+    for spec in shapes:
+        results.append(bench_lens(_shape_lens(spec), args.rays, args.scalar_rays, False))
+
+    meta = {
+        "machine": platform.machine(),
+        "python": platform.python_version(),
+        "numpy": np.__version__,
+        "cpus": os.cpu_count(),
+        "baseline": "the same tracer called one ray at a time",
+    }
+    (outdir / "trace.json").write_text(json.dumps({"meta": meta, "results": results}, indent=2))
+    lines = [
+        "# Ray tracer benchmark",
+        "",
+        f"numpy {meta['numpy']}, {meta['cpus']} CPUs. Baseline: {meta['baseline']}, "
+        "measured in the same run.",
+        "",
+        "| lens | surfaces | Fresnel + coatings | intersections/s | baseline/s | ratio |",
+        "|---|---:|:---:|---:|---:|---:|",
+    ]
+    for r in results:
+        lines.append(
+            f"| {r['lens']} | {r['surfaces']} | {'yes' if r['fresnel_and_coatings'] else 'no'} "
+            f"| {r['intersections_per_second']:.3g} | {r['baseline_intersections_per_second']:.3g}"
+            f" | {r['speedup_vs_baseline']:.0f}x |"
+        )
+    text = "\n".join(lines) + "\n"
+    (outdir / "trace.md").write_text(text)
+    print(text)
+    print(f"wrote {outdir / 'trace.json'} and {outdir / 'trace.md'}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
