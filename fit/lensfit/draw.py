@@ -73,8 +73,15 @@ def fan(
             hi += 1
         seg_y, seg_h = ys[lo : hi + 1], hs[lo : hi + 1]
         order = np.argsort(seg_y)
-        heights = np.interp(target, seg_y[order], seg_h[order], left=np.nan, right=np.nan)
-        heights = heights[np.isfinite(heights)]
+        seg_y, seg_h = seg_y[order], seg_h[order]
+        heights = np.interp(target, seg_y, seg_h)
+        if len(seg_y) >= 2:
+            # Beyond the rays that reach the stop plane, extend linearly from the ends
+            lo_slope = (seg_h[1] - seg_h[0]) / (seg_y[1] - seg_y[0])
+            hi_slope = (seg_h[-1] - seg_h[-2]) / (seg_y[-1] - seg_y[-2])
+            below, above = target < seg_y[0], target > seg_y[-1]
+            heights[below] = seg_h[0] + (target[below] - seg_y[0]) * lo_slope
+            heights[above] = seg_h[-1] + (target[above] - seg_y[-1]) * hi_slope
     pts = np.zeros((len(heights), 3))
     pts[:, axis] = heights + z0 * math.tan(th)
     pts[:, 2] = z0
