@@ -18,7 +18,7 @@ from typing import Any
 
 import numpy as np
 
-from lensfit.prescription import lens_from_dict, load_lens
+from lensfit.prescription import load_lens, make_lens
 from lensfit.prescription.model import Lens
 from lensfit.trace.tracer import Rays, trace
 
@@ -82,17 +82,8 @@ def bench_lens(lens: Lens, n_rays: int, n_scalar: int, fresnel_loss: bool) -> di
 
 def _shape_lens(spec: dict[str, Any]) -> Lens:
     """A stop and one surface of the given shape, for per-shape intersection figures."""
-    data = {
-        "schema_version": 1,
-        "lens": {
-            "id": "bench",
-            "name": f"{spec['shape']} singlet",
-            "maker": "bench",
-            "year": 2026,
-            "source": "bench",
-        },
-        "coating": {"default": "none"},
-        "surface": [
+    return make_lens(
+        [
             {
                 "shape": "plane",
                 "thickness": 5.0,
@@ -103,8 +94,9 @@ def _shape_lens(spec: dict[str, Any]) -> Lens:
             {**spec, "thickness": 12.0, "material": "N-BK7", "semi_diameter": 30.0},
             {"shape": "plane", "thickness": 50.0, "material": "air", "semi_diameter": 30.0},
         ],
-    }
-    return lens_from_dict(data, file="<bench>")
+        name=f"{spec['shape']} singlet",
+        file="<bench>",
+    )
 
 
 def main(argv: list[str] | None = None) -> int:

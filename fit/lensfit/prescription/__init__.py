@@ -6,6 +6,7 @@ from lensfit.prescription.load import (
     lensdb_dir,
     list_lenses,
     load_lens,
+    make_lens,
 )
 from lensfit.prescription.model import BARE, SHAPES, Coating, Layer, Lens, Surface
 
@@ -21,4 +22,5 @@ __all__ = [
     "lensdb_dir",
     "list_lenses",
     "load_lens",
+    "make_lens",
 ]

@@ -257,6 +257,27 @@ def lens_from_dict(data: dict[str, Any], *, file: str = "<memory>") -> Lens:
     )
 
 
+def make_lens(
+    surfaces: list[dict[str, Any]],
+    *,
+    coating: dict[str, Any] | None = None,
+    file: str = "<memory>",
+    **info: Any,
+) -> Lens:
+    """A lens from a list of surface tables (the TOML layout), for tests, benchmarks and
+    scripts. Provenance defaults to a synthetic lens; coatings default to bare."""
+    lens = {"id": "synthetic", "name": "synthetic lens", "maker": "lensfit", "year": 2026}
+    lens["source"] = "built in code"
+    lens.update(info)
+    data = {
+        "schema_version": 1,
+        "lens": lens,
+        "coating": {"default": "none"} if coating is None else coating,
+        "surface": surfaces,
+    }
+    return lens_from_dict(data, file=file)
+
+
 def _replace(s: Surface, **kw: Any) -> Surface:
     import dataclasses
 

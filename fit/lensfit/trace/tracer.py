@@ -51,10 +51,18 @@ class Rays:
         self.pos = np.array(self.pos, dtype=np.float64, copy=True).reshape(-1, 3)
         n = len(self.pos)
         d = np.array(self.dir, dtype=np.float64).reshape(-1, 3)
-        self.dir = d / np.linalg.norm(d, axis=1, keepdims=True)
+        if d.shape != self.pos.shape:
+            raise ValueError(f"Rays: {len(d)} directions for {n} positions")
+        norm = np.linalg.norm(d, axis=1, keepdims=True)
+        if not (np.all(np.isfinite(self.pos)) and np.all(np.isfinite(d)) and np.all(norm > 0)):
+            raise ValueError("Rays: positions and directions must be finite, directions non-zero")
+        self.dir = d / norm
         self.wavelength_nm = np.broadcast_to(
             np.asarray(self.wavelength_nm, dtype=np.float64), (n,)
         ).copy()
+        lam = self.wavelength_nm
+        if not np.all(np.isfinite(lam) & (lam > 0)):
+            raise ValueError("Rays: wavelengths must be finite and positive (nm)")
         if self.opl_mm is None:
             self.opl_mm = np.zeros(n)
         if self.transmittance is None:

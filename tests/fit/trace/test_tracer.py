@@ -438,3 +438,19 @@ def test_rays_start_status_survives_and_failed_rays_do_not_move(build_lens):
     assert out.status[1] == Status.CLIPPED and out.surface[1] == 0
     # The clipped ray stays where it met the stop plane
     np.testing.assert_array_equal(out.pos[1], [0.0, 6.0, 0.0])
+
+
+@pytest.mark.parametrize(
+    ("pos", "direction", "lam", "match"),
+    [
+        ([[0.0, 0.0, 0.0]], [[0.0, 0.0, 0.0]], 550.0, "non-zero"),
+        ([[np.nan, 0.0, 0.0]], [[0.0, 0.0, 1.0]], 550.0, "finite"),
+        ([[0.0, 0.0, 0.0]], [[0.0, np.inf, 1.0]], 550.0, "finite"),
+        ([[0.0, 0.0, 0.0]], [[0.0, 0.0, 1.0]], -1.0, "wavelengths"),
+        ([[0.0, 0.0, 0.0]], [[0.0, 0.0, 1.0]], np.nan, "wavelengths"),
+        ([[0.0, 0.0, 0.0]] * 2, [[0.0, 0.0, 1.0]], 550.0, "directions for 2"),
+    ],
+)
+def test_bad_rays_are_refused_before_any_nan_is_made(pos, direction, lam, match):
+    with pytest.raises(ValueError, match=match):
+        Rays(pos, direction, lam)
