@@ -147,6 +147,8 @@ def trace(
     if not stop_r > 0:
         raise ValueError(f"stop radius must be positive, got {stop_radius_mm}")
 
+    _check_wavelengths(lens, out.wavelength_nm)
+
     # The living rays, compacted: idx maps them back to the bundle
     live = _Live(out)
     for step in path:
@@ -222,6 +224,24 @@ def trace(
         if history is not None:
             history.append(out.pos.copy())
     return out
+
+
+def _check_wavelengths(lens: Lens, lam: np.ndarray) -> None:
+    """Refuse wavelengths outside a catalog glass's published range (no silent
+    extrapolation of Sellmeier fits)."""
+    if lam.size == 0:
+        return
+    lo, hi = float(lam.min()), float(lam.max())
+    media = {s.medium for s in lens.surfaces} | {
+        layer.medium for s in lens.surfaces for layer in s.coating.layers
+    }
+    for m in media:
+        valid = getattr(m, "range_nm", None)
+        if valid is not None and (lo < valid[0] or hi > valid[1]):
+            raise ValueError(
+                f"{lens.source_file}: wavelengths {lo:g}-{hi:g} nm are outside the "
+                f"{valid[0]:g}-{valid[1]:g} nm range of glass {m.name}"
+            )
 
 
 def _reflectance(n1, n2, cos_i, layers, lam) -> np.ndarray:

@@ -454,3 +454,10 @@ def test_rays_start_status_survives_and_failed_rays_do_not_move(build_lens):
 def test_bad_rays_are_refused_before_any_nan_is_made(pos, direction, lam, match):
     with pytest.raises(ValueError, match=match):
         Rays(pos, direction, lam)
+
+
+def test_wavelengths_outside_a_glass_range_are_refused():
+    lens = load_lens("2002")  # Ohara catalog glasses, published from 290-370 nm up
+    rays = Rays([[0.0, 0.0, -5.0]], [[0.0, 0.0, 1.0]], 250.0)
+    with pytest.raises(ValueError, match=r"outside the .* nm range of glass S-"):
+        trace(lens, rays)
