@@ -11,6 +11,7 @@ Validation runs in three steps, each error naming file, surface index and key:
 from __future__ import annotations
 
 import copy
+import dataclasses
 import functools
 import json
 import math
@@ -206,7 +207,7 @@ def lens_from_dict(data: dict[str, Any], *, file: str = "<memory>") -> Lens:
         before = AIR if i == 0 else surfaces[i - 1].medium
         spec = raw_surfaces[i].get("coating", "default")
         coating = _coating(spec, before, s.medium, default_coating, design_nm, file, i)
-        coated.append(_replace(s, coating=coating))
+        coated.append(dataclasses.replace(s, coating=coating))
     surfaces = coated
 
     stops = [i for i, s in enumerate(surfaces) if s.stop]
@@ -276,12 +277,6 @@ def make_lens(
         "surface": surfaces,
     }
     return lens_from_dict(data, file=file)
-
-
-def _replace(s: Surface, **kw: Any) -> Surface:
-    import dataclasses
-
-    return dataclasses.replace(s, **kw)
 
 
 def _surface(s: dict[str, Any], i: int, file: str, scale: float) -> Surface:
