@@ -247,7 +247,7 @@ def lens_from_dict(data: dict[str, Any], *, file: str = "<memory>") -> Lens:
     _check_crossing(surfaces, file)
 
     name = info["name"]
-    provenance = {k: v for k, v in info.items()}
+    provenance = dict(info)
     return Lens(
         name=name,
         surfaces=tuple(surfaces),

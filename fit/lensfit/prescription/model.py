@@ -74,32 +74,49 @@ class Surface:
         return 1.0 / self.radius_mm
 
     @property
+    def meridian_mask(self) -> tuple[float, float]:
+        """Whether the surface curves along x and along y (1.0 or 0.0 each): a cylinder
+        is straight along its axis."""
+        if self.shape == "cylinder-x":
+            return 0.0, 1.0
+        if self.shape == "cylinder-y":
+            return 1.0, 0.0
+        return 1.0, 1.0
+
+    @property
+    def conic_k(self) -> float:
+        """The conic constant in effect (0 for every shape but an asphere)."""
+        return self.conic if self.shape == "asphere" else 0.0
+
+    @property
     def curvature_xy(self) -> tuple[float, float]:
         """Paraxial curvature in the x-z and in the y-z meridian (1/mm)."""
-        c = self.curvature
-        if self.shape == "cylinder-x":
-            return 0.0, c
-        if self.shape == "cylinder-y":
-            return c, 0.0
-        return c, c
+        mx, my = self.meridian_mask
+        return self.curvature * mx, self.curvature * my
+
+    def sag_and_slope(
+        self, x: np.ndarray | float, y: np.ndarray | float
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Sag z(x, y) relative to the vertex (mm) and its slopes dz/dx, dz/dy; NaN
+        outside the conic. With u = mx x^2 + my y^2 (the masks of ``meridian_mask``):
+        z = c u / (1 + sqrt(1 - (1 + k) c^2 u)) + sum_j A_j u^(j + 2)."""
+        x = np.asarray(x, dtype=np.float64)
+        y = np.asarray(y, dtype=np.float64)
+        c, k = self.curvature, self.conic_k
+        mx, my = self.meridian_mask
+        u = mx * x * x + my * y * y
+        with np.errstate(invalid="ignore", divide="ignore"):
+            root = np.sqrt(1.0 - (1.0 + k) * c * c * u)
+            z = c * u / (1.0 + root)
+            dz_du = c / (2.0 * root)
+        for j, a in enumerate(self.aspheric):
+            z = z + a * u ** (j + 2)
+            dz_du = dz_du + a * (j + 2) * u ** (j + 1)
+        return z, 2.0 * mx * x * dz_du, 2.0 * my * y * dz_du
 
     def sag(self, x: np.ndarray | float, y: np.ndarray | float) -> np.ndarray:
         """Surface height z(x, y) relative to the vertex, in mm (NaN outside the conic)."""
-        x = np.asarray(x, dtype=np.float64)
-        y = np.asarray(y, dtype=np.float64)
-        c = self.curvature
-        if self.shape == "cylinder-x":
-            r2 = y * y
-        elif self.shape == "cylinder-y":
-            r2 = x * x
-        else:
-            r2 = x * x + y * y
-        k = self.conic if self.shape == "asphere" else 0.0
-        with np.errstate(invalid="ignore"):
-            z = c * r2 / (1.0 + np.sqrt(1.0 - (1.0 + k) * c * c * r2))
-        for j, a in enumerate(self.aspheric):
-            z = z + a * r2 ** (j + 2)
-        return z
+        return self.sag_and_slope(x, y)[0]
 
     def to_dict(self) -> dict[str, Any]:
         d: dict[str, Any] = {"shape": self.shape}

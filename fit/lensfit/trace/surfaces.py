@@ -21,24 +21,6 @@ NEWTON_MAX_ITER = 50
 NEWTON_TOL_MM = 1e-13
 
 
-def _r2(surface: Surface, x: np.ndarray, y: np.ndarray) -> np.ndarray:
-    """The squared distance that the sag depends on (radial, or across a cylinder)."""
-    if surface.shape == "cylinder-x":
-        return y * y
-    if surface.shape == "cylinder-y":
-        return x * x
-    return x * x + y * y
-
-
-def _mask_xy(surface: Surface) -> tuple[float, float]:
-    """Which transverse coordinates enter the quadric (1 or 0 for x and y)."""
-    if surface.shape == "cylinder-x":
-        return 0.0, 1.0
-    if surface.shape == "cylinder-y":
-        return 1.0, 0.0
-    return 1.0, 1.0
-
-
 def quadric_intersect(
     surface: Surface, q: np.ndarray, d: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray]:
@@ -48,9 +30,8 @@ def quadric_intersect(
     s = -h - sign(h) sqrt(h^2 - AC)); the root kept is the nearest one ahead of the ray
     that lies on the sheet through the vertex (checked against the sag).
     """
-    c = surface.curvature
-    k = surface.conic if surface.shape == "asphere" else 0.0
-    mx, my = _mask_xy(surface)
+    c, k = surface.curvature, surface.conic_k
+    mx, my = surface.meridian_mask
     qx, qy, qz = q[:, 0], q[:, 1], q[:, 2]
     dx, dy, dz = d[:, 0], d[:, 1], d[:, 2]
     if c == 0.0:
@@ -83,22 +64,6 @@ def quadric_intersect(
     return np.where(hit, best, 0.0), hit
 
 
-def sag_and_slope(surface: Surface, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, ...]:
-    """Sag z(x, y) and its partial derivatives dz/dx, dz/dy (NaN outside the conic)."""
-    c = surface.curvature
-    k = surface.conic if surface.shape == "asphere" else 0.0
-    mx, my = _mask_xy(surface)
-    u = _r2(surface, x, y)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        root = np.sqrt(1.0 - (1.0 + k) * c * c * u)
-        z = c * u / (1.0 + root)
-        dz_du = c / (2.0 * root)
-    for j, a in enumerate(surface.aspheric):
-        z = z + a * u ** (j + 2)
-        dz_du = dz_du + a * (j + 2) * u ** (j + 1)
-    return z, 2.0 * mx * x * dz_du, 2.0 * my * y * dz_du
-
-
 def intersect(surface: Surface, q: np.ndarray, d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Ray parameter t and hit flag for any supported surface shape."""
     t, hit = quadric_intersect(surface, q, d)
@@ -113,7 +78,7 @@ def intersect(surface: Surface, q: np.ndarray, d: np.ndarray) -> tuple[np.ndarra
         if idx.size == 0:
             break
         p = q[idx] + t[idx, None] * d[idx]
-        z, zx, zy = sag_and_slope(surface, p[:, 0], p[:, 1])
+        z, zx, zy = surface.sag_and_slope(p[:, 0], p[:, 1])
         f = p[:, 2] - z
         fp = d[idx, 2] - zx * d[idx, 0] - zy * d[idx, 1]
         bad = ~np.isfinite(f) | ~np.isfinite(fp) | (fp == 0.0)
@@ -128,12 +93,11 @@ def intersect(surface: Surface, q: np.ndarray, d: np.ndarray) -> tuple[np.ndarra
 def normal(surface: Surface, p: np.ndarray) -> np.ndarray:
     """Unit surface normal at local points p (pointing towards -z at the vertex)."""
     if surface.shape == "asphere" and surface.aspheric:
-        _, zx, zy = sag_and_slope(surface, p[:, 0], p[:, 1])
+        _, zx, zy = surface.sag_and_slope(p[:, 0], p[:, 1])
         n = np.stack([zx, zy, -np.ones(len(p))], axis=1)
     else:
         # Gradient of the quadric c(x^2 + y^2) + c(1 + k) z^2 - 2z, halved
-        c = surface.curvature
-        k = surface.conic if surface.shape == "asphere" else 0.0
-        mx, my = _mask_xy(surface)
+        c, k = surface.curvature, surface.conic_k
+        mx, my = surface.meridian_mask
         n = np.stack([c * mx * p[:, 0], c * my * p[:, 1], c * (1.0 + k) * p[:, 2] - 1.0], axis=1)
     return n / np.linalg.norm(n, axis=1, keepdims=True)
