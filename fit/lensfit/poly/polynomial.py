@@ -90,7 +90,11 @@ def design_matrix(xhat: np.ndarray, exponents: np.ndarray) -> np.ndarray:
     """Columns prod_j xhat[:, j] ** e[k, j] for each exponent row k: (N, K) float64."""
     xhat = np.asarray(xhat, dtype=np.float64)
     n, d = xhat.shape
-    exponents = np.asarray(exponents, dtype=np.int32).reshape(-1, d)
+    exponents = np.asarray(exponents, dtype=np.int32)
+    if exponents.ndim == 2 and exponents.shape[1] != d:
+        raise ValueError(f"design_matrix: exponents have {exponents.shape[1]} columns for "
+                         f"{d} inputs")
+    exponents = exponents.reshape(-1, d)
     top = int(exponents.max(initial=0))
     # powers[j][p] = xhat[:, j] ** p, built by repeated multiplication
     powers = np.empty((d, top + 1, n))
@@ -148,7 +152,14 @@ class Polynomial:
 
     @classmethod
     def from_dict(cls, d: dict[str, Any], n_inputs: int) -> Polynomial:
-        e = np.array(d["exponents"], dtype=np.int32).reshape(-1, n_inputs)
+        try:
+            e = np.array(d["exponents"], dtype=np.int32).reshape(-1, n_inputs)
+        except ValueError as err:  # ragged rows, or a width that does not divide the total
+            raise ValueError(f"output {d['output']}: exponents must be rows of {n_inputs} "
+                             f"integers ({err})") from err
+        if len(d["exponents"]) != len(e):  # rows of the wrong width, reshaped into others
+            raise ValueError(f"output {d['output']}: exponents must be rows of {n_inputs} "
+                             f"integers")
         return cls(d["output"], d["unit"], e, np.array(d["coefficients"], dtype=np.float64))
 
 

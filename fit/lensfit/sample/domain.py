@@ -1,0 +1,132 @@
+"""The declared domain a lens is fitted over, and the raw input variables of P_o and P_s.
+
+Inputs of the two systems (paper eq. 1 and 2, with one change: inverse distance):
+
+* ``P_o(x_O, y_O, u_O, x_a, y_a, lambda)``: ``x_O, y_O`` are the x and y direction
+  cosines of the scene point seen from the vertex of the first surface (the centre of the
+  outer pupil); ``u_O = 1 / d_O`` is the inverse of its distance from there (1/mm, 0 for
+  a point at infinity); ``x_a, y_a`` the point on the stop (mm); ``lambda`` in nm.
+* ``P_s(x_S, y_S, z_S, x_a, y_a, lambda)``: ``x_S, y_S`` the sensor point (mm), ``z_S``
+  the sensor's shift from its nominal position along +z (mm, positive away from the
+  lens: focusing closer), then the stop point and wavelength as above.
+
+A polynomial in ``d_O`` cannot reach infinity; one in ``u_O`` is smooth down to ``u_O =
+0``, where the scene point becomes a direction. OPL is measured relative to ``d_O`` (see
+:mod:`lensfit.sample.rays`), which stays finite at infinity too.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass, replace
+from typing import Any
+
+from lensfit.paraxial.paraxial import image_distance, paraxial
+from lensfit.poly.polynomial import Input
+from lensfit.prescription.model import Lens
+
+FULL_FRAME_HALF_DIAGONAL_MM = 0.5 * math.hypot(36.0, 24.0)
+CLOSE_FOCUS_EFL = 10.0  # default close focus: ten focal lengths in front of the lens
+MAX_DEFAULT_FIELD_DEG = 60.0
+
+
+@dataclass(frozen=True)
+class Domain:
+    """Where the polynomials must be right. Lengths in mm, angles in degrees, nm."""
+
+    field_deg: float  # half field angle: scene directions within this cone
+    close_focus_mm: float  # nearest scene point, from the first vertex (inf: infinity only)
+    stop_radius_mm: float  # aperture disc sampled on the stop
+    sensor_radius_mm: float  # sensor points within this disc (the image circle)
+    focus_min_mm: float  # sensor shift range z_S
+    focus_max_mm: float
+    wavelength_min_nm: float = 380.0
+    wavelength_max_nm: float = 780.0
+
+    def __post_init__(self) -> None:
+        checks = [
+            ("field_deg", 0.0 < self.field_deg < 90.0, "in (0, 90)"),
+            ("close_focus_mm", self.close_focus_mm > 0.0, "positive (inf allowed)"),
+            ("stop_radius_mm", 0.0 < self.stop_radius_mm < math.inf, "positive, finite"),
+            ("sensor_radius_mm", 0.0 < self.sensor_radius_mm < math.inf, "positive, finite"),
+            ("focus_min_mm", self.focus_min_mm < self.focus_max_mm, "below focus_max_mm"),
+            ("wavelength_min_nm", 0.0 < self.wavelength_min_nm < self.wavelength_max_nm,
+             "positive and below wavelength_max_nm"),
+        ]
+        for key, ok, want in checks:
+            value = getattr(self, key)
+            if not ok or math.isnan(value):
+                raise ValueError(f"domain: {key} = {value} must be {want}")
+
+    @property
+    def inverse_distance_max(self) -> float:
+        """Largest u_O = 1/d_O (1/mm); 0 when only infinity is wanted."""
+        return 0.0 if math.isinf(self.close_focus_mm) else 1.0 / self.close_focus_mm
+
+    def inputs_o(self) -> tuple[Input, ...]:
+        s = math.sin(math.radians(self.field_deg))
+        u = self.inverse_distance_max
+        r = self.stop_radius_mm
+        return (
+            Input("x_O", "1 (direction cosine)", -s, s),
+            Input("y_O", "1 (direction cosine)", -s, s),
+            # A degenerate [0, 0] domain is widened so the normalisation stays defined
+            Input("u_O", "1/mm (inverse distance, 0 = infinity)", 0.0, u if u > 0 else 1e-9),
+            Input("x_a", "mm (on the stop)", -r, r),
+            Input("y_a", "mm (on the stop)", -r, r),
+            self._wavelength_input(),
+        )
+
+    def inputs_s(self) -> tuple[Input, ...]:
+        h, r = self.sensor_radius_mm, self.stop_radius_mm
+        return (
+            Input("x_S", "mm (on the sensor)", -h, h),
+            Input("y_S", "mm (on the sensor)", -h, h),
+            Input("z_S", "mm (sensor shift, + away from the lens)",
+                  self.focus_min_mm, self.focus_max_mm),
+            Input("x_a", "mm (on the stop)", -r, r),
+            Input("y_a", "mm (on the stop)", -r, r),
+            self._wavelength_input(),
+        )
+
+    def _wavelength_input(self) -> Input:
+        # Dispersion is close to linear in 1/lambda^2 (Cauchy), so that is the variable
+        return Input("lambda", "nm", self.wavelength_min_nm, self.wavelength_max_nm,
+                     "inverse_square")
+
+    def to_dict(self) -> dict[str, Any]:
+        d = asdict(self)
+        if math.isinf(self.close_focus_mm):
+            d["close_focus_mm"] = "inf"
+        return d
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> Domain:
+        d = dict(d)
+        unknown = set(d) - set(cls.__dataclass_fields__)
+        if unknown:
+            raise ValueError(f"domain: unknown keys {sorted(unknown)}")
+        return cls(**{k: float(v) for k, v in d.items()})
+
+    def with_(self, **changes: Any) -> Domain:
+        return replace(self, **changes)
+
+
+def default_domain(lens: Lens) -> Domain:
+    """A full-frame camera: the image circle of 36 x 24 mm, the field that fills it (at
+    most 60 degrees), focus from infinity to ten focal lengths, the stop wide open."""
+    efl = min(abs(paraxial(lens, meridian=m).efl_mm) for m in ("x", "y"))
+    h = FULL_FRAME_HALF_DIAGONAL_MM
+    field = min(math.degrees(math.atan(h / efl)), MAX_DEFAULT_FIELD_DEG)
+    close = float(CLOSE_FOCUS_EFL * efl)
+    # Sensor travel from infinity focus to close focus, with a margin both ways
+    travel = float(image_distance(lens, close) - image_distance(lens, math.inf))
+    margin = 0.01 * efl
+    return Domain(
+        field_deg=field,
+        close_focus_mm=close,
+        stop_radius_mm=lens.stop_radius_max_mm,
+        sensor_radius_mm=h,
+        focus_min_mm=min(0.0, travel) - margin,
+        focus_max_mm=max(0.0, travel) + margin,
+    )

@@ -1,0 +1,307 @@
+"""Training and held-out rays for P_o and P_s, found by aiming real rays at stop points.
+
+Each sample joins a scene point (or a sensor point) to a point on the stop. The ray that
+does so is found by Newton's method on its start (P_o: where it crosses the plane of the
+first vertex; P_s: its slope at the stop), with a finite-difference Jacobian, starting
+from the paraxial solution. Rays are traced without clipping so that the polynomials are
+smooth across the housing edges; whether the exact ray is blocked is recorded per sample
+(``vignetting``: the largest radius over housing radius along the half path; > 1 means
+blocked), and the outputs x_o, y_o (x_i, y_i) let a renderer clip at the outer (inner)
+pupil. Rays that miss a surface, reflect totally, or do not converge are dropped and
+counted.
+
+Samples come in groups that share everything but the stop point (one scene point or
+sensor point and one wavelength), so that the part of the OPL that is constant per pixel
+can be removed when errors are measured.
+
+OPL of P_o is relative: phi_o = OPL(scene point -> stop) - d_O, computed without
+cancellation as (u|S|^2 - 2 S.w) / (|u S - w| + 1) for the start point S of the traced
+ray and the unit direction w to the scene point; it has a finite limit at u_O = 0.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from lensfit.paraxial.paraxial import D_LINE_NM, system_matrix
+from lensfit.prescription.model import Lens
+from lensfit.sample.domain import Domain
+from lensfit.trace.tracer import Rays, Status, Step, trace
+
+NEWTON_MAX_ITER = 30
+NEWTON_TOL_MM = 1e-9  # stop-point miss that counts as converged (1 pm)
+FD_STEP = 1e-6  # relative finite-difference step for the Jacobian
+INFINITY_SHARE = 0.2  # share of P_o groups placed exactly at infinity (u_O = 0)
+
+OUTPUTS_O = (("x_o", "mm"), ("y_o", "mm"), ("tau_o", "1"), ("phi_o", "mm"))
+OUTPUTS_S = (("x_i", "mm"), ("y_i", "mm"), ("tau_i", "1"), ("phi_i", "mm"))
+
+
+class SamplingError(ValueError):
+    """No usable rays, or a domain the lens cannot serve."""
+
+
+@dataclass
+class Samples:
+    """Rays for one system: raw inputs, exact outputs, and bookkeeping."""
+
+    system: str  # "P_o" or "P_s"
+    inputs: np.ndarray  # (N, 6) raw inputs in the domain's units
+    outputs: np.ndarray  # (N, 4) exact outputs
+    group: np.ndarray  # (N,) group id: samples sharing all but the stop point
+    vignetting: np.ndarray  # (N,) max radius / housing radius along the half path
+    requested: int  # samples asked for, before dropping failures
+    dropped: dict[str, int] = field(default_factory=dict)  # reason -> count
+
+    def __len__(self) -> int:
+        return len(self.inputs)
+
+    @property
+    def passes(self) -> np.ndarray:
+        """The exact ray gets through every housing of its half."""
+        return self.vignetting <= 1.0
+
+    def subset(self, mask: np.ndarray) -> Samples:
+        return Samples(self.system, self.inputs[mask], self.outputs[mask], self.group[mask],
+                       self.vignetting[mask], self.requested, dict(self.dropped))
+
+
+def _disc(rng: np.random.Generator, n: int, radius: float) -> np.ndarray:
+    """n points uniform on a disc."""
+    r = radius * np.sqrt(rng.random(n))
+    a = 2.0 * math.pi * rng.random(n)
+    return np.stack([r * np.cos(a), r * np.sin(a)], axis=1)
+
+
+def _group_inputs(rng, groups: int, per_group: int, stop_r: float):
+    """Aperture points for every group, and the group index of each sample."""
+    gid = np.repeat(np.arange(groups), per_group)
+    ap = _disc(rng, groups * per_group, stop_r)
+    return gid, ap
+
+
+def _wavelengths(rng, domain: Domain, n: int) -> np.ndarray:
+    return rng.uniform(domain.wavelength_min_nm, domain.wavelength_max_nm, n)
+
+
+def _newton(residual, p0: np.ndarray, scale: float):
+    """Solve residual(p) = 0 for each row of p (N, 2), vectorised; returns (p, ok).
+
+    ``residual`` returns (r (N, 2), valid (N,)) for any subset of rows it is given, via
+    an index array. Steps that increase the miss are halved (up to 8 times)."""
+    p = p0.copy()
+    n = len(p)
+    done = np.zeros(n, dtype=bool)
+    failed = np.zeros(n, dtype=bool)
+    h = FD_STEP * scale
+    idx = np.arange(n)
+    r, valid = residual(idx, p)
+    failed |= ~valid
+    for _ in range(NEWTON_MAX_ITER):
+        act = np.nonzero(~done & ~failed)[0]
+        if act.size == 0:
+            break
+        ra = r[act]
+        miss = np.hypot(ra[:, 0], ra[:, 1])
+        conv = miss <= NEWTON_TOL_MM
+        done[act[conv]] = True
+        act, ra, miss = act[~conv], ra[~conv], miss[~conv]
+        if act.size == 0:
+            break
+        # Finite-difference Jacobian d r / d p
+        rx, vx = residual(act, p[act] + [h, 0.0])
+        ry, vy = residual(act, p[act] + [0.0, h])
+        jac = np.stack([(rx - ra) / h, (ry - ra) / h], axis=2)  # (n, 2 r, 2 p)
+        det = jac[:, 0, 0] * jac[:, 1, 1] - jac[:, 0, 1] * jac[:, 1, 0]
+        good = vx & vy & (np.abs(det) > 0) & np.isfinite(det)
+        failed[act[~good]] = True
+        act, ra, jac, det, miss = act[good], ra[good], jac[good], det[good], miss[good]
+        step = np.stack([
+            (jac[:, 1, 1] * ra[:, 0] - jac[:, 0, 1] * ra[:, 1]) / det,
+            (-jac[:, 1, 0] * ra[:, 0] + jac[:, 0, 0] * ra[:, 1]) / det,
+        ], axis=1)
+        # Damped update: accept a step only if it reduces the miss
+        lam = np.ones(len(act))
+        pending = np.arange(len(act))
+        for _ in range(9):
+            trial = p[act[pending]] - lam[pending, None] * step[pending]
+            rt, vt = residual(act[pending], trial)
+            better = vt & (np.hypot(rt[:, 0], rt[:, 1]) < miss[pending])
+            sel = pending[better]
+            p[act[sel]] = trial[better]
+            r[act[sel]] = rt[better]
+            pending = pending[~better]
+            if pending.size == 0:
+                break
+            lam[pending] *= 0.5
+        failed[act[pending]] = True
+    failed |= ~done
+    return p, ~failed
+
+
+def _vignetting(lens: Lens, history: list[np.ndarray], steps: list[int]) -> np.ndarray:
+    """Largest radius / housing radius over the surfaces of the half path (not the stop)."""
+    v = np.zeros(len(history[0]))
+    for pos, k in zip(history, steps, strict=True):
+        s = lens.surfaces[k]
+        if s.stop:
+            continue
+        v = np.maximum(v, np.hypot(pos[:, 0], pos[:, 1]) / s.semi_diameter_mm)
+    return v
+
+
+def sample_object_side(lens: Lens, domain: Domain, groups: int, per_group: int,
+                       seed: int) -> Samples:
+    """Samples for P_o: scene point -> stop point."""
+    rng = np.random.default_rng(seed)
+    s = lens.stop_index
+    if s == 0:
+        raise SamplingError(f"{lens.name}: the stop is the first surface; P_o is trivial")
+    z_stop = float(lens.vertex_z[s])
+    n = groups * per_group
+    gid, ap = _group_inputs(rng, groups, per_group, domain.stop_radius_mm)
+
+    # Scene points: directions uniform on the field disc (in direction cosines), inverse
+    # distances uniform in [0, u_max] with a share exactly at infinity, one wavelength each
+    sin_f = math.sin(math.radians(domain.field_deg))
+    dirs = _disc(rng, groups, sin_f)
+    u = rng.uniform(0.0, domain.inverse_distance_max, groups)
+    u[rng.random(groups) < INFINITY_SHARE] = 0.0
+    lam_g = _wavelengths(rng, domain, groups)
+    xo, yo, ug, lam = dirs[gid, 0], dirs[gid, 1], u[gid], lam_g[gid]
+    w = np.stack([xo, yo, -np.sqrt(1.0 - xo * xo - yo * yo)], axis=1)  # towards the scene
+
+    # Start every ray on a plane in front of everything the lens puts before the stop
+    front = min(0.0, float(np.min(lens.vertex_z[: s + 1]))) - _front_bulge(lens) - 1.0
+    path = [Step(k) for k in range(s + 1)]
+
+    def launch(idx, p):
+        """Ray from the scene point through (p, 0), started on the plane z = front."""
+        pz = np.concatenate([p, np.zeros((len(p), 1))], axis=1)
+        d = ug[idx, None] * pz - w[idx]
+        d /= np.linalg.norm(d, axis=1, keepdims=True)
+        start = pz + d * ((front - 0.0) / d[:, 2])[:, None]
+        return start, d
+
+    def residual(idx, p, hist=None, fresnel=False):
+        start, d = launch(idx, p)
+        rays = Rays(start, d, lam[idx])
+        out = trace(lens, rays, path, clip=False, fresnel_loss=fresnel, history=hist)
+        ok = out.status == Status.OK
+        return out.pos[:, :2] - ap[idx], ok, out, start
+
+    # Paraxial first guess: the ray through the image of the stop point in the
+    # entrance pupil (per meridian, at the d line)
+    p0 = np.empty((n, 2))
+    for j, mer in enumerate(("x", "y")):
+        (fa, fb), _ = system_matrix(lens, 0, s - 1, mer, D_LINE_NM, end_gap=True)
+        # entrance pupil: z_E = fb/fa from the first vertex, height a / fa
+        z_e = fb / fa
+        e = ap[:, j] / fa
+        # The ray from the scene point to (e, z_E), where does it cross z = 0?
+        dj = ug * e - w[:, j]
+        dz = ug * z_e - w[:, 2]
+        p0[:, j] = e - dj * z_e / dz
+    scale = max(domain.stop_radius_mm, 1.0)
+    p, ok = _newton(lambda i, q: residual(i, q)[:2], p0, scale)
+
+    # Final trace of the converged rays, with Fresnel loss and the history
+    idx = np.nonzero(ok)[0]
+    hist: list[np.ndarray] = []
+    r, valid, out, start = residual(idx, p[idx], hist, fresnel=True)
+    good = valid & (np.hypot(r[:, 0], r[:, 1]) <= 10 * NEWTON_TOL_MM)
+    vig = _vignetting(lens, hist, list(range(s + 1)))
+    # OPL relative to d_O, without cancellation
+    ui = ug[idx, None]
+    wi = w[idx]
+    rel = (ui[:, 0] * np.einsum("ij,ij->i", start, start) - 2 * np.einsum("ij,ij->i", start, wi))
+    rel /= np.linalg.norm(ui * start - wi, axis=1) + 1.0
+    phi = out.opl_mm + rel
+    outputs = np.stack([hist[0][:, 0], hist[0][:, 1], out.transmittance, phi], axis=1)
+    inputs = np.stack([xo, yo, ug, ap[:, 0], ap[:, 1], lam], axis=1)[idx]
+    keep = good & np.all(np.isfinite(outputs), axis=1)
+    dropped = {"not converged or missed": int(n - len(idx) + np.sum(~keep))}
+    return _finish("P_o", lens, inputs[keep], outputs[keep], gid[idx][keep], vig[keep], n,
+                   dropped)
+
+
+def _front_bulge(lens: Lens) -> float:
+    """How far any surface before the stop reaches in front of z = 0 (mm, >= 0)."""
+    reach = 0.0
+    for k in range(lens.stop_index + 1):
+        surf = lens.surfaces[k]
+        h = np.linspace(0.0, surf.semi_diameter_mm, 33)
+        z = lens.vertex_z[k] + np.nan_to_num(surf.sag(h, np.zeros_like(h)))
+        reach = max(reach, -float(np.min(z)))
+    return reach
+
+
+def sample_sensor_side(lens: Lens, domain: Domain, groups: int, per_group: int,
+                       seed: int) -> Samples:
+    """Samples for P_s: stop point -> sensor point."""
+    rng = np.random.default_rng(seed)
+    s = lens.stop_index
+    n_surf = len(lens.surfaces)
+    z_stop = float(lens.vertex_z[s])
+    n = groups * per_group
+    gid, ap = _group_inputs(rng, groups, per_group, domain.stop_radius_mm)
+    sens = _disc(rng, groups, domain.sensor_radius_mm)
+    zs_g = rng.uniform(domain.focus_min_mm, domain.focus_max_mm, groups)
+    lam_g = _wavelengths(rng, domain, groups)
+    xs, ys, zs, lam = sens[gid, 0], sens[gid, 1], zs_g[gid], lam_g[gid]
+    z_sensor = lens.sensor_z + zs
+    path = [Step(k) for k in range(s + 1, n_surf)]
+    steps = list(range(s + 1, n_surf))
+
+    def shoot(idx, slope, hist=None, fresnel=False):
+        """Ray from the stop point with slopes (dx/dz, dy/dz), to the sensor plane."""
+        start = np.concatenate([ap[idx], np.full((len(idx), 1), z_stop)], axis=1)
+        d = np.concatenate([slope, np.ones((len(idx), 1))], axis=1)
+        out = trace(lens, Rays(start, d, lam[idx]), path, clip=False, fresnel_loss=fresnel,
+                    history=hist)
+        ok = (out.status == Status.OK) & (out.dir[:, 2] > 0)
+        t = (z_sensor[idx] - out.pos[:, 2]) / np.where(ok, out.dir[:, 2], 1.0)
+        end = out.pos + t[:, None] * out.dir
+        out.opl_mm = out.opl_mm + t  # behind the last surface: air
+        miss = end[:, :2] - np.stack([xs[idx], ys[idx]], axis=1)
+        return np.where(ok[:, None], miss, 0.0), ok, out
+
+    # Paraxial first guess from the transfer matrix stop -> sensor, per meridian
+    q0 = np.empty((n, 2))
+    for j, mer in enumerate(("x", "y")):
+        m = system_matrix(lens, s + 1, n_surf - 1, mer, D_LINE_NM)
+        gap = np.array([[1.0, lens.surfaces[s].thickness_mm], [0.0, 1.0]])
+        m = m @ gap
+        last = z_sensor - lens.vertex_z[-1]
+        a = m[0, 0] + last * m[1, 0]
+        b = m[0, 1] + last * m[1, 1]
+        target = sens[gid, j]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            q0[:, j] = np.where(b != 0, (target - a * ap[:, j]) / b, 0.0)
+    q0 = np.nan_to_num(q0)
+    p, ok = _newton(lambda i, q: shoot(i, q)[:2], q0, 1.0)
+
+    idx = np.nonzero(ok)[0]
+    hist: list[np.ndarray] = []
+    r, valid, out = shoot(idx, p[idx], hist, fresnel=True)
+    good = valid & (np.hypot(r[:, 0], r[:, 1]) <= 10 * NEWTON_TOL_MM)
+    vig = _vignetting(lens, hist, steps)
+    last_pos = hist[-1]
+    outputs = np.stack([last_pos[:, 0], last_pos[:, 1], out.transmittance, out.opl_mm], axis=1)
+    inputs = np.stack([xs, ys, zs, ap[:, 0], ap[:, 1], lam], axis=1)[idx]
+    keep = good & np.all(np.isfinite(outputs), axis=1)
+    dropped = {"not converged or missed": int(n - len(idx) + np.sum(~keep))}
+    return _finish("P_s", lens, inputs[keep], outputs[keep], gid[idx][keep], vig[keep], n,
+                   dropped)
+
+
+def _finish(system, lens, inputs, outputs, gid, vig, n, dropped) -> Samples:
+    if len(inputs) == 0:
+        raise SamplingError(
+            f"{lens.source_file or lens.name}: {system}: none of {n} rays got through the "
+            f"lens over the declared domain ({dropped})"
+        )
+    return Samples(system, inputs, outputs, gid, vig, n, dropped)
