@@ -5,6 +5,8 @@
     lensfit draw LENS -o FILE.png        cross-section with ray fans
     lensfit import FILE.json [-o DIR]    convert a lentil-format JSON lens table to TOML
     lensfit check [LENS ...]             validate prescriptions and their EFL
+    lensfit fit LENS                     fit P_o and P_s, write generated/<lens>/ and a report
+    lensfit report LENS [--json]         fit and write the fit-error report only
 
 LENS is a lensdb id (``0001``), a file stem in lensdb, or a path to a TOML file.
 Errors go to stderr as one line naming file, surface and key; the exit code is 2.
@@ -132,6 +134,56 @@ def cmd_check(args: argparse.Namespace) -> int:
     return 1 if bad else 0
 
 
+def _domain_and_options(args: argparse.Namespace, lens):
+    from lensfit.fitting import FitOptions
+    from lensfit.sample import default_domain
+
+    domain = default_domain(lens, f_number=args.f_number)
+    if args.quick:
+        options = FitOptions(max_terms=60, piston_terms=20, max_degree=7, phase_degree=8,
+                             train_groups=600, train_per_group=8, test_groups=100)
+    else:
+        options = FitOptions()
+    return domain, options
+
+
+def cmd_fit(args: argparse.Namespace) -> int:
+    from lensfit import stage
+    from lensfit.generate import GENERATED_DIR, lens_folder_name
+    from lensfit.prescription import load_lens
+
+    lens = load_lens(args.lens)
+    domain, options = _domain_and_options(args, lens)
+    gen = Path(args.generated) if args.generated else GENERATED_DIR
+    report_dir = Path(args.report) if args.report else Path("build/report") / lens_folder_name(lens)
+    _, fig = stage.run(lens, domain=domain, options=options, generated_dir=gen,
+                       report_dir=report_dir, timing=not args.no_timing)
+    print(f"wrote {gen / lens_folder_name(lens)}/ and {report_dir / 'report.md'} "
+          f"(fit {fig['fit_seconds']:.1f} s)")
+    for o in fig["outputs"]:
+        miss = "" if o["reached"] else f"  (target {o['target']:.3g} not reached)"
+        print(f"  {o['system']} {o['name']:6s} {o['terms']:4d} terms  RMS {o['rms']:.4g} "
+              f"{o['unit']}{miss}")
+    return 0
+
+
+def cmd_report(args: argparse.Namespace) -> int:
+    from lensfit import stage
+    from lensfit.generate import lens_folder_name
+    from lensfit.prescription import load_lens
+
+    lens = load_lens(args.lens)
+    domain, options = _domain_and_options(args, lens)
+    report_dir = Path(args.out) if args.out else Path("build/report") / lens_folder_name(lens)
+    _, fig = stage.run(lens, domain=domain, options=options, report_dir=report_dir,
+                       timing=not args.no_timing)
+    if args.json:
+        print(json.dumps(fig, indent=1, allow_nan=False))
+    else:
+        print(f"wrote {report_dir / 'report.md'}")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(prog="lensfit", description=__doc__.split("\n\n")[0])
     sub = ap.add_subparsers(dest="cmd", required=True)
@@ -162,6 +214,26 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("check", help="validate lenses and check EFL against the patent")
     p.add_argument("lens", nargs="*")
     p.set_defaults(func=cmd_check)
+
+    for name, func, help_ in (
+        ("fit", cmd_fit, "fit P_o and P_s, write generated/<lens>/ and the report"),
+        ("report", cmd_report, "fit and write the fit-error report (Markdown, PNG, JSON)"),
+    ):
+        p = sub.add_parser(name, help=help_)
+        p.add_argument("lens")
+        p.add_argument("--f-number", type=float, default=None,
+                       help="widest aperture fitted (default f/2, or wide open if slower)")
+        p.add_argument("--quick", action="store_true",
+                       help="small budgets and samples (for tests and trials)")
+        p.add_argument("--no-timing", action="store_true",
+                       help="skip compiling and timing the generated C")
+        if name == "fit":
+            p.add_argument("--generated", default=None, help="folder for generated code")
+            p.add_argument("--report", default=None, help="folder for the report")
+        else:
+            p.add_argument("--json", action="store_true", help="print the figures as JSON")
+            p.add_argument("-o", "--out", default=None, help="folder for the report")
+        p.set_defaults(func=func)
     return ap
 
 

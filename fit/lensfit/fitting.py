@@ -48,7 +48,8 @@ X_LIKE, Y_LIKE = (0, 3), (1, 4)  # mirror pairs: (x_O|x_S, x_a) and (y_O|y_S, y_
 class FitOptions:
     """Budgets and targets. Zero-valued fields are never meaningful: all have defaults."""
 
-    max_degree: int = 9
+    max_degree: int = 9  # positions and transmittance
+    phase_degree: int = 11  # phi needs more: the aperture alone wants degree ~10 at f/2
     max_terms: int = 200  # per output (phi: the stop-dependent part)
     piston_terms: int = 40  # phi's stop-independent part
     target_waves: float = 1.0 / 50.0  # phi RMS after piston removal, waves at 550 nm
@@ -146,7 +147,7 @@ def _pursue(A_train, y_train, A_test, name, test_group, y_test, max_terms, targe
         history.append(float(np.sqrt(np.mean(err * err))))
         return history[-1] <= target
 
-    path = omp(A_train, y_train, max_terms=max_terms, stop=stop, check_every=1)
+    path = omp(A_train, y_train, max_terms=max_terms, stop=stop, criterion="ols")
     return path, np.array(history)
 
 
@@ -162,12 +163,14 @@ def fit_system(name: str, inputs: tuple[Input, ...], outputs, train: Samples, te
     scaffold = System(name, inputs, ())
     xt, xe = scaffold.normalise(tr.inputs), scaffold.normalise(te.inputs)
     exps = monomials(len(inputs), options.max_degree)
+    phase_exps = monomials(len(inputs), options.phase_degree)
 
     polys: list[Polynomial] = []
     fits: list[OutputFit] = []
     for j, (out, unit) in enumerate(outputs):
         odd_x, odd_y = out.startswith("x_"), out.startswith("y_")
-        cand = exps[_parity_mask(exps, odd_x, odd_y)]
+        pool = phase_exps if out.startswith("phi") else exps
+        cand = pool[_parity_mask(pool, odd_x, odd_y)]
         y_tr, y_te = tr.outputs[:, j], te.outputs[:, j]
         if out.startswith("phi"):
             poly, of = _fit_phase(out, unit, cand, xt, xe, tr, te, y_tr, y_te, options)
@@ -213,7 +216,7 @@ def _fit_phase(out, unit, cand, xt, xe, tr, te, y_tr, y_te, options):
     first = np.unique(tr.group, return_index=True)[1]
     P = design_matrix(xt[first], pist_cand)
     pist_path: OmpPath = omp(P, means, max_terms=min(options.piston_terms, len(pist_cand)),
-                             tol=1e-7)  # 0.1 nm: the piston needs no more
+                             tol=1e-7, criterion="ols")  # 0.1 nm: the piston needs no more
     kp = pist_path.terms
     exps = np.concatenate([ap_exps, pist_cand[pist_path.support[:kp]]])
     coef = np.concatenate([ap_coef, pist_path.coefficients(kp)])

@@ -42,6 +42,11 @@ StopFn = Callable[[int, np.ndarray, np.ndarray], bool]
 # (its analysis needs eps / component << 1). Below it, q would be mostly rounding noise and
 # the fitted coefficients would grow by > 1e10 while cancelling each other, for no real gain.
 DEPENDENCE_TOL = 1e-10
+# OLS keeps 1 - sum_i (q_i^T a_j)^2 by subtraction, which carries rounding of ~1e-16 k; a
+# column whose remaining squared norm is below 1e-10 (norm 1e-5) is treated as dependent,
+# well above that rounding so the ratio that ranks columns stays meaningful.
+OLS_RESIDUAL_FLOOR = 1e-10
+CRITERIA = ("omp", "ols")
 
 
 @dataclass
@@ -78,8 +83,11 @@ class OmpPath:
 class _Pursuit:
     """The growing state of one output's path (used by :func:`omp_many`)."""
 
-    def __init__(self, r: np.ndarray, available: np.ndarray, capacity: int) -> None:
+    def __init__(self, r: np.ndarray, available: np.ndarray, capacity: int,
+                 ols: bool = False) -> None:
         n = len(r)
+        # OLS only: squared norm of each unit column's part orthogonal to the support
+        self.resid_sq = available.astype(np.float64) if ols else None
         self.r = r  # the residual, a row of omp_many's (m, N) array, updated in place
         self.available = available.copy()  # columns that may still be selected
         self.capacity = capacity  # max terms
@@ -110,6 +118,10 @@ class _Pursuit:
         """Add the best usable column given ``corr = A^T r``; False if none is usable."""
         k = self.k
         score = np.abs(corr) * inv_norms
+        if self.resid_sq is not None:
+            # OLS: a column is judged by the part of it the support cannot already explain
+            self.available &= self.resid_sq > OLS_RESIDUAL_FLOOR
+            score /= np.sqrt(np.maximum(self.resid_sq, OLS_RESIDUAL_FLOOR))
         score[~self.available] = -1.0
         qk = self.qt[:k]
         while True:
@@ -197,6 +209,7 @@ def omp_many(
     tol: float | Sequence[float | None] | None = None,
     stop: StopFn | Sequence[StopFn | None] | None = None,
     check_every: int = 1,
+    criterion: str = "omp",
 ) -> list[OmpPath]:
     """Independent OMP for each column of Y (N, m), sharing the A^T R products.
 
@@ -208,7 +221,17 @@ def omp_many(
     the last term), when its residual is exactly zero, or when no usable column is left (all
     selected, numerically dependent or orthogonal to the residual); otherwise after
     ``max_terms`` terms (fewer when A has fewer columns or rows).
+
+    ``criterion="omp"`` picks the column most correlated with the residual (classic OMP,
+    as scikit-learn). ``"ols"`` (orthogonal least squares, also called order-recursive
+    matching pursuit) divides that correlation by the norm of the column's part orthogonal
+    to the support, i.e. picks the column whose addition lowers the residual most; it
+    costs a second pass over A per iteration and chooses far better among strongly
+    correlated columns such as monomials of high degree.
     """
+    if criterion not in CRITERIA:
+        raise ValueError(f"criterion must be one of {CRITERIA}, got {criterion!r}")
+    ols = criterion == "ols"
     A = np.asarray(A, dtype=np.float64)
     if A.ndim != 2:
         raise ValueError(f"A must be a 2-D (N, M) array, got shape {A.shape}")
@@ -249,7 +272,7 @@ def omp_many(
     # Residuals as rows of one C-ordered (m, N) array: ``res @ A`` then streams through A
     # row by row, the fastest way to read a C-ordered A (and no copy of an F-ordered one).
     res = np.array(Y.T, dtype=np.float64, order="C")  # a copy: updated in place
-    runs = [_Pursuit(res[i], nonzero, capacity) for i in range(m)]
+    runs = [_Pursuit(res[i], nonzero, capacity, ols) for i in range(m)]
     active = []
     for i, run in enumerate(runs):
         if not np.any(run.r):
@@ -273,12 +296,20 @@ def omp_many(
     while active:
         # The one pass over A for this iteration, shared by all outputs still running
         corr = (res if len(active) == m else res[active]) @ A  # (m_active, M)
-        still = []
+        stepped = []
         for row, i in zip(corr, active, strict=True):
-            run = runs[i]
-            if not run.step(A, inv_norms, row):
+            if runs[i].step(A, inv_norms, row):
+                stepped.append(i)
+            else:
                 finish(i, None)
-                continue
+        if ols and stepped:
+            # The second pass: how much of every column each new basis vector explains
+            qs = np.stack([runs[i].qt[runs[i].k - 1] for i in stepped]) @ A
+            for row, i in zip(qs, stepped, strict=True):
+                runs[i].resid_sq -= (row * inv_norms) ** 2
+        still = []
+        for i in stepped:
+            run = runs[i]
             k = run.k
             if not np.any(run.r):
                 finish(i, "zero_residual")
@@ -309,6 +340,7 @@ def omp(
     tol: float | None = None,
     stop: StopFn | None = None,
     check_every: int = 1,
+    criterion: str = "omp",
 ) -> OmpPath:
     """Select up to max_terms columns of A (N, M) to fit y (N,).
 
@@ -322,7 +354,7 @@ def omp(
     msg = _non_finite_message("y", np.asarray(y, dtype=np.float64))
     if msg:
         raise ValueError(msg)
-    return omp_many(A, y[:, None], max_terms=max_terms, tol=tol, stop=stop,
+    return omp_many(A, y[:, None], max_terms=max_terms, tol=tol, stop=stop, criterion=criterion,
                     check_every=check_every)[0]
 
 

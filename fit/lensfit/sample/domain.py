@@ -21,13 +21,17 @@ import math
 from dataclasses import asdict, dataclass, replace
 from typing import Any
 
-from lensfit.paraxial.paraxial import image_distance, paraxial
+from lensfit.paraxial.paraxial import image_distance, paraxial, stop_radius_for_f_number
 from lensfit.poly.polynomial import Input
 from lensfit.prescription.model import Lens
 
 FULL_FRAME_HALF_DIAGONAL_MM = 0.5 * math.hypot(36.0, 24.0)
 CLOSE_FOCUS_EFL = 10.0  # default close focus: ten focal lengths in front of the lens
 MAX_DEFAULT_FIELD_DEG = 60.0
+# Default widest aperture fitted: f/2, the widest setting of the paper's Figure 7 and of our
+# demo. Faster lenses need far more terms wide open (see the fit report); ask for it with
+# an explicit stop radius or f-number.
+DEFAULT_F_NUMBER = 2.0
 
 
 @dataclass(frozen=True)
@@ -112,9 +116,10 @@ class Domain:
         return replace(self, **changes)
 
 
-def default_domain(lens: Lens) -> Domain:
+def default_domain(lens: Lens, f_number: float | None = None) -> Domain:
     """A full-frame camera: the image circle of 36 x 24 mm, the field that fills it (at
-    most 60 degrees), focus from infinity to ten focal lengths, the stop wide open."""
+    most 60 degrees), focus from infinity to ten focal lengths, the stop open to
+    ``f_number`` (default: f/2, or wide open when the lens is slower)."""
     efl = min(abs(paraxial(lens, meridian=m).efl_mm) for m in ("x", "y"))
     h = FULL_FRAME_HALF_DIAGONAL_MM
     field = min(math.degrees(math.atan(h / efl)), MAX_DEFAULT_FIELD_DEG)
@@ -122,11 +127,24 @@ def default_domain(lens: Lens) -> Domain:
     # Sensor travel from infinity focus to close focus, with a margin both ways
     travel = float(image_distance(lens, close) - image_distance(lens, math.inf))
     margin = 0.01 * efl
+    if f_number is None:
+        stop = min(lens.stop_radius_max_mm, stop_radius_for_f_number(lens, DEFAULT_F_NUMBER)
+                   if _faster_than(lens, DEFAULT_F_NUMBER) else lens.stop_radius_max_mm)
+    else:
+        stop = stop_radius_for_f_number(lens, f_number)
     return Domain(
         field_deg=field,
         close_focus_mm=close,
-        stop_radius_mm=lens.stop_radius_max_mm,
+        stop_radius_mm=stop,
         sensor_radius_mm=h,
         focus_min_mm=min(0.0, travel) - margin,
         focus_max_mm=max(0.0, travel) + margin,
     )
+
+
+def _faster_than(lens: Lens, f_number: float) -> bool:
+    try:
+        stop_radius_for_f_number(lens, f_number)
+    except ValueError:
+        return False
+    return True

@@ -160,7 +160,6 @@ def sample_object_side(lens: Lens, domain: Domain, groups: int, per_group: int,
     s = lens.stop_index
     if s == 0:
         raise SamplingError(f"{lens.name}: the stop is the first surface; P_o is trivial")
-    z_stop = float(lens.vertex_z[s])
     n = groups * per_group
     gid, ap = _group_inputs(rng, groups, per_group, domain.stop_radius_mm)
 

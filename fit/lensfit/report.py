@@ -1,0 +1,280 @@
+"""The fit-error report: how far to trust a lens's polynomials, and what they cost.
+
+Errors are measured on held-out rays that pass the lens (µm for positions, relative for
+transmittance, waves at 550 nm for the OPL after removing the part that is constant per
+pixel). Speed is measured on the generated C itself, compiled here: ns per evaluation of
+each output alone and of each whole system, Horner against casadi, double against float.
+The exact reference is the float64 ray tracer answering the same question as the
+polynomial (a ray aimed through a given stop point, by Newton's method), timed in the
+same run while sampling.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import time
+from collections.abc import Sequence
+from dataclasses import replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from lensfit.codegen import emit_c
+from lensfit.codegen.timing import time_c
+from lensfit.fitting import WAVE_MM, SystemFit
+from lensfit.poly import Polynomial, System
+from lensfit.prescription.model import Lens
+from lensfit.trace.tracer import Rays, Step, trace
+
+PARETO_TERMS = (5, 10, 20, 40, 80, 120, 160, 200, 240)
+TIMING_PREFIX = "lensfit_t_"
+
+
+def _ns(system: System, variant: str, which: str = "horner") -> float:
+    src = emit_c([system], TIMING_PREFIX, which=which)
+    fn = TIMING_PREFIX + system.name + ("_casadi" if which == "casadi" else "") + "_" + variant
+    return time_c(src, fn, system, variant=variant, repeats=5, min_seconds=0.02)
+
+
+def _truncate(system: System, k: int) -> System:
+    """Every output cut to its first k terms (OMP order: the most useful first)."""
+    outs = tuple(Polynomial(p.output, p.unit, p.exponents[:k], p.coefficients[:k])
+                 for p in system.outputs)
+    return replace(system, outputs=outs)
+
+
+def _unaimed_trace_ns(lens: Lens, fit: SystemFit, n: int = 20000) -> float:
+    """ns per ray of one plain (not aimed) trace of the half lens, vectorised."""
+    s = lens.stop_index
+    if fit.system.name == "P_o":
+        path = [Step(k) for k in range(s + 1)]
+        z0 = -1.0
+    else:
+        path = [Step(k) for k in range(s + 1, len(lens.surfaces))]
+        z0 = float(lens.vertex_z[s])
+    rng = np.random.default_rng(0)
+    pos = np.zeros((n, 3))
+    pos[:, 2] = z0
+    pos[:, :2] = rng.uniform(-1.0, 1.0, (n, 2))
+    d = np.column_stack([rng.uniform(-0.05, 0.05, (n, 2)), np.ones(n)])
+    rays = Rays(pos, d, 550.0)
+    t0 = time.perf_counter()
+    trace(lens, rays, path, clip=False, fresnel_loss=True)
+    return (time.perf_counter() - t0) / n * 1e9
+
+
+def measure(lens: Lens, fits: Sequence[SystemFit], *, timing: bool = True) -> dict[str, Any]:
+    """All figures of the report as one JSON-ready dict (timings only with ``timing``)."""
+    systems: dict[str, Any] = {}
+    speedups = []
+    for f in fits:
+        sysd: dict[str, Any] = {
+            "samples_train": len(f.train), "samples_test": len(f.test),
+            "dropped": f.train.dropped, "seconds_sampling": f.seconds_sampling,
+            "seconds_fitting": f.seconds_fitting,
+            "passing_share_test": float(np.mean(f.test.passes)),
+        }
+        requested = f.train.requested + f.test.requested
+        exact_ns = f.seconds_sampling / requested * 1e9
+        sysd["exact_aimed_trace_ns"] = exact_ns
+        if timing:
+            for p, o in zip(f.system.outputs, f.outputs, strict=True):
+                alone = f.system.select([p.output])
+                o.ns_per_eval_double = _ns(alone, "d")
+                o.ns_per_eval_float = _ns(alone, "f")
+            sysd["ns_horner_double"] = _ns(f.system, "d")
+            sysd["ns_horner_float"] = _ns(f.system, "f")
+            sysd["ns_casadi_double"] = _ns(f.system, "d", "casadi")
+            sysd["ns_casadi_float"] = _ns(f.system, "f", "casadi")
+            sysd["faster"] = ("horner" if sysd["ns_horner_double"] <= sysd["ns_casadi_double"]
+                              else "casadi")
+            sysd["unaimed_trace_ns"] = _unaimed_trace_ns(lens, f)
+            sysd["speedup_vs_aimed_trace"] = exact_ns / sysd["ns_horner_double"]
+            sysd["speedup_vs_unaimed_trace"] = sysd["unaimed_trace_ns"] / sysd["ns_horner_double"]
+            speedups.append(sysd["speedup_vs_aimed_trace"])
+            top = max(p.terms for p in f.system.outputs)
+            ladder = [k for k in PARETO_TERMS if k < top] + [top]
+            sysd["pareto"] = [{"terms_per_output": k,
+                               "ns_per_eval_double": _ns(_truncate(f.system, k), "d")}
+                              for k in ladder]
+        systems[f.system.name] = sysd
+    return {
+        "lens": lens.name,
+        "trace_vs_poly_speedup": min(speedups) if speedups else None,
+        "systems": systems,
+        "outputs": [_output_json(o) for f in fits for o in f.outputs],
+    }
+
+
+def _output_json(o) -> dict[str, Any]:
+    keys = ("system", "name", "terms", "max_degree", "rms", "max", "unit",
+            "ns_per_eval_double", "ns_per_eval_float", "target", "reached", "piston_terms",
+            "absolute_rms_um")
+    return {k: getattr(o, k) for k in keys}
+
+
+def _phase_error_by_radius(f: SystemFit) -> tuple[np.ndarray, np.ndarray]:
+    """Held-out phi RMS (waves) in rings of the stop radius."""
+    from lensfit.fitting import _group_centre
+
+    te = f.test.subset(f.test.passes)
+    j = [p.output for p in f.system.outputs].index(f.system.outputs[3].output)
+    pred = f.system.evaluate(te.inputs)[:, j]
+    err = _group_centre(pred - te.outputs[:, j], te.group) / WAVE_MM
+    r = np.hypot(te.inputs[:, 3], te.inputs[:, 4])
+    edges = np.linspace(0.0, r.max() * (1 + 1e-9), 9)
+    k = np.digitize(r, edges) - 1
+    rms = np.array([np.sqrt(np.mean(err[k == b] ** 2)) if np.any(k == b) else np.nan
+                    for b in range(8)])
+    return 0.5 * (edges[1:] + edges[:-1]), rms
+
+
+def write_report(lens: Lens, fits: Sequence[SystemFit], figures: dict[str, Any],
+                 out_dir: Path) -> Path:
+    """report.md with PNG plots and report.json in ``out_dir``."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    out_dir.mkdir(parents=True, exist_ok=True)
+    # Error against terms (held-out) and run time against terms
+    fig, axes = plt.subplots(1, 3, figsize=(15, 4.2))
+    for f in fits:
+        for o in f.outputs:
+            unit_scale = o.target
+            axes[0].semilogy(o.path_terms, np.array(o.path_rms) / unit_scale,
+                             label=f"{o.system} {o.name}")
+        par = figures["systems"][f.system.name].get("pareto")
+        if par:
+            axes[1].plot([p["terms_per_output"] for p in par],
+                         [p["ns_per_eval_double"] for p in par], "o-", label=f.system.name)
+            phi = f.outputs[3]
+            rms = [phi.path_rms[min(p["terms_per_output"], len(phi.path_rms)) - 1]
+                   for p in par]
+            axes[2].loglog([p["ns_per_eval_double"] for p in par], rms, "o-",
+                           label=f"{f.system.name} {phi.name}")
+    axes[0].axhline(1.0, color="k", lw=0.8, ls="--")
+    axes[0].set(xlabel="terms (OMP order)", ylabel="held-out RMS / target",
+                title="Error against terms")
+    axes[0].legend(fontsize=7)
+    axes[1].set(xlabel="terms per output", ylabel="ns per evaluation (whole system, double)",
+                title="Run time against terms")
+    axes[1].legend(fontsize=7)
+    axes[2].set(xlabel="ns per evaluation (double)", ylabel="phi RMS (waves at 550 nm)",
+                title="Error against run time")
+    axes[2].legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(out_dir / "pareto.png", dpi=110)
+    plt.close(fig)
+
+    fig, ax = plt.subplots(figsize=(5.5, 4))
+    for f in fits:
+        r, rms = _phase_error_by_radius(f)
+        ax.plot(r, rms, "o-", label=f"{f.system.name} {f.outputs[3].name}")
+    ax.set(xlabel="radius on the stop (mm)", ylabel="RMS (waves at 550 nm, piston removed)",
+           title="Phase error across the aperture")
+    ax.legend()
+    fig.tight_layout()
+    fig.savefig(out_dir / "phase_error_by_radius.png", dpi=110)
+    plt.close(fig)
+
+    (out_dir / "report.json").write_text(json.dumps(figures, indent=1, allow_nan=False) + "\n")
+    (out_dir / "report.md").write_text(_markdown(lens, fits, figures), encoding="utf-8")
+    return out_dir / "report.md"
+
+
+def _fmt(v: float | None, spec: str = ".3g") -> str:
+    return "-" if v is None or (isinstance(v, float) and not math.isfinite(v)) else format(v, spec)
+
+
+def _markdown(lens: Lens, fits: Sequence[SystemFit], fig: dict[str, Any]) -> str:
+    dom = fits[0].system.info.get("domain", {})
+    lines = [
+        f"# Fit report: {lens.name}",
+        "",
+        f"Prescription `{Path(lens.source_file).name}`. Fit in {_fmt(fig.get('fit_seconds'))} s "
+        f"(sampling, pursuit and held-out checks of both systems).",
+        "",
+        "## Declared domain",
+        "",
+        "| quantity | value |",
+        "|---|---|",
+    ]
+    lines += [f"| {k} | {_fmt(v, '.6g') if isinstance(v, float) else v} |"
+              for k, v in dom.items()]
+    lines += [
+        "",
+        "## Held-out error per output",
+        "",
+        "Positions in µm, transmittance relative, OPL in waves at 550 nm after removing the "
+        "part constant per pixel (it does not change intensity). Held-out rays pass every "
+        "housing of their half; training used rays up to 10% beyond.",
+        "",
+        "| system | output | terms | degree | RMS | max | unit | target | reached | "
+        "ns/eval double | ns/eval float |",
+        "|---|---|---:|---:|---:|---:|---|---:|---|---:|---:|",
+    ]
+    for o in fig["outputs"]:
+        lines.append(
+            f"| {o['system']} | {o['name']} | {o['terms']} | {o['max_degree']} | "
+            f"{_fmt(o['rms'])} | {_fmt(o['max'])} | {o['unit']} | {_fmt(o['target'])} | "
+            f"{'yes' if o['reached'] else 'no'} | {_fmt(o['ns_per_eval_double'], '.0f')} | "
+            f"{_fmt(o['ns_per_eval_float'], '.0f')} |")
+    phis = [o for o in fig["outputs"] if o["name"].startswith("phi")]
+    both = math.sqrt(sum(o["rms"] ** 2 for o in phis))
+    lines += [
+        "",
+        f"Phase of the whole path (P_o and P_s errors are independent, so their squares add): "
+        f"**{both:.4f} waves RMS** (λ/{1 / both:.0f}).",
+        "",
+    ]
+    for o in phis:
+        lines.append(f"* {o['system']} {o['name']}: {o['terms'] - o['piston_terms']} "
+                     f"stop-dependent terms plus {o['piston_terms']} piston terms; absolute "
+                     f"OPL error (piston included) {_fmt(o['absolute_rms_um'])} µm RMS.")
+    unreached = [o for o in fig["outputs"] if not o["reached"]]
+    if unreached:
+        lines += ["", "### Targets not reached", ""]
+        for o in unreached:
+            lines.append(
+                f"* {o['system']} {o['name']}: {_fmt(o['rms'])} {o['unit']} against "
+                f"{_fmt(o['target'])} with {o['terms']} terms (the budget).")
+        lines += [
+            "",
+            "Why: the term budget is spent before the target. What is left is mostly the "
+            "wavelength dependence (glasses whose ultraviolet absorption lies near 380 nm "
+            "are not polynomial in any single wavelength variable: with the wavelength "
+            "fixed the same budget does far better) and high-order aperture terms near the "
+            "rim (see phase_error_by_radius.png). A narrower domain (f-number, "
+            "wavelengths, field) or a larger budget reaches it; a scene specialisation "
+            "folds the wavelength away.",
+        ]
+    lines += ["", "## Speed", "",
+              "| system | Horner double | Horner float | casadi double | casadi float | "
+              "kept | exact aimed trace | plain trace | speedup (aimed) | speedup (plain) |",
+              "|---|---:|---:|---:|---:|---|---:|---:|---:|---:|"]
+    for name, s in fig["systems"].items():
+        lines.append(
+            f"| {name} | {_fmt(s.get('ns_horner_double'), '.0f')} | "
+            f"{_fmt(s.get('ns_horner_float'), '.0f')} | {_fmt(s.get('ns_casadi_double'), '.0f')}"
+            f" | {_fmt(s.get('ns_casadi_float'), '.0f')} | {s.get('faster', '-')} | "
+            f"{_fmt(s['exact_aimed_trace_ns'], '.0f')} | {_fmt(s.get('unaimed_trace_ns'), '.0f')}"
+            f" | {_fmt(s.get('speedup_vs_aimed_trace'), '.1f')}× | "
+            f"{_fmt(s.get('speedup_vs_unaimed_trace'), '.1f')}× |")
+    lines += [
+        "",
+        "All times in ns per evaluation of all four outputs (one call, scalar, `cc -O2 "
+        "-std=c99`). The exact reference answers the same question as the polynomial: the "
+        "ray through a given stop point, found by Newton's method on the numpy float64 "
+        "tracer (vectorised), timed while sampling. The plain trace is one unaimed "
+        "vectorised trace of the half lens per ray, a lower bound on any exact method.",
+        "",
+        "![error and run time against terms](pareto.png)",
+        "",
+        "![phase error across the aperture](phase_error_by_radius.png)",
+        "",
+    ]
+    return "\n".join(lines)
