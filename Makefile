@@ -1,8 +1,9 @@
 # The front door. `make demo` and `make test` do all set-up on a fresh Debian 12.
 #   make setup   Debian packages (only missing ones) and the .venv with pinned packages
-#   make demo    paraxial table and cross-section of the default lens (0001)
+#   make demo    the default lens (0001): paraxial table, drawings, its polynomial fit with
+#                the fit-error report, and the demo scene's specialised code
 #   make test    lint and the test suite
-#   make bench   ray-tracer throughput (build/bench/)
+#   make bench   ray-tracer throughput, generated-code speed, fit report (build/bench/)
 
 PYTHON ?= /usr/bin/python3
 VENV   := .venv
@@ -28,6 +29,8 @@ demo: setup
 	$(VENV)/bin/lensfit draw $(DEMO_LENS) -o build/demo/$(DEMO_LENS).png
 	$(VENV)/bin/lensfit draw $(DEMO_LENS) --f-number 8 --field 15 -o build/demo/$(DEMO_LENS)-f8.png
 	$(VENV)/bin/lensfit check
+	$(VENV)/bin/lensfit report $(DEMO_LENS) -o build/demo/report
+	$(VENV)/bin/lensfit scene $(DEMO_LENS) scenes/demo.toml -o build/demo/scene-demo
 
 lint: setup
 	$(VENV)/bin/ruff check --config fit/pyproject.toml fit tests
@@ -38,6 +41,9 @@ test: setup lint
 bench: setup
 	@mkdir -p build/bench
 	$(PY) -m lensfit.bench --out build/bench
+	$(PY) -m lensfit.codegen.bench | tee build/bench/codegen.txt
+	$(VENV)/bin/lensfit report $(DEMO_LENS) -o build/bench/fit-$(DEMO_LENS) --json \
+		> build/bench/fit-$(DEMO_LENS).json
 
 clean:
 	rm -rf build $(VENV)

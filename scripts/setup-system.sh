@@ -14,6 +14,10 @@ done
 for pkg in build-essential cmake; do
   have "$pkg" || need+=("$pkg")
 done
+# glslangValidator, so the tests can compile the generated GLSL
+for pkg in glslang-tools; do
+  have "$pkg" || need+=("$pkg")
+done
 
 if [ ${#need[@]} -eq 0 ]; then
   exit 0

@@ -7,6 +7,7 @@
     lensfit check [LENS ...]             validate prescriptions and their EFL
     lensfit fit LENS                     fit P_o and P_s, write generated/<lens>/ and a report
     lensfit report LENS [--json]         fit and write the fit-error report only
+    lensfit scene LENS SCENE.toml        specialise generated/<lens>/ for one scene
 
 LENS is a lensdb id (``0001``), a file stem in lensdb, or a path to a TOML file.
 Errors go to stderr as one line naming file, surface and key; the exit code is 2.
@@ -184,6 +185,62 @@ def cmd_report(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_scene(args: argparse.Namespace) -> int:
+    from lensfit import scene as sc
+    from lensfit.codegen import emit_c, write_table
+    from lensfit.generate import (
+        GENERATED_DIR,
+        header_comment,
+        lens_folder_name,
+        lens_prefix,
+        read_fit_json,
+        write_folder,
+    )
+    from lensfit.prescription import load_lens
+    from lensfit.report import ns_per_eval
+
+    lens = load_lens(args.lens)
+    gen = (Path(args.generated) if args.generated else GENERATED_DIR) / lens_folder_name(lens)
+    fit_file = gen / "fit.json"
+    if not fit_file.exists():
+        raise ValueError(f"{fit_file}: no fit for {lens.name}; run `lensfit fit {args.lens}`")
+    systems, _ = read_fit_json(fit_file)
+    scene = sc.load_scene(args.scene)
+    special = sc.specialise(systems, scene)
+    prefix = f"{lens_prefix(lens)}{scene.name.replace('-', '_')}_"
+    comment = header_comment(lens, f"Specialised for scene {Path(args.scene).name}.")
+    files = emit_c(special, prefix, header_comment=comment)
+    files[prefix.rstrip("_") + ".table"] = write_table(special, comment=comment)
+    out = Path(args.out) if args.out else gen / "scenes" / scene.name
+    write_folder(out, files)
+    general = emit_c(systems, lens_prefix(lens))
+    rows = {
+        "general_terms": sc.terms(systems),
+        "scene_terms": sc.terms(special),
+        "general_c_bytes": sum(len(t) for t in general.values()),
+        "scene_c_bytes": sum(len(t) for t in files.values() if not t.startswith("lensfit-")),
+        "systems": [],
+    }
+    if not args.no_timing:
+        by = {s.name: s for s in systems}
+        for s in special:
+            base = by["P_o" if s.name.startswith("P_o") else "P_s"]
+            rows["systems"].append({
+                "system": s.name, "terms": sum(p.terms for p in s.outputs),
+                "general_terms": sum(p.terms for p in base.outputs),
+                "ns_general": ns_per_eval(base, "d"), "ns_scene": ns_per_eval(s, "d")})
+    if args.json:
+        print(json.dumps(rows, indent=1))
+        return 0
+    print(f"wrote {out}/")
+    print(f"  terms  {rows['general_terms']} general -> {rows['scene_terms']} for this scene")
+    print(f"  C      {rows['general_c_bytes']} bytes -> {rows['scene_c_bytes']} bytes")
+    for r in rows["systems"]:
+        print(f"  {r['system']:10s} {r['general_terms']:4d} -> {r['terms']:4d} terms, "
+              f"{r['ns_general']:.0f} -> {r['ns_scene']:.0f} ns per evaluation (double)")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(prog="lensfit", description=__doc__.split("\n\n")[0])
     sub = ap.add_subparsers(dest="cmd", required=True)
@@ -234,6 +291,16 @@ def build_parser() -> argparse.ArgumentParser:
             p.add_argument("--json", action="store_true", help="print the figures as JSON")
             p.add_argument("-o", "--out", default=None, help="folder for the report")
         p.set_defaults(func=func)
+
+    p = sub.add_parser("scene", help="specialise a fitted lens for one scene")
+    p.add_argument("lens")
+    p.add_argument("scene", help="scene TOML file (see lensfit.scene)")
+    p.add_argument("--generated", default=None, help="folder of generated code (to read)")
+    p.add_argument("-o", "--out", default=None,
+                   help="folder to write (default: generated/<lens>/scenes/<name>)")
+    p.add_argument("--json", action="store_true", help="print the comparison as JSON")
+    p.add_argument("--no-timing", action="store_true", help="skip timing the C")
+    p.set_defaults(func=cmd_scene)
     return ap
 
 

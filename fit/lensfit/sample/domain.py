@@ -38,7 +38,7 @@ DEFAULT_F_NUMBER = 2.0
 class Domain:
     """Where the polynomials must be right. Lengths in mm, angles in degrees, nm."""
 
-    field_deg: float  # half field angle: scene directions within this cone
+    field_deg: float  # half field angle in x: scene directions within this cone
     close_focus_mm: float  # nearest scene point, from the first vertex (inf: infinity only)
     stop_radius_mm: float  # aperture disc sampled on the stop
     sensor_radius_mm: float  # sensor points within this disc (the image circle)
@@ -46,8 +46,20 @@ class Domain:
     focus_max_mm: float
     wavelength_min_nm: float = 380.0
     wavelength_max_nm: float = 780.0
+    field_y_deg: float | None = None  # half field angle in y when it differs (anamorphic):
+    # the directions then fill an ellipse in direction cosines
+
+    @property
+    def field_xy_deg(self) -> tuple[float, float]:
+        return self.field_deg, self.field_deg if self.field_y_deg is None else self.field_y_deg
 
     def __post_init__(self) -> None:
+        for k in self.__dataclass_fields__:  # plain floats (numpy scalars creep in)
+            v = getattr(self, k)
+            if v is not None:
+                object.__setattr__(self, k, float(v))
+        if self.field_y_deg is not None and not 0.0 < self.field_y_deg < 90.0:
+            raise ValueError(f"domain: field_y_deg = {self.field_y_deg} must be in (0, 90)")
         checks = [
             ("field_deg", 0.0 < self.field_deg < 90.0, "in (0, 90)"),
             ("close_focus_mm", self.close_focus_mm > 0.0, "positive (inf allowed)"),
@@ -68,12 +80,12 @@ class Domain:
         return 0.0 if math.isinf(self.close_focus_mm) else 1.0 / self.close_focus_mm
 
     def inputs_o(self) -> tuple[Input, ...]:
-        s = math.sin(math.radians(self.field_deg))
+        sx, sy = (math.sin(math.radians(f)) for f in self.field_xy_deg)
         u = self.inverse_distance_max
         r = self.stop_radius_mm
         return (
-            Input("x_O", "1 (direction cosine)", -s, s),
-            Input("y_O", "1 (direction cosine)", -s, s),
+            Input("x_O", "1 (direction cosine)", -sx, sx),
+            Input("y_O", "1 (direction cosine)", -sy, sy),
             # A degenerate [0, 0] domain is widened so the normalisation stays defined
             Input("u_O", "1/mm (inverse distance, 0 = infinity)", 0.0, u if u > 0 else 1e-9),
             Input("x_a", "mm (on the stop)", -r, r),
@@ -107,6 +119,8 @@ class Domain:
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> Domain:
         d = dict(d)
+        if d.get("field_y_deg") is None:
+            d.pop("field_y_deg", None)
         unknown = set(d) - set(cls.__dataclass_fields__)
         if unknown:
             raise ValueError(f"domain: unknown keys {sorted(unknown)}")
@@ -120,9 +134,16 @@ def default_domain(lens: Lens, f_number: float | None = None) -> Domain:
     """A full-frame camera: the image circle of 36 x 24 mm, the field that fills it (at
     most 60 degrees), focus from infinity to ten focal lengths, the stop open to
     ``f_number`` (default: f/2, or wide open when the lens is slower)."""
-    efl = min(abs(paraxial(lens, meridian=m).efl_mm) for m in ("x", "y"))
+    efl_x, efl_y = (abs(paraxial(lens, meridian=m).efl_mm) for m in ("x", "y"))
+    efl = min(efl_x, efl_y)
     h = FULL_FRAME_HALF_DIAGONAL_MM
-    field = min(math.degrees(math.atan(h / efl)), MAX_DEFAULT_FIELD_DEG)
+
+    def field_for(f: float) -> float:
+        return min(math.degrees(math.atan(h / f)), MAX_DEFAULT_FIELD_DEG)
+
+    field = field_for(efl_x)
+    # An anamorphic lens squeezes x: its field is wider in x than in y (an ellipse)
+    field_y = field_for(efl_y) if lens.anamorphic else None
     close = float(CLOSE_FOCUS_EFL * efl)
     # Sensor travel from infinity focus to close focus, with a margin both ways
     travel = float(image_distance(lens, close) - image_distance(lens, math.inf))
@@ -139,6 +160,7 @@ def default_domain(lens: Lens, f_number: float | None = None) -> Domain:
         sensor_radius_mm=h,
         focus_min_mm=min(0.0, travel) - margin,
         focus_max_mm=max(0.0, travel) + margin,
+        field_y_deg=field_y,
     )
 
 

@@ -165,8 +165,9 @@ def sample_object_side(lens: Lens, domain: Domain, groups: int, per_group: int,
 
     # Scene points: directions uniform on the field disc (in direction cosines), inverse
     # distances uniform in [0, u_max] with a share exactly at infinity, one wavelength each
-    sin_f = math.sin(math.radians(domain.field_deg))
-    dirs = _disc(rng, groups, sin_f)
+    # (an ellipse when the field differs in x and y)
+    sin_xy = np.array([math.sin(math.radians(f)) for f in domain.field_xy_deg])
+    dirs = _disc(rng, groups, 1.0) * sin_xy
     u = rng.uniform(0.0, domain.inverse_distance_max, groups)
     u[rng.random(groups) < INFINITY_SHARE] = 0.0
     lam_g = _wavelengths(rng, domain, groups)
@@ -175,6 +176,16 @@ def sample_object_side(lens: Lens, domain: Domain, groups: int, per_group: int,
 
     # Start every ray on a plane in front of everything the lens puts before the stop
     front = min(0.0, float(np.min(lens.vertex_z[: s + 1]))) - _front_bulge(lens) - 1.0
+    # The OPL below counts the leg from the scene point to that plane as +|S - scene|:
+    # a scene point on or behind the plane would get the wrong sign (or lie in the glass)
+    nearest_z = -domain.close_focus_mm * math.cos(math.radians(max(domain.field_xy_deg)))
+    if not nearest_z < front:
+        raise SamplingError(
+            f"{lens.source_file or lens.name}: P_o: close_focus_mm = "
+            f"{domain.close_focus_mm:g} puts scene points at z = {nearest_z:g} mm, not in "
+            f"front of the lens (its surfaces before the stop reach to z = {front + 1.0:g} "
+            "mm; scene points must be at least 1 mm further out)"
+        )
     path = [Step(k) for k in range(s + 1)]
 
     def launch(idx, p):

@@ -1,0 +1,216 @@
+"""Scene specialisation: emit only what one scene needs from a lens's general systems.
+
+A scene fixes some inputs and does without some outputs:
+
+* each point light fixes (x_O, y_O, u_O) of P_o: one bivariate-in-the-stop system per
+  light (``P_o_light<i>``), with the wavelength folded too when the scene has only one;
+* a fixed focus offset folds z_S into P_s (and a single wavelength folds lambda);
+* terms of phi that do not depend on the stop point are a constant phase per pixel and
+  are dropped (they cannot change an intensity);
+* ``clip = false`` drops the pupil positions, ``transmittance = false`` drops tau.
+
+A specialised system equals the general one at the fixed inputs (up to the dropped
+constant phase). Scene file (TOML)::
+
+    name = "demo"
+    wavelengths_nm = [450.0, 550.0, 650.0]
+    focus_offset_mm = 0.0            # omit to keep z_S free
+    clip = true
+    transmittance = true
+    flares = false
+    [[light]]
+    field_x_deg = 0.0
+    field_y_deg = 5.0
+    distance_mm = "inf"              # or a number: distance from the first vertex
+"""
+
+from __future__ import annotations
+
+import math
+import tomllib
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from lensfit.poly import Polynomial, System
+
+APERTURE_INPUTS = ("x_a", "y_a")
+
+
+class SceneError(ValueError):
+    """A scene that cannot be served, naming the file, key and value."""
+
+
+@dataclass(frozen=True)
+class Light:
+    field_x_deg: float
+    field_y_deg: float
+    distance_mm: float = math.inf  # from the first vertex (the centre of the outer pupil)
+
+    def inputs(self) -> dict[str, float]:
+        """P_o's scene inputs: direction cosines of the light and its inverse distance."""
+        tx, ty = math.tan(math.radians(self.field_x_deg)), math.tan(math.radians(self.field_y_deg))
+        norm = math.sqrt(1.0 + tx * tx + ty * ty)
+        u = 0.0 if math.isinf(self.distance_mm) else 1.0 / self.distance_mm
+        return {"x_O": tx / norm, "y_O": ty / norm, "u_O": u}
+
+
+@dataclass(frozen=True)
+class Scene:
+    name: str
+    wavelengths_nm: tuple[float, ...]
+    lights: tuple[Light, ...]
+    focus_offset_mm: float | None = None
+    clip: bool = True
+    transmittance: bool = True
+    flares: bool = False
+    source_file: str = field(default="<memory>", compare=False)
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any], source: str = "<memory>") -> Scene:
+        def fail(key: str, value: Any, want: str) -> SceneError:
+            return SceneError(f"{source}: key '{key}': {want}, found {value!r}")
+
+        known = {"name", "wavelengths_nm", "light", "focus_offset_mm", "clip",
+                 "transmittance", "flares"}
+        for k in d:
+            if k not in known:
+                raise fail(k, d[k], f"unknown key (known: {', '.join(sorted(known))})")
+        name = d.get("name")
+        if not isinstance(name, str) or not name or not name.replace("-", "_").isidentifier():
+            raise fail("name", name, "expected a name of letters, digits, '_' or '-'")
+        lam = d.get("wavelengths_nm")
+        if (not isinstance(lam, list) or not lam
+                or not all(isinstance(v, int | float) and v > 0 for v in lam)):
+            raise fail("wavelengths_nm", lam, "expected a non-empty list of positive numbers")
+        lights = []
+        raw_lights = d.get("light")
+        if not isinstance(raw_lights, list) or not raw_lights:
+            raise fail("light", raw_lights, "expected at least one [[light]] table")
+        for i, lt in enumerate(raw_lights):
+            try:
+                dist = lt.get("distance_mm", "inf")
+                dist = math.inf if dist == "inf" else float(dist)
+                light = Light(float(lt["field_x_deg"]), float(lt["field_y_deg"]), dist)
+            except (KeyError, TypeError, ValueError, AttributeError) as e:
+                raise fail(f"light[{i}]", lt, f"expected field_x_deg, field_y_deg and "
+                           f"distance_mm (number or \"inf\") ({e})") from None
+            if not light.distance_mm > 0:
+                raise fail(f"light[{i}].distance_mm", dist,
+                           "expected a positive distance in front of the lens")
+            lights.append(light)
+        focus = d.get("focus_offset_mm")
+        if focus is not None and not (isinstance(focus, int | float) and math.isfinite(focus)):
+            raise fail("focus_offset_mm", focus, "expected a finite number (mm)")
+        flags = {}
+        for k in ("clip", "transmittance", "flares"):
+            v = d.get(k, k != "flares")
+            if not isinstance(v, bool):
+                raise fail(k, v, "expected true or false")
+            flags[k] = v
+        return cls(name, tuple(float(v) for v in lam), tuple(lights),
+                   None if focus is None else float(focus), source_file=source, **flags)
+
+
+def load_scene(path: str | Path) -> Scene:
+    p = Path(path)
+    try:
+        doc = tomllib.loads(p.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError) as e:
+        raise SceneError(f"{p}: cannot read scene: {e}") from None
+    return Scene.from_dict(doc, str(p))
+
+
+def _check_domain(scene: Scene, system: System, fixed: dict[str, float], what: str) -> None:
+    """Every fixed value must lie in the fitted domain: no silent extrapolation."""
+    for inp in system.inputs:
+        if inp.name in fixed:
+            v = fixed[inp.name]
+            if not (inp.lo - 1e-12 * abs(inp.lo) - 1e-15 <= v
+                    <= inp.hi + 1e-12 * abs(inp.hi) + 1e-15):
+                raise SceneError(f"{scene.source_file}: {what}: {inp.name} = {v:.6g} "
+                                 f"{inp.unit} is outside the fitted domain "
+                                 f"[{inp.lo:.6g}, {inp.hi:.6g}]")
+    # Directions were sampled on the disc (ellipse) of the field, not on its box's corners
+    if "x_O" in fixed and "y_O" in fixed and "x_O" in system.input_names:
+        names = system.input_names
+        sx, sy = (system.inputs[names.index(k)].hi for k in ("x_O", "y_O"))
+        r = math.hypot(fixed["x_O"] / sx, fixed["y_O"] / sy)
+        if r > 1.0 + 1e-12:
+            raise SceneError(f"{scene.source_file}: {what}: the direction (x_O, y_O) = "
+                             f"({fixed['x_O']:.6g}, {fixed['y_O']:.6g}) is outside the "
+                             f"fitted field (the ellipse of half axes {sx:.6g}, {sy:.6g})")
+
+
+def _drop_constant_phase(p: Polynomial, names: list[str]) -> Polynomial:
+    if not p.output.startswith("phi"):
+        return p
+    cols = [names.index(a) for a in APERTURE_INPUTS]
+    keep = p.exponents[:, cols].sum(axis=1) > 0
+    return Polynomial(p.output, p.unit, p.exponents[keep], p.coefficients[keep])
+
+
+def _outputs_wanted(scene: Scene, system: System) -> list[str]:
+    names = []
+    for n in system.output_names:
+        if n.startswith(("x_", "y_")) and not scene.clip:
+            continue
+        if n.startswith("tau") and not scene.transmittance:
+            continue
+        names.append(n)
+    return names
+
+
+def _finish(scene: Scene, system: System, fixed: dict[str, float], name: str,
+            what: str) -> System:
+    _check_domain(scene, system, fixed, what)
+    s = system.select(_outputs_wanted(scene, system)).specialise(fixed, name=name)
+    outs = tuple(_drop_constant_phase(p, s.input_names) for p in s.outputs)
+    info = {**s.info, "scene": scene.name}
+    return replace(s, outputs=outs, info=info)
+
+
+def specialise(systems: list[System], scene: Scene) -> list[System]:
+    """The systems ``scene`` needs, folded and trimmed (see the module doc)."""
+    if scene.flares:
+        raise SceneError(f"{scene.source_file}: key 'flares': flare paths are not fitted "
+                         "yet; set flares = false")
+    by_name = {s.name: s for s in systems}
+    if "P_o" not in by_name or "P_s" not in by_name:
+        raise SceneError(f"{scene.source_file}: the lens has no fitted P_o and P_s")
+    lam = {"lambda": scene.wavelengths_nm[0]} if len(scene.wavelengths_nm) == 1 else {}
+    for v in scene.wavelengths_nm:
+        _check_domain(scene, by_name["P_s"], {"lambda": v}, "wavelengths_nm")
+    out = []
+    for i, light in enumerate(scene.lights):
+        fixed = {**light.inputs(), **lam}
+        out.append(_finish(scene, by_name["P_o"], fixed, f"P_o_light{i}", f"light[{i}]"))
+    fixed_s = dict(lam)
+    if scene.focus_offset_mm is not None:
+        fixed_s["z_S"] = scene.focus_offset_mm
+    out.append(_finish(scene, by_name["P_s"], fixed_s, "P_s", "focus_offset_mm"))
+    return out
+
+
+def terms(systems: list[System]) -> int:
+    return int(sum(p.terms for s in systems for p in s.outputs))
+
+
+def max_abs_difference(general: System, special: System, fixed: dict[str, float],
+                       n: int = 2000, seed: int = 0) -> float:
+    """Largest |general - special| over random free inputs, with the stop-independent
+    terms of phi dropped from the general system too (as the specialisation does)."""
+    rng = np.random.default_rng(seed)
+    free = [i for i in general.inputs if i.name not in fixed]
+    x_free = np.column_stack([rng.uniform(i.lo, i.hi, n) for i in free])
+    x_full = np.column_stack([
+        np.full(n, fixed[i.name]) if i.name in fixed else x_free[:, [f.name for f in free]
+                                                                 .index(i.name)]
+        for i in general.inputs])
+    names = special.output_names
+    sel = general.select(names)
+    sel = replace(sel, outputs=tuple(_drop_constant_phase(p, sel.input_names)
+                                     for p in sel.outputs))
+    return float(np.max(np.abs(sel.evaluate(x_full) - special.evaluate(x_free))))
