@@ -100,6 +100,10 @@ class Scene:
             if not light.distance_mm > 0:
                 raise fail(f"light[{i}].distance_mm", dist,
                            "expected a positive distance in front of the lens")
+            for k in ("field_x_deg", "field_y_deg"):  # tan() would wrap 180 to 0
+                if not abs(getattr(light, k)) < 90.0:
+                    raise fail(f"light[{i}].{k}", getattr(light, k),
+                               "expected an angle in (-90, 90) degrees, in front of the lens")
             lights.append(light)
         focus = d.get("focus_offset_mm")
         if focus is not None and not (isinstance(focus, int | float) and math.isfinite(focus)):

@@ -263,6 +263,11 @@ def sample_sensor_side(lens: Lens, domain: Domain, groups: int, per_group: int,
     lam_g = _wavelengths(rng, domain, groups)
     xs, ys, zs, lam = sens[gid, 0], sens[gid, 1], zs_g[gid], lam_g[gid]
     z_sensor = lens.sensor_z + zs
+    if lens.sensor_z + domain.focus_min_mm <= lens.vertex_z[-1]:
+        raise SamplingError(
+            f"{lens.source_file or lens.name}: focus_min_mm = {domain.focus_min_mm:g} puts the "
+            f"sensor in front of the last surface (it is {lens.sensor_z - lens.vertex_z[-1]:g}"
+            " mm behind it)")
     path = [Step(k) for k in range(s + 1, n_surf)]
     steps = list(range(s + 1, n_surf))
 
