@@ -209,8 +209,8 @@ def cmd_scene(args: argparse.Namespace) -> int:
     special = sc.specialise(systems, scene)
     prefix = f"{lens_prefix(lens)}{scene.name.replace('-', '_')}_"
     comment = header_comment(lens, f"Specialised for scene {Path(args.scene).name}.")
-    files = emit_c(special, prefix, header_comment=comment)
-    files[prefix.rstrip("_") + ".table"] = write_table(special, comment=comment)
+    c_files = emit_c(special, prefix, header_comment=comment)
+    files = {**c_files, prefix.rstrip("_") + ".table": write_table(special, comment=comment)}
     out = Path(args.out) if args.out else gen / "scenes" / scene.name
     write_folder(out, files)
     general = emit_c(systems, lens_prefix(lens))
@@ -218,7 +218,7 @@ def cmd_scene(args: argparse.Namespace) -> int:
         "general_terms": sc.terms(systems),
         "scene_terms": sc.terms(special),
         "general_c_bytes": sum(len(t) for t in general.values()),
-        "scene_c_bytes": sum(len(t) for t in files.values() if not t.startswith("lensfit-")),
+        "scene_c_bytes": sum(len(t) for t in c_files.values()),
         "systems": [],
     }
     if not args.no_timing:

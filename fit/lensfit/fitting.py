@@ -106,22 +106,22 @@ def _parity_mask(exps: np.ndarray, odd_x: bool, odd_y: bool) -> np.ndarray:
     return px & py
 
 
-def _group_centre(a: np.ndarray, group: np.ndarray) -> np.ndarray:
-    """Subtract from each row the mean of its group (rows of a 1-D or 2-D array)."""
+def _group_means(a: np.ndarray, group: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(per-row group index into the means, mean of each group's rows of a (1-D or 2-D)),
+    groups in ascending id order."""
     _, inv, counts = np.unique(group, return_inverse=True, return_counts=True)
     sums = np.zeros((len(counts),) + a.shape[1:])
     np.add.at(sums, inv, a)
-    means = sums / counts.reshape((-1,) + (1,) * (a.ndim - 1))
+    return inv, sums / counts.reshape((-1,) + (1,) * (a.ndim - 1))
+
+
+def _group_centre(a: np.ndarray, group: np.ndarray) -> np.ndarray:
+    """Subtract from each row the mean of its group (rows of a 1-D or 2-D array)."""
+    inv, means = _group_means(a, group)
     return a - means[inv]
 
 
-def _group_means(a: np.ndarray, group: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(group ids, mean of a per group)."""
-    ids, inv, counts = np.unique(group, return_inverse=True, return_counts=True)
-    return ids, np.bincount(inv, a) / counts
-
-
-def _error_metric(name: str, pred: np.ndarray, true: np.ndarray, group: np.ndarray):
+def error_metric(name: str, pred: np.ndarray, true: np.ndarray, group: np.ndarray):
     """Error in report units: um for positions, relative for tau, waves (piston removed)."""
     if name.startswith("phi"):
         return _group_centre(pred - true, group) / WAVE_MM
@@ -143,7 +143,7 @@ def _pursue(A_train, y_train, A_test, name, test_group, y_test, max_terms, targe
 
     def stop(k: int, support: np.ndarray, coef: np.ndarray) -> bool:
         pred = A_test[:, support] @ coef
-        err = _error_metric(name, pred, y_test, test_group)
+        err = error_metric(name, pred, y_test, test_group)
         history.append(float(np.sqrt(np.mean(err * err))))
         return history[-1] <= target
 
@@ -181,7 +181,7 @@ def fit_system(name: str, inputs: tuple[Input, ...], outputs, train: Samples, te
                                  target)
             k = _pick(hist, target)
             poly = Polynomial(out, unit, cand[path.support[:k]], path.coefficients(k))
-            err = _error_metric(out, poly.evaluate_normalised(xe), y_te, te.group)
+            err = error_metric(out, poly.evaluate_normalised(xe), y_te, te.group)
             of = _output_fit(name, out, poly, err, hist, target,
                              "1" if out.startswith("tau") else "um")
         polys.append(poly)
@@ -212,8 +212,8 @@ def _fit_phase(out, unit, cand, xt, xe, tr, te, y_tr, y_te, options):
     ap_exps, ap_coef = ap_cand[path.support[:k]], path.coefficients(k)
     # The piston: group means of what is left, against the non-stop monomials
     left = y_tr - design_matrix(xt, ap_exps) @ ap_coef
-    ids, means = _group_means(left, tr.group)
-    first = np.unique(tr.group, return_index=True)[1]
+    inv, means = _group_means(left, tr.group)
+    first = np.unique(inv, return_index=True)[1]  # one row per group, in the means' order
     P = design_matrix(xt[first], pist_cand)
     pist_path: OmpPath = omp(P, means, max_terms=min(options.piston_terms, len(pist_cand)),
                              tol=1e-7, criterion="ols")  # 0.1 nm: the piston needs no more
@@ -222,7 +222,7 @@ def _fit_phase(out, unit, cand, xt, xe, tr, te, y_tr, y_te, options):
     coef = np.concatenate([ap_coef, pist_path.coefficients(kp)])
     poly = Polynomial(out, unit, exps, coef)
     pred = poly.evaluate_normalised(xe)
-    err = _error_metric(out, pred, y_te, te.group)
+    err = error_metric(out, pred, y_te, te.group)
     absolute = float(np.sqrt(np.mean((pred - y_te) ** 2)) * 1e3)
     return poly, _output_fit(tr.system, out, poly, err, hist, options.target_waves, "waves",
                              piston_terms=kp, absolute_rms_um=absolute)

@@ -23,7 +23,7 @@ import numpy as np
 
 from lensfit.codegen import emit_c
 from lensfit.codegen.timing import time_c
-from lensfit.fitting import WAVE_MM, SystemFit
+from lensfit.fitting import SystemFit, error_metric
 from lensfit.poly import Polynomial, System
 from lensfit.prescription.model import Lens
 from lensfit.trace.tracer import Rays, Step, trace
@@ -134,12 +134,10 @@ def _output_json(o) -> dict[str, Any]:
 
 def _phase_error_by_radius(f: SystemFit) -> tuple[np.ndarray, np.ndarray]:
     """Held-out phi RMS (waves) in rings of the stop radius."""
-    from lensfit.fitting import _group_centre
-
     te = f.test.subset(f.test.passes)
-    j = [p.output for p in f.system.outputs].index(f.system.outputs[3].output)
-    pred = f.system.evaluate(te.inputs)[:, j]
-    err = _group_centre(pred - te.outputs[:, j], te.group) / WAVE_MM
+    phi = f.system.outputs[3]
+    err = error_metric(phi.output, phi.evaluate_normalised(f.system.normalise(te.inputs)),
+                       te.outputs[:, 3], te.group)
     r = np.hypot(te.inputs[:, 3], te.inputs[:, 4])
     edges = np.linspace(0.0, r.max() * (1 + 1e-9), 9)
     k = np.digitize(r, edges) - 1

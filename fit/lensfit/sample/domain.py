@@ -149,8 +149,10 @@ def default_domain(lens: Lens, f_number: float | None = None) -> Domain:
     travel = float(image_distance(lens, close) - image_distance(lens, math.inf))
     margin = 0.01 * efl
     if f_number is None:
-        stop = min(lens.stop_radius_max_mm, stop_radius_for_f_number(lens, DEFAULT_F_NUMBER)
-                   if _faster_than(lens, DEFAULT_F_NUMBER) else lens.stop_radius_max_mm)
+        try:
+            stop = stop_radius_for_f_number(lens, DEFAULT_F_NUMBER)
+        except ValueError:  # the lens is slower than f/2: wide open
+            stop = lens.stop_radius_max_mm
     else:
         stop = stop_radius_for_f_number(lens, f_number)
     return Domain(
@@ -162,11 +164,3 @@ def default_domain(lens: Lens, f_number: float | None = None) -> Domain:
         focus_max_mm=max(0.0, travel) + margin,
         field_y_deg=field_y,
     )
-
-
-def _faster_than(lens: Lens, f_number: float) -> bool:
-    try:
-        stop_radius_for_f_number(lens, f_number)
-    except ValueError:
-        return False
-    return True

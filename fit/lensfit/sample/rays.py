@@ -142,11 +142,11 @@ def _newton(residual, p0: np.ndarray, scale: float):
     return p, ~failed
 
 
-def _vignetting(lens: Lens, history: list[np.ndarray], steps: list[int]) -> np.ndarray:
+def _vignetting(lens: Lens, history: list[np.ndarray], path: list[Step]) -> np.ndarray:
     """Largest radius / housing radius over the surfaces of the half path (not the stop)."""
     v = np.zeros(len(history[0]))
-    for pos, k in zip(history, steps, strict=True):
-        s = lens.surfaces[k]
+    for pos, step in zip(history, path, strict=True):
+        s = lens.surfaces[step.surface]
         if s.stop:
             continue
         v = np.maximum(v, np.hypot(pos[:, 0], pos[:, 1]) / s.semi_diameter_mm)
@@ -193,7 +193,7 @@ def sample_object_side(lens: Lens, domain: Domain, groups: int, per_group: int,
         pz = np.concatenate([p, np.zeros((len(p), 1))], axis=1)
         d = ug[idx, None] * pz - w[idx]
         d /= np.linalg.norm(d, axis=1, keepdims=True)
-        start = pz + d * ((front - 0.0) / d[:, 2])[:, None]
+        start = pz + d * (front / d[:, 2])[:, None]  # back from z = 0 to z = front
         return start, d
 
     def residual(idx, p, hist=None, fresnel=False):
@@ -223,7 +223,7 @@ def sample_object_side(lens: Lens, domain: Domain, groups: int, per_group: int,
     hist: list[np.ndarray] = []
     r, valid, out, start = residual(idx, p[idx], hist, fresnel=True)
     good = valid & (np.hypot(r[:, 0], r[:, 1]) <= 10 * NEWTON_TOL_MM)
-    vig = _vignetting(lens, hist, list(range(s + 1)))
+    vig = _vignetting(lens, hist, path)
     # OPL relative to d_O, without cancellation
     ui = ug[idx, None]
     wi = w[idx]
@@ -269,7 +269,6 @@ def sample_sensor_side(lens: Lens, domain: Domain, groups: int, per_group: int,
             f"sensor in front of the last surface (it is {lens.sensor_z - lens.vertex_z[-1]:g}"
             " mm behind it)")
     path = [Step(k) for k in range(s + 1, n_surf)]
-    steps = list(range(s + 1, n_surf))
 
     def shoot(idx, slope, hist=None, fresnel=False):
         """Ray from the stop point with slopes (dx/dz, dy/dz), to the sensor plane."""
@@ -303,7 +302,7 @@ def sample_sensor_side(lens: Lens, domain: Domain, groups: int, per_group: int,
     hist: list[np.ndarray] = []
     r, valid, out = shoot(idx, p[idx], hist, fresnel=True)
     good = valid & (np.hypot(r[:, 0], r[:, 1]) <= 10 * NEWTON_TOL_MM)
-    vig = _vignetting(lens, hist, steps)
+    vig = _vignetting(lens, hist, path)
     last_pos = hist[-1]
     outputs = np.stack([last_pos[:, 0], last_pos[:, 1], out.transmittance, out.opl_mm], axis=1)
     inputs = np.stack([xs, ys, zs, ap[:, 0], ap[:, 1], lam], axis=1)[idx]
