@@ -177,10 +177,12 @@ def write_report(lens: Lens, fits: Sequence[SystemFit], figures: dict[str, Any],
     axes[0].legend(fontsize=7)
     axes[1].set(xlabel="terms per output", ylabel="ns per evaluation (whole system, double)",
                 title="Run time against terms")
-    axes[1].legend(fontsize=7)
+    if axes[1].lines:  # no timings with --no-timing: nothing to label
+        axes[1].legend(fontsize=7)
     axes[2].set(xlabel="ns per evaluation (double)", ylabel="phi RMS (waves at 550 nm)",
                 title="Error against run time")
-    axes[2].legend(fontsize=7)
+    if axes[2].lines:
+        axes[2].legend(fontsize=7)
     fig.tight_layout()
     fig.savefig(out_dir / "pareto.png", dpi=110)
     plt.close(fig)
