@@ -1,0 +1,262 @@
+/*
+ * lensrt: spectral Huygens point spread functions from fitted lens polynomials.
+ *
+ * The paper's integrator (Monte Carlo over the aperture, phasors per wavelength in a
+ * complex framebuffer, the transport after the aperture shared by every pixel) as a
+ * C99 library:
+ *
+ *   lensrt_context     allocator and log hooks, the last error message; no globals
+ *   lensrt_lens        a lens: a fitted polynomial table (generated/<lens>/lens<ID>.table)
+ *                      or an analytic one (free space or a perfect thin lens)
+ *   lensrt_render      a prepared scene plus its phasor sums; run() adds samples
+ *
+ * Every call returns a lensrt_result; lensrt_result_string() names it and
+ * lensrt_context_last_error() says what was wrong (file, key, value). Option structs
+ * are zero-initialised to mean the documented defaults. Memory passed in is owned by
+ * the caller; memory the library allocates goes through the context's hooks.
+ *
+ * Threads: a context and the renders made from it are used by one thread at a time
+ * (a render uses OpenMP threads inside run()). Lenses are immutable once loaded. Renders
+ * are deterministic for a seed whatever the number of threads.
+ *
+ * Units: millimetres for lengths, nanometres for wavelengths, degrees for angles.
+ */
+#ifndef LENSRT_H
+#define LENSRT_H
+
+#include <stddef.h>
+#include <stdint.h>
+
+#ifdef __cplusplus
+extern "C" {
+#endif
+
+#define LENSRT_VERSION_MAJOR 0
+#define LENSRT_VERSION_MINOR 1
+#define LENSRT_VERSION_PATCH 0
+
+/* Symbols of the shared library (everything else is hidden). */
+#if defined(LENSRT_BUILDING) && defined(__GNUC__)
+#define LENSRT_API __attribute__((visibility("default")))
+#else
+#define LENSRT_API
+#endif
+
+/* ---------------------------------------------------------------- results ----- */
+
+typedef enum lensrt_result {
+    LENSRT_SUCCESS = 0,
+    LENSRT_ERROR_INVALID_ARGUMENT, /* a NULL pointer, a count or size out of range */
+    LENSRT_ERROR_OUT_OF_MEMORY,
+    LENSRT_ERROR_IO,               /* a file could not be read or written */
+    LENSRT_ERROR_PARSE,            /* a lens table or phasor file is malformed */
+    LENSRT_ERROR_OUT_OF_DOMAIN,    /* outside what the lens was fitted for */
+    LENSRT_ERROR_INCOMPATIBLE,     /* phasor sums of a different scene */
+    LENSRT_ERROR_UNSUPPORTED,      /* a feature left out of this build */
+    LENSRT_ERROR_CANCELLED         /* the progress callback asked to stop */
+} lensrt_result;
+
+/* A static string naming the result ("success", "invalid argument", ...). */
+LENSRT_API const char *lensrt_result_string(lensrt_result result);
+
+/* ---------------------------------------------------------------- context ----- */
+
+typedef enum lensrt_log_level {
+    LENSRT_LOG_ERROR = 0,
+    LENSRT_LOG_WARNING = 1,
+    LENSRT_LOG_INFO = 2
+} lensrt_log_level;
+
+typedef struct lensrt_context_s *lensrt_context;
+
+typedef struct lensrt_context_init {
+    /* Allocator hooks: all three or none (NULL: malloc/realloc/free). */
+    void *(*alloc_fn)(size_t size, void *user_data);
+    void (*free_fn)(void *ptr, void *user_data);
+    /* Log hook (NULL: silent). The message is valid during the call only. */
+    void (*log_fn)(lensrt_log_level level, const char *message, void *user_data);
+    void *user_data;
+    /* OpenMP threads for run() (0: the OpenMP default). */
+    int threads;
+} lensrt_context_init;
+
+LENSRT_API lensrt_result lensrt_context_create(const lensrt_context_init *init, lensrt_context *out);
+LENSRT_API void lensrt_context_destroy(lensrt_context ctx);
+/* The message of the last failing call made with ctx ("" when none). */
+LENSRT_API const char *lensrt_context_last_error(lensrt_context ctx);
+
+/* ------------------------------------------------------------------ lenses ----- */
+
+typedef struct lensrt_lens_s *lensrt_lens;
+
+/* Load a fitted lens from its coefficient table (format `lensfit-poly-table`). */
+LENSRT_API lensrt_result lensrt_lens_load(lensrt_context ctx, const char *table_path, lensrt_lens *out);
+/* The same from memory; `name` is used in messages. */
+LENSRT_API lensrt_result lensrt_lens_load_text(lensrt_context ctx, const char *text, size_t size,
+                                    const char *name, lensrt_lens *out);
+
+/* An analytic lens for validation and for scenes without a real lens: the aperture
+ * plane, then free space to a sensor `sensor_distance_mm` behind it. With a focal length
+ * the aperture holds a perfect thin lens (every path from a light to its geometric image
+ * has the same optical path length). With `one_dimensional` the aperture is a line (x)
+ * and waves are cylindrical, as in the paper's Algorithm 1; the sensor is then one row. */
+typedef struct lensrt_analytic_lens {
+    double focal_length_mm;    /* 0: no lens, free space */
+    double sensor_distance_mm; /* aperture plane to sensor plane, > 0 */
+    int one_dimensional;
+} lensrt_analytic_lens;
+
+LENSRT_API lensrt_result lensrt_lens_create_analytic(lensrt_context ctx, const lensrt_analytic_lens *desc,
+                                          lensrt_lens *out);
+LENSRT_API void lensrt_lens_destroy(lensrt_context ctx, lensrt_lens lens);
+
+typedef struct lensrt_lens_info {
+    const char *name;            /* valid while the lens lives */
+    int analytic;                /* 1 for lensrt_lens_create_analytic lenses */
+    double focal_length_mm;      /* paraxial EFL (y meridian) */
+    double f_number_min;         /* widest f-number the fit covers */
+    double stop_radius_max_mm;   /* stop radius the fit covers */
+    double wavelength_min_nm, wavelength_max_nm;
+    double focus_offset_min_mm, focus_offset_max_mm; /* sensor shift z_S range */
+    double field_x, field_y;     /* largest direction cosines of a light */
+    double distance_min_mm;      /* closest light (from the first vertex); 0: any */
+    double sensor_radius_mm;     /* image circle the fit covers */
+} lensrt_lens_info;
+
+LENSRT_API lensrt_result lensrt_lens_get_info(lensrt_lens lens, lensrt_lens_info *out);
+
+/* Where a light's chief ray (through the stop centre) meets the sensor, in mm on the
+ * sensor: the point where the total phase is stationary at the stop centre, found by
+ * Newton's method on the polynomials (for analytic lenses, the geometric image). */
+typedef struct lensrt_light lensrt_light;
+LENSRT_API lensrt_result lensrt_lens_image_point(lensrt_context ctx, lensrt_lens lens, const lensrt_light *light,
+                                      double wavelength_nm, double focus_offset_mm, double xy_mm[2]);
+
+/* ----------------------------------------------------------------- renders ----- */
+
+typedef enum lensrt_sampler {
+    LENSRT_SAMPLER_DEFAULT = 0,   /* LENSRT_SAMPLER_SOBOL */
+    LENSRT_SAMPLER_RANDOM,        /* independent uniform points */
+    LENSRT_SAMPLER_STRATIFIED,    /* jittered grid per pass */
+    LENSRT_SAMPLER_SOBOL          /* (0,2)-sequence with a random shift per seed */
+} lensrt_sampler;
+
+typedef enum lensrt_estimator {
+    LENSRT_ESTIMATOR_DEFAULT = 0, /* LENSRT_ESTIMATOR_PAPER */
+    LENSRT_ESTIMATOR_PAPER,       /* |sum X|^2 / N^2: biased by variance / N */
+    LENSRT_ESTIMATOR_UNBIASED     /* (|sum X|^2 - sum |X|^2) / (N (N - 1)) */
+} lensrt_estimator;
+
+typedef enum lensrt_precision {
+    LENSRT_PRECISION_DEFAULT = 0, /* phase reduced in double, float splat kernel */
+    LENSRT_PRECISION_DOUBLE,      /* everything in double, no pruning (reference) */
+    LENSRT_PRECISION_NAIVE_FLOAT  /* total OPL in float, no reduction (to show why not) */
+} lensrt_precision;
+
+typedef enum lensrt_aperture_shape {
+    LENSRT_APERTURE_CIRCLE = 0,
+    LENSRT_APERTURE_BLADES,       /* a regular polygon of `blades`, optionally curved */
+    LENSRT_APERTURE_SLIT          /* one slit, or two with a separation (x only) */
+} lensrt_aperture_shape;
+
+typedef struct lensrt_aperture {
+    lensrt_aperture_shape shape;
+    double radius_mm;        /* stop radius; 0: from f_number */
+    double f_number;         /* used when radius_mm is 0; 0: the lens's widest */
+    int blades;              /* LENSRT_APERTURE_BLADES: 3 or more */
+    double blade_curvature;  /* 0 straight blades, 1 blades on the circle */
+    double rotation_deg;     /* polygon rotation */
+    double slit_width_mm;    /* LENSRT_APERTURE_SLIT: width in x */
+    double slit_separation_mm; /* centre-to-centre of a double slit; 0: one slit */
+} lensrt_aperture;
+
+typedef struct lensrt_sensor {
+    int width, height;          /* pixels, > 0 (height 1 for one-dimensional lenses) */
+    double width_mm, height_mm; /* size of the pixel grid; height 0: square pixels */
+    double center_x_mm, center_y_mm; /* centre of the window on the sensor */
+    double focus_offset_mm;     /* z_S: sensor shift, + away from the lens */
+} lensrt_sensor;
+
+struct lensrt_light {
+    double field_x_deg, field_y_deg; /* direction of the light seen from the lens */
+    double distance_mm;              /* from the first vertex; 0: infinity */
+    double intensity;                /* 0: 1 */
+};
+
+typedef struct lensrt_render_desc {
+    lensrt_lens lens;
+    lensrt_sensor sensor;
+    lensrt_aperture aperture;
+    const lensrt_light *lights;  /* copied; NULL with n_lights 0: one light on the axis at infinity */
+    int n_lights;
+    const double *wavelengths_nm; /* copied; NULL: n_wavelengths uniform over the lens's range */
+    int n_wavelengths;            /* 0: 16 */
+    lensrt_sampler sampler;
+    lensrt_estimator estimator;
+    lensrt_precision precision;
+    uint64_t seed;
+    double phase_tolerance_waves; /* largest phase the pruned per-pixel terms may drop; 0: 1e-3 */
+} lensrt_render_desc;
+
+typedef struct lensrt_render_s *lensrt_render;
+
+/* Check the scene against the lens's fitted domain and allocate the phasor sums. */
+LENSRT_API lensrt_result lensrt_render_create(lensrt_context ctx, const lensrt_render_desc *desc,
+                                   lensrt_render *out);
+LENSRT_API void lensrt_render_destroy(lensrt_render render);
+
+/* Called after each pass with the fraction done and an estimate of seconds left;
+ * return non-zero to stop (run() then returns LENSRT_ERROR_CANCELLED; the sums keep
+ * every completed pass). */
+typedef int (*lensrt_progress_fn)(double fraction, double eta_seconds, void *user_data);
+
+/* Add `samples_per_wavelength` aperture samples for every wavelength, continuing the
+ * sample sequence where the sums left off (so two runs equal one longer run). */
+LENSRT_API lensrt_result lensrt_render_run(lensrt_render render, uint64_t samples_per_wavelength,
+                                lensrt_progress_fn progress, void *user_data);
+
+/* Splat caller-chosen aperture points (x, y pairs in mm on the stop, uniform density over
+ * the aperture's bounding disc) for wavelength index `wavelength`; points outside the
+ * aperture shape count as samples with zero contribution. */
+LENSRT_API lensrt_result lensrt_render_splat_points(lensrt_render render, int wavelength,
+                                         const double *xy_mm, size_t n_points);
+
+typedef struct lensrt_render_stats {
+    int width, height, n_wavelengths, n_lights;
+    uint64_t samples_per_wavelength;  /* the sample count N of every wavelength */
+    uint64_t splats;                  /* aperture samples x pixels, over all passes */
+    double seconds;                   /* wall time spent in run() and splat_points() */
+    double splats_per_second;
+    double stop_radius_mm, f_number;
+} lensrt_render_stats;
+
+LENSRT_API lensrt_result lensrt_render_get_stats(lensrt_render render, lensrt_render_stats *out);
+/* The wavelengths in use (n_wavelengths of them). */
+LENSRT_API const double *lensrt_render_wavelengths(lensrt_render render);
+
+/* Intensity per wavelength, lights added: out[(w * height + y) * width + x], count =
+ * n_wavelengths * width * height. Units: irradiance on the sensor relative to a unit
+ * irradiance on the stop (so the sum over pixels times the pixel area is the power
+ * through the aperture, times transmittance). Row 0 is the top of the image (+y). */
+LENSRT_API lensrt_result lensrt_render_image(lensrt_render render, float *out, size_t count);
+/* Linear sRGB (D65 white) from the spectral image through the CIE 1931 2-degree
+ * observer: out[(y * width + x) * 3 + c], count = 3 * width * height. */
+LENSRT_API lensrt_result lensrt_render_rgb(lensrt_render render, float *out, size_t count);
+
+/* Phasor sums: save, load (replace), merge (add; the scene must match and the sample
+ * ranges must not overlap). Files are written atomically. */
+LENSRT_API lensrt_result lensrt_render_save(lensrt_render render, const char *path);
+LENSRT_API lensrt_result lensrt_render_load(lensrt_render render, const char *path);
+LENSRT_API lensrt_result lensrt_render_merge(lensrt_render render, const char *path);
+
+/* Image files, written atomically (temporary file, then rename). The EXR holds one
+ * channel per wavelength (spectral layout, `S0.<lambda>nm`), an RGB preview and the lens
+ * and render metadata; the PNG is an 8-bit sRGB preview with a logarithmic tone map
+ * over `decades` of intensity below the peak (0: 5). */
+LENSRT_API lensrt_result lensrt_render_write_exr(lensrt_render render, const char *path);
+LENSRT_API lensrt_result lensrt_render_write_png(lensrt_render render, const char *path, double decades);
+
+#ifdef __cplusplus
+}
+#endif
+#endif /* LENSRT_H */

@@ -1,0 +1,264 @@
+"""A thin ctypes binding of the lensrt C API, for tests, benchmarks and notebooks.
+
+    from lensrt_ctypes import Lensrt
+    rt = Lensrt()                                  # finds build/runtime/runtime/liblensrt.so
+    lens = rt.analytic(focal_length_mm=50, sensor_distance_mm=50)
+    img = rt.render(lens, width=64, height=64, width_mm=0.05, f_number=8,
+                    wavelengths=[550], samples=1 << 16)   # numpy (n_wl, height, width)
+
+Every failing call raises LensrtError with the library's message.
+"""
+
+from __future__ import annotations
+
+import ctypes as C
+import os
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[2]
+DEFAULT_LIBRARY = ROOT / "build" / "runtime" / "runtime" / "liblensrt.so"
+
+SAMPLERS = {"default": 0, "random": 1, "stratified": 2, "sobol": 3}
+ESTIMATORS = {"default": 0, "paper": 1, "unbiased": 2}
+PRECISIONS = {"default": 0, "double": 1, "naive_float": 2}
+SHAPES = {"circle": 0, "blades": 1, "slit": 2}
+
+
+class LensrtError(RuntimeError):
+    def __init__(self, code: int, message: str) -> None:
+        super().__init__(message)
+        self.code = code
+
+
+class ContextInit(C.Structure):
+    _fields_ = [("alloc_fn", C.c_void_p), ("free_fn", C.c_void_p), ("log_fn", C.c_void_p),
+                ("user_data", C.c_void_p), ("threads", C.c_int)]
+
+
+class AnalyticLens(C.Structure):
+    _fields_ = [("focal_length_mm", C.c_double), ("sensor_distance_mm", C.c_double),
+                ("one_dimensional", C.c_int)]
+
+
+class LensInfo(C.Structure):
+    _fields_ = [("name", C.c_char_p), ("analytic", C.c_int), ("focal_length_mm", C.c_double),
+                ("f_number_min", C.c_double), ("stop_radius_max_mm", C.c_double),
+                ("wavelength_min_nm", C.c_double), ("wavelength_max_nm", C.c_double),
+                ("focus_offset_min_mm", C.c_double), ("focus_offset_max_mm", C.c_double),
+                ("field_x", C.c_double), ("field_y", C.c_double),
+                ("distance_min_mm", C.c_double), ("sensor_radius_mm", C.c_double)]
+
+
+class Aperture(C.Structure):
+    _fields_ = [("shape", C.c_int), ("radius_mm", C.c_double), ("f_number", C.c_double),
+                ("blades", C.c_int), ("blade_curvature", C.c_double),
+                ("rotation_deg", C.c_double), ("slit_width_mm", C.c_double),
+                ("slit_separation_mm", C.c_double)]
+
+
+class Sensor(C.Structure):
+    _fields_ = [("width", C.c_int), ("height", C.c_int), ("width_mm", C.c_double),
+                ("height_mm", C.c_double), ("center_x_mm", C.c_double),
+                ("center_y_mm", C.c_double), ("focus_offset_mm", C.c_double)]
+
+
+class Light(C.Structure):
+    _fields_ = [("field_x_deg", C.c_double), ("field_y_deg", C.c_double),
+                ("distance_mm", C.c_double), ("intensity", C.c_double)]
+
+
+class RenderDesc(C.Structure):
+    _fields_ = [("lens", C.c_void_p), ("sensor", Sensor), ("aperture", Aperture),
+                ("lights", C.POINTER(Light)), ("n_lights", C.c_int),
+                ("wavelengths_nm", C.POINTER(C.c_double)), ("n_wavelengths", C.c_int),
+                ("sampler", C.c_int), ("estimator", C.c_int), ("precision", C.c_int),
+                ("seed", C.c_uint64), ("phase_tolerance_waves", C.c_double)]
+
+
+class Stats(C.Structure):
+    _fields_ = [("width", C.c_int), ("height", C.c_int), ("n_wavelengths", C.c_int),
+                ("n_lights", C.c_int), ("samples_per_wavelength", C.c_uint64),
+                ("splats", C.c_uint64), ("seconds", C.c_double),
+                ("splats_per_second", C.c_double), ("stop_radius_mm", C.c_double),
+                ("f_number", C.c_double)]
+
+
+class Render:
+    """A render: run() adds samples, image() resolves the intensities."""
+
+    def __init__(self, rt: Lensrt, handle: C.c_void_p, keep: list[Any]) -> None:
+        self.rt, self.handle, self._keep = rt, handle, keep
+
+    def __del__(self) -> None:
+        if getattr(self, "handle", None):
+            self.rt.lib.lensrt_render_destroy(self.handle)
+            self.handle = None
+
+    def run(self, samples_per_wavelength: int) -> None:
+        self.rt._check(self.rt.lib.lensrt_render_run(self.handle, C.c_uint64(samples_per_wavelength),
+                                                     None, None))
+
+    def splat_points(self, xy_mm: np.ndarray, wavelength: int = 0) -> None:
+        xy = np.ascontiguousarray(xy_mm, dtype=np.float64)
+        self.rt._check(self.rt.lib.lensrt_render_splat_points(
+            self.handle, wavelength, xy.ctypes.data_as(C.POINTER(C.c_double)), C.c_size_t(len(xy))))
+
+    def stats(self) -> Stats:
+        st = Stats()
+        self.rt._check(self.rt.lib.lensrt_render_get_stats(self.handle, C.byref(st)))
+        return st
+
+    def image(self) -> np.ndarray:
+        st = self.stats()
+        out = np.zeros((st.n_wavelengths, st.height, st.width), dtype=np.float32)
+        self.rt._check(self.rt.lib.lensrt_render_image(
+            self.handle, out.ctypes.data_as(C.POINTER(C.c_float)), C.c_size_t(out.size)))
+        return out
+
+    def rgb(self) -> np.ndarray:
+        st = self.stats()
+        out = np.zeros((st.height, st.width, 3), dtype=np.float32)
+        self.rt._check(self.rt.lib.lensrt_render_rgb(
+            self.handle, out.ctypes.data_as(C.POINTER(C.c_float)), C.c_size_t(out.size)))
+        return out
+
+    def save(self, path: str | os.PathLike[str]) -> None:
+        self.rt._check(self.rt.lib.lensrt_render_save(self.handle, os.fsencode(path)))
+
+    def load(self, path: str | os.PathLike[str]) -> None:
+        self.rt._check(self.rt.lib.lensrt_render_load(self.handle, os.fsencode(path)))
+
+    def merge(self, path: str | os.PathLike[str]) -> None:
+        self.rt._check(self.rt.lib.lensrt_render_merge(self.handle, os.fsencode(path)))
+
+    def write_exr(self, path: str | os.PathLike[str]) -> None:
+        self.rt._check(self.rt.lib.lensrt_render_write_exr(self.handle, os.fsencode(path)))
+
+    def write_png(self, path: str | os.PathLike[str], decades: float = 0.0) -> None:
+        self.rt._check(self.rt.lib.lensrt_render_write_png(self.handle, os.fsencode(path),
+                                                           C.c_double(decades)))
+
+
+class Lensrt:
+    """One lensrt context (and the library it came from)."""
+
+    def __init__(self, library: str | os.PathLike[str] | None = None, threads: int = 0) -> None:
+        path = Path(library or os.environ.get("LENSRT_LIBRARY", DEFAULT_LIBRARY))
+        if not path.exists():
+            raise FileNotFoundError(f"{path}: lensrt is not built (run `make runtime`)")
+        lib = C.CDLL(str(path))
+        self.lib = lib
+        lib.lensrt_result_string.restype = C.c_char_p
+        lib.lensrt_context_last_error.restype = C.c_char_p
+        lib.lensrt_context_last_error.argtypes = [C.c_void_p]
+        lib.lensrt_context_create.argtypes = [C.POINTER(ContextInit), C.POINTER(C.c_void_p)]
+        lib.lensrt_context_destroy.argtypes = [C.c_void_p]
+        lib.lensrt_lens_load.argtypes = [C.c_void_p, C.c_char_p, C.POINTER(C.c_void_p)]
+        lib.lensrt_lens_create_analytic.argtypes = [C.c_void_p, C.POINTER(AnalyticLens), C.POINTER(C.c_void_p)]
+        lib.lensrt_lens_destroy.argtypes = [C.c_void_p, C.c_void_p]
+        lib.lensrt_lens_get_info.argtypes = [C.c_void_p, C.POINTER(LensInfo)]
+        lib.lensrt_lens_image_point.argtypes = [C.c_void_p, C.c_void_p, C.POINTER(Light), C.c_double,
+                                                C.c_double, C.POINTER(C.c_double)]
+        lib.lensrt_render_create.argtypes = [C.c_void_p, C.POINTER(RenderDesc), C.POINTER(C.c_void_p)]
+        lib.lensrt_render_destroy.argtypes = [C.c_void_p]
+        lib.lensrt_render_run.argtypes = [C.c_void_p, C.c_uint64, C.c_void_p, C.c_void_p]
+        lib.lensrt_render_splat_points.argtypes = [C.c_void_p, C.c_int, C.POINTER(C.c_double), C.c_size_t]
+        lib.lensrt_render_get_stats.argtypes = [C.c_void_p, C.POINTER(Stats)]
+        lib.lensrt_render_image.argtypes = [C.c_void_p, C.POINTER(C.c_float), C.c_size_t]
+        lib.lensrt_render_rgb.argtypes = [C.c_void_p, C.POINTER(C.c_float), C.c_size_t]
+        for name in ("save", "load", "merge", "write_exr"):
+            getattr(lib, f"lensrt_render_{name}").argtypes = [C.c_void_p, C.c_char_p]
+        lib.lensrt_render_write_png.argtypes = [C.c_void_p, C.c_char_p, C.c_double]
+        init = ContextInit(threads=threads)
+        ctx = C.c_void_p()
+        code = lib.lensrt_context_create(C.byref(init), C.byref(ctx))
+        if code != 0:
+            raise LensrtError(code, lib.lensrt_result_string(code).decode())
+        self.ctx = ctx
+        self._lenses: list[C.c_void_p] = []
+
+    def __del__(self) -> None:
+        if getattr(self, "ctx", None):
+            for lens in self._lenses:
+                self.lib.lensrt_lens_destroy(self.ctx, lens)
+            self.lib.lensrt_context_destroy(self.ctx)
+            self.ctx = None
+
+    def _check(self, code: int) -> None:
+        if code != 0:
+            message = self.lib.lensrt_context_last_error(self.ctx).decode()
+            raise LensrtError(code, message or self.lib.lensrt_result_string(code).decode())
+
+    def load(self, table: str | os.PathLike[str]) -> C.c_void_p:
+        lens = C.c_void_p()
+        self._check(self.lib.lensrt_lens_load(self.ctx, os.fsencode(table), C.byref(lens)))
+        self._lenses.append(lens)
+        return lens
+
+    def analytic(self, *, sensor_distance_mm: float, focal_length_mm: float = 0.0,
+                 one_dimensional: bool = False) -> C.c_void_p:
+        desc = AnalyticLens(focal_length_mm, sensor_distance_mm, int(one_dimensional))
+        lens = C.c_void_p()
+        self._check(self.lib.lensrt_lens_create_analytic(self.ctx, C.byref(desc), C.byref(lens)))
+        self._lenses.append(lens)
+        return lens
+
+    def info(self, lens: C.c_void_p) -> dict[str, Any]:
+        info = LensInfo()
+        self._check(self.lib.lensrt_lens_get_info(lens, C.byref(info)))
+        d = {name: getattr(info, name) for name, _ in LensInfo._fields_}
+        d["name"] = d["name"].decode()
+        return d
+
+    def image_point(self, lens: C.c_void_p, light: Sequence[float], wavelength_nm: float,
+                    focus_offset_mm: float = 0.0) -> tuple[float, float]:
+        xy = (C.c_double * 2)()
+        lt = Light(*(list(light) + [0.0] * (4 - len(light))))
+        self._check(self.lib.lensrt_lens_image_point(self.ctx, lens, C.byref(lt), wavelength_nm,
+                                                     focus_offset_mm, xy))
+        return xy[0], xy[1]
+
+    def create(self, lens: C.c_void_p, *, width: int, height: int, width_mm: float,
+               height_mm: float = 0.0, center: tuple[float, float] = (0.0, 0.0),
+               focus_offset_mm: float = 0.0, f_number: float = 0.0, radius_mm: float = 0.0,
+               shape: str = "circle", blades: int = 0, blade_curvature: float = 0.0,
+               rotation_deg: float = 0.0, slit_width_mm: float = 0.0,
+               slit_separation_mm: float = 0.0, lights: Sequence[Sequence[float]] = (),
+               wavelengths: Sequence[float] | int = 0, sampler: str = "default",
+               estimator: str = "default", precision: str = "default", seed: int = 0,
+               phase_tolerance_waves: float = 0.0) -> Render:
+        keep: list[Any] = []
+        desc = RenderDesc()
+        desc.lens = lens
+        desc.sensor = Sensor(width, height, width_mm, height_mm, center[0], center[1], focus_offset_mm)
+        desc.aperture = Aperture(SHAPES[shape], radius_mm, f_number, blades, blade_curvature,
+                                 rotation_deg, slit_width_mm, slit_separation_mm)
+        if lights:
+            arr = (Light * len(lights))(*[Light(*(list(x) + [0.0] * (4 - len(x)))) for x in lights])
+            keep.append(arr)
+            desc.lights = arr
+            desc.n_lights = len(lights)
+        if isinstance(wavelengths, int):
+            desc.n_wavelengths = wavelengths
+        else:
+            wl = (C.c_double * len(wavelengths))(*wavelengths)
+            keep.append(wl)
+            desc.wavelengths_nm = wl
+            desc.n_wavelengths = len(wavelengths)
+        desc.sampler = SAMPLERS[sampler]
+        desc.estimator = ESTIMATORS[estimator]
+        desc.precision = PRECISIONS[precision]
+        desc.seed = seed
+        desc.phase_tolerance_waves = phase_tolerance_waves
+        handle = C.c_void_p()
+        self._check(self.lib.lensrt_render_create(self.ctx, C.byref(desc), C.byref(handle)))
+        return Render(self, handle, keep)
+
+    def render(self, lens: C.c_void_p, *, samples: int, **kwargs: Any) -> np.ndarray:
+        r = self.create(lens, **kwargs)
+        r.run(samples)
+        return r.image()

@@ -1,0 +1,117 @@
+/* Context: allocator and log hooks, error messages, result strings. */
+#include "internal.h"
+
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <time.h>
+
+static void *default_alloc(size_t size, void *user_data)
+{
+    (void)user_data;
+    return malloc(size);
+}
+
+static void default_free(void *ptr, void *user_data)
+{
+    (void)user_data;
+    free(ptr);
+}
+
+const char *lensrt_result_string(lensrt_result result)
+{
+    switch (result) {
+    case LENSRT_SUCCESS: return "success";
+    case LENSRT_ERROR_INVALID_ARGUMENT: return "invalid argument";
+    case LENSRT_ERROR_OUT_OF_MEMORY: return "out of memory";
+    case LENSRT_ERROR_IO: return "input/output error";
+    case LENSRT_ERROR_PARSE: return "malformed file";
+    case LENSRT_ERROR_OUT_OF_DOMAIN: return "outside the fitted domain";
+    case LENSRT_ERROR_INCOMPATIBLE: return "incompatible phasor sums";
+    case LENSRT_ERROR_UNSUPPORTED: return "not supported by this build";
+    case LENSRT_ERROR_CANCELLED: return "cancelled";
+    }
+    return "unknown result";
+}
+
+lensrt_result lensrt_context_create(const lensrt_context_init *init, lensrt_context *out)
+{
+    lensrt_context_init zero;
+    lensrt_context ctx;
+    if (!out) return LENSRT_ERROR_INVALID_ARGUMENT;
+    *out = NULL;
+    memset(&zero, 0, sizeof zero);
+    if (!init) init = &zero;
+    // Allocator hooks come as a pair or not at all
+    if ((init->alloc_fn == NULL) != (init->free_fn == NULL)) return LENSRT_ERROR_INVALID_ARGUMENT;
+    if (init->threads < 0) return LENSRT_ERROR_INVALID_ARGUMENT;
+    ctx = init->alloc_fn ? init->alloc_fn(sizeof *ctx, init->user_data) : malloc(sizeof *ctx);
+    if (!ctx) return LENSRT_ERROR_OUT_OF_MEMORY;
+    memset(ctx, 0, sizeof *ctx);
+    ctx->allocator.alloc_fn = init->alloc_fn ? init->alloc_fn : default_alloc;
+    ctx->allocator.free_fn = init->free_fn ? init->free_fn : default_free;
+    ctx->allocator.user_data = init->user_data;
+    ctx->log_fn = init->log_fn;
+    ctx->user_data = init->user_data;
+    ctx->threads = init->threads;
+    *out = ctx;
+    return LENSRT_SUCCESS;
+}
+
+void lensrt_context_destroy(lensrt_context ctx)
+{
+    if (ctx) ctx->allocator.free_fn(ctx, ctx->allocator.user_data);
+}
+
+const char *lensrt_context_last_error(lensrt_context ctx)
+{
+    return ctx ? ctx->error : "no context";
+}
+
+void *lensrt_alloc(lensrt_context ctx, size_t size)
+{
+    return ctx->allocator.alloc_fn(size ? size : 1, ctx->allocator.user_data);
+}
+
+void *lensrt_calloc(lensrt_context ctx, size_t count, size_t size)
+{
+    void *p;
+    if (size && count > (size_t)-1 / size) return NULL;
+    p = lensrt_alloc(ctx, count * size);
+    if (p) memset(p, 0, (count * size) > 0 ? count * size : 1);
+    return p;
+}
+
+void lensrt_free(lensrt_context ctx, void *ptr)
+{
+    if (ptr) ctx->allocator.free_fn(ptr, ctx->allocator.user_data);
+}
+
+lensrt_result lensrt_fail(lensrt_context ctx, lensrt_result result, const char *fmt, ...)
+{
+    va_list args;
+    if (!ctx) return result;
+    va_start(args, fmt);
+    vsnprintf(ctx->error, sizeof ctx->error, fmt, args);
+    va_end(args);
+    if (ctx->log_fn) ctx->log_fn(LENSRT_LOG_ERROR, ctx->error, ctx->user_data);
+    return result;
+}
+
+void lensrt_log(lensrt_context ctx, lensrt_log_level level, const char *fmt, ...)
+{
+    char message[LENSRT_ERROR_SIZE];
+    va_list args;
+    if (!ctx || !ctx->log_fn) return;
+    va_start(args, fmt);
+    vsnprintf(message, sizeof message, fmt, args);
+    va_end(args);
+    ctx->log_fn(level, message, ctx->user_data);
+}
+
+double lensrt_seconds(void)
+{
+    struct timespec ts;
+    clock_gettime(CLOCK_MONOTONIC, &ts);
+    return (double)ts.tv_sec + 1e-9 * (double)ts.tv_nsec;
+}

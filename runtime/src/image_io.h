@@ -1,0 +1,70 @@
+/*
+ * Image output for lensrt (internal): CIE 1931 colour, EXR (OpenEXRCore) and PNG.
+ *
+ * Every writer is atomic: it writes `<path>.tmp-<random>` next to the target and
+ * renames it over `path` only when everything succeeded; on failure no file is left.
+ * Errors are written to `err` (at most `err_size` bytes, NUL-terminated) naming the
+ * path and what failed.
+ */
+#ifndef LENSRT_IMAGE_IO_H
+#define LENSRT_IMAGE_IO_H
+
+#include "lensrt.h"
+
+#include <stddef.h>
+#include <stdint.h>
+
+/* The context's allocator (never NULL members once set up by context.c). */
+typedef struct lensrt_allocator {
+    void *(*alloc_fn)(size_t size, void *user_data);
+    void (*free_fn)(void *ptr, void *user_data);
+    void *user_data;
+} lensrt_allocator;
+
+/* What a render records in its image files. Strings may be NULL (left out). */
+typedef struct lensrt_image_meta {
+    const char *lens_name;      /* e.g. "Angenieux double Gauss 100 mm f/1.1 (1953)" */
+    const char *lens_file;      /* the table path, or NULL for an analytic lens */
+    double focal_length_mm;
+    double f_number;
+    double stop_radius_mm;
+    double focus_offset_mm;     /* z_S */
+    double pixel_pitch_x_mm, pixel_pitch_y_mm;
+    double center_x_mm, center_y_mm;
+    uint64_t samples_per_wavelength;
+    double seconds;
+    double splats_per_second;
+    const char *sampler;        /* "sobol", "random", "stratified" */
+    const char *estimator;      /* "paper", "unbiased" */
+    const char *aperture;       /* e.g. "circle", "7 blades, curvature 0.3, rotation 10 deg" */
+    uint64_t seed;
+    int n_lights;
+    const lensrt_light *lights;
+} lensrt_image_meta;
+
+/* Linear sRGB (D65) of spectra sampled at `wavelengths_nm` (any order, any count >= 1):
+ * XYZ = sum_w S_w * cmf(lambda_w) * dlambda_w with dlambda from the midpoints between
+ * neighbouring wavelengths (25 nm each for 16 uniform ones over 380-780), then the
+ * standard XYZ -> linear sRGB matrix. spectral[(w * n_pixels) + p], rgb[p * 3 + c]. */
+void lensrt_spectrum_to_rgb(int n_wavelengths, const double *wavelengths_nm,
+                            const float *spectral, size_t n_pixels, float *rgb);
+
+/* CIE 1931 2-degree colour matching functions at one wavelength (nm). */
+void lensrt_cie1931_xyz(double wavelength_nm, double xyz[3]);
+
+/* EXR: scanline, ZIP compression, FLOAT channels: one per wavelength named
+ * `S0.<lambda with comma decimal>nm` (spectral layout of Fichet et al. 2021, attribute
+ * spectralLayoutVersion), plus R, G, B (linear sRGB preview), plus metadata attributes. */
+lensrt_result lensrt_write_exr(const lensrt_allocator *allocator, const char *path,
+                               int width, int height, int n_wavelengths,
+                               const double *wavelengths_nm, const float *spectral,
+                               const float *rgb, const lensrt_image_meta *meta,
+                               char *err, size_t err_size);
+
+/* PNG, 8-bit sRGB: luminance mapped by log10 over `decades` below the image's peak
+ * (colour ratios kept), then the sRGB transfer curve. */
+lensrt_result lensrt_write_png(const lensrt_allocator *allocator, const char *path,
+                               int width, int height, const float *rgb, double decades,
+                               char *err, size_t err_size);
+
+#endif /* LENSRT_IMAGE_IO_H */

@@ -1,0 +1,428 @@
+/*
+ * PNG preview writer for lensrt, with no dependency: no zlib, no libpng.
+ *
+ * The file is an 8-bit RGB PNG (ISO/IEC 15948, W3C PNG specification): the signature,
+ * IHDR, an sRGB chunk (the pixels are sRGB encoded), the image data as a zlib stream
+ * (RFC 1950) made of stored, uncompressed deflate blocks (RFC 1951, section 3.2.4) of at
+ * most 65535 bytes, one IDAT chunk per block, then IEND. Stored blocks make the file
+ * about as large as the raw pixels (3 bytes each), which is fine for a preview and keeps
+ * the writer small enough to check by hand. CRC-32 (PNG chunks) and Adler-32 (zlib)
+ * are computed here.
+ *
+ * Tone map (image_io.h): luminance Y = 0.2126 R + 0.7152 G + 0.0722 B of the linear
+ * sRGB input, Y_peak = max Y, v = clamp(1 + log10(Y / Y_peak) / decades, 0, 1); the
+ * RGB is scaled by v / Y (colour ratios kept), each channel clamped to [0, 1], encoded
+ * with the sRGB transfer curve and rounded to 8 bits.
+ *
+ * The write is atomic: a temporary file next to the target, renamed over it only when
+ * every byte is written and flushed to disk; on failure the temporary file is removed.
+ */
+#ifndef _POSIX_C_SOURCE
+#define _POSIX_C_SOURCE 200809L /* open, fdopen, fsync, getpid, clock_gettime */
+#endif
+
+#include "image_io.h"
+
+#include <errno.h>
+#include <fcntl.h>
+#include <math.h>
+#include <stdarg.h>
+#include <stdint.h>
+#include <stdio.h>
+#include <string.h>
+#include <sys/stat.h>
+#include <time.h>
+#include <unistd.h>
+
+/* Rec. 709 / sRGB luminance weights of linear R, G, B. */
+#define PNG_LUMA_R 0.2126
+#define PNG_LUMA_G 0.7152
+#define PNG_LUMA_B 0.0722
+/* Decades of luminance below the peak mapped to [0, 1] when the caller passes <= 0. */
+#define PNG_DEFAULT_DECADES 5.0
+/* Largest payload of one stored deflate block (bytes): LEN is 16 bits. */
+#define PNG_STORED_BLOCK_MAX 65535u
+
+/* ------------------------------------------------------------------ errors ----- */
+
+static void png_set_error(char *err, size_t err_size, const char *fmt, ...)
+{
+    va_list args;
+    if (!err || err_size == 0)
+        return;
+    va_start(args, fmt);
+    vsnprintf(err, err_size, fmt, args);
+    va_end(args);
+}
+
+/* ------------------------------------------------------------ checksums ----- */
+
+/* CRC-32 as PNG uses it (ISO 3309 / ITU-T V.42: reflected polynomial 0xEDB88320,
+ * initial value and final XOR 0xFFFFFFFF). The 256-entry table lives in the writer's
+ * state, not in a global, and is built once per file. */
+typedef struct png_crc {
+    uint32_t table[256];
+} png_crc;
+
+static void png_crc_init(png_crc *crc)
+{
+    uint32_t n;
+    for (n = 0; n < 256; ++n) {
+        uint32_t c = n;
+        int k;
+        for (k = 0; k < 8; ++k)
+            c = (c & 1u) ? 0xEDB88320u ^ (c >> 1) : c >> 1;
+        crc->table[n] = c;
+    }
+}
+
+/* Continue a CRC over `size` bytes; start from 0xFFFFFFFF, finish with ~state. */
+static uint32_t png_crc_update(const png_crc *crc, uint32_t state, const unsigned char *data,
+                               size_t size)
+{
+    size_t i;
+    for (i = 0; i < size; ++i)
+        state = crc->table[(state ^ data[i]) & 0xFFu] ^ (state >> 8);
+    return state;
+}
+
+/* Adler-32 (RFC 1950, section 8.2): two sums modulo 65521, the largest prime below 2^16.
+ * 5552 is the most bytes that can be summed before a 32-bit sum may overflow. */
+typedef struct png_adler {
+    uint32_t a, b;
+} png_adler;
+
+static void png_adler_update(png_adler *adler, const unsigned char *data, size_t size)
+{
+    const uint32_t base = 65521u;
+    while (size > 0) {
+        size_t chunk = size < 5552u ? size : 5552u;
+        size_t i;
+        for (i = 0; i < chunk; ++i) {
+            adler->a += data[i];
+            adler->b += adler->a;
+        }
+        adler->a %= base;
+        adler->b %= base;
+        data += chunk;
+        size -= chunk;
+    }
+}
+
+/* ------------------------------------------------------------ tone map ----- */
+
+/* sRGB transfer curve (IEC 61966-2-1) of a linear value in [0, 1]. */
+static double png_srgb_encode(double linear)
+{
+    return linear <= 0.0031308 ? 12.92 * linear : 1.055 * pow(linear, 1.0 / 2.4) - 0.055;
+}
+
+static double png_luminance(const float *px)
+{
+    return PNG_LUMA_R * (double)px[0] + PNG_LUMA_G * (double)px[1] + PNG_LUMA_B * (double)px[2];
+}
+
+/* One 8-bit channel from a linear value already scaled by v / Y. */
+static unsigned char png_quantise(double linear)
+{
+    double e;
+    if (!(linear > 0.0)) /* negative or NaN: black */
+        return 0;
+    if (linear > 1.0)
+        linear = 1.0;
+    e = png_srgb_encode(linear) * 255.0 + 0.5;
+    return (unsigned char)(e >= 255.0 ? 255 : (int)e);
+}
+
+/* Tone map row y into `row` (filter byte 0 = None, then R G B per pixel). Pixels whose
+ * luminance is not positive and finite (black, negative, NaN, infinite) are black, and
+ * so is every pixel when no pixel has positive finite luminance. */
+static void png_tone_map_row(const float *rgb, size_t width, size_t y, double y_peak,
+                             double decades, unsigned char *row)
+{
+    size_t x;
+    row[0] = 0;
+    for (x = 0; x < width; ++x) {
+        const float *px = rgb + 3 * (y * width + x);
+        unsigned char *out = row + 1 + 3 * x;
+        double lum = png_luminance(px);
+        if (y_peak > 0.0 && lum > 0.0 && lum <= y_peak) {
+            /* Log map: the peak goes to 1, `decades` decades below it to 0. */
+            double v = 1.0 + log10(lum / y_peak) / decades;
+            double scale;
+            if (v < 0.0)
+                v = 0.0;
+            if (v > 1.0)
+                v = 1.0;
+            scale = v / lum;
+            out[0] = png_quantise(scale * (double)px[0]);
+            out[1] = png_quantise(scale * (double)px[1]);
+            out[2] = png_quantise(scale * (double)px[2]);
+        } else {
+            out[0] = out[1] = out[2] = 0;
+        }
+    }
+}
+
+/* ------------------------------------------------------------- file out ----- */
+
+/* The state of one write: the temporary file and the checksums. */
+typedef struct png_writer {
+    FILE *file;
+    png_crc crc;
+    int failed; /* an fwrite failed; errno kept in saved_errno */
+    int saved_errno;
+} png_writer;
+
+static void png_put(png_writer *w, const void *data, size_t size)
+{
+    if (w->failed || size == 0)
+        return;
+    if (fwrite(data, 1, size, w->file) != size) {
+        w->failed = 1;
+        w->saved_errno = errno;
+    }
+}
+
+static void png_put_u32(unsigned char *out, uint32_t v)
+{
+    out[0] = (unsigned char)(v >> 24);
+    out[1] = (unsigned char)(v >> 16);
+    out[2] = (unsigned char)(v >> 8);
+    out[3] = (unsigned char)v;
+}
+
+/* One chunk: length (big endian), type, data, CRC-32 of type and data. */
+static void png_chunk(png_writer *w, const char type[4], const unsigned char *data, size_t size)
+{
+    unsigned char head[8], tail[4];
+    uint32_t crc = 0xFFFFFFFFu;
+    png_put_u32(head, (uint32_t)size);
+    memcpy(head + 4, type, 4);
+    crc = png_crc_update(&w->crc, crc, head + 4, 4);
+    crc = png_crc_update(&w->crc, crc, data, size);
+    png_put_u32(tail, ~crc);
+    png_put(w, head, 8);
+    png_put(w, data, size);
+    png_put(w, tail, 4);
+}
+
+/* A unique temporary name next to `path`: `<path>.tmp-<pid>-<clock>-<attempt>`, created
+ * with O_EXCL so that two writers never share one; the caller owns the returned FILE. */
+static FILE *png_open_temporary(const lensrt_allocator *allocator, const char *path, char **out_name,
+                                int *out_errno)
+{
+    size_t size = strlen(path) + 64; /* room for the suffix: 3 numbers and separators */
+    char *name = (char *)allocator->alloc_fn(size, allocator->user_data);
+    struct timespec now;
+    int attempt;
+    *out_name = NULL;
+    *out_errno = ENOMEM;
+    if (!name)
+        return NULL;
+    if (clock_gettime(CLOCK_REALTIME, &now) != 0)
+        now.tv_nsec = 0;
+    for (attempt = 0; attempt < 100; ++attempt) {
+        int fd;
+        snprintf(name, size, "%s.tmp-%ld-%ld-%d", path, (long)getpid(), (long)now.tv_nsec, attempt);
+        fd = open(name, O_WRONLY | O_CREAT | O_EXCL, 0666);
+        if (fd >= 0) {
+            FILE *file = fdopen(fd, "wb");
+            if (!file) {
+                *out_errno = errno;
+                close(fd);
+                remove(name);
+                break;
+            }
+            *out_name = name;
+            return file;
+        }
+        *out_errno = errno;
+        if (errno != EEXIST)
+            break;
+    }
+    allocator->free_fn(name, allocator->user_data);
+    return NULL;
+}
+
+lensrt_result lensrt_write_png(const lensrt_allocator *allocator, const char *path,
+                               int width, int height, const float *rgb, double decades,
+                               char *err, size_t err_size)
+{
+    png_writer w;
+    png_adler adler;
+    char *tmp_name = NULL;
+    unsigned char *row = NULL, *idat = NULL;
+    size_t row_bytes, total_raw, emitted = 0, row_pos, y, n_pixels, i;
+    double y_peak = 0.0;
+    unsigned char ihdr[13];
+    static const unsigned char signature[8] = {0x89, 'P', 'N', 'G', '\r', '\n', 0x1A, '\n'};
+    lensrt_result result = LENSRT_SUCCESS;
+    int open_errno = 0;
+
+    if (err && err_size > 0)
+        err[0] = '\0';
+
+    /* Step 1: check the arguments before touching the file system. */
+    if (!path) {
+        png_set_error(err, err_size, "PNG: the path is NULL");
+        return LENSRT_ERROR_INVALID_ARGUMENT;
+    }
+    if (!allocator || !allocator->alloc_fn || !allocator->free_fn) {
+        png_set_error(err, err_size, "PNG '%s': no allocator", path);
+        return LENSRT_ERROR_INVALID_ARGUMENT;
+    }
+    if (!rgb) {
+        png_set_error(err, err_size, "PNG '%s': the RGB image is NULL", path);
+        return LENSRT_ERROR_INVALID_ARGUMENT;
+    }
+    if (width <= 0 || height <= 0) {
+        png_set_error(err, err_size, "PNG '%s': size %d x %d, expected both > 0", path, width,
+                      height);
+        return LENSRT_ERROR_INVALID_ARGUMENT;
+    }
+    /* Raw image bytes (one filter byte plus 3 bytes per pixel per row) must fit in a size_t. */
+    if ((size_t)width > (((size_t)-1) / 3 - 1) ||
+        (size_t)height > ((size_t)-1) / (3 * (size_t)width + 1)) {
+        png_set_error(err, err_size, "PNG '%s': size %d x %d is too large", path, width, height);
+        return LENSRT_ERROR_INVALID_ARGUMENT;
+    }
+    if (!(decades > 0.0) || !isfinite(decades))
+        decades = PNG_DEFAULT_DECADES;
+    row_bytes = 1 + 3 * (size_t)width;
+    total_raw = row_bytes * (size_t)height;
+    n_pixels = (size_t)width * (size_t)height;
+
+    /* Step 2: the peak luminance (finite values only). */
+    for (i = 0; i < n_pixels; ++i) {
+        double lum = png_luminance(rgb + 3 * i);
+        if (lum > y_peak && isfinite(lum))
+            y_peak = lum;
+    }
+
+    /* Step 3: buffers (one tone-mapped row, one IDAT payload) and the temporary file. */
+    row = (unsigned char *)allocator->alloc_fn(row_bytes, allocator->user_data);
+    /* IDAT payload: zlib header (2), block header (5), data, Adler-32 (4). */
+    idat = (unsigned char *)allocator->alloc_fn(2 + 5 + PNG_STORED_BLOCK_MAX + 4,
+                                                allocator->user_data);
+    if (!row || !idat) {
+        png_set_error(err, err_size, "PNG '%s': out of memory", path);
+        result = LENSRT_ERROR_OUT_OF_MEMORY;
+        goto cleanup;
+    }
+    memset(&w, 0, sizeof w);
+    png_crc_init(&w.crc);
+    w.file = png_open_temporary(allocator, path, &tmp_name, &open_errno);
+    if (!w.file) {
+        png_set_error(err, err_size, "PNG '%s': cannot create a temporary file next to it: %s", path,
+                      strerror(open_errno));
+        result = open_errno == ENOMEM ? LENSRT_ERROR_OUT_OF_MEMORY : LENSRT_ERROR_IO;
+        goto cleanup;
+    }
+
+    /* Step 4: signature, IHDR (width, height, bit depth 8, colour type 2 = RGB,
+     * compression 0 = deflate, filter method 0, no interlace), sRGB (intent 0,
+     * perceptual). */
+    png_put(&w, signature, sizeof signature);
+    png_put_u32(ihdr, (uint32_t)width);
+    png_put_u32(ihdr + 4, (uint32_t)height);
+    ihdr[8] = 8;
+    ihdr[9] = 2;
+    ihdr[10] = 0;
+    ihdr[11] = 0;
+    ihdr[12] = 0;
+    png_chunk(&w, "IHDR", ihdr, sizeof ihdr);
+    {
+        const unsigned char intent = 0;
+        png_chunk(&w, "sRGB", &intent, 1);
+    }
+
+    /* Step 5: the zlib stream, one stored block per IDAT chunk. The raw bytes are the
+     * rows top to bottom (row 0 of `rgb` first), produced one row at a time. */
+    adler.a = 1;
+    adler.b = 0;
+    y = 0;
+    row_pos = row_bytes; /* no row produced yet */
+    for (;;) {
+        size_t head = 0, block = total_raw - emitted, filled = 0;
+        int final;
+        if (block > PNG_STORED_BLOCK_MAX)
+            block = PNG_STORED_BLOCK_MAX;
+        final = emitted + block == total_raw;
+        if (emitted == 0) {
+            /* zlib header: CM = 8 (deflate), CINFO = 7 (32 KiB window); FLG = 0x01 makes
+             * (CMF * 256 + FLG) a multiple of 31, no dictionary, level "fastest". */
+            idat[head++] = 0x78;
+            idat[head++] = 0x01;
+        }
+        /* Stored block header: BFINAL, BTYPE = 00, then LEN and NLEN (little endian). */
+        idat[head++] = (unsigned char)(final ? 1 : 0);
+        idat[head++] = (unsigned char)(block & 0xFFu);
+        idat[head++] = (unsigned char)(block >> 8);
+        idat[head++] = (unsigned char)(~block & 0xFFu);
+        idat[head++] = (unsigned char)((~block >> 8) & 0xFFu);
+        while (filled < block) {
+            size_t take;
+            if (row_pos == row_bytes) {
+                png_tone_map_row(rgb, (size_t)width, y++, y_peak, decades, row);
+                row_pos = 0;
+            }
+            take = row_bytes - row_pos;
+            if (take > block - filled)
+                take = block - filled;
+            memcpy(idat + head + filled, row + row_pos, take);
+            row_pos += take;
+            filled += take;
+        }
+        png_adler_update(&adler, idat + head, block);
+        emitted += block;
+        if (final) {
+            png_put_u32(idat + head + block, (adler.b << 16) | adler.a);
+            png_chunk(&w, "IDAT", idat, head + block + 4);
+            break;
+        }
+        png_chunk(&w, "IDAT", idat, head + block);
+    }
+    png_chunk(&w, "IEND", NULL, 0);
+
+    /* Step 6: flush to disk, close, then rename over the target. */
+    if (!w.failed && fflush(w.file) != 0) {
+        w.failed = 1;
+        w.saved_errno = errno;
+    }
+    if (!w.failed && fsync(fileno(w.file)) != 0) {
+        w.failed = 1;
+        w.saved_errno = errno;
+    }
+    if (fclose(w.file) != 0 && !w.failed) {
+        w.failed = 1;
+        w.saved_errno = errno;
+    }
+    w.file = NULL;
+    if (w.failed) {
+        png_set_error(err, err_size, "PNG '%s': writing '%s' failed: %s", path, tmp_name,
+                      strerror(w.saved_errno));
+        result = LENSRT_ERROR_IO;
+        goto cleanup;
+    }
+    if (rename(tmp_name, path) != 0) {
+        png_set_error(err, err_size, "PNG '%s': cannot rename '%s' over it: %s", path, tmp_name,
+                      strerror(errno));
+        result = LENSRT_ERROR_IO;
+        goto cleanup;
+    }
+    allocator->free_fn(tmp_name, allocator->user_data);
+    tmp_name = NULL;
+
+cleanup:
+    if (tmp_name) {
+        /* Any failure after the temporary file exists: remove it, leave `path` alone. */
+        remove(tmp_name);
+        allocator->free_fn(tmp_name, allocator->user_data);
+    }
+    if (row)
+        allocator->free_fn(row, allocator->user_data);
+    if (idat)
+        allocator->free_fn(idat, allocator->user_data);
+    return result;
+}

@@ -1,0 +1,107 @@
+/* lensrt internals shared by the sources (not installed). */
+#ifndef LENSRT_INTERNAL_H
+#define LENSRT_INTERNAL_H
+
+#include "image_io.h"
+#include "lensrt.h"
+
+#include <stdarg.h>
+#include <stddef.h>
+#include <stdint.h>
+
+#define LENSRT_ERROR_SIZE 1024
+#define LENSRT_MAX_DEGREE 15 /* highest exponent of one variable in a table */
+
+struct lensrt_context_s {
+    lensrt_allocator allocator;
+    void (*log_fn)(lensrt_log_level level, const char *message, void *user_data);
+    void *user_data;
+    int threads;
+    char error[LENSRT_ERROR_SIZE];
+};
+
+/* Allocation through the context's hooks (zeroed by lensrt_calloc). */
+void *lensrt_alloc(lensrt_context ctx, size_t size);
+void *lensrt_calloc(lensrt_context ctx, size_t count, size_t size);
+void lensrt_free(lensrt_context ctx, void *ptr);
+
+/* Record an error message in ctx and return `result` (printf-style). */
+lensrt_result lensrt_fail(lensrt_context ctx, lensrt_result result, const char *fmt, ...)
+#if defined(__GNUC__)
+    __attribute__((format(printf, 3, 4)))
+#endif
+    ;
+void lensrt_log(lensrt_context ctx, lensrt_log_level level, const char *fmt, ...)
+#if defined(__GNUC__)
+    __attribute__((format(printf, 3, 4)))
+#endif
+    ;
+double lensrt_seconds(void);
+
+/* ------------------------------------------------------------- polynomials ----- */
+
+enum { LENSRT_TRANSFORM_AFFINE = 0, LENSRT_TRANSFORM_INVERSE_SQUARE = 1 };
+
+typedef struct lensrt_input {
+    char name[32];
+    double lo, hi;        /* declared domain, raw units */
+    int transform;        /* xhat = (w - c) / s with w = v or 1/v^2 */
+    double c, s;
+} lensrt_input;
+
+typedef struct lensrt_poly {
+    char name[32];
+    int n_terms;
+    unsigned char *exponents; /* n_terms * n_inputs */
+    double *coefficients;     /* n_terms */
+} lensrt_poly;
+
+typedef struct lensrt_system {
+    char name[16];            /* "P_o", "P_s" */
+    int n_inputs, n_outputs;
+    lensrt_input inputs[8];
+    lensrt_poly outputs[8];
+} lensrt_system;
+
+typedef struct lensrt_lens_s {
+    lensrt_context ctx;       /* the context that owns the lens's memory */
+    char name[256];
+    char file[1024];
+    int analytic;
+    lensrt_analytic_lens model;
+    /* fitted lenses */
+    lensrt_system p_o, p_s;
+    double focal_length_mm, stop_radius_max_mm, stop_radius_f1_mm;
+    double housing_first_mm, housing_last_mm;
+    double sensor_defocus_mm, front_focal_distance_mm, squeeze;
+    lensrt_lens_info info;
+} lensrt_lens_s;
+
+/* Normalised value of input `in` for raw value v. */
+double lensrt_normalise(const lensrt_input *in, double v);
+/* Evaluate one output at normalised inputs (double, direct sum; for per-sample use). */
+double lensrt_poly_eval(const lensrt_poly *p, int n_inputs, const double *xhat);
+
+/* ------------------------------------------------------------------ samples ----- */
+
+/* Where aperture points are drawn from, uniformly: a disc (radius rx), a box
+ * (|x| <= rx, |y| <= ry) or an interval on x (one-dimensional lenses). */
+enum { LENSRT_REGION_DISC = 0, LENSRT_REGION_BOX = 1, LENSRT_REGION_INTERVAL = 2 };
+typedef struct lensrt_region {
+    int kind;
+    double rx, ry;
+} lensrt_region;
+
+/* Area (or length) of the region: the Monte Carlo measure of one sample is this / N. */
+double lensrt_region_measure(const lensrt_region *region);
+/* Points first .. first + count - 1 of the sample sequence of (seed, wavelength), in
+ * the region: xy[2 k], xy[2 k + 1] in mm. The same index always gives the same point. */
+void lensrt_sample_aperture(lensrt_sampler sampler, uint64_t seed, int wavelength,
+                            uint64_t first, uint64_t count, const lensrt_region *region,
+                            double *xy);
+/* Whether a stop point lies inside the aperture shape of bounding radius radius_mm. */
+int lensrt_aperture_contains(const lensrt_aperture *ap, double radius_mm, double x, double y);
+/* A 64-bit hash of three values (stateless random numbers). */
+uint64_t lensrt_hash3(uint64_t a, uint64_t b, uint64_t c);
+
+#endif /* LENSRT_INTERNAL_H */

@@ -1,0 +1,65 @@
+/* The splat kernel (internal): one pixel against one block of aperture samples.
+ *
+ * Per pixel, the transport after the stop, P_s, is a polynomial in the stop coordinates
+ * whose coefficients depend only on the pixel and the wavelength. render.c computes them
+ * once per pixel and pass, in double, drops the constant phase (it cannot change the
+ * pixel's intensity), converts the phase to waves and prunes terms too small to matter.
+ * Each splat is then a short dot product with the sample's stop monomials, a sine and a
+ * cosine, and two multiply-adds per light. */
+#ifndef LENSRT_KERNEL_H
+#define LENSRT_KERNEL_H
+
+#define LENSRT_BLOCK 256 /* samples per block (padded with zero amplitude) */
+
+typedef struct lensrt_terms_f {
+    int n;
+    const int *slot;    /* row of the monomial block */
+    const float *coef;
+} lensrt_terms_f;
+
+typedef struct lensrt_terms_d {
+    int n;
+    const int *slot;
+    const double *coef;
+} lensrt_terms_d;
+
+/* A pixel for the float kernel. */
+typedef struct lensrt_pixel_f {
+    lensrt_terms_f phase; /* waves; the constant term is phase0 */
+    lensrt_terms_f xi, yi; /* inner pupil position (mm), when clip */
+    lensrt_terms_f tau;    /* power transmittance, when n > 0 (else constant, folded in) */
+    float phase0;
+    float housing2;        /* housing radius squared (mm^2) */
+    int clip;
+} lensrt_pixel_f;
+
+typedef struct lensrt_pixel_d {
+    lensrt_terms_d phase, xi, yi, tau;
+    double phase0;
+    double housing2;
+    int clip;
+} lensrt_pixel_d;
+
+/* Accumulate acc[3 l + 0..2] += (sum re, sum im, sum |X|^2) over the block for every
+ * light l. mono[slot * LENSRT_BLOCK + j]: stop monomials of sample j; sphase and samp
+ * [l * LENSRT_BLOCK + j]: the sample's phase (waves, reduced) and amplitude per light
+ * (0 for padding and for samples clipped before the stop). */
+void lensrt_kernel_f(const float *mono, int n_lights, const float *sphase, const float *samp,
+                     const lensrt_pixel_f *px, double *acc);
+void lensrt_kernel_d(const double *mono, int n_lights, const double *sphase,
+                     const double *samp, const lensrt_pixel_d *px, double *acc);
+
+/* Free space after the stop (analytic lenses), in double: the Rayleigh-Sommerfeld
+ * kernel cos(theta) / (lambda r), or cos(theta) / sqrt(lambda r) for cylindrical waves
+ * (one_d). xy: the block's x row then y row (mm); sphase and samp as above; (x, y) the
+ * pixel, z the distance from the stop plane to the sensor (mm). With naive, the phase
+ * sum is rounded to float first (to show why the default does not). */
+void lensrt_kernel_free_space(const double *xy, int n_lights, const double *sphase,
+                              const double *samp, double x, double y, double z,
+                              double lambda_mm, int one_d, int naive, double *acc);
+
+/* (cos, sin) of 2 pi p for a float p (any range), the kernel's approximation; exported
+ * for the tests of its accuracy. */
+void lensrt_sincos2pi_f(float p, float *c, float *s);
+
+#endif /* LENSRT_KERNEL_H */

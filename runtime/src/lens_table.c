@@ -1,0 +1,408 @@
+/* Lenses: the `lensfit-poly-table` reader and the analytic lens. */
+#include "internal.h"
+
+#include <ctype.h>
+#include <errno.h>
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+/* A cursor over the table text that knows the current line for messages. */
+typedef struct reader {
+    lensrt_context ctx;
+    const char *name; /* file name for messages */
+    const char *p, *end;
+    int line;
+    char buf[4096];   /* the current line */
+    char *tok[24];
+    int n_tok;
+} reader;
+
+static lensrt_result parse_fail(reader *r, const char *fmt, const char *what)
+{
+    char msg[512];
+    snprintf(msg, sizeof msg, fmt, what);
+    return lensrt_fail(r->ctx, LENSRT_ERROR_PARSE, "%s:%d: %s", r->name, r->line, msg);
+}
+
+/* Read the next line that is not blank or a comment and split it at spaces. */
+static int next_line(reader *r)
+{
+    while (r->p < r->end) {
+        const char *eol = memchr(r->p, '\n', (size_t)(r->end - r->p));
+        size_t len = eol ? (size_t)(eol - r->p) : (size_t)(r->end - r->p);
+        char *s;
+        r->line++;
+        if (len >= sizeof r->buf) len = sizeof r->buf - 1;
+        memcpy(r->buf, r->p, len);
+        r->buf[len] = '\0';
+        r->p = eol ? eol + 1 : r->end;
+        if (len && r->buf[len - 1] == '\r') r->buf[len - 1] = '\0';
+        if (r->buf[0] == '#' || r->buf[0] == '\0') continue;
+        r->n_tok = 0;
+        for (s = strtok(r->buf, " \t"); s && r->n_tok < 24; s = strtok(NULL, " \t"))
+            r->tok[r->n_tok++] = s;
+        if (r->n_tok) return 1;
+    }
+    return 0;
+}
+
+/* Decode %XX escapes in place (fields with spaces are percent-encoded). */
+static void decode_field(char *s)
+{
+    char *o = s;
+    for (; *s; s++) {
+        if (s[0] == '%' && isxdigit((unsigned char)s[1]) && isxdigit((unsigned char)s[2])) {
+            char hex[3] = {s[1], s[2], 0};
+            *o++ = (char)strtol(hex, NULL, 16);
+            s += 2;
+        } else {
+            *o++ = *s;
+        }
+    }
+    *o = '\0';
+}
+
+static int parse_real(const char *s, double *v)
+{
+    char *end;
+    errno = 0;
+    *v = strtod(s, &end);
+    return end != s && *end == '\0' && errno == 0 && isfinite(*v);
+}
+
+static int parse_int(const char *s, int lo, int hi, int *v)
+{
+    char *end;
+    long x;
+    errno = 0;
+    x = strtol(s, &end, 10);
+    if (end == s || *end != '\0' || errno || x < lo || x > hi) return 0;
+    *v = (int)x;
+    return 1;
+}
+
+static lensrt_result read_system(reader *r, lensrt_system *sys)
+{
+    int i, t, k;
+    // system NAME n_inputs n_outputs
+    if (r->n_tok != 4 || !parse_int(r->tok[2], 1, 8, &sys->n_inputs) ||
+        !parse_int(r->tok[3], 1, 8, &sys->n_outputs))
+        return parse_fail(r, "expected 'system NAME N_IN N_OUT' (at most 8 each), found '%s'",
+                          r->tok[0]);
+    snprintf(sys->name, sizeof sys->name, "%s", r->tok[1]);
+    // input NAME UNIT LO HI TRANSFORM C S
+    for (i = 0; i < sys->n_inputs; i++) {
+        lensrt_input *in = &sys->inputs[i];
+        if (!next_line(r) || strcmp(r->tok[0], "input") != 0 || r->n_tok != 8)
+            return parse_fail(r, "expected 'input NAME UNIT LO HI TRANSFORM C S'%s", "");
+        snprintf(in->name, sizeof in->name, "%s", r->tok[1]);
+        if (!parse_real(r->tok[3], &in->lo) || !parse_real(r->tok[4], &in->hi) ||
+            !parse_real(r->tok[6], &in->c) || !parse_real(r->tok[7], &in->s) || in->s == 0.0 ||
+            !(in->lo <= in->hi))
+            return parse_fail(r, "input '%s': bounds or normalisation are not finite numbers "
+                                 "with lo <= hi and s != 0", in->name);
+        if (strcmp(r->tok[5], "affine") == 0) in->transform = LENSRT_TRANSFORM_AFFINE;
+        else if (strcmp(r->tok[5], "inverse_square") == 0) in->transform = LENSRT_TRANSFORM_INVERSE_SQUARE;
+        else return parse_fail(r, "unknown transform '%s' (affine or inverse_square)", r->tok[5]);
+    }
+    // output NAME UNIT N_TERMS, then one line per term: exponents and coefficient
+    for (k = 0; k < sys->n_outputs; k++) {
+        lensrt_poly *p = &sys->outputs[k];
+        if (!next_line(r) || strcmp(r->tok[0], "output") != 0 || r->n_tok != 4 ||
+            !parse_int(r->tok[3], 0, 1000000, &p->n_terms))
+            return parse_fail(r, "expected 'output NAME UNIT N_TERMS'%s", "");
+        snprintf(p->name, sizeof p->name, "%s", r->tok[1]);
+        p->exponents = lensrt_calloc(r->ctx, (size_t)p->n_terms * (size_t)sys->n_inputs + 1, 1);
+        p->coefficients = lensrt_calloc(r->ctx, (size_t)p->n_terms + 1, sizeof(double));
+        if (!p->exponents || !p->coefficients)
+            return lensrt_fail(r->ctx, LENSRT_ERROR_OUT_OF_MEMORY, "%s: out of memory", r->name);
+        for (t = 0; t < p->n_terms; t++) {
+            if (!next_line(r) || r->n_tok != sys->n_inputs + 1)
+                return parse_fail(r, "output '%s': expected a term line with one exponent per "
+                                     "input and a coefficient", p->name);
+            for (i = 0; i < sys->n_inputs; i++) {
+                int e;
+                if (!parse_int(r->tok[i], 0, LENSRT_MAX_DEGREE, &e))
+                    return parse_fail(r, "exponent '%s' is not an integer in 0..15", r->tok[i]);
+                p->exponents[t * sys->n_inputs + i] = (unsigned char)e;
+            }
+            if (!parse_real(r->tok[sys->n_inputs], &p->coefficients[t]))
+                return parse_fail(r, "coefficient '%s' is not a finite number", r->tok[sys->n_inputs]);
+        }
+    }
+    if (!next_line(r) || strcmp(r->tok[0], "end") != 0)
+        return parse_fail(r, "expected 'end' after the outputs of system %s", sys->name);
+    return LENSRT_SUCCESS;
+}
+
+static void free_system(lensrt_context ctx, lensrt_system *sys)
+{
+    int k;
+    for (k = 0; k < 8; k++) {
+        lensrt_free(ctx, sys->outputs[k].exponents);
+        lensrt_free(ctx, sys->outputs[k].coefficients);
+    }
+}
+
+void lensrt_lens_destroy(lensrt_context ctx, lensrt_lens lens)
+{
+    if (!lens) return;
+    if (!ctx) ctx = lens->ctx;
+    free_system(ctx, &lens->p_o);
+    free_system(ctx, &lens->p_s);
+    lensrt_free(ctx, lens);
+}
+
+/* The input names each system must have, in this order. */
+static const char *const P_O_INPUTS[6] = {"x_O", "y_O", "u_O", "x_a", "y_a", "lambda"};
+static const char *const P_S_INPUTS[6] = {"x_S", "y_S", "z_S", "x_a", "y_a", "lambda"};
+static const char *const P_O_OUTPUTS[4] = {"x_o", "y_o", "tau_o", "phi_o"};
+static const char *const P_S_OUTPUTS[4] = {"x_i", "y_i", "tau_i", "phi_i"};
+
+static lensrt_result check_system(lensrt_context ctx, const char *file, const lensrt_system *s,
+                                  const char *const *ins, const char *const *outs)
+{
+    int i;
+    if (s->n_inputs != 6 || s->n_outputs != 4)
+        return lensrt_fail(ctx, LENSRT_ERROR_PARSE,
+                           "%s: system %s: expected 6 inputs and 4 outputs, found %d and %d",
+                           file, s->name, s->n_inputs, s->n_outputs);
+    for (i = 0; i < 6; i++)
+        if (strcmp(s->inputs[i].name, ins[i]) != 0)
+            return lensrt_fail(ctx, LENSRT_ERROR_PARSE,
+                               "%s: system %s: input %d: expected '%s', found '%s'", file,
+                               s->name, i, ins[i], s->inputs[i].name);
+    for (i = 0; i < 4; i++)
+        if (strcmp(s->outputs[i].name, outs[i]) != 0)
+            return lensrt_fail(ctx, LENSRT_ERROR_PARSE,
+                               "%s: system %s: output %d: expected '%s', found '%s'", file,
+                               s->name, i, outs[i], s->outputs[i].name);
+    return LENSRT_SUCCESS;
+}
+
+/* `lens KEY VALUE` lines (table version 2). */
+static lensrt_result read_lens_line(reader *r, lensrt_lens lens, unsigned *seen)
+{
+    static const char *const keys[] = {"focal_length_mm", "stop_radius_max_mm",
+                                       "stop_radius_f1_mm", "housing_first_mm",
+                                       "housing_last_mm", "sensor_defocus_mm",
+                                       "front_focal_distance_mm", "squeeze"};
+    double *slots[8];
+    double v;
+    int i;
+    slots[0] = &lens->focal_length_mm;
+    slots[1] = &lens->stop_radius_max_mm;
+    slots[2] = &lens->stop_radius_f1_mm;
+    slots[3] = &lens->housing_first_mm;
+    slots[4] = &lens->housing_last_mm;
+    slots[5] = &lens->sensor_defocus_mm;
+    slots[6] = &lens->front_focal_distance_mm;
+    slots[7] = &lens->squeeze;
+    if (r->n_tok != 3) return parse_fail(r, "expected 'lens KEY VALUE'%s", "");
+    if (strcmp(r->tok[1], "name") == 0) {
+        decode_field(r->tok[2]);
+        snprintf(lens->name, sizeof lens->name, "%s", r->tok[2]);
+        return LENSRT_SUCCESS;
+    }
+    for (i = 0; i < 8; i++) {
+        if (strcmp(r->tok[1], keys[i]) != 0) continue;
+        if (!parse_real(r->tok[2], &v)) return parse_fail(r, "lens value '%s' is not a finite number", r->tok[2]);
+        *slots[i] = v;
+        *seen |= 1u << i;
+        return LENSRT_SUCCESS;
+    }
+    return LENSRT_SUCCESS; /* unknown keys are for newer readers */
+}
+
+static void fill_info(lensrt_lens lens)
+{
+    lensrt_lens_info *info = &lens->info;
+    const lensrt_input *xa = &lens->p_o.inputs[3];
+    double stop = fmin(xa->hi, lens->stop_radius_max_mm);
+    memset(info, 0, sizeof *info);
+    info->name = lens->name;
+    info->focal_length_mm = lens->focal_length_mm;
+    info->stop_radius_max_mm = stop;
+    info->f_number_min = lens->stop_radius_f1_mm / stop;
+    info->wavelength_min_nm = lens->p_s.inputs[5].lo;
+    info->wavelength_max_nm = lens->p_s.inputs[5].hi;
+    info->focus_offset_min_mm = lens->p_s.inputs[2].lo;
+    info->focus_offset_max_mm = lens->p_s.inputs[2].hi;
+    info->field_x = lens->p_o.inputs[0].hi;
+    info->field_y = lens->p_o.inputs[1].hi;
+    info->distance_min_mm = lens->p_o.inputs[2].hi > 0 ? 1.0 / lens->p_o.inputs[2].hi : 0.0;
+    info->sensor_radius_mm = fmax(lens->p_s.inputs[0].hi, lens->p_s.inputs[1].hi);
+}
+
+lensrt_result lensrt_lens_load_text(lensrt_context ctx, const char *text, size_t size,
+                                    const char *name, lensrt_lens *out)
+{
+    reader r;
+    lensrt_lens lens;
+    lensrt_result res;
+    unsigned seen = 0;
+    int version;
+    if (!ctx || !text || !out) return lensrt_fail(ctx, LENSRT_ERROR_INVALID_ARGUMENT, "lensrt_lens_load_text: NULL argument");
+    *out = NULL;
+    memset(&r, 0, sizeof r);
+    r.ctx = ctx;
+    r.name = name ? name : "<memory>";
+    r.p = text;
+    r.end = text + size;
+    // Header: the format name and version
+    if (!next_line(&r) || r.n_tok != 2 || strcmp(r.tok[0], "lensfit-poly-table") != 0 ||
+        !parse_int(r.tok[1], 1, 1000, &version))
+        return lensrt_fail(ctx, LENSRT_ERROR_PARSE,
+                           "%s:%d: not a lens table: expected 'lensfit-poly-table 2'", r.name, r.line);
+    if (version < 2)
+        return lensrt_fail(ctx, LENSRT_ERROR_PARSE,
+                           "%s: table version %d has no lens facts (focal length, housings); "
+                           "regenerate it with `lensfit fit`", r.name, version);
+    if (version > 2)
+        return lensrt_fail(ctx, LENSRT_ERROR_PARSE,
+                           "%s: table version %d is newer than this lensrt reads (2)", r.name, version);
+    lens = lensrt_calloc(ctx, 1, sizeof *lens);
+    if (!lens) return lensrt_fail(ctx, LENSRT_ERROR_OUT_OF_MEMORY, "%s: out of memory", r.name);
+    lens->ctx = ctx;
+    lens->squeeze = 1.0;
+    snprintf(lens->file, sizeof lens->file, "%s", r.name);
+    snprintf(lens->name, sizeof lens->name, "%s", r.name);
+    // Lens facts, then the two systems
+    res = LENSRT_SUCCESS;
+    while (res == LENSRT_SUCCESS && next_line(&r)) {
+        if (strcmp(r.tok[0], "lens") == 0) {
+            res = read_lens_line(&r, lens, &seen);
+        } else if (strcmp(r.tok[0], "system") == 0) {
+            lensrt_system *sys;
+            if (r.n_tok > 1 && strcmp(r.tok[1], "P_o") == 0) sys = &lens->p_o;
+            else if (r.n_tok > 1 && strcmp(r.tok[1], "P_s") == 0) sys = &lens->p_s;
+            else { res = parse_fail(&r, "unknown system '%s' (P_o or P_s)", r.n_tok > 1 ? r.tok[1] : ""); break; }
+            if (sys->n_inputs) { res = parse_fail(&r, "system %s appears twice", sys == &lens->p_o ? "P_o" : "P_s"); break; }
+            res = read_system(&r, sys);
+        } else {
+            res = parse_fail(&r, "unexpected line starting with '%s'", r.tok[0]);
+        }
+    }
+    if (res == LENSRT_SUCCESS && (!lens->p_o.n_inputs || !lens->p_s.n_inputs))
+        res = lensrt_fail(ctx, LENSRT_ERROR_PARSE, "%s: the table needs systems P_o and P_s", r.name);
+    if (res == LENSRT_SUCCESS) res = check_system(ctx, r.name, &lens->p_o, P_O_INPUTS, P_O_OUTPUTS);
+    if (res == LENSRT_SUCCESS) res = check_system(ctx, r.name, &lens->p_s, P_S_INPUTS, P_S_OUTPUTS);
+    if (res == LENSRT_SUCCESS && (seen & 0x1f) != 0x1f)
+        res = lensrt_fail(ctx, LENSRT_ERROR_PARSE,
+                          "%s: missing lens line(s): focal_length_mm, stop_radius_max_mm, "
+                          "stop_radius_f1_mm, housing_first_mm and housing_last_mm are required", r.name);
+    if (res == LENSRT_SUCCESS && !(lens->stop_radius_f1_mm > 0 && lens->housing_first_mm > 0 &&
+                                   lens->housing_last_mm > 0 && lens->stop_radius_max_mm > 0))
+        res = lensrt_fail(ctx, LENSRT_ERROR_PARSE,
+                          "%s: lens radii must be positive (stop_radius_f1_mm %g, housing_first_mm %g, housing_last_mm %g)",
+                          r.name, lens->stop_radius_f1_mm, lens->housing_first_mm, lens->housing_last_mm);
+    if (res != LENSRT_SUCCESS) {
+        lensrt_lens_destroy(ctx, lens);
+        return res;
+    }
+    fill_info(lens);
+    *out = lens;
+    return LENSRT_SUCCESS;
+}
+
+lensrt_result lensrt_lens_load(lensrt_context ctx, const char *table_path, lensrt_lens *out)
+{
+    FILE *f;
+    char *text;
+    long size;
+    size_t got;
+    lensrt_result res;
+    if (!ctx || !table_path || !out) return lensrt_fail(ctx, LENSRT_ERROR_INVALID_ARGUMENT, "lensrt_lens_load: NULL argument");
+    *out = NULL;
+    // Read the whole file, then parse it from memory
+    f = fopen(table_path, "rb");
+    if (!f) return lensrt_fail(ctx, LENSRT_ERROR_IO, "%s: cannot open lens table: %s", table_path, strerror(errno));
+    if (fseek(f, 0, SEEK_END) != 0 || (size = ftell(f)) < 0 || fseek(f, 0, SEEK_SET) != 0) {
+        fclose(f);
+        return lensrt_fail(ctx, LENSRT_ERROR_IO, "%s: cannot read lens table", table_path);
+    }
+    text = lensrt_alloc(ctx, (size_t)size + 1);
+    if (!text) {
+        fclose(f);
+        return lensrt_fail(ctx, LENSRT_ERROR_OUT_OF_MEMORY, "%s: out of memory", table_path);
+    }
+    got = fread(text, 1, (size_t)size, f);
+    fclose(f);
+    if (got != (size_t)size) {
+        lensrt_free(ctx, text);
+        return lensrt_fail(ctx, LENSRT_ERROR_IO, "%s: short read", table_path);
+    }
+    text[size] = '\0';
+    res = lensrt_lens_load_text(ctx, text, (size_t)size, table_path, out);
+    lensrt_free(ctx, text);
+    return res;
+}
+
+lensrt_result lensrt_lens_create_analytic(lensrt_context ctx, const lensrt_analytic_lens *desc,
+                                          lensrt_lens *out)
+{
+    lensrt_lens lens;
+    if (!ctx || !desc || !out) return lensrt_fail(ctx, LENSRT_ERROR_INVALID_ARGUMENT, "lensrt_lens_create_analytic: NULL argument");
+    *out = NULL;
+    if (!(desc->sensor_distance_mm > 0 && isfinite(desc->sensor_distance_mm)))
+        return lensrt_fail(ctx, LENSRT_ERROR_INVALID_ARGUMENT,
+                           "analytic lens: sensor_distance_mm must be positive and finite, got %g",
+                           desc->sensor_distance_mm);
+    if (!isfinite(desc->focal_length_mm) || desc->focal_length_mm < 0)
+        return lensrt_fail(ctx, LENSRT_ERROR_INVALID_ARGUMENT,
+                           "analytic lens: focal_length_mm must be 0 (none) or positive, got %g",
+                           desc->focal_length_mm);
+    lens = lensrt_calloc(ctx, 1, sizeof *lens);
+    if (!lens) return lensrt_fail(ctx, LENSRT_ERROR_OUT_OF_MEMORY, "analytic lens: out of memory");
+    lens->ctx = ctx;
+    lens->analytic = 1;
+    lens->model = *desc;
+    snprintf(lens->name, sizeof lens->name, "%s%s, sensor at %g mm",
+             desc->one_dimensional ? "one-dimensional " : "",
+             desc->focal_length_mm > 0 ? "perfect thin lens" : "free space", desc->sensor_distance_mm);
+    lens->focal_length_mm = desc->focal_length_mm;
+    lens->info.name = lens->name;
+    lens->info.analytic = 1;
+    lens->info.focal_length_mm = desc->focal_length_mm;
+    lens->info.wavelength_min_nm = 1.0;
+    lens->info.wavelength_max_nm = 1e6;
+    lens->info.focus_offset_min_mm = -desc->sensor_distance_mm;
+    lens->info.focus_offset_max_mm = 1e300;
+    lens->info.field_x = lens->info.field_y = 1.0;
+    *out = lens;
+    return LENSRT_SUCCESS;
+}
+
+lensrt_result lensrt_lens_get_info(lensrt_lens lens, lensrt_lens_info *out)
+{
+    if (!lens || !out) return LENSRT_ERROR_INVALID_ARGUMENT;
+    *out = lens->info;
+    return LENSRT_SUCCESS;
+}
+
+double lensrt_normalise(const lensrt_input *in, double v)
+{
+    double w = in->transform == LENSRT_TRANSFORM_INVERSE_SQUARE ? 1.0 / (v * v) : v;
+    return (w - in->c) / in->s;
+}
+
+double lensrt_poly_eval(const lensrt_poly *p, int n_inputs, const double *xhat)
+{
+    double pw[8][LENSRT_MAX_DEGREE + 1];
+    double sum = 0.0;
+    int i, e, t;
+    // Powers of each input once, then one product per term
+    for (i = 0; i < n_inputs; i++) {
+        pw[i][0] = 1.0;
+        for (e = 1; e <= LENSRT_MAX_DEGREE; e++) pw[i][e] = pw[i][e - 1] * xhat[i];
+    }
+    for (t = 0; t < p->n_terms; t++) {
+        const unsigned char *ex = p->exponents + (size_t)t * (size_t)n_inputs;
+        double m = p->coefficients[t];
+        for (i = 0; i < n_inputs; i++) m *= pw[i][ex[i]];
+        sum += m;
+    }
+    return sum;
+}

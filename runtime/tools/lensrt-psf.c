@@ -1,0 +1,352 @@
+/* lensrt-psf: render a point spread function through a fitted lens to EXR and PNG.
+ *
+ *   lensrt-psf --lens 0001 --f-number 8 --light 6,4 --samples 65536 -o psf.exr --png psf.png
+ *
+ * Progress and an estimate of the time left go to stderr; bad input ends with a message
+ * and exit status 2, a failed render with 1, and no output file is written then. */
+#include "lensrt.h"
+
+#include <dirent.h>
+#include <errno.h>
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/stat.h>
+#include <time.h>
+
+#ifndef LENSRT_GENERATED_DIR
+#define LENSRT_GENERATED_DIR "generated"
+#endif
+
+#define MAX_LIGHTS 64
+#define MAX_WAVELENGTHS 4096
+
+static void usage(FILE *f)
+{
+    fprintf(f,
+        "usage: lensrt-psf --lens ID|TABLE -o OUT.exr [options]\n"
+        "  --lens ID|TABLE        lens id in the generated folder (e.g. 0001) or a .table file\n"
+        "  --generated DIR        folder of generated lenses (default: $LENSRT_GENERATED or %s)\n"
+        "  -o, --output FILE      spectral EXR to write\n"
+        "  --png FILE             PNG preview (log tone map) to write\n"
+        "  --decades D            PNG tone map range below the peak (default 5)\n"
+        "  --resolution WxH       pixels (default 256x256)\n"
+        "  --size W[xH]           window on the sensor in mm (default 0.2)\n"
+        "  --center X,Y           window centre in mm (default: the first light's chief ray)\n"
+        "  --focus Z              sensor shift z_S in mm, + away from the lens (default 0)\n"
+        "  --f-number N           (default: the widest the lens was fitted for)\n"
+        "  --blades N             polygonal aperture with N blades (default: circle)\n"
+        "  --curvature K          blade curvature, 0 straight .. 1 round (default 0)\n"
+        "  --rotation DEG         blade rotation (default 0)\n"
+        "  --wavelengths N|A,B,.. count uniform over the fitted range, or a list in nm (default 16)\n"
+        "  --light X,Y[,D[,I]]    field angles (deg), distance from the first vertex (mm, 0 or inf:\n"
+        "                         infinity) and intensity; repeat for several (default 0,0)\n"
+        "  --samples N            aperture samples per wavelength (default 65536)\n"
+        "  --seed S               (default 1)\n"
+        "  --sampler sobol|random|stratified (default sobol)\n"
+        "  --estimator paper|unbiased (default paper)\n"
+        "  --threads N            OpenMP threads (default: all)\n"
+        "  --save-phasors FILE    write the phasor sums (to resume or merge later)\n"
+        "  --resume FILE          start from saved phasor sums of the same scene\n"
+        "  --merge FILE           add phasor sums of the same scene rendered with another seed\n"
+        "  --quiet                no progress\n",
+        LENSRT_GENERATED_DIR);
+}
+
+static int bad(const char *option, const char *value, const char *expected)
+{
+    fprintf(stderr, "lensrt-psf: %s: %s, got '%s'\n", option, expected, value ? value : "(nothing)");
+    return 2;
+}
+
+static int parse_double(const char *s, double *v)
+{
+    char *end;
+    if (!s) return 0;
+    errno = 0;
+    *v = strtod(s, &end);
+    return end != s && *end == '\0' && errno == 0 && isfinite(*v);
+}
+
+static int parse_long(const char *s, long long lo, long long hi, long long *v)
+{
+    char *end;
+    if (!s) return 0;
+    errno = 0;
+    *v = strtoll(s, &end, 10);
+    return end != s && *end == '\0' && errno == 0 && *v >= lo && *v <= hi;
+}
+
+/* Split "a,b,c" (or "axb") into up to n doubles; returns the count or -1. */
+static int parse_list(const char *s, char sep, double *out, int n)
+{
+    char buf[8192], *p, *q;
+    int k = 0;
+    if (!s || strlen(s) >= sizeof buf) return -1;
+    strcpy(buf, s);
+    for (p = buf; k < n; p = q + 1) {
+        q = strchr(p, sep);
+        if (q) *q = '\0';
+        if (strcmp(p, "inf") == 0) out[k++] = 0.0;
+        else if (!parse_double(p, &out[k++])) return -1;
+        if (!q) return k;
+    }
+    return -1;
+}
+
+static int file_exists(const char *path)
+{
+    struct stat st;
+    return stat(path, &st) == 0 && S_ISREG(st.st_mode);
+}
+
+/* Whether a file can be created next to `path` (checked before rendering, so that an
+ * unwritable output fails at once and not after the render). */
+static int writable(const char *path)
+{
+    char probe[4096];
+    FILE *f;
+    if (snprintf(probe, sizeof probe, "%s.probe-%ld", path, (long)time(NULL)) >= (int)sizeof probe) return 0;
+    f = fopen(probe, "wb");
+    if (!f) return 0;
+    fclose(f);
+    remove(probe);
+    return 1;
+}
+
+/* Find generated/<ID>-*\/lens<ID>.table. */
+static int find_table(const char *dir, const char *id, char *path, size_t size)
+{
+    DIR *d = opendir(dir);
+    struct dirent *e;
+    size_t n = strlen(id);
+    int found = 0;
+    if (!d) return 0;
+    while (!found && (e = readdir(d)) != NULL) {
+        if (strncmp(e->d_name, id, n) != 0 || (e->d_name[n] != '-' && e->d_name[n] != '\0')) continue;
+        snprintf(path, size, "%s/%s/lens%s.table", dir, e->d_name, id);
+        found = file_exists(path);
+    }
+    closedir(d);
+    return found;
+}
+
+typedef struct progress_state {
+    int quiet;
+    double last;
+} progress_state;
+
+static int on_progress(double fraction, double eta, void *user)
+{
+    progress_state *ps = user;
+    if (!ps->quiet) fprintf(stderr, "\rlensrt-psf: %5.1f%%, %.0f s left   ", 100.0 * fraction, eta);
+    return 0;
+}
+
+static void on_log(lensrt_log_level level, const char *message, void *user)
+{
+    progress_state *ps = user;
+    if (level == LENSRT_LOG_INFO && ps->quiet) return;
+    fprintf(stderr, "lensrt-psf: %s%s\n", level == LENSRT_LOG_ERROR ? "" : level == LENSRT_LOG_WARNING ? "warning: " : "",
+            message);
+}
+
+int main(int argc, char **argv)
+{
+    const char *lens_arg = NULL, *out = NULL, *png = NULL, *gen = getenv("LENSRT_GENERATED");
+    const char *save = NULL, *resume = NULL, *merge = NULL;
+    double size[2] = {0.2, 0.0}, center[2] = {0, 0}, decades = 5.0, focus = 0.0, fnum = 0.0;
+    double wl[MAX_WAVELENGTHS];
+    lensrt_light lights[MAX_LIGHTS];
+    int n_lights = 0, n_wl = 0, have_center = 0, width = 256, height = 256, quiet = 0, i, rc = 1;
+    long long samples = 65536, seed = 1, threads = 0, blades = 0;
+    double curvature = 0.0, rotation = 0.0;
+    lensrt_sampler sampler = LENSRT_SAMPLER_SOBOL;
+    lensrt_estimator estimator = LENSRT_ESTIMATOR_PAPER;
+    lensrt_context_init init;
+    lensrt_context ctx = NULL;
+    lensrt_lens lens = NULL;
+    lensrt_render render = NULL;
+    lensrt_render_desc desc;
+    lensrt_render_stats st;
+    lensrt_result res;
+    progress_state ps = {0, 0};
+    char table[4096];
+    if (!gen) gen = LENSRT_GENERATED_DIR;
+
+    // Options
+    for (i = 1; i < argc; i++) {
+        const char *a = argv[i], *v = i + 1 < argc ? argv[i + 1] : NULL;
+        double t[4];
+        long long n;
+        int k;
+        if (strcmp(a, "-h") == 0 || strcmp(a, "--help") == 0) { usage(stdout); return 0; }
+        if (strcmp(a, "--quiet") == 0) { quiet = 1; continue; }
+        if (!v) return bad(a, NULL, "needs a value");
+        i++;
+        if (strcmp(a, "--lens") == 0) lens_arg = v;
+        else if (strcmp(a, "--generated") == 0) gen = v;
+        else if (strcmp(a, "-o") == 0 || strcmp(a, "--output") == 0) out = v;
+        else if (strcmp(a, "--png") == 0) png = v;
+        else if (strcmp(a, "--save-phasors") == 0) save = v;
+        else if (strcmp(a, "--resume") == 0) resume = v;
+        else if (strcmp(a, "--merge") == 0) merge = v;
+        else if (strcmp(a, "--decades") == 0) { if (!parse_double(v, &decades) || decades <= 0) return bad(a, v, "expected a positive number"); }
+        else if (strcmp(a, "--focus") == 0) { if (!parse_double(v, &focus)) return bad(a, v, "expected a number (mm)"); }
+        else if (strcmp(a, "--f-number") == 0) { if (!parse_double(v, &fnum) || fnum <= 0) return bad(a, v, "expected a positive f-number"); }
+        else if (strcmp(a, "--curvature") == 0) { if (!parse_double(v, &curvature) || curvature < 0 || curvature > 1) return bad(a, v, "expected a number in [0, 1]"); }
+        else if (strcmp(a, "--rotation") == 0) { if (!parse_double(v, &rotation)) return bad(a, v, "expected degrees"); }
+        else if (strcmp(a, "--blades") == 0) { if (!parse_long(v, 3, 64, &blades)) return bad(a, v, "expected 3..64 blades"); }
+        else if (strcmp(a, "--samples") == 0) { if (!parse_long(v, 1, (long long)1 << 40, &samples)) return bad(a, v, "expected a positive sample count"); }
+        else if (strcmp(a, "--seed") == 0) { if (!parse_long(v, 0, (long long)9e18, &seed)) return bad(a, v, "expected a non-negative integer"); }
+        else if (strcmp(a, "--threads") == 0) { if (!parse_long(v, 1, 1024, &threads)) return bad(a, v, "expected 1..1024"); }
+        else if (strcmp(a, "--resolution") == 0) {
+            k = parse_list(v, 'x', t, 2);
+            if (k != 2 || t[0] < 1 || t[1] < 1 || t[0] > 65536 || t[1] > 65536 || t[0] != floor(t[0]) || t[1] != floor(t[1]))
+                return bad(a, v, "expected WxH with positive whole numbers");
+            width = (int)t[0];
+            height = (int)t[1];
+        } else if (strcmp(a, "--size") == 0) {
+            k = parse_list(v, 'x', t, 2);
+            if (k < 1 || t[0] <= 0 || (k == 2 && t[1] <= 0)) return bad(a, v, "expected W or WxH in mm, positive");
+            size[0] = t[0];
+            size[1] = k == 2 ? t[1] : 0.0;
+        } else if (strcmp(a, "--center") == 0) {
+            if (parse_list(v, ',', center, 2) != 2) return bad(a, v, "expected X,Y in mm");
+            have_center = 1;
+        } else if (strcmp(a, "--light") == 0) {
+            k = parse_list(v, ',', t, 4);
+            if (k < 2 || n_lights >= MAX_LIGHTS) return bad(a, v, "expected X,Y[,DISTANCE[,INTENSITY]] (at most 64 lights)");
+            memset(&lights[n_lights], 0, sizeof lights[0]);
+            lights[n_lights].field_x_deg = t[0];
+            lights[n_lights].field_y_deg = t[1];
+            lights[n_lights].distance_mm = k > 2 ? t[2] : 0.0;
+            lights[n_lights].intensity = k > 3 ? t[3] : 0.0;
+            if (k > 3 && t[3] <= 0) return bad(a, v, "intensity must be positive");
+            n_lights++;
+        } else if (strcmp(a, "--wavelengths") == 0) {
+            if (parse_long(v, 1, MAX_WAVELENGTHS, &n)) n_wl = (int)n;
+            else if (strchr(v, ',') && (k = parse_list(v, ',', wl, MAX_WAVELENGTHS)) > 0) n_wl = -k;
+            else return bad(a, v, "expected a count (1..4096) or a comma-separated list in nm");
+        } else if (strcmp(a, "--sampler") == 0) {
+            if (strcmp(v, "sobol") == 0) sampler = LENSRT_SAMPLER_SOBOL;
+            else if (strcmp(v, "random") == 0) sampler = LENSRT_SAMPLER_RANDOM;
+            else if (strcmp(v, "stratified") == 0) sampler = LENSRT_SAMPLER_STRATIFIED;
+            else return bad(a, v, "expected sobol, random or stratified");
+        } else if (strcmp(a, "--estimator") == 0) {
+            if (strcmp(v, "paper") == 0) estimator = LENSRT_ESTIMATOR_PAPER;
+            else if (strcmp(v, "unbiased") == 0) estimator = LENSRT_ESTIMATOR_UNBIASED;
+            else return bad(a, v, "expected paper or unbiased");
+        } else {
+            fprintf(stderr, "lensrt-psf: unknown option '%s'\n", a);
+            usage(stderr);
+            return 2;
+        }
+    }
+    if (!lens_arg) return bad("--lens", NULL, "a lens id or table is required");
+    if (!out && !png && !save) return bad("-o", NULL, "an output (-o, --png or --save-phasors) is required");
+    ps.quiet = quiet;
+    {
+        const char *outs[3];
+        int k;
+        outs[0] = out;
+        outs[1] = png;
+        outs[2] = save;
+        for (k = 0; k < 3; k++)
+            if (outs[k] && !writable(outs[k])) {
+                fprintf(stderr, "lensrt-psf: cannot write '%s': %s\n", outs[k], strerror(errno));
+                return 2;
+            }
+    }
+
+    // Context and lens: an id names generated/<id>-*/lens<id>.table
+    memset(&init, 0, sizeof init);
+    init.log_fn = on_log;
+    init.user_data = &ps;
+    init.threads = (int)threads;
+    if ((res = lensrt_context_create(&init, &ctx)) != LENSRT_SUCCESS) {
+        fprintf(stderr, "lensrt-psf: %s\n", lensrt_result_string(res));
+        return 1;
+    }
+    if (strstr(lens_arg, ".table")) snprintf(table, sizeof table, "%s", lens_arg);
+    else if (!find_table(gen, lens_arg, table, sizeof table)) {
+        fprintf(stderr, "lensrt-psf: --lens: unknown lens '%s': no %s/%s-*/lens%s.table (see --generated)\n",
+                lens_arg, gen, lens_arg, lens_arg);
+        lensrt_context_destroy(ctx);
+        return 2;
+    }
+    if ((res = lensrt_lens_load(ctx, table, &lens)) != LENSRT_SUCCESS) goto fail_input;
+
+    // Scene
+    memset(&desc, 0, sizeof desc);
+    desc.lens = lens;
+    desc.sensor.width = width;
+    desc.sensor.height = height;
+    desc.sensor.width_mm = size[0];
+    desc.sensor.height_mm = size[1];
+    desc.sensor.focus_offset_mm = focus;
+    desc.aperture.f_number = fnum;
+    if (blades) {
+        desc.aperture.shape = LENSRT_APERTURE_BLADES;
+        desc.aperture.blades = (int)blades;
+        desc.aperture.blade_curvature = curvature;
+        desc.aperture.rotation_deg = rotation;
+    }
+    desc.lights = n_lights ? lights : NULL;
+    desc.n_lights = n_lights;
+    if (n_wl < 0) {
+        desc.wavelengths_nm = wl;
+        desc.n_wavelengths = -n_wl;
+    } else {
+        desc.n_wavelengths = n_wl;
+    }
+    desc.sampler = sampler;
+    desc.estimator = estimator;
+    desc.seed = (uint64_t)seed;
+    if (!have_center) {
+        lensrt_light axis;
+        lensrt_lens_info info;
+        memset(&axis, 0, sizeof axis);
+        lensrt_lens_get_info(lens, &info);
+        res = lensrt_lens_image_point(ctx, lens, n_lights ? &lights[0] : &axis,
+                                      0.5 * (info.wavelength_min_nm + info.wavelength_max_nm), focus, center);
+        if (res != LENSRT_SUCCESS) goto fail_input;
+    }
+    desc.sensor.center_x_mm = center[0];
+    desc.sensor.center_y_mm = center[1];
+    if ((res = lensrt_render_create(ctx, &desc, &render)) != LENSRT_SUCCESS) goto fail_input;
+    if (resume && (res = lensrt_render_load(render, resume)) != LENSRT_SUCCESS) goto fail_input;
+    if (merge && (res = lensrt_render_merge(render, merge)) != LENSRT_SUCCESS) goto fail_input;
+
+    // Render
+    if (!quiet)
+        fprintf(stderr, "lensrt-psf: %s, window %g mm at (%g, %g) mm, %lld samples per wavelength\n",
+                table, size[0], center[0],
+                center[1], samples);
+    res = lensrt_render_run(render, (uint64_t)samples, on_progress, &ps);
+    if (!quiet) fprintf(stderr, "\n");
+    if (res != LENSRT_SUCCESS) goto fail;
+    lensrt_render_get_stats(render, &st);
+    if (!quiet)
+        fprintf(stderr, "lensrt-psf: %.2f s, %.3g splats/s, f/%.3g, stop radius %.4g mm\n", st.seconds,
+                st.splats_per_second, st.f_number, st.stop_radius_mm);
+
+    // Outputs, each written atomically
+    if (save && (res = lensrt_render_save(render, save)) != LENSRT_SUCCESS) goto fail;
+    if (out && (res = lensrt_render_write_exr(render, out)) != LENSRT_SUCCESS) goto fail;
+    if (png && (res = lensrt_render_write_png(render, png, decades)) != LENSRT_SUCCESS) goto fail;
+    rc = 0;
+    goto done;
+fail_input:
+    rc = 2;
+fail:
+    if (rc != 2) rc = 1;
+    fprintf(stderr, "lensrt-psf: %s\n", lensrt_context_last_error(ctx)[0] ? lensrt_context_last_error(ctx)
+                                                                        : lensrt_result_string(res));
+done:
+    lensrt_render_destroy(render);
+    lensrt_lens_destroy(ctx, lens);
+    lensrt_context_destroy(ctx);
+    return rc;
+}
