@@ -11,7 +11,10 @@ PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
 DEMO_LENS ?= 0001
 
-.PHONY: setup demo test bench lint clean
+.PHONY: setup runtime demo test bench lint clean
+
+RUNTIME_BUILD := build/runtime
+CMAKE_FLAGS   ?= -DCMAKE_BUILD_TYPE=Release -DLENSRT_NATIVE=ON
 
 setup: $(STAMP)
 
@@ -22,7 +25,13 @@ $(STAMP): fit/requirements.lock fit/pyproject.toml scripts/setup-system.sh
 	$(PY) -m pip install --quiet --disable-pip-version-check --no-deps -e fit
 	touch $@
 
-demo: setup
+# The C99 runtime (library, lensrt-psf, C tests) in build/runtime
+runtime: setup
+	cmake -S . -B $(RUNTIME_BUILD) $(CMAKE_FLAGS) > $(RUNTIME_BUILD).configure.log 2>&1 \
+		|| (cat $(RUNTIME_BUILD).configure.log; exit 1)
+	cmake --build $(RUNTIME_BUILD) -j 2
+
+demo: setup runtime
 	@mkdir -p build/demo
 	$(VENV)/bin/lensfit info $(DEMO_LENS)
 	$(VENV)/bin/lensfit info $(DEMO_LENS) --json > build/demo/$(DEMO_LENS).json

@@ -14,6 +14,10 @@ done
 for pkg in build-essential cmake; do
   have "$pkg" || need+=("$pkg")
 done
+# OpenEXRCore for the runtime's EXR output, pkg-config for the installed-package test
+for pkg in libopenexr-dev pkg-config; do
+  have "$pkg" || need+=("$pkg")
+done
 # glslangValidator, so the tests can compile the generated GLSL
 for pkg in glslang-tools; do
   have "$pkg" || need+=("$pkg")

@@ -228,6 +228,10 @@ typedef struct lensrt_render_stats {
     double seconds;                   /* wall time spent in run() and splat_points() */
     double splats_per_second;
     double stop_radius_mm, f_number;
+    /* What the per-pixel pruning left, averaged over pixels and wavelengths of the last
+     * pass (fitted lenses): phase terms per splat, and the fractions of pixels that
+     * needed the inner-pupil clip, a varying transmittance, or were fully clipped. */
+    double phase_terms, clip_fraction, tau_fraction, dark_fraction;
 } lensrt_render_stats;
 
 LENSRT_API lensrt_result lensrt_render_get_stats(lensrt_render render, lensrt_render_stats *out);

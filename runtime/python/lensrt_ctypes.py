@@ -84,7 +84,9 @@ class Stats(C.Structure):
                 ("n_lights", C.c_int), ("samples_per_wavelength", C.c_uint64),
                 ("splats", C.c_uint64), ("seconds", C.c_double),
                 ("splats_per_second", C.c_double), ("stop_radius_mm", C.c_double),
-                ("f_number", C.c_double)]
+                ("f_number", C.c_double), ("phase_terms", C.c_double),
+                ("clip_fraction", C.c_double), ("tau_fraction", C.c_double),
+                ("dark_fraction", C.c_double)]
 
 
 class Render:

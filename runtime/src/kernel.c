@@ -6,6 +6,7 @@
 #include "kernel.h"
 
 #include <math.h>
+#include <string.h>
 
 #define B LENSRT_BLOCK
 #define TWO_PI_F 6.28318530717958647692f
@@ -29,8 +30,130 @@ static inline void sincos2pi(float p, float *c_out, float *s_out)
 
 void lensrt_sincos2pi_f(float p, float *c, float *s) { sincos2pi(p, c, s); }
 
-/* out[j] = sum_k coef_k * mono[slot_k][j] (+ start) */
-static inline void dot_f(const float *mono, const lensrt_terms_f *t, float start, float *out)
+#if defined(__GNUC__) && !defined(LENSRT_SCALAR_KERNEL)
+/* GCC/Clang vector extensions: 16 floats per vector (two AVX2 registers, or one AVX-512
+ * register); a chunk is two vectors whose partial sums stay in registers while the
+ * terms stream past. Plain C below is the same computation for other compilers. */
+typedef float vf __attribute__((vector_size(64)));
+typedef int vi __attribute__((vector_size(64)));
+#define VL 16
+#define NV 4 /* vectors per chunk */
+#define CH (NV * VL)
+
+static inline vf vload(const float *p)
+{
+    vf v;
+    memcpy(&v, p, sizeof v);
+    return v;
+}
+
+static inline vf vsplat(float x)
+{
+    vf v = {0};
+    return v + x;
+}
+
+static inline float vsum(vf v)
+{
+    float s = 0.0f;
+    int j;
+    for (j = 0; j < VL; j++) s += v[j];
+    return s;
+}
+
+/* The vector form of sincos2pi: floor by conversion, fold to [-1/2, 1/2], quadrant by
+ * conversion, polynomial, then the quadrant's swap and signs as arithmetic blends. */
+static inline void vsincos2pi(vf p, vf *c_out, vf *s_out)
+{
+    vf f = __builtin_convertvector(__builtin_convertvector(p, vi), vf);
+    vf t, x, x2, s, c, swap, sign_s, sign_c;
+    vi q, qm;
+    f += __builtin_convertvector(p < f, vf);          /* floor: -1 where truncation went up */
+    t = p - f;                                          /* [0, 1) */
+    t += __builtin_convertvector(t > 0.5f, vf);        /* [-1/2, 1/2] */
+    q = __builtin_convertvector(4.0f * t + 2.5f, vi) - 2; /* round(4 t) in -2..2 */
+    x = TWO_PI_F * (t - 0.25f * __builtin_convertvector(q, vf));
+    x2 = x * x;
+    s = x * (1.0f + x2 * (-1.0f / 6.0f + x2 * (1.0f / 120.0f + x2 * (-1.0f / 5040.0f))));
+    c = 1.0f + x2 * (-0.5f + x2 * (1.0f / 24.0f + x2 * (-1.0f / 720.0f + x2 * (1.0f / 40320.0f))));
+    qm = q & 3;
+    swap = __builtin_convertvector(qm & 1, vf);
+    sign_s = 1.0f - 2.0f * __builtin_convertvector((qm >> 1) & 1, vf);
+    sign_c = 1.0f - 2.0f * __builtin_convertvector(((qm + 1) >> 1) & 1, vf);
+    *s_out = sign_s * (s + swap * (c - s));
+    *c_out = sign_c * (c + swap * (s - c));
+}
+
+/* out[0 .. NV) = start + sum_k coef_k * mono[slot_k][jc .. jc + CH) */
+static inline void vdot(const float *mono, const lensrt_terms_f *t, float start, int jc, vf *out)
+{
+    vf s0 = vsplat(start), s1 = s0, s2 = s0, s3 = s0;
+    int k;
+    for (k = 0; k < t->n; k++) {
+        const float *row = mono + (long)t->slot[k] * B + jc;
+        float c = t->coef[k];
+        s0 += c * vload(row);
+        s1 += c * vload(row + VL);
+        s2 += c * vload(row + 2 * VL);
+        s3 += c * vload(row + 3 * VL);
+    }
+    out[0] = s0;
+    out[1] = s1;
+    out[2] = s2;
+    out[3] = s3;
+}
+
+void lensrt_kernel_f(const float *mono, int n_lights, const float *sphase, const float *samp,
+                     const lensrt_pixel_f *px, double *acc)
+{
+    vf re[64], im[64], sq[64];
+    int jc, l, h;
+    for (l = 0; l < n_lights; l++) re[l] = im[l] = sq[l] = vsplat(0.0f);
+    for (jc = 0; jc < B; jc += CH) {
+        vf ph[NV], w[NV], x[NV], y[NV];
+        // Phase after the stop (waves), the same for every light
+        vdot(mono, &px->phase, px->phase0, jc, ph);
+        for (h = 0; h < NV; h++) w[h] = vsplat(1.0f);
+        // Inner-pupil clip: 1 inside the housing, 0 outside
+        if (px->clip) {
+            vdot(mono, &px->xi, 0.0f, jc, x);
+            vdot(mono, &px->yi, 0.0f, jc, y);
+            for (h = 0; h < NV; h++)
+                w[h] = -__builtin_convertvector(x[h] * x[h] + y[h] * y[h] <= px->housing2, vf);
+        }
+        // Amplitude transmittance: the square root of the power transmittance
+        if (px->tau.n > 0) {
+            vdot(mono, &px->tau, 0.0f, jc, x);
+            for (h = 0; h < NV; h++) {
+                vf tv = x[h] + __builtin_convertvector(x[h] < 0.0f, vf) * x[h]; /* max(x, 0) */
+                vf r = vsplat(0.0f);
+                int j;
+                for (j = 0; j < VL; j++) r[j] = sqrtf(tv[j]);
+                w[h] *= r;
+            }
+        }
+        // Phasors per light
+        for (l = 0; l < n_lights; l++) {
+            for (h = 0; h < NV; h++) {
+                vf c, s, a = w[h] * vload(samp + (long)l * B + jc + h * VL);
+                vsincos2pi(ph[h] + vload(sphase + (long)l * B + jc + h * VL), &c, &s);
+                re[l] += a * c;
+                im[l] += a * s;
+                sq[l] += a * a;
+            }
+        }
+    }
+    for (l = 0; l < n_lights; l++) {
+        acc[3 * l] += vsum(re[l]);
+        acc[3 * l + 1] += vsum(im[l]);
+        acc[3 * l + 2] += vsum(sq[l]);
+    }
+}
+
+#else
+
+/* out[j] = start + sum_k coef_k * mono[slot_k][j] */
+static void dot_f(const float *mono, const lensrt_terms_f *t, float start, float *out)
 {
     int j, k;
     for (j = 0; j < B; j++) out[j] = start;
@@ -44,11 +167,9 @@ static inline void dot_f(const float *mono, const lensrt_terms_f *t, float start
 void lensrt_kernel_f(const float *mono, int n_lights, const float *sphase, const float *samp,
                      const lensrt_pixel_f *px, double *acc)
 {
-    float phase[B], weight[B], x[B], y[B];
+    float phase[B], weight[B], x[B], y[B], c[B], s[B];
     int j, l;
-    // Phase after the stop (waves), the same for every light
     dot_f(mono, &px->phase, px->phase0, phase);
-    // Amplitude factor after the stop: inner-pupil clip and transmittance
     for (j = 0; j < B; j++) weight[j] = 1.0f;
     if (px->clip) {
         dot_f(mono, &px->xi, 0.0f, x);
@@ -59,11 +180,9 @@ void lensrt_kernel_f(const float *mono, int n_lights, const float *sphase, const
         dot_f(mono, &px->tau, 0.0f, x);
         for (j = 0; j < B; j++) weight[j] *= sqrtf(x[j] > 0.0f ? x[j] : 0.0f);
     }
-    // Phasors per light: total phase, its sine and cosine, and the sums
     for (l = 0; l < n_lights; l++) {
         const float *sp = sphase + (long)l * B, *sa = samp + (long)l * B;
         float re = 0.0f, im = 0.0f, sq = 0.0f;
-        float c[B], s[B];
         for (j = 0; j < B; j++) sincos2pi(phase[j] + sp[j], &c[j], &s[j]);
         for (j = 0; j < B; j++) {
             float a = weight[j] * sa[j];
@@ -76,6 +195,7 @@ void lensrt_kernel_f(const float *mono, int n_lights, const float *sphase, const
         acc[3 * l + 2] += sq;
     }
 }
+#endif
 
 static inline void dot_d(const double *mono, const lensrt_terms_d *t, double start, double *out)
 {

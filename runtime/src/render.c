@@ -685,24 +685,42 @@ static int setup_pixel(lensrt_render r, int w, double x, double y, pixel_terms *
     }
     // Phase in waves; the constant part is kept only by the naive mode
     for (k = 0; k < ns; k++) c[3][k] *= 1.0 / lambda_mm;
-    // Prune: drop terms whose sum of bounds stays under the tolerance (per output)
+    // Prune: drop the smallest terms while the sum of their bounds stays under the
+    // output's tolerance (every stop monomial is bounded by 1 on the sampled region)
     {
         double tols[4];
         tols[0] = tols[1] = 1e-4 * h;   /* inner pupil position: 0.01% of the housing */
-        tols[2] = 1e-4 * fabs(c[2][0]); /* transmittance: 1e-4 relative */
+        tols[2] = 1e-3 * fabs(c[2][0]); /* transmittance: 1e-3 relative (5e-4 in amplitude) */
         tols[3] = tol;                  /* phase, waves */
         for (o = 0; o < 4; o++) {
-            double each = dbl ? 0.0 : tols[o] / ns;
+            int order[136], n = 0, i, j;
+            double dropped = 0.0;
             counts[o] = 0;
             if ((o == 0 || o == 1) && !pf->clip) continue;
-            if (o == 2 && bound[2] <= 1e-4 * fabs(c[2][0]) && !dbl) continue; /* constant: folded in amp */
+            if (o == 2 && bound[2] <= tols[2] && !dbl) continue; /* constant: folded into amp */
+            // Terms by increasing size (insertion sort: at most 135 of them)
             for (k = 1; k < ns; k++) {
-                if (fabs(c[o][k]) <= each) continue;
-                pt->slot[o][counts[o]] = k;
-                pt->coef_f[o][counts[o]] = (float)c[o][k];
-                pt->coef_d[o][counts[o]] = c[o][k];
-                counts[o]++;
+                double a = fabs(c[o][k]);
+                if (a == 0.0) continue;
+                for (j = n; j > 0 && fabs(c[o][order[j - 1]]) > a; j--) order[j] = order[j - 1];
+                order[j] = k;
+                n++;
             }
+            i = 0;
+            if (!dbl)
+                while (i < n && dropped + fabs(c[o][order[i]]) <= tols[o]) dropped += fabs(c[o][order[i++]]);
+            // Keep the rest in slot order (the kernel streams monomial rows)
+            for (j = 0, k = 0; k < ns; k++) {
+                int keep = 0, q;
+                for (q = i; q < n; q++)
+                    if (order[q] == k) keep = 1;
+                if (!keep) continue;
+                pt->slot[o][j] = k;
+                pt->coef_f[o][j] = (float)c[o][k];
+                pt->coef_d[o][j] = c[o][k];
+                j++;
+            }
+            counts[o] = j;
             if (o == 2 && counts[2] > 0) {
                 // A varying transmittance keeps its constant term in the polynomial
                 pt->slot[2][counts[2]] = 0;
@@ -779,8 +797,10 @@ static void splat_pass(lensrt_render r, int w, const pass_data *pd)
     const int dbl = r->desc.precision == LENSRT_PRECISION_DOUBLE;
     const double lambda_mm = r->wavelengths[w] / NM_PER_MM;
     long tile;
+    double s_terms = 0, s_clip = 0, s_tau = 0, s_dark = 0;
 #ifdef LENSRT_OPENMP
-#pragma omp parallel for schedule(dynamic, 4) num_threads(r->ctx->threads > 0 ? r->ctx->threads : omp_get_max_threads())
+#pragma omp parallel for schedule(dynamic, 4) num_threads(r->ctx->threads > 0 ? r->ctx->threads : omp_get_max_threads()) \
+    reduction(+ : s_terms, s_clip, s_tau, s_dark)
 #endif
     for (tile = 0; tile < ntiles; tile++) {
         pixel_terms pts[TILE];
@@ -806,8 +826,16 @@ static void splat_pass(lensrt_render r, int w, const pass_data *pd)
             continue;
         }
         // Specialise P_s to each pixel of the tile, then stream the sample blocks
-        for (p = p0; p < p1; p++)
+        for (p = p0; p < p1; p++) {
             live[p - p0] = setup_pixel(r, w, r->xs[p % r->width], r->ys[p / r->width], &pts[p - p0], &pf[p - p0], &pdd[p - p0]);
+            if (!live[p - p0]) {
+                s_dark += 1;
+                continue;
+            }
+            s_terms += pf[p - p0].phase.n;
+            s_clip += pf[p - p0].clip;
+            s_tau += pf[p - p0].tau.n > 0;
+        }
         for (b = 0; b < nb; b++)
             for (p = p0; p < p1; p++) {
                 if (!live[p - p0]) continue;
@@ -822,6 +850,14 @@ static void splat_pass(lensrt_render r, int w, const pass_data *pd)
             }
         for (p = p0; p < p1; p++)
             if (live[p - p0]) add_sums(r, w, (size_t)p, acc[p - p0], pts[p - p0].amp);
+    }
+    if (!r->lens->analytic) {
+        if (w == 0) r->stat_terms = r->stat_clip = r->stat_tau = r->stat_dark = r->stat_count = 0;
+        r->stat_terms += s_terms;
+        r->stat_clip += s_clip;
+        r->stat_tau += s_tau;
+        r->stat_dark += s_dark;
+        r->stat_count += (double)npix;
     }
 }
 
@@ -951,6 +987,13 @@ lensrt_result lensrt_render_get_stats(lensrt_render r, lensrt_render_stats *out)
     out->splats_per_second = r->seconds > 0 ? (double)r->splats / r->seconds : 0.0;
     out->stop_radius_mm = r->stop_radius;
     out->f_number = r->f_number;
+    if (r->stat_count > 0) {
+        double live = r->stat_count - r->stat_dark;
+        out->phase_terms = live > 0 ? r->stat_terms / live : 0.0;
+        out->clip_fraction = r->stat_clip / r->stat_count;
+        out->tau_fraction = r->stat_tau / r->stat_count;
+        out->dark_fraction = r->stat_dark / r->stat_count;
+    }
     return LENSRT_SUCCESS;
 }
 

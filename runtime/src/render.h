@@ -41,6 +41,8 @@ struct lensrt_render_s {
     uint64_t samples;             /* N per wavelength */
     uint64_t splats;
     double seconds;
+    /* pruning statistics of the last pass: sums over (pixel, wavelength) */
+    double stat_terms, stat_clip, stat_tau, stat_dark, stat_count;
 };
 
 #endif /* LENSRT_RENDER_H */
