@@ -195,7 +195,7 @@ typedef struct lensrt_render_desc {
     lensrt_estimator estimator;
     lensrt_precision precision;
     uint64_t seed;
-    double phase_tolerance_waves; /* largest phase the pruned per-pixel terms may drop; 0: 1e-3 */
+    double phase_tolerance_waves; /* largest phase the pruned per-pixel terms may drop; 0: 3e-3 */
 } lensrt_render_desc;
 
 typedef struct lensrt_render_s *lensrt_render;
@@ -205,13 +205,16 @@ LENSRT_API lensrt_result lensrt_render_create(lensrt_context ctx, const lensrt_r
                                    lensrt_render *out);
 LENSRT_API void lensrt_render_destroy(lensrt_render render);
 
-/* Called after each pass with the fraction done and an estimate of seconds left;
- * return non-zero to stop (run() then returns LENSRT_ERROR_CANCELLED; the sums keep
- * every completed pass). */
+/* Called after each wavelength of each pass (16384 samples per wavelength) with the
+ * fraction done and an estimate of seconds left; return non-zero to stop: run() then
+ * finishes the current pass and returns LENSRT_ERROR_CANCELLED (the sums keep every
+ * completed pass, so every wavelength always holds the same samples). */
 typedef int (*lensrt_progress_fn)(double fraction, double eta_seconds, void *user_data);
 
 /* Add `samples_per_wavelength` aperture samples for every wavelength, continuing the
- * sample sequence where the sums left off (so two runs equal one longer run). */
+ * sample sequence where the sums left off: two runs draw the same samples as one longer
+ * run, and give the same sums up to rounding (bit for bit when the first run's count is
+ * a multiple of the pass size, 16384). */
 LENSRT_API lensrt_result lensrt_render_run(lensrt_render render, uint64_t samples_per_wavelength,
                                 lensrt_progress_fn progress, void *user_data);
 

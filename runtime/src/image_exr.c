@@ -98,8 +98,6 @@ lensrt_result lensrt_write_exr(const lensrt_allocator *allocator, const char *pa
 #include <time.h>
 #include <unistd.h>
 
-/* Longest attribute or channel name without OpenEXR's long-name flag (characters). */
-#define EXR_SHORT_NAME_MAX 31
 /* Room for one channel name "S0.<digits>,<6 digits>nm" (bytes, with the NUL). */
 #define EXR_CHANNEL_NAME_SIZE 32
 /* Largest wavelength we format (nm): keeps the integer part of a name to 9 digits. */
@@ -109,25 +107,25 @@ lensrt_result lensrt_write_exr(const lensrt_allocator *allocator, const char *pa
 /* Room for the "comments" summary (bytes). */
 #define EXR_COMMENT_SIZE 512
 
-/* The state OpenEXRCore's callbacks see through the context's user data. */
+/* The state our write callback sees through the context's user data. */
 typedef struct exr_sink {
-    int fd;              /* the temporary file */
-    int write_errno;     /* errno of a failed pwrite, 0 if none */
-    char message[256];   /* OpenEXRCore's first error message ("" if none) */
+    int fd;            /* the temporary file */
+    int write_errno;   /* errno of a failed pwrite, 0 if none */
+    char message[256]; /* what the failed write was ("" if none) */
 } exr_sink;
 
-/* OpenEXRCore reports errors through this callback instead of printing to stderr; we
- * keep the first message to put it into ours. */
-static void exr_capture_error(exr_const_context_t ctxt, exr_result_t code, const char *msg)
+/* OpenEXRCore reports errors through this callback; the default prints to stderr, which
+ * a library must not do. It gets no user pointer, and exr_get_user_data() cannot be
+ * called from here: it takes the context's lock, which OpenEXRCore already holds when
+ * it reports an error from inside a call (that deadlocks, seen with 3.1.5 in
+ * exr_write_header). So the message is dropped; ours names the failing step, the path,
+ * OpenEXRCore's result code, and for write errors the byte range and errno, kept by
+ * exr_write_to_fd below. */
+static void exr_silent_error(exr_const_context_t ctxt, exr_result_t code, const char *msg)
 {
-    void *user = NULL;
-    exr_sink *sink;
+    (void)ctxt;
     (void)code;
-    if (!ctxt || exr_get_user_data(ctxt, &user) != EXR_ERR_SUCCESS || !user)
-        return;
-    sink = (exr_sink *)user;
-    if (sink->message[0] == '\0' && msg)
-        snprintf(sink->message, sizeof sink->message, "%s", msg);
+    (void)msg;
 }
 
 /* pwrite-like write callback: OpenEXRCore gives absolute offsets (it writes the chunk
@@ -144,10 +142,12 @@ static int64_t exr_write_to_fd(exr_const_context_t ctxt, void *userdata, const v
             continue;
         if (n <= 0) {
             sink->write_errno = n < 0 ? errno : EIO;
+            if (sink->message[0] == '\0')
+                snprintf(sink->message, sizeof sink->message,
+                         "writing %llu bytes at offset %llu failed: %s", (unsigned long long)sz,
+                         (unsigned long long)offset, strerror(sink->write_errno));
             if (error_cb)
-                error_cb(ctxt, EXR_ERR_WRITE_IO, "writing %llu bytes at offset %llu failed: %s",
-                         (unsigned long long)sz, (unsigned long long)offset,
-                         strerror(sink->write_errno));
+                error_cb(ctxt, EXR_ERR_WRITE_IO, "%s", sink->message);
             return -1;
         }
         done += (uint64_t)n;
@@ -159,7 +159,7 @@ static int64_t exr_write_to_fd(exr_const_context_t ctxt, void *userdata, const v
  * locale's decimal point cannot leak in. */
 static void exr_channel_name(double wavelength_nm, char *out)
 {
-    long long micro = (long long)floor(wavelength_nm * 1.0e6 + 0.5); /* picometres / 1000 */
+    long long micro = (long long)floor(wavelength_nm * 1.0e6 + 0.5); /* units of 1e-6 nm */
     snprintf(out, EXR_CHANNEL_NAME_SIZE, "S0.%lld,%06lldnm", micro / 1000000, micro % 1000000);
 }
 
@@ -330,7 +330,7 @@ lensrt_result lensrt_write_exr(const lensrt_allocator *allocator, const char *pa
         result = open_errno == ENOMEM ? LENSRT_ERROR_OUT_OF_MEMORY : LENSRT_ERROR_IO;
         goto cleanup;
     }
-    init.error_handler_fn = &exr_capture_error;
+    init.error_handler_fn = &exr_silent_error;
     init.user_data = &sink;
     init.write_fn = &exr_write_to_fd;
     init.max_image_width = width;
@@ -580,8 +580,11 @@ exr_failed:
         result = LENSRT_ERROR_IO;
     else
         result = exr_map_result(rv);
-    exr_set_error(err, err_size, "EXR '%s': %s failed: %s", path, step,
-                  sink.message[0] ? sink.message : exr_get_default_error_message(rv));
+    if (sink.message[0])
+        exr_set_error(err, err_size, "EXR '%s': %s failed: %s", path, step, sink.message);
+    else
+        exr_set_error(err, err_size, "EXR '%s': %s failed: OpenEXRCore says %s (%s)", path, step,
+                      exr_get_error_code_as_string(rv), exr_get_default_error_message(rv));
 
 cleanup:
     if (encoder_live && ctxt)

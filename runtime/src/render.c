@@ -22,7 +22,7 @@
 
 #define PI 3.14159265358979323846
 #define NM_PER_MM 1e6
-#define PASS 4096            /* samples per wavelength and pass (a multiple of LENSRT_BLOCK) */
+#define PASS 16384           /* samples per wavelength and pass (a multiple of LENSRT_BLOCK) */
 #define TILE 16              /* pixels per tile */
 #define DEFAULT_WAVELENGTHS 16
 
@@ -276,6 +276,169 @@ static lensrt_result prepare_fitted(lensrt_render r)
     return LENSRT_SUCCESS;
 }
 
+/* ------------------------------------------------------------ phase basis ----- */
+
+/* Eigenvectors of the symmetric n x n matrix a (destroyed) by cyclic Jacobi rotations,
+ * as columns of v, sorted by decreasing eigenvalue. */
+static void jacobi_eigen(int n, double *a, double *v, double *eig)
+{
+    int sweep, p, q, k;
+    for (p = 0; p < n; p++)
+        for (q = 0; q < n; q++) v[p * n + q] = p == q;
+    for (sweep = 0; sweep < 60; sweep++) {
+        double off = 0.0, diag = 0.0;
+        for (p = 0; p < n; p++) {
+            diag += a[p * n + p] * a[p * n + p];
+            for (q = p + 1; q < n; q++) off += a[p * n + q] * a[p * n + q];
+        }
+        if (off <= 1e-30 * diag || off == 0.0) break;
+        for (p = 0; p < n; p++)
+            for (q = p + 1; q < n; q++) {
+                double apq = a[p * n + q], theta, t, c, s;
+                if (fabs(apq) < 1e-300) continue;
+                // Rotate rows and columns p, q so that a[p][q] becomes 0
+                theta = (a[q * n + q] - a[p * n + p]) / (2.0 * apq);
+                t = (theta >= 0 ? 1.0 : -1.0) / (fabs(theta) + sqrt(theta * theta + 1.0));
+                c = 1.0 / sqrt(t * t + 1.0);
+                s = t * c;
+                for (k = 0; k < n; k++) {
+                    double akp = a[k * n + p], akq = a[k * n + q];
+                    a[k * n + p] = c * akp - s * akq;
+                    a[k * n + q] = s * akp + c * akq;
+                }
+                for (k = 0; k < n; k++) {
+                    double apk = a[p * n + k], aqk = a[q * n + k];
+                    a[p * n + k] = c * apk - s * aqk;
+                    a[q * n + k] = s * apk + c * aqk;
+                }
+                for (k = 0; k < n; k++) {
+                    double vkp = v[k * n + p], vkq = v[k * n + q];
+                    v[k * n + p] = c * vkp - s * vkq;
+                    v[k * n + q] = s * vkp + c * vkq;
+                }
+            }
+    }
+    for (p = 0; p < n; p++) eig[p] = a[p * n + p];
+    // Selection sort of the columns by decreasing eigenvalue
+    for (p = 0; p < n; p++) {
+        int best = p;
+        for (q = p + 1; q < n; q++)
+            if (eig[q] > eig[best]) best = q;
+        if (best == p) continue;
+        { double t = eig[p]; eig[p] = eig[best]; eig[best] = t; }
+        for (k = 0; k < n; k++) {
+            double t = v[k * n + p];
+            v[k * n + p] = v[k * n + best];
+            v[k * n + best] = t;
+        }
+    }
+}
+
+static void slot_coefficients(const lensrt_pixel_poly *p, const double *px, const double *py, double *c, int n_slots);
+
+/* Coordinates u[0 .. R) of the non-constant coefficients c[1 .. n] in the leading R
+ * vectors of the orthonormal basis V, and the fewest of them whose dropped tail (the
+ * residual) has an l1 norm <= limit; R + 1 when even R vectors are not enough. */
+static int basis_keep(const double *V, int n, int R, const double *c, double limit, double *u)
+{
+    double res[135], l1 = 0.0;
+    int j, k;
+    for (j = 0; j < R; j++) {
+        u[j] = 0.0;
+        for (k = 0; k < n; k++) u[j] += V[k * n + j] * c[k + 1];
+    }
+    // Residual after all R vectors, then add them back from the last one
+    for (k = 0; k < n; k++) {
+        res[k] = c[k + 1];
+        for (j = 0; j < R; j++) res[k] -= V[k * n + j] * u[j];
+        l1 += fabs(res[k]);
+    }
+    if (l1 > limit) return R + 1;
+    for (j = R - 1; j >= 0; j--) {
+        l1 = 0.0;
+        for (k = 0; k < n; k++) {
+            res[k] += V[k * n + j] * u[j];
+            l1 += fabs(res[k]);
+        }
+        if (l1 > limit) return j + 1;
+    }
+    return 0;
+}
+
+/* The window's phase basis per wavelength: eigenvectors of sum_p c_p c_p^T over a grid of
+ * up to 33 x 33 pixels of the window (c_p: the pixel's non-constant phase coefficients in
+ * waves). Each pixel later keeps the fewest leading basis vectors whose dropped tail
+ * stays under the phase tolerance, so the basis only ever speeds things up. */
+static lensrt_result prepare_basis(lensrt_render r)
+{
+    const int ns = r->n_slots, n = ns - 1;
+    const lensrt_input *inx = &r->lens->p_s.inputs[0], *iny = &r->lens->p_s.inputs[1];
+    int w, gi, gj, k, q, grid_x = r->width < 33 ? r->width : 33, grid_y = r->height < 33 ? r->height : 33;
+    double *g, *eig, c[136];
+    r->n_rows = ns;
+    r->use_basis = r->desc.precision == LENSRT_PRECISION_DEFAULT && n > 0;
+    if (!r->use_basis) return LENSRT_SUCCESS;
+    r->basis = lensrt_calloc(r->ctx, (size_t)r->n_wl * 2 * (size_t)n * (size_t)n, sizeof(double));
+    r->basis_rank = lensrt_calloc(r->ctx, (size_t)r->n_wl * 2, sizeof(int));
+    g = lensrt_calloc(r->ctx, (size_t)n * (size_t)n, sizeof(double));
+    eig = lensrt_calloc(r->ctx, (size_t)n, sizeof(double));
+    if (!r->basis || !r->basis_rank || !g || !eig) {
+        lensrt_free(r->ctx, g);
+        lensrt_free(r->ctx, eig);
+        return lensrt_fail(r->ctx, LENSRT_ERROR_OUT_OF_MEMORY, "render: out of memory");
+    }
+    for (w = 0; w < 2 * r->n_wl; w++) {
+        /* basis b = w % 2 (0: phase in waves, 1: transmittance) of wavelength w / 2 */
+        int o = w % 2 ? 2 : 3;
+        double inv_lambda = o == 3 ? NM_PER_MM / r->wavelengths[w / 2] : 1.0;
+        memset(g, 0, sizeof(double) * (size_t)n * (size_t)n);
+        // Gram matrix of the phase coefficients over the grid
+        for (gj = 0; gj < grid_y; gj++)
+            for (gi = 0; gi < grid_x; gi++) {
+                int ix = grid_x > 1 ? (int)((double)gi * (r->width - 1) / (grid_x - 1) + 0.5) : 0;
+                int iy = grid_y > 1 ? (int)((double)gj * (r->height - 1) / (grid_y - 1) + 0.5) : 0;
+                double xh = lensrt_normalise(inx, r->xs[ix]), yh = lensrt_normalise(iny, r->ys[iy]);
+                double px[16], py[16];
+                int e;
+                px[0] = py[0] = 1.0;
+                for (e = 1; e < 16; e++) {
+                    px[e] = px[e - 1] * xh;
+                    py[e] = py[e - 1] * yh;
+                }
+                slot_coefficients(&r->ps[(w / 2) * 4 + o], px, py, c, ns);
+                for (k = 0; k < n; k++)
+                    for (q = 0; q < n; q++) g[k * n + q] += c[k + 1] * c[q + 1] * inv_lambda * inv_lambda;
+            }
+        jacobi_eigen(n, g, r->basis + (size_t)w * (size_t)n * (size_t)n, eig);
+        // How many basis vectors the grid's pixels need (others fall back to monomials)
+        r->basis_rank[w] = 0;
+        for (gj = 0; gj < grid_y; gj++)
+            for (gi = 0; gi < grid_x; gi++) {
+                int ix = grid_x > 1 ? (int)((double)gi * (r->width - 1) / (grid_x - 1) + 0.5) : 0;
+                int iy = grid_y > 1 ? (int)((double)gj * (r->height - 1) / (grid_y - 1) + 0.5) : 0;
+                double xh = lensrt_normalise(inx, r->xs[ix]), yh = lensrt_normalise(iny, r->ys[iy]);
+                double px[16], py[16], u[135], limit;
+                int e, keep;
+                px[0] = py[0] = 1.0;
+                for (e = 1; e < 16; e++) {
+                    px[e] = px[e - 1] * xh;
+                    py[e] = py[e - 1] * yh;
+                }
+                slot_coefficients(&r->ps[(w / 2) * 4 + o], px, py, c, ns);
+                for (k = 1; k < ns; k++) c[k] *= inv_lambda;
+                limit = o == 3 ? r->desc.phase_tolerance_waves : 1e-3 * fabs(c[0]);
+                keep = basis_keep(r->basis + (size_t)w * (size_t)n * (size_t)n, n, n, c, limit, u);
+                if (keep > r->basis_rank[w]) r->basis_rank[w] = keep;
+            }
+        // A margin for pixels between grid points
+        r->basis_rank[w] = r->basis_rank[w] + 2 < n ? r->basis_rank[w] + 2 : n;
+    }
+    lensrt_free(r->ctx, g);
+    lensrt_free(r->ctx, eig);
+    r->n_rows = ns + 2 * n;
+    return LENSRT_SUCCESS;
+}
+
 /* ------------------------------------------------------------ image point ----- */
 
 /* d output / d x_a (which = 3) or d y_a (which = 4) at the stop centre, per mm, with
@@ -375,6 +538,8 @@ static void free_render(lensrt_render r)
         }
     lensrt_free(ctx, r->ps);
     lensrt_free(ctx, r->po);
+    lensrt_free(ctx, r->basis);
+    lensrt_free(ctx, r->basis_rank);
     lensrt_free(ctx, r->lights);
     lensrt_free(ctx, r->wavelengths);
     lensrt_free(ctx, r->xs);
@@ -412,7 +577,7 @@ lensrt_result lensrt_render_create(lensrt_context ctx, const lensrt_render_desc 
     r->ctx = ctx;
     r->lens = desc->lens;
     r->desc = *desc;
-    if (r->desc.phase_tolerance_waves == 0) r->desc.phase_tolerance_waves = 1e-3;
+    if (r->desc.phase_tolerance_waves == 0) r->desc.phase_tolerance_waves = 3e-3;
     // Copy the lights (default: one on the axis at infinity) and wavelengths
     r->n_lights = desc->n_lights > 0 ? desc->n_lights : 1;
     r->n_wl = desc->n_wavelengths > 0 ? desc->n_wavelengths : DEFAULT_WAVELENGTHS;
@@ -496,6 +661,10 @@ lensrt_result lensrt_render_create(lensrt_context ctx, const lensrt_render_desc 
         free_render(r);
         return res;
     }
+    if (!info.analytic && (res = prepare_basis(r)) != LENSRT_SUCCESS) {
+        free_render(r);
+        return res;
+    }
     // Phasor sums, and sums of squares for the unbiased estimator
     npix = (size_t)r->width * (size_t)r->height;
     nsum = (size_t)r->n_lights * (size_t)r->n_wl * npix;
@@ -536,7 +705,7 @@ static double *po_slots(lensrt_render r, int l, int w, int o)
 static void prepare_samples(lensrt_render r, int w, pass_data *pd)
 {
     const double lambda_mm = r->wavelengths[w] / NM_PER_MM;
-    const int nb = pd->n_blocks, ns = r->n_slots, nl = r->n_lights;
+    const int nb = pd->n_blocks, ns = r->n_slots, nl = r->n_lights, nr = r->n_rows;
     const int naive = r->desc.precision == LENSRT_PRECISION_NAIVE_FLOAT;
     const int dbl = r->desc.precision == LENSRT_PRECISION_DOUBLE;
     const lensrt_lens lens = r->lens;
@@ -562,8 +731,20 @@ static void prepare_samples(lensrt_render r, int w, pass_data *pd)
             }
             for (k = 0; k < ns; k++) {
                 mono[k] = pu[r->slot_m[k]] * pv[r->slot_n[k]];
-                if (dbl) pd->mono_d[((size_t)b * ns + k) * LENSRT_BLOCK + jj] = mono[k];
-                else pd->mono_f[((size_t)b * ns + k) * LENSRT_BLOCK + jj] = (float)mono[k];
+                if (dbl) pd->mono_d[((size_t)b * nr + k) * LENSRT_BLOCK + jj] = mono[k];
+                else pd->mono_f[((size_t)b * nr + k) * LENSRT_BLOCK + jj] = (float)mono[k];
+            }
+            // The phase basis of this wavelength at the sample
+            if (r->use_basis) {
+                int q, bb;
+                for (bb = 0; bb < 2; bb++) {
+                    const double *V = r->basis + (size_t)(2 * w + bb) * (size_t)(ns - 1) * (size_t)(ns - 1);
+                    for (q = 0; q < r->basis_rank[2 * w + bb]; q++) {
+                        double gq = 0.0;
+                        for (k = 1; k < ns; k++) gq += V[(k - 1) * (ns - 1) + q] * mono[k];
+                        pd->mono_f[((size_t)b * nr + ns + bb * (ns - 1) + q) * LENSRT_BLOCK + jj] = (float)gq;
+                    }
+                }
             }
         } else {
             pd->mono_d[((size_t)b * 2 + 0) * LENSRT_BLOCK + jj] = x;
@@ -730,6 +911,37 @@ static int setup_pixel(lensrt_render r, int w, double x, double y, pixel_terms *
             }
         }
     }
+    // Phase and transmittance in the window's bases: keep the leading vectors whose
+    // dropped tail stays under the tolerance (its l1 norm bounds the error, every
+    // monomial being at most 1 on the sampled region)
+    if (r->use_basis) {
+        const int n = ns - 1;
+        int bb;
+        for (bb = 0; bb < 2; bb++) {
+            const int oo = bb ? 2 : 3;
+            const double *V = r->basis + (size_t)(2 * w + bb) * (size_t)n * (size_t)n;
+            const double limit = bb ? 1e-3 * fabs(c[2][0]) : tol;
+            double u[135];
+            int j, keep, have = counts[oo] - (oo == 2 && counts[2] > 0);
+            if (oo == 2 && counts[2] == 0) continue; /* constant transmittance */
+            keep = basis_keep(V, n, r->basis_rank[2 * w + bb], c[oo], limit, u);
+            if (keep > r->basis_rank[2 * w + bb]) continue; /* beyond the rows computed */
+            if (keep >= have) continue;
+            for (j = 0; j < keep; j++) {
+                pt->slot[oo][j] = ns + bb * n + j;
+                pt->coef_f[oo][j] = (float)u[j];
+                pt->coef_d[oo][j] = u[j];
+            }
+            counts[oo] = keep;
+            if (oo == 2) {
+                // The transmittance keeps its constant term (row 0 is the monomial 1)
+                pt->slot[2][keep] = 0;
+                pt->coef_f[2][keep] = (float)c[2][0];
+                pt->coef_d[2][keep] = c[2][0];
+                counts[2] = keep + 1;
+            }
+        }
+    }
     // Huygens amplitude: sqrt|det d2 phi / (d a d s)| / lambda at the stop centre
     // (Rayleigh-Sommerfeld's cos(theta) / (lambda r) in free space), by central differences
     step = 1e-3 * fmax(r->pitch_x, 1e-3);
@@ -840,11 +1052,11 @@ static void splat_pass(lensrt_render r, int w, const pass_data *pd)
             for (p = p0; p < p1; p++) {
                 if (!live[p - p0]) continue;
                 if (dbl)
-                    lensrt_kernel_d(pd->mono_d + (size_t)b * r->n_slots * LENSRT_BLOCK, nl,
+                    lensrt_kernel_d(pd->mono_d + (size_t)b * r->n_rows * LENSRT_BLOCK, nl,
                                     pd->phase_d + (size_t)b * nl * LENSRT_BLOCK,
                                     pd->amp_d + (size_t)b * nl * LENSRT_BLOCK, &pdd[p - p0], acc[p - p0]);
                 else
-                    lensrt_kernel_f(pd->mono_f + (size_t)b * r->n_slots * LENSRT_BLOCK, nl,
+                    lensrt_kernel_f(pd->mono_f + (size_t)b * r->n_rows * LENSRT_BLOCK, nl,
                                     pd->phase_f + (size_t)b * nl * LENSRT_BLOCK,
                                     pd->amp_f + (size_t)b * nl * LENSRT_BLOCK, &pf[p - p0], acc[p - p0]);
             }
@@ -880,7 +1092,7 @@ static lensrt_result alloc_pass(lensrt_render r, int n, pass_data *pd)
     pd->n = n;
     pd->n_blocks = (n + LENSRT_BLOCK - 1) / LENSRT_BLOCK;
     nb = (size_t)pd->n_blocks;
-    rows = r->lens->analytic ? 2 : (size_t)r->n_slots;
+    rows = r->lens->analytic ? 2 : (size_t)r->n_rows;
     lanes = nb * (size_t)r->n_lights * LENSRT_BLOCK;
     pd->xy = lensrt_calloc(r->ctx, (size_t)n * 2 + 2, sizeof(double));
     if (dbl) {
@@ -912,8 +1124,8 @@ lensrt_result lensrt_render_run(lensrt_render r, uint64_t samples_per_wavelength
     if ((res = alloc_pass(r, PASS, &pd)) != LENSRT_SUCCESS) return res;
     while (done < samples_per_wavelength) {
         uint64_t n = samples_per_wavelength - done < PASS ? samples_per_wavelength - done : PASS;
-        int w;
-        double elapsed;
+        int w, cancelled = 0;
+        double elapsed, frac;
         // One pass: the same sample indices for every wavelength (each its own sequence)
         for (w = 0; w < r->n_wl; w++) {
             memset(pd.xy, 0, sizeof(double) * PASS * 2);
@@ -922,13 +1134,20 @@ lensrt_result lensrt_render_run(lensrt_render r, uint64_t samples_per_wavelength
             lensrt_sample_aperture(r->desc.sampler, r->desc.seed, w, r->samples, n, &r->region, pd.xy);
             prepare_samples(r, w, &pd);
             splat_pass(r, w, &pd);
+            elapsed = lensrt_seconds() - t0;
+            frac = ((double)done + (double)n * (w + 1) / r->n_wl) / (double)samples_per_wavelength;
+            // A request to stop takes effect when the pass is complete (every wavelength
+            // must hold the same samples)
+            if (progress && w + 1 < r->n_wl && progress(frac, elapsed * (1.0 - frac) / frac, user_data))
+                cancelled = 1;
         }
         r->samples += n;
         done += n;
         r->splats += n * (uint64_t)r->n_wl * (uint64_t)r->width * (uint64_t)r->height;
         elapsed = lensrt_seconds() - t0;
-        if (progress && progress((double)done / (double)samples_per_wavelength,
-                                 elapsed * (double)(samples_per_wavelength - done) / (double)done, user_data)) {
+        if (progress && (progress((double)done / (double)samples_per_wavelength,
+                                  elapsed * (double)(samples_per_wavelength - done) / (double)done, user_data) ||
+                         cancelled)) {
             r->seconds += lensrt_seconds() - t0;
             free_pass(r->ctx, &pd);
             return lensrt_fail(r->ctx, LENSRT_ERROR_CANCELLED, "run: cancelled after %llu samples per wavelength",

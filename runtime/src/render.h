@@ -29,6 +29,14 @@ struct lensrt_render_s {
     double mono_radius;           /* stop monomials use u = x_a / mono_radius */
     /* stop monomials: slot k is u^m v^n, m = slot_m[k], n = slot_n[k] */
     int degree, n_slots;
+    /* Rows of a sample block: the stop monomials, then (use_basis) the phase basis:
+     * g_j = sum_k V[k][j] u^m_k v^n_k over the non-constant slots, where V holds the
+     * eigenvectors of the window's phase-coefficient Gram matrix, so that a few g_j
+     * carry the phase of every pixel of a small window. */
+    int n_rows, use_basis;
+    double *basis;                /* [w][b][(n_slots - 1)^2], V[(k - 1) * (n_slots - 1) + j];
+                                     b = 0: phase (waves), 1: transmittance */
+    int *basis_rank;              /* [w][b]: rows computed per sample */
     int slot_m[136], slot_n[136];
     /* fitted lenses: P_s per wavelength and output (x_i, y_i, tau_i, phi_i), and P_o per
      * light, wavelength, output and slot (already specialised to the light) */
