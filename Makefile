@@ -1,9 +1,12 @@
 # The front door. `make demo` and `make test` do all set-up on a fresh Debian 12.
 #   make setup   Debian packages (only missing ones) and the .venv with pinned packages
+#   make runtime the C99 runtime lensrt (library, lensrt-psf, C tests) in build/runtime
 #   make demo    the default lens (0001): paraxial table, drawings, its polynomial fit with
-#                the fit-error report, and the demo scene's specialised code
-#   make test    lint and the test suite
-#   make bench   ray-tracer throughput, generated-code speed, fit report (build/bench/)
+#                the fit-error report, the demo scene's specialised code, and its point
+#                spread function at f/2, f/8 and f/32 (EXR and PNG, build/demo/psf/)
+#   make test    lint, the C tests (also under ASan/UBSan) and the Python test suite
+#   make bench   ray-tracer throughput, generated-code speed, fit report, lensrt splat rate
+#                and error against run time (build/bench/)
 
 PYTHON ?= /usr/bin/python3
 VENV   := .venv
@@ -14,6 +17,8 @@ DEMO_LENS ?= 0001
 .PHONY: setup runtime demo test bench lint clean
 
 RUNTIME_BUILD := build/runtime
+ASAN_BUILD    := build/asan
+PSF           := $(RUNTIME_BUILD)/runtime/lensrt-psf
 CMAKE_FLAGS   ?= -DCMAKE_BUILD_TYPE=Release -DLENSRT_NATIVE=ON
 
 setup: $(STAMP)
@@ -27,6 +32,7 @@ $(STAMP): fit/requirements.lock fit/pyproject.toml scripts/setup-system.sh
 
 # The C99 runtime (library, lensrt-psf, C tests) in build/runtime
 runtime: setup
+	@mkdir -p build
 	cmake -S . -B $(RUNTIME_BUILD) $(CMAKE_FLAGS) > $(RUNTIME_BUILD).configure.log 2>&1 \
 		|| (cat $(RUNTIME_BUILD).configure.log; exit 1)
 	cmake --build $(RUNTIME_BUILD) -j 2
@@ -40,11 +46,28 @@ demo: setup runtime
 	$(VENV)/bin/lensfit check
 	$(VENV)/bin/lensfit report $(DEMO_LENS) -o build/demo/report
 	$(VENV)/bin/lensfit scene $(DEMO_LENS) scenes/demo.toml -o build/demo/scene-demo
+	@mkdir -p build/demo/psf
+	@# The paper's Figure 7: an off-axis light through the default lens, 7 curved blades
+	for fn in 2 8 32; do \
+		size=$$(case $$fn in 2) echo 0.2;; 8) echo 0.1;; 32) echo 0.16;; esac); \
+		$(PSF) --lens $(DEMO_LENS) --light 6,4 --focus 0.2 --f-number $$fn --blades 7 \
+			--curvature 0.3 --rotation 10 --size $$size --resolution 256x256 \
+			--samples 16384 -o build/demo/psf/f$$fn.exr --png build/demo/psf/f$$fn.png || exit 1; \
+	done
 
 lint: setup
 	$(VENV)/bin/ruff check --config fit/pyproject.toml fit tests
 
-test: setup lint
+test: setup lint runtime
+	ctest --test-dir $(RUNTIME_BUILD) --output-on-failure
+	cmake -S . -B $(ASAN_BUILD) -DCMAKE_BUILD_TYPE=Debug -DLENSRT_SANITIZE=ON > $(ASAN_BUILD).configure.log 2>&1 \
+		|| (cat $(ASAN_BUILD).configure.log; exit 1)
+	cmake --build $(ASAN_BUILD) -j 2
+	ctest --test-dir $(ASAN_BUILD) --output-on-failure
+	cmake -S . -B build/minimal -DLENSRT_WITH_EXR=OFF -DLENSRT_WITH_OPENMP=OFF > build/minimal.configure.log 2>&1 \
+		|| (cat build/minimal.configure.log; exit 1)
+	cmake --build build/minimal -j 2
+	ctest --test-dir build/minimal --output-on-failure
 	$(PY) -m pytest tests
 
 bench: setup

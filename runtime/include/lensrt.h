@@ -70,7 +70,7 @@ typedef enum lensrt_log_level {
 typedef struct lensrt_context_s *lensrt_context;
 
 typedef struct lensrt_context_init {
-    /* Allocator hooks: all three or none (NULL: malloc/realloc/free). */
+    /* Allocator hooks: both or neither (NULL: malloc and free). */
     void *(*alloc_fn)(size_t size, void *user_data);
     void (*free_fn)(void *ptr, void *user_data);
     /* Log hook (NULL: silent). The message is valid during the call only. */
@@ -108,6 +108,7 @@ typedef struct lensrt_analytic_lens {
 
 LENSRT_API lensrt_result lensrt_lens_create_analytic(lensrt_context ctx, const lensrt_analytic_lens *desc,
                                           lensrt_lens *out);
+LENSRT_API /* Frees through the context that created the lens (ctx may be NULL). */
 LENSRT_API void lensrt_lens_destroy(lensrt_context ctx, lensrt_lens lens);
 
 typedef struct lensrt_lens_info {

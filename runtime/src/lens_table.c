@@ -149,7 +149,8 @@ static void free_system(lensrt_context ctx, lensrt_system *sys)
 void lensrt_lens_destroy(lensrt_context ctx, lensrt_lens lens)
 {
     if (!lens) return;
-    if (!ctx) ctx = lens->ctx;
+    (void)ctx;
+    ctx = lens->ctx; /* the context that allocated it */
     free_system(ctx, &lens->p_o);
     free_system(ctx, &lens->p_s);
     lensrt_free(ctx, lens);

@@ -671,10 +671,11 @@ lensrt_result lensrt_render_create(lensrt_context ctx, const lensrt_render_desc 
     r->sum = lensrt_calloc(ctx, nsum * 2, sizeof(double));
     if (r->desc.estimator == LENSRT_ESTIMATOR_UNBIASED) r->sumsq = lensrt_calloc(ctx, nsum, sizeof(double));
     if (!r->sum || (r->desc.estimator == LENSRT_ESTIMATOR_UNBIASED && !r->sumsq)) {
+        int width = r->width, height = r->height, n_wl = r->n_wl, n_lights = r->n_lights;
         free_render(r);
         return lensrt_fail(ctx, LENSRT_ERROR_OUT_OF_MEMORY,
                            "render: out of memory for %zu phasor sums (%d x %d pixels, %d wavelengths, %d lights)",
-                           nsum, r->width, r->height, r->n_wl, r->n_lights);
+                           nsum, width, height, n_wl, n_lights);
     }
     lensrt_log(ctx, LENSRT_LOG_INFO, "render: %s, %d x %d pixels, %d wavelengths, %d lights, stop %.4g mm (f/%.3g), %s sampling",
                info.name, r->width, r->height, r->n_wl, r->n_lights, r->stop_radius, r->f_number,
