@@ -6,6 +6,7 @@
     lensfit import FILE.json [-o DIR]    convert a lentil-format JSON lens table to TOML
     lensfit check [LENS ...]             validate prescriptions and their EFL
     lensfit fit LENS                     fit P_o and P_s, write generated/<lens>/ and a report
+    lensfit regenerate LENS              rewrite generated/<lens>/ from its fit.json (no fit)
     lensfit report LENS [--json]         fit and write the fit-error report only
     lensfit scene LENS SCENE.toml        specialise generated/<lens>/ for one scene
 
@@ -187,13 +188,13 @@ def cmd_report(args: argparse.Namespace) -> int:
 
 def cmd_scene(args: argparse.Namespace) -> int:
     from lensfit import scene as sc
-    from lensfit.codegen import emit_c, write_table
+    from lensfit.codegen import emit_c
     from lensfit.generate import (
         GENERATED_DIR,
-        header_comment,
         lens_folder_name,
         lens_prefix,
         read_fit_json,
+        scene_files,
         write_folder,
     )
     from lensfit.prescription import load_lens
@@ -207,10 +208,8 @@ def cmd_scene(args: argparse.Namespace) -> int:
     systems, _ = read_fit_json(fit_file)
     scene = sc.load_scene(args.scene)
     special = sc.specialise(systems, scene)
-    prefix = f"{lens_prefix(lens)}{scene.name.replace('-', '_')}_"
-    comment = header_comment(lens, f"Specialised for scene {Path(args.scene).name}.")
-    c_files = emit_c(special, prefix, header_comment=comment)
-    files = {**c_files, prefix.rstrip("_") + ".table": write_table(special, comment=comment)}
+    files = scene_files(lens, special, scene.name, args.scene)
+    c_files = {name: text for name, text in files.items() if name.endswith((".c", ".h"))}
     out = Path(args.out) if args.out else gen / "scenes" / scene.name
     write_folder(out, files)
     general = emit_c(systems, lens_prefix(lens))
@@ -238,6 +237,17 @@ def cmd_scene(args: argparse.Namespace) -> int:
     for r in rows["systems"]:
         print(f"  {r['system']:10s} {r['general_terms']:4d} -> {r['terms']:4d} terms, "
               f"{r['ns_general']:.0f} -> {r['ns_scene']:.0f} ns per evaluation (double)")
+    return 0
+
+
+def cmd_regenerate(args: argparse.Namespace) -> int:
+    from lensfit.generate import GENERATED_DIR, lens_folder_name, regenerate
+    from lensfit.prescription import load_lens
+
+    lens = load_lens(args.lens)
+    folder = (Path(args.generated) if args.generated else GENERATED_DIR) / lens_folder_name(lens)
+    _, names = regenerate(folder)
+    print(f"wrote {folder}/ from its fit.json ({', '.join(names)})")
     return 0
 
 
@@ -291,6 +301,12 @@ def build_parser() -> argparse.ArgumentParser:
             p.add_argument("--json", action="store_true", help="print the figures as JSON")
             p.add_argument("-o", "--out", default=None, help="folder for the report")
         p.set_defaults(func=func)
+
+    p = sub.add_parser("regenerate",
+                       help="rewrite generated/<lens>/ from its fit.json, without fitting")
+    p.add_argument("lens")
+    p.add_argument("--generated", default=None, help="folder of generated code")
+    p.set_defaults(func=cmd_regenerate)
 
     p = sub.add_parser("scene", help="specialise a fitted lens for one scene")
     p.add_argument("lens")

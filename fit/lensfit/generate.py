@@ -1,14 +1,20 @@
 """Write a lens's fitted systems as code: the folder ``generated/<lens>/``.
 
-Everything written here depends only on the fitted systems (no timings, no dates), so
-fitting the same lens again on the same machine rewrites the same bytes.
+Everything written here depends only on the fitted systems and the prescription (no
+timings, no dates), so fitting the same lens again on the same machine rewrites the same
+bytes.
 
     <stem>.h, <stem>.c            hand-emitted Horner C99, double and float (the fast form)
     <stem>_casadi.h, _casadi_d.c, _casadi_f.c
                                   casadi's C for the same values and their Jacobians
     <stem>.glsl                   GLSL 4.30 functions (float and double)
-    <stem>.table                  coefficient table for generic evaluators (lensfit-poly-table 1)
+    <stem>.table                  coefficient table for generic evaluators, with the lens's
+                                  first-order facts (lensfit-poly-table 2)
     fit.json                      systems, domain, options and held-out errors
+
+A scene specialisation (``lensfit scene``) writes the Horner C and the table of its
+folded systems to ``scenes/<name>/``; its table carries the same lens lines.
+:func:`regenerate` rewrites a folder from its ``fit.json`` without fitting again.
 """
 
 from __future__ import annotations
@@ -21,6 +27,7 @@ from pathlib import Path
 from typing import Any
 
 from lensfit.codegen import emit_c, emit_glsl, write_table
+from lensfit.facts import LensFacts, lens_facts
 from lensfit.poly import System
 from lensfit.prescription.model import Lens
 
@@ -44,13 +51,60 @@ def lens_folder_name(lens: Lens) -> str:
     return stem if stem and stem != "<memory>" else lens_id(lens)
 
 
-def sources_for(systems: Sequence[System], prefix: str, comment: str) -> dict[str, str]:
-    """Every generated file's text, by file name."""
+def sources_for(systems: Sequence[System], prefix: str, comment: str, *,
+                facts: LensFacts | None = None) -> dict[str, str]:
+    """Every generated file's text, by file name (the table carries ``facts``: give them,
+    :func:`lens_facts`, for a lens folder)."""
     files: dict[str, str] = {}
     files.update(emit_c(systems, prefix, header_comment=comment, which="horner"))
     files.update(emit_c(systems, prefix, header_comment=comment, which="casadi"))
     files.update(emit_glsl(systems, prefix, header_comment=comment))
-    files[prefix.rstrip("_") + ".table"] = write_table(systems, comment=comment)
+    files[prefix.rstrip("_") + ".table"] = write_table(systems, comment=comment, lens=facts)
+    return files
+
+
+def lens_files(lens: Lens, systems: Sequence[System], meta: dict[str, Any]) -> dict[str, str]:
+    """Every file of the folder ``generated/<lens>/``, by name (``meta``: fit.json's keys
+    besides the systems)."""
+    files = sources_for(systems, lens_prefix(lens), header_comment(lens),
+                        facts=lens_facts(lens))
+    files["fit.json"] = fit_json(systems, meta)
+    return files
+
+
+def regenerate(folder: Path) -> tuple[Lens, list[str]]:
+    """Rewrite ``folder`` (a ``generated/<lens>/``) from its fit.json without fitting: the
+    code of the recorded systems and the lens facts of the lens file it names. Returns
+    the lens and the names of the files written."""
+    from lensfit.prescription import load_lens  # the loader pulls in the glass catalog
+
+    folder = Path(folder)
+    fit_file = folder / "fit.json"
+    if not fit_file.is_file():
+        raise ValueError(f"{fit_file}: no fit.json to regenerate from; run `lensfit fit`")
+    systems, meta = read_fit_json(fit_file)
+    lens_file = meta.get("lens_file")
+    if not isinstance(lens_file, str) or not lens_file:
+        raise ValueError(f"{fit_file}: key 'lens_file': expected the lens's file name, "
+                         f"found {lens_file!r}")
+    lens = load_lens(Path(lens_file).stem)
+    if folder.name != lens_folder_name(lens):
+        raise ValueError(f"{folder}: the folder of {lens_file} is named "
+                         f"{lens_folder_name(lens)!r}, not {folder.name!r}")
+    files = lens_files(lens, systems, meta)
+    write_folder(folder, files)
+    return lens, sorted(files)
+
+
+def scene_files(lens: Lens, special: Sequence[System], scene_name: str,
+                scene_file: str) -> dict[str, str]:
+    """The files of ``scenes/<name>/`` for the specialised systems ``special``: Horner C
+    and the table, which carries the lens's facts like the lens folder's."""
+    prefix = f"{lens_prefix(lens)}{scene_name.replace('-', '_')}_"
+    comment = header_comment(lens, f"Specialised for scene {Path(scene_file).name}.")
+    files = emit_c(special, prefix, header_comment=comment)
+    files[prefix.rstrip("_") + ".table"] = write_table(special, comment=comment,
+                                                       lens=lens_facts(lens))
     return files
 
 

@@ -43,6 +43,17 @@ class SceneError(ValueError):
     """A scene that cannot be served, naming the file, key and value."""
 
 
+def light_direction(field_x_deg: float, field_y_deg: float) -> tuple[float, float]:
+    """Direction cosines (x_O, y_O) of a light in the direction (tan θx, tan θy, 1) seen
+    from the first vertex: x_O = tan θx / sqrt(1 + tan² θx + tan² θy), same for y."""
+    for name, v in (("field_x_deg", field_x_deg), ("field_y_deg", field_y_deg)):
+        if not (math.isfinite(v) and abs(v) < 90.0):
+            raise ValueError(f"{name} = {v!r}: expected an angle in (-90, 90) degrees")
+    tx, ty = math.tan(math.radians(field_x_deg)), math.tan(math.radians(field_y_deg))
+    norm = math.sqrt(1.0 + tx * tx + ty * ty)
+    return tx / norm, ty / norm
+
+
 @dataclass(frozen=True)
 class Light:
     field_x_deg: float
@@ -51,10 +62,9 @@ class Light:
 
     def inputs(self) -> dict[str, float]:
         """P_o's scene inputs: direction cosines of the light and its inverse distance."""
-        tx, ty = math.tan(math.radians(self.field_x_deg)), math.tan(math.radians(self.field_y_deg))
-        norm = math.sqrt(1.0 + tx * tx + ty * ty)
+        x_o, y_o = light_direction(self.field_x_deg, self.field_y_deg)
         u = 0.0 if math.isinf(self.distance_mm) else 1.0 / self.distance_mm
-        return {"x_O": tx / norm, "y_O": ty / norm, "u_O": u}
+        return {"x_O": x_o, "y_O": y_o, "u_O": u}
 
 
 @dataclass(frozen=True)

@@ -10,14 +10,7 @@ from pathlib import Path
 from typing import Any
 
 from lensfit.fitting import FitOptions, SystemFit, fit_lens
-from lensfit.generate import (
-    fit_json,
-    header_comment,
-    lens_folder_name,
-    lens_prefix,
-    sources_for,
-    write_folder,
-)
+from lensfit.generate import lens_files, lens_folder_name, write_folder
 from lensfit.prescription.model import Lens
 from lensfit.report import measure, write_report
 from lensfit.sample.domain import Domain, default_domain
@@ -34,14 +27,12 @@ def run(lens: Lens, *, domain: Domain | None = None, options: FitOptions | None 
     fit_seconds = time.perf_counter() - t0
     systems = [f.system for f in fits]
     if generated_dir is not None:
-        files = sources_for(systems, lens_prefix(lens), header_comment(lens))
         meta = {"lens": lens.name, "lens_file": Path(lens.source_file).name,
                 "domain": domain.to_dict(), "options": options.to_dict(),
                 "held_out": [{k: v for k, v in o.to_dict().items()
                               if k not in ("ns_per_eval_double", "ns_per_eval_float")}
                              for f in fits for o in f.outputs]}
-        files["fit.json"] = fit_json(systems, meta)
-        write_folder(generated_dir / lens_folder_name(lens), files)
+        write_folder(generated_dir / lens_folder_name(lens), lens_files(lens, systems, meta))
     figures = measure(lens, fits, timing=timing)
     figures["fit_seconds"] = fit_seconds
     figures["domain"] = domain.to_dict()

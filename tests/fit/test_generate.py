@@ -19,14 +19,17 @@ import pytest
 from lensfit import stage
 from lensfit.cli import main
 from lensfit.codegen import call_c, check_compiles, emit_c, load_c, read_table
+from lensfit.facts import lens_facts
 from lensfit.fitting import FitOptions
 from lensfit.generate import (
     GENERATED_DIR,
     fit_json,
     header_comment,
+    lens_files,
     lens_folder_name,
     lens_prefix,
     read_fit_json,
+    scene_files,
     sources_for,
     write_folder,
 )
@@ -104,8 +107,10 @@ def test_regenerating_from_fit_json_is_byte_identical(folder):
     systems, meta = read_fit_json(folder / "fit.json")
     lens = lens_of(meta)
     assert folder.name == lens_folder_name(lens)
-    files = sources_for(systems, lens_prefix(lens), header_comment(lens))
+    files = sources_for(systems, lens_prefix(lens), header_comment(lens),
+                        facts=lens_facts(lens))
     files["fit.json"] = fit_json(systems, meta)
+    assert files == lens_files(lens, systems, meta)
     on_disk = sorted(p.name for p in folder.iterdir() if p.is_file())
     assert on_disk == sorted(files)  # nothing missing, nothing extra, no temp files
     for name, text in files.items():
@@ -161,6 +166,7 @@ def test_table_reads_back_as_the_fitted_systems(folder):
     systems, meta = read_fit_json(folder / "fit.json")
     stem = lens_prefix(lens_of(meta)).rstrip("_")
     table = read_table((folder / f"{stem}.table").read_text(encoding="utf-8"))
+    assert (table.version, table.lens) == (2, lens_facts(lens_of(meta)))
     assert [t.name for t in table] == [s.name for s in systems]
     for t, s in zip(table, systems, strict=True):
         assert t.inputs == s.inputs  # names, units, domains, transforms: exactly
@@ -185,6 +191,44 @@ def test_quick_fit_serves_the_demo_scene(quick_dir):
         # Folding rounds each coefficient by a few ulp: 1e-12 of the output scale
         top = max(np.abs(p.coefficients).sum() for p in general.outputs)
         assert max_abs_difference(general, s, fixed) <= 1e-12 * top
+
+
+COMMITTED_SCENES = sorted(GENERATED_DIR.glob("*/scenes/*/"))
+
+
+@pytest.mark.parametrize("scene_dir", COMMITTED_SCENES, ids=lambda p: p.name)
+def test_committed_scene_folders_are_what_lensfit_scene_writes(scene_dir):
+    """generated/<lens>/scenes/<name>/ is `lensfit scene LENS scenes/<name>.toml` of the
+    lens's fit.json, byte for byte; its table carries the lens's facts."""
+    systems, meta = read_fit_json(scene_dir.parents[1] / "fit.json")
+    lens = lens_of(meta)
+    scene_file = REPO / "scenes" / f"{scene_dir.name}.toml"
+    files = scene_files(lens, specialise(systems, load_scene(scene_file)), scene_dir.name,
+                        str(scene_file))
+    assert sorted(p.name for p in scene_dir.iterdir()) == sorted(files)
+    for name, text in files.items():
+        assert (scene_dir / name).read_bytes() == text.encode("utf-8"), name
+    table = read_table(files[f"{lens_prefix(lens)}{scene_dir.name}.table"])
+    assert table.lens == lens_facts(lens)
+
+
+def test_cli_regenerate_rewrites_a_folder_from_fit_json(quick_dir, tmp_path, capsys):
+    lens = load_lens("0001")
+    gen = tmp_path / "gen"
+    shutil.copytree(quick_dir / lens_folder_name(lens), gen / lens_folder_name(lens))
+    folder = gen / lens_folder_name(lens)
+    before = {p.name: p.read_bytes() for p in folder.iterdir() if p.is_file()}
+    (folder / "lens0001.table").write_text("lensfit-poly-table 1\n", encoding="utf-8")
+    (folder / "lens0001.c").unlink()
+    assert main(["regenerate", "0001", "--generated", str(gen)]) == 0
+    assert "from its fit.json" in capsys.readouterr().out
+    after = {p.name: p.read_bytes() for p in folder.iterdir() if p.is_file()}
+    assert after == before
+    # Without a fit.json there is nothing to regenerate from: one line naming the file
+    (folder / "fit.json").unlink()
+    assert main(["regenerate", "0001", "--generated", str(gen)]) == 2
+    err = capsys.readouterr().err
+    assert str(folder / "fit.json") in err and err.count("\n") == 1
 
 
 # --- atomic writes ----------------------------------------------------------------------------

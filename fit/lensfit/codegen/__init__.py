@@ -6,7 +6,7 @@
   generated C for the values and the Jacobians with respect to the raw inputs.
 * :func:`emit_glsl` (:mod:`~lensfit.codegen.glsl`): GLSL 4.30 functions of the same form.
 * :func:`write_table` / :func:`read_table` (:mod:`~lensfit.codegen.table`): a plain-text
-  coefficient table for generic evaluators.
+  coefficient table for generic evaluators, with the lens's first-order facts.
 * :mod:`~lensfit.codegen.timing`: compile, load (ctypes) and time the generated C;
   ``python -m lensfit.codegen.bench`` compares Horner and casadi in ns/evaluation.
 
@@ -22,13 +22,14 @@ from lensfit.codegen.c_casadi import casadi_system, emit_casadi_c
 from lensfit.codegen.c_horner import emit_horner_c
 from lensfit.codegen.common import check_prefix
 from lensfit.codegen.glsl import GLSL_AS_C_PRELUDE, emit_glsl, glsl_as_c
-from lensfit.codegen.table import read_table, write_table
+from lensfit.codegen.table import Table, read_table, write_table
 from lensfit.codegen.timing import CompilerNotFound, call_c, check_compiles, load_c, time_c
 from lensfit.poly import System
 
 __all__ = [
     "GLSL_AS_C_PRELUDE",
     "CompilerNotFound",
+    "Table",
     "call_c",
     "casadi_system",
     "check_compiles",

@@ -1,12 +1,14 @@
 """Coefficient tables: polynomial systems as plain text a small C evaluator can parse.
 
-Format ``lensfit-poly-table``, version 1. UTF-8 text, lines end with '\\n'; fields are
-separated by one or more spaces or tabs (only those: other Unicode blanks belong to a
-field), and a '\r' before the '\n' is ignored. Lines that are empty or start with '#' (after
-optional blanks) are comments and are skipped anywhere. The first other line is the
-header; then one block per system:
+Format ``lensfit-poly-table``, version 2 (the reader also reads version 1). UTF-8 text,
+lines end with '\\n'; fields are separated by one or more spaces or tabs (only those:
+other Unicode blanks belong to a field), and a '\r' before the '\n' is ignored. Lines that
+are empty or start with '#' (after optional blanks) are comments and are skipped anywhere.
+The first other line is the header; then, in version 2, the lens lines; then one block
+per system:
 
-    lensfit-poly-table 1
+    lensfit-poly-table 2
+    lens <key> <value>                                           (9 lines, version 2 only)
     system <name> <n_inputs> <n_outputs>
     input <name> <unit> <lo> <hi> <transform> <c> <s>          (n_inputs lines)
     output <name> <unit> <n_terms>                               (then, per output:)
@@ -26,9 +28,33 @@ header; then one block per system:
 * A term line holds the exponent of each input (in input order) then the coefficient,
   in the output's unit: the term is ``coefficient * prod_j xhat_j ** e_j``.
 
+Version 2 adds the lens lines: first-order facts of the lens a runtime needs besides
+the polynomials (:class:`lensfit.facts.LensFacts`), exactly these keys in this order,
+one line each, between the header (and the comments the writer puts after it) and the
+first ``system`` line:
+
+    name                     the lens's name (a text field, encoded as above)
+    focal_length_mm          paraxial effective focal length, y-z meridian, d line (signed)
+    stop_radius_max_mm       the widest the physical stop opens
+    stop_radius_f1_mm        the stop radius that would give f/1 for an object at infinity
+                             (paraxial): f/N needs a stop radius of stop_radius_f1_mm / N
+    housing_first_mm         clip radius at the first surface: a path passes when
+                             x_o^2 + y_o^2 <= housing_first_mm^2
+    housing_last_mm          clip radius at the last surface: x_i^2 + y_i^2 <= housing_last_mm^2
+    sensor_defocus_mm        the z_S = 0 sensor minus the paraxial focus for infinity (y, d
+                             line): z_S = -sensor_defocus_mm puts the sensor at that focus
+    front_focal_distance_mm  front focal point to the first vertex (positive in front)
+    squeeze                  anamorphic squeeze EFL_y / EFL_x (1 for a rotationally
+                             symmetric lens)
+
+Every value but the name is a finite real number written like the others (``%.17g``);
+radii and squeeze are positive, the focal length is not zero. Version 1 has no lens
+lines; the writer emits version 1 when it is given no lens facts.
+
 A system's ``info`` (provenance) is not stored. ``read_table(write_table(s))`` gives back
 the names, units, domains, transforms, exponents and coefficients bit for bit, terms in
-their order. Malformed text raises ValueError naming the line: ``table line 7: ...``.
+their order, and the lens facts exactly (:class:`Table`). Malformed text raises ValueError
+naming the line: ``table line 7: ...``.
 """
 
 from __future__ import annotations
@@ -39,11 +65,13 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from lensfit.facts import LensFacts, fact_problem
 from lensfit.poly import Input, Polynomial, System
 from lensfit.poly.polynomial import TRANSFORMS
 
 FORMAT = "lensfit-poly-table"
-VERSION = 1
+VERSION = 2  # what the writer emits when given lens facts (else 1)
+READS = (1, 2)  # versions the reader accepts
 _INT = re.compile(r"[0-9]+")
 _REAL = re.compile(r"[-+]?([0-9]+\.?[0-9]*|\.[0-9]+)([eE][-+]?[0-9]+)?")
 _BLANKS = re.compile(r"[ \t]+")
@@ -87,10 +115,32 @@ def fmt_real(x: float) -> str:
     return format(float(x), ".17g")
 
 
-def write_table(systems: Sequence[System], comment: str = "") -> str:
-    """The systems as one ``lensfit-poly-table`` text (``comment`` lines become '# ...')."""
-    lines = [f"{FORMAT} {VERSION}"]
+class Table(list[System]):
+    """What :func:`read_table` returns: the systems (it is a list of them), plus the
+    table's format ``version`` and its ``lens`` facts (None in a version-1 table)."""
+
+    def __init__(self, systems: Sequence[System], lens: LensFacts | None = None,
+                 version: int = VERSION) -> None:
+        super().__init__(systems)
+        self.lens = lens
+        self.version = version
+
+
+def write_table(systems: Sequence[System], comment: str = "",
+                lens: LensFacts | None = None) -> str:
+    """The systems as one ``lensfit-poly-table`` text (``comment`` lines become '# ...').
+
+    With ``lens`` (default: ``systems.lens`` when ``systems`` is a :class:`Table`) the
+    text is version 2 with the lens lines; without, version 1."""
+    if lens is None:
+        lens = getattr(systems, "lens", None)
+    lines = [f"{FORMAT} {VERSION if lens is not None else 1}"]
     lines += [f"# {line}".rstrip() for line in comment.splitlines()]
+    if lens is not None:
+        lens.check()
+        lines.append(f"lens name {encode_field(lens.name)}")
+        for key, value in zip(LensFacts.keys()[1:], lens.values()[1:], strict=True):
+            lines.append(f"lens {key} {fmt_real(value)}")
     for s in systems:
         n = len(s.inputs)
         lines.append(f"system {encode_field(s.name)} {n} {len(s.outputs)}")
@@ -197,14 +247,44 @@ def _output(lines: _Lines, n_inputs: int) -> Polynomial:
     return Polynomial(name, unit, exps, coefs)
 
 
-def read_table(text: str) -> list[System]:
-    """Parse a ``lensfit-poly-table`` text (see the module doc) into systems."""
+def _lens(lines: _Lines) -> LensFacts:
+    """The lens lines of a version-2 table: every key once, in the documented order."""
+    keys = LensFacts.keys()
+    values: list[str | float] = []
+    for i, key in enumerate(keys):
+        form = f"lens {key} <value>"
+        n, f = lines.next(f"'{form}' (lens line {i + 1} of {len(keys)})")
+        if not f or f[0] != "lens":
+            raise _fail(n, f"expected '{form}' (lens line {i + 1} of {len(keys)}), found "
+                           f"{' '.join(f)!r}")
+        if len(f) != 3:
+            raise _fail(n, f"expected 3 fields '{form}', found {len(f)}")
+        if f[1] != key:
+            raise _fail(n, f"expected lens key {key!r} (lens line {i + 1} of {len(keys)}: "
+                           f"keys come in the order {', '.join(keys)}), found {f[1]!r}")
+        if key == "name":
+            values.append(decode_field(f[2], f"table line {n}"))
+            continue
+        value = _real(f[2], n, f"lens {key}")
+        problem = fact_problem(key, value)
+        if problem:
+            raise _fail(n, f"lens {key} = {f[2]}: {problem}")
+        values.append(value)
+    return LensFacts(*values)
+
+
+def read_table(text: str) -> Table:
+    """Parse a ``lensfit-poly-table`` text (see the module doc) into systems (a
+    :class:`Table`: a list of the systems, with the lens facts as ``.lens``)."""
     lines = _Lines(text)
     n, f = lines.next(f"the header '{FORMAT} {VERSION}'")
     if len(f) != 2 or f[0] != FORMAT:
         raise _fail(n, f"expected the header '{FORMAT} {VERSION}', found {' '.join(f)!r}")
-    if f[1] != str(VERSION):
-        raise _fail(n, f"format version {f[1]!r} is not supported (this reader: {VERSION})")
+    if f[1] not in map(str, READS):
+        raise _fail(n, f"format version {f[1]!r} is not supported (this reader: "
+                       f"{', '.join(map(str, READS))})")
+    version = int(f[1])
+    lens = _lens(lines) if version >= 2 else None
     systems = []
     while not lines.done():
         n, f = lines.next("'system'")
@@ -221,4 +301,4 @@ def read_table(text: str) -> list[System]:
         systems.append(System(name, inputs, outputs))
     if not systems:
         raise _fail(lines.last, "no system in the table")
-    return systems
+    return Table(systems, lens, version)

@@ -141,6 +141,24 @@ def paraxial(
     )
 
 
+def _stop_radius(
+    lens: Lens, f_number: float, meridian: str, wavelength_nm: float
+) -> tuple[float, Paraxial]:
+    """Stop radius for ``f_number`` at infinity, unchecked, and the unit-stop table."""
+    p = paraxial(lens, meridian=meridian, stop_radius_mm=1.0, wavelength_nm=wavelength_nm)
+    # The entrance pupil radius is proportional to the stop radius
+    return abs(p.efl_mm) / (2.0 * f_number) / p.entrance_pupil.radius_mm, p
+
+
+def stop_radius_f1_mm(
+    lens: Lens, *, meridian: str = "y", wavelength_nm: float = D_LINE_NM
+) -> float:
+    """Stop radius (mm) that would give f/1 for an object at infinity, so that f/N needs
+    ``stop_radius_f1_mm / N`` (the relation of :func:`stop_radius_for_f_number`, without
+    its check that the stop can open that wide)."""
+    return _stop_radius(lens, 1.0, meridian, wavelength_nm)[0]
+
+
 def stop_radius_for_f_number(
     lens: Lens, f_number: float, *, meridian: str = "y", wavelength_nm: float = D_LINE_NM
 ) -> float:
@@ -149,9 +167,7 @@ def stop_radius_for_f_number(
     Raises ValueError when the lens cannot open that wide."""
     if not (f_number > 0 and math.isfinite(f_number)):
         raise ValueError(f"f-number must be a positive finite number, got {f_number}")
-    p = paraxial(lens, meridian=meridian, stop_radius_mm=1.0, wavelength_nm=wavelength_nm)
-    # The entrance pupil radius is proportional to the stop radius
-    r = abs(p.efl_mm) / (2.0 * f_number) / p.entrance_pupil.radius_mm
+    r, p = _stop_radius(lens, f_number, meridian, wavelength_nm)
     widest = lens.stop_radius_max_mm
     if r > widest * (1 + 1e-12):
         fastest = p.efl_mm / (2.0 * p.entrance_pupil.radius_mm * widest)

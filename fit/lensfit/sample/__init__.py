@@ -4,11 +4,15 @@ from lensfit.sample.domain import Domain, default_domain
 from lensfit.sample.rays import (
     OUTPUTS_O,
     OUTPUTS_S,
+    Aimed,
     Samples,
     SamplingError,
+    aim_object_side,
+    aim_sensor_side,
     sample_object_side,
     sample_sensor_side,
 )
 
-__all__ = ["Domain", "default_domain", "OUTPUTS_O", "OUTPUTS_S", "Samples", "SamplingError",
-           "sample_object_side", "sample_sensor_side"]
+__all__ = ["Domain", "default_domain", "OUTPUTS_O", "OUTPUTS_S", "Aimed", "Samples",
+           "SamplingError", "aim_object_side", "aim_sensor_side", "sample_object_side",
+           "sample_sensor_side"]

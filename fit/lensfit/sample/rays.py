@@ -17,6 +17,10 @@ can be removed when errors are measured.
 OPL of P_o is relative: phi_o = OPL(scene point -> stop) - d_O, computed without
 cancellation as (u|S|^2 - 2 S.w) / (|u S - w| + 1) for the start point S of the traced
 ray and the unit direction w to the scene point; it has a finite limit at u_O = 0.
+
+The aiming itself is :func:`aim_object_side` and :func:`aim_sensor_side`: the exact value
+of P_o and P_s at any inputs, one ray per row. The samplers draw inputs and call them;
+so does :mod:`lensfit.psf`, so the fitted data and the exact reference cannot drift apart.
 """
 
 from __future__ import annotations
@@ -67,6 +71,54 @@ class Samples:
     def subset(self, mask: np.ndarray) -> Samples:
         return Samples(self.system, self.inputs[mask], self.outputs[mask], self.group[mask],
                        self.vignetting[mask], self.requested, dict(self.dropped))
+
+
+@dataclass
+class Aimed:
+    """Exactly traced rays, one per row of the inputs, each joining its scene point
+    (P_o) or sensor point (P_s) to its stop point."""
+
+    outputs: np.ndarray  # (N, 4): OUTPUTS_O or OUTPUTS_S; NaN where not ok
+    vignetting: np.ndarray  # (N,) max radius / housing radius along the half path; NaN
+    ok: np.ndarray  # (N,) converged, no miss or TIR, finite outputs
+    unknowns: np.ndarray  # (N, 2) the solution: P_o where the ray crosses z = 0 (mm);
+    #                       P_s its slopes dx/dz, dy/dz leaving the stop
+    pos: np.ndarray  # (N, 3) where the ray ends: P_o on the stop, P_s on the sensor (mm)
+    dir: np.ndarray  # (N, 3) its unit direction there
+
+    @classmethod
+    def empty(cls, n: int) -> Aimed:
+        nan = np.full((n, 3), np.nan)
+        return cls(np.full((n, 4), np.nan), np.full(n, np.nan), np.zeros(n, dtype=bool),
+                   np.full((n, 2), np.nan), nan, nan.copy())
+
+
+def _converge(aimed: Aimed, residual, final, p0: np.ndarray, scale: float,
+              warm: bool) -> Aimed:
+    """Newton on every row from ``p0``, then the final trace of the converged rows into
+    ``aimed``. ``final(idx, p)`` returns (miss (n, 2), valid, outputs, vignetting, pos,
+    dir). With ``warm`` (a first guess that may already be the solution) the final trace
+    is tried at ``p0`` first, with the acceptance Newton's rays get in the final trace
+    (a miss of at most 10 NEWTON_TOL_MM), and Newton runs only for the rows it does not
+    settle."""
+    todo = np.arange(len(p0))
+    p = p0.copy()
+
+    def keep(idx, q, tol, r, valid, outputs, vig, pos, dirs):
+        good = valid & (np.hypot(r[:, 0], r[:, 1]) <= tol) & np.all(np.isfinite(outputs), 1)
+        i = idx[good]
+        aimed.outputs[i], aimed.vignetting[i], aimed.ok[i] = outputs[good], vig[good], True
+        aimed.unknowns[i], aimed.pos[i], aimed.dir[i] = q[good], pos[good], dirs[good]
+        return good
+
+    if warm:
+        got = final(todo, p)
+        todo = todo[~keep(todo, p, 10 * NEWTON_TOL_MM, *got)]
+    if todo.size:
+        q, ok = _newton(lambda i, x: residual(todo[i], x), p0[todo], scale)
+        idx = todo[ok]
+        keep(idx, q[ok], 10 * NEWTON_TOL_MM, *final(idx, q[ok]))
+    return aimed
 
 
 def _disc(rng: np.random.Generator, n: int, radius: float) -> np.ndarray:
@@ -153,6 +205,12 @@ def _vignetting(lens: Lens, history: list[np.ndarray], path: list[Step]) -> np.n
     return v
 
 
+def _front_plane(lens: Lens) -> float:
+    """z of the plane P_o rays start on: 1 mm in front of all the lens puts before the stop."""
+    s = lens.stop_index
+    return min(0.0, float(np.min(lens.vertex_z[: s + 1]))) - _front_bulge(lens) - 1.0
+
+
 def sample_object_side(lens: Lens, domain: Domain, groups: int, per_group: int,
                        seed: int) -> Samples:
     """Samples for P_o: scene point -> stop point."""
@@ -172,12 +230,10 @@ def sample_object_side(lens: Lens, domain: Domain, groups: int, per_group: int,
     u[rng.random(groups) < INFINITY_SHARE] = 0.0
     lam_g = _wavelengths(rng, domain, groups)
     xo, yo, ug, lam = dirs[gid, 0], dirs[gid, 1], u[gid], lam_g[gid]
-    w = np.stack([xo, yo, -np.sqrt(1.0 - xo * xo - yo * yo)], axis=1)  # towards the scene
 
-    # Start every ray on a plane in front of everything the lens puts before the stop
-    front = min(0.0, float(np.min(lens.vertex_z[: s + 1]))) - _front_bulge(lens) - 1.0
-    # The OPL below counts the leg from the scene point to that plane as +|S - scene|:
+    # The OPL counts the leg from the scene point to the start plane as +|S - scene|:
     # a scene point on or behind the plane would get the wrong sign (or lie in the glass)
+    front = _front_plane(lens)
     nearest_z = -domain.close_focus_mm * math.cos(math.radians(max(domain.field_xy_deg)))
     if not nearest_z < front:
         raise SamplingError(
@@ -186,6 +242,53 @@ def sample_object_side(lens: Lens, domain: Domain, groups: int, per_group: int,
             f"front of the lens (its surfaces before the stop reach to z = {front + 1.0:g} "
             "mm; scene points must be at least 1 mm further out)"
         )
+    aimed = aim_object_side(lens, xo, yo, ug, ap[:, 0], ap[:, 1], lam,
+                            fd_scale_mm=max(domain.stop_radius_mm, 1.0))
+    keep = aimed.ok
+    inputs = np.stack([xo, yo, ug, ap[:, 0], ap[:, 1], lam], axis=1)
+    dropped = {"not converged or missed": int(n - np.sum(keep))}
+    return _finish("P_o", lens, inputs[keep], aimed.outputs[keep], gid[keep],
+                   aimed.vignetting[keep], n, dropped)
+
+
+def aim_object_side(lens: Lens, x_O: np.ndarray, y_O: np.ndarray, u_O: np.ndarray,
+                    x_a: np.ndarray, y_a: np.ndarray, wavelength_nm: np.ndarray, *,
+                    fd_scale_mm: float | None = None,
+                    guess: np.ndarray | None = None) -> Aimed:
+    """P_o exactly, one row per ray: the ray from the scene point (direction cosines x_O,
+    y_O from the first vertex, inverse distance u_O in 1/mm, 0 = infinity) through the
+    stop point (x_a, y_a) (mm) at ``wavelength_nm``. Inputs broadcast to one length.
+
+    Outputs x_o, y_o (on the first surface), tau_o (Fresnel power transmittance, with
+    coatings), phi_o = OPL(scene point -> stop point) - d_O (mm). Rays that miss, reflect
+    totally or do not converge have ``ok`` False. ``fd_scale_mm`` sets Newton's
+    finite-difference step (default: the largest |stop point|, at least 1 mm); ``guess``
+    (N, 2) where each ray crosses z = 0, NaN rows for the paraxial guess."""
+    s = lens.stop_index
+    if s == 0:
+        raise SamplingError(f"{lens.name}: the stop is the first surface; P_o is trivial")
+    xo, yo, ug, xa, ya, lam = (np.array(v, dtype=np.float64) for v in np.broadcast_arrays(
+        x_O, y_O, u_O, x_a, y_a, wavelength_nm))
+    xo, yo, ug, xa, ya, lam = (v.reshape(-1) for v in (xo, yo, ug, xa, ya, lam))
+    n = len(xo)
+    aimed = Aimed.empty(n)
+    if n == 0:
+        return aimed
+    ap = np.stack([xa, ya], axis=1)
+    w = np.stack([xo, yo, -np.sqrt(1.0 - xo * xo - yo * yo)], axis=1)  # towards the scene
+    if not np.all(np.isfinite(w)):
+        raise ValueError("P_o: direction cosines (x_O, y_O) must satisfy x_O^2 + y_O^2 <= 1")
+
+    # Start every ray on a plane in front of everything the lens puts before the stop
+    front = _front_plane(lens)
+    with np.errstate(divide="ignore"):
+        scene_z = np.where(ug > 0, w[:, 2] / np.where(ug > 0, ug, 1.0), -np.inf)
+    if np.any(ug < 0) or not np.all(scene_z < front):
+        bad = int(np.argmax((ug < 0) | ~(scene_z < front)))
+        raise SamplingError(
+            f"{lens.source_file or lens.name}: P_o: u_O = {ug[bad]:g} 1/mm puts the scene "
+            f"point at z = {scene_z[bad]:g} mm, not in front of the lens (scene points "
+            f"must lie before z = {front:g} mm)")
     path = [Step(k) for k in range(s + 1)]
 
     def launch(idx, p):
@@ -203,6 +306,21 @@ def sample_object_side(lens: Lens, domain: Domain, groups: int, per_group: int,
         ok = out.status == Status.OK
         return out.pos[:, :2] - ap[idx], ok, out, start
 
+    def final(idx, p):
+        """The converged rays again, with Fresnel loss and the history."""
+        hist: list[np.ndarray] = []
+        r, valid, out, start = residual(idx, p, hist, fresnel=True)
+        vig = _vignetting(lens, hist, path)
+        # OPL relative to d_O, without cancellation
+        ui = ug[idx, None]
+        wi = w[idx]
+        rel = (ui[:, 0] * np.einsum("ij,ij->i", start, start)
+               - 2 * np.einsum("ij,ij->i", start, wi))
+        rel /= np.linalg.norm(ui * start - wi, axis=1) + 1.0
+        phi = out.opl_mm + rel
+        outputs = np.stack([hist[0][:, 0], hist[0][:, 1], out.transmittance, phi], axis=1)
+        return r, valid, outputs, vig, out.pos, out.dir
+
     # Paraxial first guess: the ray through the image of the stop point in the
     # entrance pupil (per meridian, at the d line)
     p0 = np.empty((n, 2))
@@ -215,27 +333,12 @@ def sample_object_side(lens: Lens, domain: Domain, groups: int, per_group: int,
         dj = ug * e - w[:, j]
         dz = ug * z_e - w[:, 2]
         p0[:, j] = e - dj * z_e / dz
-    scale = max(domain.stop_radius_mm, 1.0)
-    p, ok = _newton(lambda i, q: residual(i, q)[:2], p0, scale)
-
-    # Final trace of the converged rays, with Fresnel loss and the history
-    idx = np.nonzero(ok)[0]
-    hist: list[np.ndarray] = []
-    r, valid, out, start = residual(idx, p[idx], hist, fresnel=True)
-    good = valid & (np.hypot(r[:, 0], r[:, 1]) <= 10 * NEWTON_TOL_MM)
-    vig = _vignetting(lens, hist, path)
-    # OPL relative to d_O, without cancellation
-    ui = ug[idx, None]
-    wi = w[idx]
-    rel = (ui[:, 0] * np.einsum("ij,ij->i", start, start) - 2 * np.einsum("ij,ij->i", start, wi))
-    rel /= np.linalg.norm(ui * start - wi, axis=1) + 1.0
-    phi = out.opl_mm + rel
-    outputs = np.stack([hist[0][:, 0], hist[0][:, 1], out.transmittance, phi], axis=1)
-    inputs = np.stack([xo, yo, ug, ap[:, 0], ap[:, 1], lam], axis=1)[idx]
-    keep = good & np.all(np.isfinite(outputs), axis=1)
-    dropped = {"not converged or missed": int(n - len(idx) + np.sum(~keep))}
-    return _finish("P_o", lens, inputs[keep], outputs[keep], gid[idx][keep], vig[keep], n,
-                   dropped)
+    warm = guess is not None
+    if warm:
+        g = np.asarray(guess, dtype=np.float64).reshape(n, 2)
+        p0 = np.where(np.all(np.isfinite(g), axis=1)[:, None], g, p0)
+    scale = fd_scale_mm if fd_scale_mm is not None else max(float(np.max(np.abs(ap))), 1.0)
+    return _converge(aimed, lambda i, q: residual(i, q)[:2], final, p0, scale, warm)
 
 
 def _front_bulge(lens: Lens) -> float:
@@ -253,21 +356,57 @@ def sample_sensor_side(lens: Lens, domain: Domain, groups: int, per_group: int,
                        seed: int) -> Samples:
     """Samples for P_s: stop point -> sensor point."""
     rng = np.random.default_rng(seed)
-    s = lens.stop_index
-    n_surf = len(lens.surfaces)
-    z_stop = float(lens.vertex_z[s])
     n = groups * per_group
     gid, ap = _group_inputs(rng, groups, per_group, domain.stop_radius_mm)
     sens = _disc(rng, groups, domain.sensor_radius_mm)
     zs_g = rng.uniform(domain.focus_min_mm, domain.focus_max_mm, groups)
     lam_g = _wavelengths(rng, domain, groups)
     xs, ys, zs, lam = sens[gid, 0], sens[gid, 1], zs_g[gid], lam_g[gid]
-    z_sensor = lens.sensor_z + zs
     if lens.sensor_z + domain.focus_min_mm <= lens.vertex_z[-1]:
         raise SamplingError(
             f"{lens.source_file or lens.name}: focus_min_mm = {domain.focus_min_mm:g} puts the "
             f"sensor in front of the last surface (it is {lens.sensor_z - lens.vertex_z[-1]:g}"
             " mm behind it)")
+    aimed = aim_sensor_side(lens, xs, ys, zs, ap[:, 0], ap[:, 1], lam, fd_scale=1.0)
+    keep = aimed.ok
+    inputs = np.stack([xs, ys, zs, ap[:, 0], ap[:, 1], lam], axis=1)
+    dropped = {"not converged or missed": int(n - np.sum(keep))}
+    return _finish("P_s", lens, inputs[keep], aimed.outputs[keep], gid[keep],
+                   aimed.vignetting[keep], n, dropped)
+
+
+def aim_sensor_side(lens: Lens, x_S: np.ndarray, y_S: np.ndarray, z_S: np.ndarray,
+                    x_a: np.ndarray, y_a: np.ndarray, wavelength_nm: np.ndarray, *,
+                    fd_scale: float = 1.0, guess: np.ndarray | None = None,
+                    vignetting: bool = True) -> Aimed:
+    """P_s exactly, one row per ray: the ray from the stop point (x_a, y_a) (mm) to the
+    sensor point (x_S, y_S) (mm) of the sensor shifted by z_S (mm, + away from the lens)
+    at ``wavelength_nm``. Inputs broadcast to one length.
+
+    Outputs x_i, y_i (on the last surface), tau_i (Fresnel power transmittance, with
+    coatings), phi_i = OPL(stop point -> sensor point) (mm). Rays that miss, reflect
+    totally or do not converge have ``ok`` False. ``fd_scale`` sets Newton's
+    finite-difference step in slope; ``guess`` (N, 2) the slopes dx/dz, dy/dz leaving
+    the stop, NaN rows for the paraxial guess. Without ``vignetting`` the rays' history
+    is not kept (faster) and ``Aimed.vignetting`` is NaN."""
+    s = lens.stop_index
+    n_surf = len(lens.surfaces)
+    z_stop = float(lens.vertex_z[s])
+    xs, ys, zs, xa, ya, lam = (np.array(v, dtype=np.float64).reshape(-1)
+                               for v in np.broadcast_arrays(x_S, y_S, z_S, x_a, y_a,
+                                                            wavelength_nm))
+    n = len(xs)
+    aimed = Aimed.empty(n)
+    if n == 0:
+        return aimed
+    ap = np.stack([xa, ya], axis=1)
+    sens = np.stack([xs, ys], axis=1)
+    z_sensor = lens.sensor_z + zs
+    if not np.all(z_sensor > lens.vertex_z[-1]):
+        bad = float(zs[np.argmin(z_sensor)])
+        raise SamplingError(
+            f"{lens.source_file or lens.name}: z_S = {bad:g} mm puts the sensor in front "
+            f"of the last surface (it is {lens.sensor_z - lens.vertex_z[-1]:g} mm behind it)")
     path = [Step(k) for k in range(s + 1, n_surf)]
 
     def shoot(idx, slope, hist=None, fresnel=False):
@@ -280,8 +419,20 @@ def sample_sensor_side(lens: Lens, domain: Domain, groups: int, per_group: int,
         t = (z_sensor[idx] - out.pos[:, 2]) / np.where(ok, out.dir[:, 2], 1.0)
         end = out.pos + t[:, None] * out.dir
         out.opl_mm = out.opl_mm + t  # behind the last surface: air
-        miss = end[:, :2] - np.stack([xs[idx], ys[idx]], axis=1)
-        return np.where(ok[:, None], miss, 0.0), ok, out
+        miss = end[:, :2] - sens[idx]
+        return np.where(ok[:, None], miss, 0.0), ok, out, end
+
+    def final(idx, q):
+        """The converged rays again, with Fresnel loss and the history."""
+        hist: list[np.ndarray] | None = [] if vignetting else None
+        r, valid, out, end = shoot(idx, q, hist, fresnel=True)
+        if hist is not None:
+            vig, last_pos = _vignetting(lens, hist, path), hist[-1]
+        else:  # the trace ends on the last surface: the same positions
+            vig, last_pos = np.full(len(idx), np.nan), out.pos
+        outputs = np.stack([last_pos[:, 0], last_pos[:, 1], out.transmittance, out.opl_mm],
+                           axis=1)
+        return r, valid, outputs, vig, end, out.dir
 
     # Paraxial first guess from the transfer matrix stop -> sensor, per meridian
     q0 = np.empty((n, 2))
@@ -292,24 +443,15 @@ def sample_sensor_side(lens: Lens, domain: Domain, groups: int, per_group: int,
         last = z_sensor - lens.vertex_z[-1]
         a = m[0, 0] + last * m[1, 0]
         b = m[0, 1] + last * m[1, 1]
-        target = sens[gid, j]
+        target = sens[:, j]
         with np.errstate(divide="ignore", invalid="ignore"):
             q0[:, j] = np.where(b != 0, (target - a * ap[:, j]) / b, 0.0)
     q0 = np.nan_to_num(q0)
-    p, ok = _newton(lambda i, q: shoot(i, q)[:2], q0, 1.0)
-
-    idx = np.nonzero(ok)[0]
-    hist: list[np.ndarray] = []
-    r, valid, out = shoot(idx, p[idx], hist, fresnel=True)
-    good = valid & (np.hypot(r[:, 0], r[:, 1]) <= 10 * NEWTON_TOL_MM)
-    vig = _vignetting(lens, hist, path)
-    last_pos = hist[-1]
-    outputs = np.stack([last_pos[:, 0], last_pos[:, 1], out.transmittance, out.opl_mm], axis=1)
-    inputs = np.stack([xs, ys, zs, ap[:, 0], ap[:, 1], lam], axis=1)[idx]
-    keep = good & np.all(np.isfinite(outputs), axis=1)
-    dropped = {"not converged or missed": int(n - len(idx) + np.sum(~keep))}
-    return _finish("P_s", lens, inputs[keep], outputs[keep], gid[idx][keep], vig[keep], n,
-                   dropped)
+    warm = guess is not None
+    if warm:
+        g = np.asarray(guess, dtype=np.float64).reshape(n, 2)
+        q0 = np.where(np.all(np.isfinite(g), axis=1)[:, None], g, q0)
+    return _converge(aimed, lambda i, q: shoot(i, q)[:2], final, q0, fd_scale, warm)
 
 
 def _finish(system, lens, inputs, outputs, gid, vig, n, dropped) -> Samples:

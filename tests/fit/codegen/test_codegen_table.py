@@ -1,4 +1,5 @@
-"""Coefficient tables: exact round trip, the documented layout, errors with line numbers."""
+"""Coefficient tables: exact round trip, the documented layout, errors with line numbers,
+the lens lines of version 2, and version-1 tables still read."""
 
 from __future__ import annotations
 
@@ -7,7 +8,13 @@ import pytest
 
 from lensfit.codegen import read_table, write_table
 from lensfit.codegen.table import decode_field, encode_field
+from lensfit.facts import LensFacts
 from lensfit.poly import Input, Polynomial, System
+
+FACTS = LensFacts(name="Test lens, 50 mm f/2 (100%)", focal_length_mm=49.999999999999993,
+                  stop_radius_max_mm=9.5, stop_radius_f1_mm=18.75, housing_first_mm=14.0,
+                  housing_last_mm=1.0 / 3.0, sensor_defocus_mm=-0.0125,
+                  front_focal_distance_mm=-1e-300, squeeze=1.0)
 
 
 def assert_same(a: list[System], b: list[System]) -> None:
@@ -76,7 +83,7 @@ GOOD = ("lensfit-poly-table 1\n"          # 1
 
 
 @pytest.mark.parametrize(("old", "new", "line", "message"), [
-    ("lensfit-poly-table 1", "lensfit-poly-table 2", 1, "version '2' is not supported"),
+    ("lensfit-poly-table 1", "lensfit-poly-table 3", 1, "version '3' is not supported"),
     ("lensfit-poly-table 1", "poly 1", 1, "expected the header"),
     ("system S 2 1", "system S two 1", 2, "n_inputs: expected a non-negative integer"),
     ("system S 2 1", "sys S 2 1", 2, "expected 'system"),
@@ -108,3 +115,97 @@ def test_empty_table_is_an_error():
         read_table("")
     with pytest.raises(ValueError, match="table line 2: no system"):
         read_table("lensfit-poly-table 1\n")
+
+
+# --- version 2: the lens lines ------------------------------------------------------------
+
+
+def test_lens_lines_round_trip(systems):
+    text = write_table(systems, comment="lens 0001", lens=FACTS)
+    table = read_table(text)
+    assert (table.version, table.lens) == (2, FACTS)  # every value exactly
+    assert_same(table, systems)
+    assert write_table(table, comment="lens 0001") == text  # a Table keeps its facts
+    assert write_table(table, comment="lens 0001", lens=FACTS) == text
+
+
+def test_lens_lines_layout():
+    s = System("S", (Input("x", "mm", -2.0, 2.0),), (Polynomial("y", "mm", [[1]], [0.5]),))
+    assert write_table([s], comment="c", lens=FACTS) == (
+        "lensfit-poly-table 2\n"
+        "# c\n"
+        "lens name Test%20lens,%2050%20mm%20f/2%20(100%25)\n"
+        "lens focal_length_mm 49.999999999999993\n"
+        "lens stop_radius_max_mm 9.5\n"
+        "lens stop_radius_f1_mm 18.75\n"
+        "lens housing_first_mm 14\n"
+        "lens housing_last_mm 0.33333333333333331\n"
+        "lens sensor_defocus_mm -0.012500000000000001\n"
+        "lens front_focal_distance_mm -1e-300\n"
+        "lens squeeze 1\n"
+        "system S 1 1\n"
+        "input x mm -2 2 affine 0 2\n"
+        "output y mm 1\n"
+        "1 0.5\n"
+        "end\n")
+
+
+def test_version_1_tables_still_read():
+    table = read_table(GOOD)
+    assert (table.version, table.lens) == (1, None)
+    assert [s.name for s in table] == ["S"]
+    assert write_table(table) == GOOD.replace("-2.5e-3", "-0.0025000000000000001")  # v1
+
+
+def test_writer_refuses_facts_it_cannot_write(systems):
+    from dataclasses import replace
+    with pytest.raises(ValueError, match=r"lens focal_length_mm = inf: expected a finite"):
+        write_table(systems, lens=replace(FACTS, focal_length_mm=float("inf")))
+    with pytest.raises(ValueError, match=r"lens housing_last_mm = 0.0: expected a positive"):
+        write_table(systems, lens=replace(FACTS, housing_last_mm=0.0))
+
+
+GOOD2 = ("lensfit-poly-table 2\n"               # 1
+         "# comment\n"                          # 2
+         "lens name My%20lens\n"                # 3
+         "lens focal_length_mm 50\n"            # 4
+         "lens stop_radius_max_mm 10\n"         # 5
+         "lens stop_radius_f1_mm 20\n"          # 6
+         "lens housing_first_mm 15\n"           # 7
+         "lens housing_last_mm 12\n"            # 8
+         "lens sensor_defocus_mm 0\n"           # 9
+         "lens front_focal_distance_mm 30\n"    # 10
+         "lens squeeze 1\n"                     # 11
+         + GOOD.split("\n", 1)[1])              # 12: system S 2 1 ...
+
+
+@pytest.mark.parametrize(("old", "new", "line", "message"), [
+    ("lens stop_radius_f1_mm 20", "lens stop_radius_f1_mm twenty", 6,
+     "lens stop_radius_f1_mm: expected a real number"),
+    ("lens stop_radius_f1_mm 20", "lens stop_radius_f1_mm 20 mm", 6, "expected 3 fields"),
+    ("lens stop_radius_f1_mm 20", "lens f1 20", 6,
+     "expected lens key 'stop_radius_f1_mm' .*found 'f1'"),
+    ("lens housing_first_mm 15\nlens housing_last_mm 12",
+     "lens housing_last_mm 12\nlens housing_first_mm 15", 7,
+     "expected lens key 'housing_first_mm'"),
+    ("lens housing_last_mm 12", "lens housing_last_mm -12", 8,
+     "lens housing_last_mm = -12: expected a positive number"),
+    ("lens squeeze 1", "lens squeeze 0", 11, "lens squeeze = 0: expected a positive"),
+    ("lens focal_length_mm 50", "lens focal_length_mm 0", 4, "non-zero focal length"),
+    ("lens focal_length_mm 50", "lens focal_length_mm nan", 4, "expected a real number"),
+    ("lens name My%20lens", "lens name My%2lens", 3, "bad escape"),
+    ("lens name My%20lens\n", "", 3, "expected lens key 'name' .*found 'focal_length_mm'"),
+    ("lens squeeze 1\n", "", 11, "expected 'lens squeeze <value>' .*found 'system S 2 1'"),
+    ("lens squeeze 1\n", "lens squeeze 1\nlens squeeze 1\n", 12, "expected 'system"),
+])
+def test_malformed_lens_lines_name_the_line(old, new, line, message):
+    assert read_table(GOOD2).lens.name == "My lens"  # the unmodified text is fine
+    bad = GOOD2.replace(old, new)
+    assert bad != GOOD2
+    with pytest.raises(ValueError, match=f"^table line {line}: .*{message}"):
+        read_table(bad)
+
+
+def test_version_2_without_lens_lines_is_an_error():
+    with pytest.raises(ValueError, match="^table line 2: expected 'lens name <value>'"):
+        read_table(GOOD.replace("lensfit-poly-table 1", "lensfit-poly-table 2"))

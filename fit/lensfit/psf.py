@@ -1,0 +1,494 @@
+"""Point spread functions summed over aperture points: the exact-trace reference and the
+same sum with the fitted polynomials.
+
+For one point light, one wavelength and a sensor window, the field at pixel centre s is
+
+    U(s) = sum_j sqrt(tau_o(a_j) tau_i(a_j, s)) exp(i 2 pi / lambda (phi_o(a_j) + phi_i(a_j, s)))
+
+over the aperture points a_j that pass (below). :func:`exact_psf` takes phi, tau and the
+pupil positions from exactly traced rays, aimed by the very functions that produced the
+fitting data (:func:`lensfit.sample.rays.aim_object_side` and ``aim_sensor_side``), so
+its phi_o, phi_i are exactly what P_o and P_s approximate:
+
+* phi_o = OPL(scene point -> stop point) - d_O, with (x_O, y_O) the direction cosines of
+  the light seen from the first vertex and u_O = 1/d_O its inverse distance from there
+  (0 at infinity); phi_i = OPL(stop point -> sensor point) on the sensor moved by z_S
+  (``focus_offset_mm``, + away from the lens);
+* tau is the Fresnel power transmittance with the coatings; x_o, y_o are where the ray
+  crosses the first surface, x_i, y_i the last.
+
+:func:`poly_psf` is the same sum with ``System.evaluate`` of the fitted P_o and P_s, so a
+test can tell "polynomial against trace" from "C against Python".
+
+An aperture point passes when it lies in the stop disc, its object-side ray exists (no
+miss, no total internal reflection, Newton converged) and x_o^2 + y_o^2 <= housing_first^2;
+per pixel, its sensor-side ray must exist and x_i^2 + y_i^2 <= housing_last^2. The housing
+radii are the first and last surfaces' semi-diameters (:func:`lensfit.facts.lens_facts`):
+the test a runtime can make with the polynomials' outputs. ``clip="housings"`` applies the
+stricter exact test instead (every housing along both half paths, as the fitter's
+``vignetting`` measures it).
+
+No Huygens amplitude factor is applied: neither the obliquity factor nor the 1/r falloff
+from the exit pupil to the pixel, and aperture points are weighted uniformly on the stop
+(not on the exit pupil). Across a window of a few Airy radii these factors are constant
+to well under 1e-3 at moderate f-numbers, so compare *normalised* intensities |U|^2 over a
+small window, not absolute values. Multiply U by the aperture area / (number of points)
+for a Monte Carlo estimate of the integral if a scale is wanted.
+
+Helpers: :func:`light_direction` (the scenes' (x_O, y_O)), :func:`pixel_centres`,
+:func:`sunflower_points` (an even, deterministic aperture sampling),
+:func:`geometric_image_point` (the chief ray on the sensor), :func:`best_focus_offset`
+and :func:`wavefront_rms_waves` (focus from exact traces), :func:`working_f_number`.
+
+Lengths in mm, wavelengths in nm, angles in degrees. The pixel grid: column i at
+x = center_x + (i + 0.5 - width/2) * width_mm/width, row j at
+y = center_y + (height/2 - j - 0.5) * height_mm/height: row 0 is the top (largest y).
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from collections.abc import Callable, Sequence
+from concurrent.futures import ThreadPoolExecutor
+
+import numpy as np
+from scipy.optimize import minimize_scalar
+
+from lensfit.facts import LensFacts, lens_facts
+from lensfit.paraxial.paraxial import image_distance, paraxial
+from lensfit.poly import System, design_matrix
+from lensfit.prescription.model import Lens
+from lensfit.sample.rays import (
+    OUTPUTS_O,
+    OUTPUTS_S,
+    Aimed,
+    aim_object_side,
+    aim_sensor_side,
+)
+from lensfit.scene import light_direction  # the scenes' convention, one definition
+from lensfit.trace.tracer import Rays, Status, Step, trace
+
+BATCH_PAIRS = 1 << 17  # (aperture point, pixel) pairs traced at once: ~150 MB per worker
+CLIPS = ("pupils", "housings")
+GUESS_NODES = 5  # Chebyshev nodes per axis of the window for the sensor-side first guess
+
+
+# --- inputs -------------------------------------------------------------------------------
+
+
+def pixel_centres(width: int, height: int, width_mm: float, height_mm: float = 0.0,
+                  center_x_mm: float = 0.0, center_y_mm: float = 0.0
+                  ) -> tuple[np.ndarray, np.ndarray]:
+    """Pixel centres (xs (width,), ys (height,)) in mm; row 0 is the top (largest y).
+    ``height_mm`` 0 means square pixels: height_mm = height * width_mm / width."""
+    for name, v in (("width", width), ("height", height)):
+        if not (isinstance(v, int | np.integer) and v > 0):
+            raise ValueError(f"{name} = {v!r}: expected a positive number of pixels")
+    if not (math.isfinite(width_mm) and width_mm > 0):
+        raise ValueError(f"width_mm = {width_mm!r}: expected a positive size in mm")
+    if not (math.isfinite(height_mm) and height_mm >= 0):
+        raise ValueError(f"height_mm = {height_mm!r}: expected a size in mm, 0 for square "
+                         "pixels")
+    for name, v in (("center_x_mm", center_x_mm), ("center_y_mm", center_y_mm)):
+        if not math.isfinite(v):
+            raise ValueError(f"{name} = {v!r}: expected a finite position in mm")
+    if height_mm == 0:
+        height_mm = height * width_mm / width
+    xs = center_x_mm + (np.arange(width) + 0.5 - width / 2) * (width_mm / width)
+    ys = center_y_mm + (height / 2 - np.arange(height) - 0.5) * (height_mm / height)
+    return xs, ys
+
+
+def _inverse_distance(distance_mm: float) -> float:
+    if not distance_mm > 0:  # NaN too
+        raise ValueError(f"distance_mm = {distance_mm!r}: expected a positive distance from "
+                         "the first vertex (inf for a light at infinity)")
+    return 0.0 if math.isinf(distance_mm) else 1.0 / distance_mm
+
+
+def _aperture(aperture_xy_mm: np.ndarray, stop_radius_mm: float) -> tuple[np.ndarray,
+                                                                          np.ndarray]:
+    """The points (N, 2) and which of them lie in the stop disc."""
+    if not (math.isfinite(stop_radius_mm) and stop_radius_mm > 0):
+        raise ValueError(f"stop_radius_mm = {stop_radius_mm!r}: expected a positive radius")
+    ap = np.asarray(aperture_xy_mm, dtype=np.float64)
+    if ap.ndim != 2 or ap.shape[1] != 2 or not np.all(np.isfinite(ap)):
+        raise ValueError(f"aperture_xy_mm: expected finite points of shape (N, 2), found "
+                         f"shape {ap.shape}")
+    return ap, ap[:, 0] ** 2 + ap[:, 1] ** 2 <= stop_radius_mm**2
+
+
+def _wavelength(wavelength_nm: float) -> float:
+    if not (math.isfinite(wavelength_nm) and wavelength_nm > 0):
+        raise ValueError(f"wavelength_nm = {wavelength_nm!r}: expected a positive "
+                         "wavelength in nm")
+    return float(wavelength_nm)
+
+
+def _batch(batch_pairs: int) -> int:
+    if not (isinstance(batch_pairs, int) and batch_pairs > 0):
+        raise ValueError(f"batch_pairs = {batch_pairs!r}: expected a positive count")
+    return batch_pairs
+
+
+def _check_focus(focus_offset_mm: float) -> float:
+    if not math.isfinite(focus_offset_mm):
+        raise ValueError(f"focus_offset_mm = {focus_offset_mm!r}: expected a finite sensor "
+                         "shift z_S in mm")
+    return float(focus_offset_mm)
+
+
+def _workers(workers: int | None) -> int:
+    if workers is None:
+        try:
+            return max(1, len(os.sched_getaffinity(0)))
+        except AttributeError:  # not on Linux
+            return max(1, os.cpu_count() or 1)
+    if not (isinstance(workers, int) and workers > 0):
+        raise ValueError(f"workers = {workers!r}: expected a positive number of threads")
+    return workers
+
+
+def sunflower_points(n: int, radius_mm: float) -> np.ndarray:
+    """n points (n, 2) spread evenly over the disc of ``radius_mm`` (Vogel's spiral): a
+    deterministic aperture sampling with far less noise than random points."""
+    if not (isinstance(n, int) and n > 0):
+        raise ValueError(f"n = {n!r}: expected a positive number of points")
+    k = np.arange(n) + 0.5
+    r = radius_mm * np.sqrt(k / n)
+    a = k * math.pi * (3.0 - math.sqrt(5.0))  # the golden angle
+    return np.stack([r * np.cos(a), r * np.sin(a)], axis=1)
+
+
+# --- the sum --------------------------------------------------------------------------------
+
+
+def _sum_phasors(n_pairs: int, n_pixels: int, batch: int, workers: int,
+                 phasors: Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]]) -> np.ndarray:
+    """Sum over pairs k = j * n_pixels + p (aperture point j, pixel p) of the phasors
+    ``phasors(k)`` returns for a batch (with the pixel of each), into U (n_pixels,).
+    Batches run on ``workers`` threads (numpy releases the GIL); they are added in order,
+    so the result does not depend on the number of threads."""
+    starts = range(0, n_pairs, batch)
+
+    def one(a: int) -> np.ndarray:
+        pix, z = phasors(np.arange(a, min(a + batch, n_pairs)))
+        return (np.bincount(pix, weights=z.real, minlength=n_pixels)
+                + 1j * np.bincount(pix, weights=z.imag, minlength=n_pixels))
+
+    total = np.zeros(n_pixels, dtype=np.complex128)
+    if workers == 1 or len(starts) == 1:
+        for a in starts:
+            total += one(a)
+    else:
+        with ThreadPoolExecutor(max_workers=workers) as pool:
+            for part in pool.map(one, starts):
+                total += part
+    return total
+
+
+def _passes(aimed: Aimed, radius_mm: float, clip: str) -> np.ndarray:
+    """Rays that exist and get past the housing test ``clip`` (see the module doc)."""
+    if clip == "housings":
+        with np.errstate(invalid="ignore"):
+            return aimed.ok & (aimed.vignetting <= 1.0)
+    x, y = aimed.outputs[:, 0], aimed.outputs[:, 1]
+    with np.errstate(invalid="ignore"):
+        return aimed.ok & (x * x + y * y <= radius_mm * radius_mm)
+
+
+def _lagrange(t: np.ndarray, nodes: np.ndarray) -> np.ndarray:
+    """Lagrange basis weights (len(t), len(nodes)) of the polynomial through ``nodes``."""
+    w = np.ones((len(t), len(nodes)))
+    for a, ta in enumerate(nodes):
+        for b, tb in enumerate(nodes):
+            if a != b:
+                w[:, a] *= (t - tb) / (ta - tb)
+    return w
+
+
+def _sensor_guess(lens: Lens, xs: np.ndarray, ys: np.ndarray, z_s: float, ap: np.ndarray,
+                  lam: float) -> Callable[[np.ndarray, np.ndarray], np.ndarray]:
+    """First guesses of the sensor-side slopes for (point, pixel) pairs: per aperture
+    point, exact rays to a 5 x 5 Chebyshev grid over the window, interpolated by the
+    tensor-product polynomial through them. Measured on lens 0001 at f/2: the guess is
+    within the exact rays' own Newton noise (~2e-11 in slope, ~1e-9 mm on the sensor)
+    for windows up to 2 mm, so almost every pair costs one trace and no Newton step."""
+    def nodes(v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        m = min(GUESS_NODES, len(v))  # a line of pixels needs one node across it
+        cheb = np.cos(math.pi * (np.arange(m) + 0.5) / m)[::-1]
+        c, h = 0.5 * (v.max() + v.min()), 0.5 * (v.max() - v.min())
+        t = (v - c) / h if h > 0 else np.zeros_like(v)
+        return c + h * cheb, _lagrange(t, cheb)
+
+    (gx, wx), (gy, wy) = nodes(xs), nodes(ys)
+    n, my, mx = len(ap), len(gy), len(gx)
+    # Rows: point j, node row b (y), node column c (x)
+    jj, bb, cc = (g.reshape(-1) for g in np.meshgrid(np.arange(n), np.arange(my),
+                                                    np.arange(mx), indexing="ij"))
+    grid = aim_sensor_side(lens, gx[cc], gy[bb], z_s, ap[jj, 0], ap[jj, 1], lam,
+                           vignetting=False)
+    slopes = grid.unknowns.reshape(n, my, mx, 2)  # NaN where a node failed: paraxial guess
+    width = len(xs)
+
+    def guess(j: np.ndarray, p: np.ndarray) -> np.ndarray:
+        # The whole window for each point of the batch, then the pairs asked for
+        j0 = int(j.min())
+        full = np.einsum("hb,jbcd,wc->jhwd", wy, slopes[j0:int(j.max()) + 1], wx,
+                         optimize=True)
+        return full[j - j0, p // width, p % width]
+
+    return guess
+
+
+def exact_psf(lens: Lens, *, stop_radius_mm: float, aperture_xy_mm: np.ndarray,
+              field_deg: tuple[float, float] = (0.0, 0.0), distance_mm: float = math.inf,
+              wavelength_nm: float, focus_offset_mm: float = 0.0, width: int, height: int,
+              width_mm: float, height_mm: float = 0.0, center_x_mm: float = 0.0,
+              center_y_mm: float = 0.0, clip: str = "pupils", workers: int | None = None,
+              batch_pairs: int = BATCH_PAIRS) -> np.ndarray:
+    """U (height, width), complex: the sum of the module doc over ``aperture_xy_mm``
+    (N, 2) stop points, with phi, tau and the pupil positions of exactly traced rays.
+
+    ``field_deg`` (θx, θy) and ``distance_mm`` (from the first vertex) place the light;
+    ``focus_offset_mm`` is z_S. ``clip``: "pupils" (the first and last surfaces' housing
+    radii against x_o, y_o and x_i, y_i) or "housings" (every housing). ``workers``
+    threads (default: the CPUs this process may use) trace batches of ``batch_pairs``."""
+    if clip not in CLIPS:
+        raise ValueError(f"clip = {clip!r}: expected one of {', '.join(CLIPS)}")
+    lam = _wavelength(wavelength_nm)
+    xs, ys = pixel_centres(width, height, width_mm, height_mm, center_x_mm, center_y_mm)
+    ap, inside = _aperture(aperture_xy_mm, stop_radius_mm)
+    x_O, y_O = light_direction(*field_deg)
+    u_O = _inverse_distance(distance_mm)
+    z_s = _check_focus(focus_offset_mm)
+    facts = lens_facts(lens)
+    workers = _workers(workers)
+
+    # Object side: one exact ray per aperture point in the stop disc
+    pts = ap[inside]
+    obj = aim_object_side(lens, x_O, y_O, u_O, pts[:, 0], pts[:, 1], lam)
+    pass_o = _passes(obj, facts.housing_first_mm, clip)
+    pts, phi_o, tau_o = pts[pass_o], obj.outputs[pass_o, 3], obj.outputs[pass_o, 2]
+    n_pix = width * height
+    if len(pts) == 0:
+        return np.zeros((height, width), dtype=np.complex128)
+
+    # Sensor side: one exact ray per (point, pixel), warm-started from a grid per point
+    guess = _sensor_guess(lens, xs, ys, z_s, pts, lam)
+    k_wave = 2.0 * math.pi / (lam * 1e-6)  # 1/mm
+
+    def phasors(k: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        j, p = k // n_pix, k % n_pix
+        sen = aim_sensor_side(lens, xs[p % width], ys[p // width], z_s, pts[j, 0],
+                              pts[j, 1], lam, guess=guess(j, p),
+                              vignetting=clip == "housings")
+        ok = _passes(sen, facts.housing_last_mm, clip)
+        amp = np.sqrt(tau_o[j[ok]] * sen.outputs[ok, 2])
+        return p[ok], amp * np.exp(1j * (k_wave * (phi_o[j[ok]] + sen.outputs[ok, 3])))
+
+    u = _sum_phasors(len(pts) * n_pix, n_pix, _batch(batch_pairs), workers, phasors)
+    return u.reshape(height, width)
+
+
+def _system(systems: Sequence[System], name: str) -> System:
+    for s in systems:
+        if s.name == name:
+            return s
+    raise ValueError(f"systems: expected the general {name} (a lens's fit.json or table), "
+                     f"found {[s.name for s in systems]}")
+
+
+def _check_domain(system: System, values: dict[str, np.ndarray | float]) -> None:
+    """Inputs outside the fitted domain are an error: the polynomials are not meant there."""
+    for inp in system.inputs:
+        v = np.asarray(values[inp.name], dtype=np.float64)
+        slack = 1e-12 * max(abs(inp.lo), abs(inp.hi))
+        if v.size and (v.min() < inp.lo - slack or v.max() > inp.hi + slack):
+            bad = float(v.min() if v.min() < inp.lo - slack else v.max())
+            raise ValueError(f"{system.name}: input {inp.name} = {bad:.9g} {inp.unit} is "
+                             f"outside the fitted domain [{inp.lo:.9g}, {inp.hi:.9g}]")
+
+
+def _separable(system: System, fixed: dict[str, float], rows: dict[str, np.ndarray],
+               cols: dict[str, np.ndarray]) -> np.ndarray:
+    """``system`` on the grid (rows x cols), (n_outputs, R, C): its inputs split into
+    fixed values, inputs that vary over rows and inputs that vary over columns. Each
+    term c prod xhat^e factors into (row part) (fixed part) (column part), so the grid is
+    one matrix product per output: the same polynomial as System.evaluate, summed in
+    another order (agreement to ~1e-15 of the sum of |terms|)."""
+    _check_domain(system, {**fixed, **rows, **cols})
+    names = system.input_names
+    idx = {k: [names.index(n) for n in group] for k, group in
+           (("f", fixed), ("r", rows), ("c", cols))}
+    if sorted(idx["f"] + idx["r"] + idx["c"]) != list(range(len(names))):
+        raise ValueError(f"{system.name}: inputs {names} are not split exactly into fixed "
+                         f"{list(fixed)}, rows {list(rows)} and columns {list(cols)}")
+
+    def normalised(group: dict[str, np.ndarray | float]) -> np.ndarray:
+        return np.column_stack([system.inputs[names.index(n)].normalise(np.atleast_1d(v))
+                                for n, v in group.items()])
+
+    f_hat, r_hat, c_hat = normalised(fixed), normalised(rows), normalised(cols)
+    out = []
+    for p in system.outputs:
+        w = p.coefficients * design_matrix(f_hat, p.exponents[:, idx["f"]])[0]
+        a = design_matrix(r_hat, p.exponents[:, idx["r"]])
+        b = design_matrix(c_hat, p.exponents[:, idx["c"]])
+        out.append((a * w) @ b.T)
+    return np.stack(out)
+
+
+def poly_psf(systems: Sequence[System], *, facts: LensFacts | None = None,
+             stop_radius_mm: float, aperture_xy_mm: np.ndarray,
+             field_deg: tuple[float, float] = (0.0, 0.0), distance_mm: float = math.inf,
+             wavelength_nm: float, focus_offset_mm: float = 0.0, width: int, height: int,
+             width_mm: float, height_mm: float = 0.0, center_x_mm: float = 0.0,
+             center_y_mm: float = 0.0, batch_pairs: int = BATCH_PAIRS) -> np.ndarray:
+    """:func:`exact_psf` with the fitted polynomials: ``systems`` holds the general P_o
+    and P_s (``read_fit_json`` or ``read_table``); ``facts`` gives the housing radii
+    (default: ``systems.lens`` of a version-2 table). Clipping is the "pupils" test.
+    Inputs outside the fitted domain raise ValueError.
+
+    The polynomials are those of ``System.evaluate``; P_s is evaluated on the grid of
+    pixels x points as one matrix product per output (:func:`_separable`), which sums
+    the same terms in another order (tests/fit/test_psf.py checks the two agree)."""
+    if facts is None:
+        facts = getattr(systems, "lens", None)
+        if facts is None:
+            raise ValueError("facts: expected the lens facts (lensfit.facts.lens_facts, or "
+                             "read_table(...).lens of a version-2 table), found None")
+    p_o, p_s = _system(systems, "P_o"), _system(systems, "P_s")
+    lam = _wavelength(wavelength_nm)
+    xs, ys = pixel_centres(width, height, width_mm, height_mm, center_x_mm, center_y_mm)
+    ap, inside = _aperture(aperture_xy_mm, stop_radius_mm)
+    x_O, y_O = light_direction(*field_deg)
+    u_O = _inverse_distance(distance_mm)
+    z_s = _check_focus(focus_offset_mm)
+
+    # Object side (one light: P_o over the aperture points), then the first-surface test
+    pts = ap[inside]
+    o = _evaluate(p_o, {"x_O": x_O, "y_O": y_O, "u_O": u_O, "x_a": pts[:, 0],
+                        "y_a": pts[:, 1], "lambda": lam})
+    x_o, y_o, tau_o, phi_o = (o[p_o.output_names.index(n)] for n, _ in OUTPUTS_O)
+    pass_o = x_o**2 + y_o**2 <= facts.housing_first_mm**2
+    pts, tau_o, phi_o = pts[pass_o], tau_o[pass_o], phi_o[pass_o]
+    cols = [p_s.output_names.index(n) for n, _ in OUTPUTS_S]  # x_i, y_i, tau_i, phi_i
+
+    # Sensor side: pixels x points in chunks of points, then the last-surface test
+    gx, gy = np.meshgrid(xs, ys)  # (height, width): row 0 at the top
+    pix = {"x_S": gx.reshape(-1), "y_S": gy.reshape(-1)}
+    k_wave = 2.0 * math.pi / (lam * 1e-6)
+    u = np.zeros(width * height, dtype=np.complex128)
+    chunk = max(1, _batch(batch_pairs) // (width * height))
+    for a in range(0, len(pts), chunk):
+        sl = slice(a, a + chunk)
+        x_i, y_i, tau_i, phi_i = _separable(p_s, {"z_S": z_s, "lambda": lam}, pix, {
+            "x_a": pts[sl, 0], "y_a": pts[sl, 1]})[cols]  # each (pixels, points)
+        ok = x_i**2 + y_i**2 <= facts.housing_last_mm**2
+        amp = np.sqrt(np.maximum(tau_o[sl] * tau_i, 0.0))  # a fit may dip below 0
+        phase = k_wave * (phi_o[sl] + phi_i)
+        u += np.where(ok, amp * np.exp(1j * phase), 0.0).sum(axis=1)
+    return u.reshape(height, width)
+
+
+def _evaluate(system: System, values: dict[str, np.ndarray | float]) -> np.ndarray:
+    """``system`` at raw inputs given by name (arrays of one length, or scalars):
+    System.evaluate, outputs as rows (n_outputs, N)."""
+    _check_domain(system, values)
+    n = max(np.size(v) for v in values.values())
+    x = np.column_stack([np.broadcast_to(values[name], (n,)) for name in system.input_names])
+    return system.evaluate(x).T
+
+
+# --- geometry: image points, focus, working f-number ---------------------------------------
+
+
+def _rear_trace(lens: Lens, aimed: Aimed, lam: float, end_z: float) -> Rays:
+    """Continue object-side rays (ending on the stop) through the rear half to z = end_z."""
+    s, n = lens.stop_index, len(lens.surfaces)
+    rays = Rays(aimed.pos, aimed.dir, lam)
+    return trace(lens, rays, [Step(k) for k in range(s + 1, n)], clip=False, end_z=end_z)
+
+
+def geometric_image_point(lens: Lens, field_deg: tuple[float, float],
+                          distance_mm: float = math.inf, wavelength_nm: float = 550.0,
+                          focus_offset_mm: float = 0.0) -> tuple[float, float]:
+    """Where the chief ray (through the stop centre) of the light meets the sensor moved
+    by ``focus_offset_mm`` (z_S): (x, y) in mm."""
+    lam = _wavelength(wavelength_nm)
+    x_O, y_O = light_direction(*field_deg)
+    chief = aim_object_side(lens, x_O, y_O, _inverse_distance(distance_mm), 0.0, 0.0, lam)
+    if not chief.ok[0]:
+        raise ValueError(f"field_deg = {tuple(field_deg)!r}: the chief ray of {lens.name} "
+                         "misses or does not converge")
+    out = _rear_trace(lens, chief, lam, lens.sensor_z + _check_focus(focus_offset_mm))
+    if out.status[0] != Status.OK:
+        raise ValueError(f"field_deg = {tuple(field_deg)!r}: the chief ray of {lens.name} "
+                         f"fails behind the stop (status {Status(out.status[0]).name})")
+    return float(out.pos[0, 0]), float(out.pos[0, 1])
+
+
+def wavefront_rms_waves(lens: Lens, stop_radius_mm: float, wavelength_nm: float,
+                        focus_offset_mm: float, *, field_deg: tuple[float, float] = (0.0, 0.0),
+                        distance_mm: float = math.inf, points: int = 400) -> float:
+    """RMS wavefront error (waves) over the stop disc, piston and tilt removed, of the
+    exact OPL phi_o + phi_i to the chief ray's image point on the sensor at z_S."""
+    return _wavefront(lens, stop_radius_mm, _wavelength(wavelength_nm), field_deg,
+                      distance_mm, points)(_check_focus(focus_offset_mm))
+
+
+def _wavefront(lens: Lens, stop_radius_mm: float, lam: float,
+               field_deg: tuple[float, float], distance_mm: float,
+               points: int) -> Callable[[float], float]:
+    ap = sunflower_points(points, stop_radius_mm)
+    x_O, y_O = light_direction(*field_deg)
+    obj = aim_object_side(lens, x_O, y_O, _inverse_distance(distance_mm), ap[:, 0], ap[:, 1],
+                          lam)
+    ap, phi_o = ap[obj.ok], obj.outputs[obj.ok, 3]
+
+    def rms(z_s: float) -> float:
+        xc, yc = geometric_image_point(lens, field_deg, distance_mm, lam, z_s)
+        sen = aim_sensor_side(lens, xc, yc, z_s, ap[:, 0], ap[:, 1], lam)
+        w = (phi_o + sen.outputs[:, 3])[sen.ok]
+        a = np.column_stack([np.ones(len(w)), ap[sen.ok]])
+        residual = w - a @ np.linalg.lstsq(a, w, rcond=None)[0]
+        return float(np.sqrt(np.mean(residual**2)) / (lam * 1e-6))
+
+    return rms
+
+
+def best_focus_offset(lens: Lens, stop_radius_mm: float, wavelength_nm: float, *,
+                      field_deg: tuple[float, float] = (0.0, 0.0),
+                      distance_mm: float = math.inf, points: int = 400) -> float:
+    """The sensor shift z_S (mm) with the least RMS wavefront error over the stop disc
+    (:func:`wavefront_rms_waves`: exact traces, piston and tilt removed), which for a
+    nearly diffraction-limited image is the sharpest (Maréchal). Searched within 5% of
+    the focal length around the paraxial image at ``wavelength_nm``."""
+    lam = _wavelength(wavelength_nm)
+    f = abs(paraxial(lens, wavelength_nm=lam).efl_mm)
+    d_paraxial = image_distance(lens, distance_mm, wavelength_nm=lam)
+    z_paraxial = float(lens.vertex_z[-1] + d_paraxial - lens.sensor_z)
+    lo = max(z_paraxial - 0.05 * f, float(lens.vertex_z[-1] - lens.sensor_z) + 1e-3)
+    rms = _wavefront(lens, stop_radius_mm, lam, field_deg, distance_mm, points)
+    best = minimize_scalar(rms, bounds=(lo, z_paraxial + 0.05 * f), method="bounded",
+                           options={"xatol": 1e-7})
+    return float(best.x)
+
+
+def working_f_number(lens: Lens, stop_radius_mm: float, wavelength_nm: float,
+                     distance_mm: float = math.inf) -> float:
+    """1 / (2 NA) on axis, NA = sine of the angle of the marginal rays (through the edge of
+    the stop disc) behind the last surface, averaged over four of them (±x, ±y)."""
+    lam = _wavelength(wavelength_nm)
+    r = float(stop_radius_mm)
+    edge = np.array([[r, 0.0], [-r, 0.0], [0.0, r], [0.0, -r]])
+    obj = aim_object_side(lens, 0.0, 0.0, _inverse_distance(distance_mm), edge[:, 0],
+                          edge[:, 1], lam)
+    if not np.all(obj.ok):
+        raise ValueError(f"stop_radius_mm = {stop_radius_mm!r}: a marginal ray of "
+                         f"{lens.name} misses or does not converge")
+    out = _rear_trace(lens, obj, lam, lens.sensor_z)
+    na = float(np.mean(np.hypot(out.dir[:, 0], out.dir[:, 1])))
+    return 1.0 / (2.0 * na)
