@@ -56,7 +56,7 @@ demo: setup runtime
 	done
 
 lint: setup
-	$(VENV)/bin/ruff check --config fit/pyproject.toml fit tests
+	$(VENV)/bin/ruff check --config fit/pyproject.toml fit tests runtime/python runtime/bench
 
 test: setup lint runtime
 	ctest --test-dir $(RUNTIME_BUILD) --output-on-failure

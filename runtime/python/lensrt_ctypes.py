@@ -101,8 +101,9 @@ class Render:
             self.handle = None
 
     def run(self, samples_per_wavelength: int) -> None:
-        self.rt._check(self.rt.lib.lensrt_render_run(self.handle, C.c_uint64(samples_per_wavelength),
-                                                     None, None))
+        lib = self.rt.lib
+        self.rt._check(lib.lensrt_render_run(self.handle, C.c_uint64(samples_per_wavelength),
+                                             None, None))
 
     def splat_points(self, xy_mm: np.ndarray, wavelength: int = 0) -> None:
         xy = np.ascontiguousarray(xy_mm, dtype=np.float64)
@@ -160,15 +161,18 @@ class Lensrt:
         lib.lensrt_context_create.argtypes = [C.POINTER(ContextInit), C.POINTER(C.c_void_p)]
         lib.lensrt_context_destroy.argtypes = [C.c_void_p]
         lib.lensrt_lens_load.argtypes = [C.c_void_p, C.c_char_p, C.POINTER(C.c_void_p)]
-        lib.lensrt_lens_create_analytic.argtypes = [C.c_void_p, C.POINTER(AnalyticLens), C.POINTER(C.c_void_p)]
+        lib.lensrt_lens_create_analytic.argtypes = [C.c_void_p, C.POINTER(AnalyticLens),
+                                                    C.POINTER(C.c_void_p)]
         lib.lensrt_lens_destroy.argtypes = [C.c_void_p, C.c_void_p]
         lib.lensrt_lens_get_info.argtypes = [C.c_void_p, C.POINTER(LensInfo)]
-        lib.lensrt_lens_image_point.argtypes = [C.c_void_p, C.c_void_p, C.POINTER(Light), C.c_double,
-                                                C.c_double, C.POINTER(C.c_double)]
-        lib.lensrt_render_create.argtypes = [C.c_void_p, C.POINTER(RenderDesc), C.POINTER(C.c_void_p)]
+        lib.lensrt_lens_image_point.argtypes = [C.c_void_p, C.c_void_p, C.POINTER(Light),
+                                                C.c_double, C.c_double, C.POINTER(C.c_double)]
+        lib.lensrt_render_create.argtypes = [C.c_void_p, C.POINTER(RenderDesc),
+                                             C.POINTER(C.c_void_p)]
         lib.lensrt_render_destroy.argtypes = [C.c_void_p]
         lib.lensrt_render_run.argtypes = [C.c_void_p, C.c_uint64, C.c_void_p, C.c_void_p]
-        lib.lensrt_render_splat_points.argtypes = [C.c_void_p, C.c_int, C.POINTER(C.c_double), C.c_size_t]
+        lib.lensrt_render_splat_points.argtypes = [C.c_void_p, C.c_int, C.POINTER(C.c_double),
+                                                   C.c_size_t]
         lib.lensrt_render_get_stats.argtypes = [C.c_void_p, C.POINTER(Stats)]
         lib.lensrt_render_image.argtypes = [C.c_void_p, C.POINTER(C.c_float), C.c_size_t]
         lib.lensrt_render_rgb.argtypes = [C.c_void_p, C.POINTER(C.c_float), C.c_size_t]
@@ -236,7 +240,8 @@ class Lensrt:
         keep: list[Any] = []
         desc = RenderDesc()
         desc.lens = lens
-        desc.sensor = Sensor(width, height, width_mm, height_mm, center[0], center[1], focus_offset_mm)
+        desc.sensor = Sensor(width, height, width_mm, height_mm, center[0], center[1],
+                             focus_offset_mm)
         desc.aperture = Aperture(SHAPES[shape], radius_mm, f_number, blades, blade_curvature,
                                  rotation_deg, slit_width_mm, slit_separation_mm)
         if lights:
