@@ -136,7 +136,7 @@ LENSRT_API lensrt_result lensrt_lens_image_point(lensrt_context ctx, lensrt_lens
 /* ----------------------------------------------------------------- renders ----- */
 
 typedef enum lensrt_sampler {
-    LENSRT_SAMPLER_DEFAULT = 0,   /* LENSRT_SAMPLER_SOBOL */
+    LENSRT_SAMPLER_DEFAULT = 0,   /* SOBOL; RANDOM with the unbiased estimator */
     LENSRT_SAMPLER_RANDOM,        /* independent uniform points */
     LENSRT_SAMPLER_STRATIFIED,    /* jittered grid per pass */
     LENSRT_SAMPLER_SOBOL          /* (0,2)-sequence with a random shift per seed */
@@ -145,7 +145,8 @@ typedef enum lensrt_sampler {
 typedef enum lensrt_estimator {
     LENSRT_ESTIMATOR_DEFAULT = 0, /* LENSRT_ESTIMATOR_PAPER */
     LENSRT_ESTIMATOR_PAPER,       /* |sum X|^2 / N^2: biased by variance / N */
-    LENSRT_ESTIMATOR_UNBIASED     /* (|sum X|^2 - sum |X|^2) / (N (N - 1)) */
+    LENSRT_ESTIMATOR_UNBIASED     /* (|sum X|^2 - sum |X|^2) / (N (N - 1)); needs
+                                     independent samples (random sampler) */
 } lensrt_estimator;
 
 typedef enum lensrt_precision {

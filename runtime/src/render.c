@@ -67,6 +67,14 @@ static lensrt_result check_desc(lensrt_context ctx, const lensrt_render_desc *d,
     if ((unsigned)d->sampler > LENSRT_SAMPLER_SOBOL || (unsigned)d->estimator > LENSRT_ESTIMATOR_UNBIASED ||
         (unsigned)d->precision > LENSRT_PRECISION_NAIVE_FLOAT || (unsigned)a->shape > LENSRT_APERTURE_SLIT)
         return lensrt_fail(ctx, LENSRT_ERROR_INVALID_ARGUMENT, "sampler, estimator, precision or aperture shape: unknown value");
+    // (|sum X|^2 - sum |X|^2) / (N (N - 1)) is unbiased for independent samples only:
+    // with correlated ones (Sobol, strata) the mean's error is far below the i.i.d. term
+    if (d->estimator == LENSRT_ESTIMATOR_UNBIASED &&
+        (d->sampler == LENSRT_SAMPLER_SOBOL || d->sampler == LENSRT_SAMPLER_STRATIFIED))
+        return lensrt_fail(ctx, LENSRT_ERROR_INVALID_ARGUMENT,
+                           "estimator: the unbiased estimator needs independent samples (sampler random "
+                           "or default); the %s sampler correlates them and would bias it low",
+                           d->sampler == LENSRT_SAMPLER_SOBOL ? "sobol" : "stratified");
     if (!(d->phase_tolerance_waves >= 0 && d->phase_tolerance_waves < 0.5))
         return lensrt_fail(ctx, LENSRT_ERROR_INVALID_ARGUMENT, "phase_tolerance_waves must be in [0, 0.5), got %g", d->phase_tolerance_waves);
     if (a->shape == LENSRT_APERTURE_BLADES && (a->blades < 3 || a->blades > 64 || !(a->blade_curvature >= 0 && a->blade_curvature <= 1)))
@@ -577,6 +585,8 @@ lensrt_result lensrt_render_create(lensrt_context ctx, const lensrt_render_desc 
     r->ctx = ctx;
     r->lens = desc->lens;
     r->desc = *desc;
+    if (r->desc.sampler == LENSRT_SAMPLER_DEFAULT)
+        r->desc.sampler = r->desc.estimator == LENSRT_ESTIMATOR_UNBIASED ? LENSRT_SAMPLER_RANDOM : LENSRT_SAMPLER_SOBOL;
     if (r->desc.phase_tolerance_waves == 0) r->desc.phase_tolerance_waves = 3e-3;
     // Copy the lights (default: one on the axis at infinity) and wavelengths
     r->n_lights = desc->n_lights > 0 ? desc->n_lights : 1;

@@ -44,8 +44,8 @@ static void usage(FILE *f)
         "                         infinity) and intensity; repeat for several (default 0,0)\n"
         "  --samples N            aperture samples per wavelength (default 65536)\n"
         "  --seed S               (default 1)\n"
-        "  --sampler sobol|random|stratified (default sobol)\n"
-        "  --estimator paper|unbiased (default paper)\n"
+        "  --sampler sobol|random|stratified (default sobol; random with --estimator unbiased)\n"
+        "  --estimator paper|unbiased (default paper; unbiased needs independent samples)\n"
         "  --threads N            OpenMP threads (default: all)\n"
         "  --save-phasors FILE    write the phasor sums (to resume or merge later)\n"
         "  --resume FILE          start from saved phasor sums of the same scene\n"
@@ -162,7 +162,7 @@ int main(int argc, char **argv)
     int n_lights = 0, n_wl = 0, have_center = 0, width = 256, height = 256, quiet = 0, i, rc = 1;
     long long samples = 65536, seed = 1, threads = 0, blades = 0;
     double curvature = 0.0, rotation = 0.0;
-    lensrt_sampler sampler = LENSRT_SAMPLER_SOBOL;
+    lensrt_sampler sampler = LENSRT_SAMPLER_DEFAULT;
     lensrt_estimator estimator = LENSRT_ESTIMATOR_PAPER;
     lensrt_context_init init;
     lensrt_context ctx = NULL;
