@@ -70,8 +70,10 @@ test: setup lint runtime
 	ctest --test-dir build/minimal --output-on-failure
 	$(PY) -m pytest tests
 
-bench: setup
+bench: setup runtime
 	@mkdir -p build/bench
+	$(RUNTIME_BUILD)/runtime/lensrt-bench --json build/bench/lensrt.json
+	$(PY) runtime/bench/error_vs_time.py --out build/bench --lensrt-json build/bench/lensrt.json
 	$(PY) -m lensfit.bench --out build/bench
 	$(PY) -m lensfit.codegen.bench | tee build/bench/codegen.txt
 	$(VENV)/bin/lensfit report $(DEMO_LENS) -o build/bench/fit-$(DEMO_LENS) --json \
