@@ -387,7 +387,7 @@ int main(int argc, char **argv)
     long width = 1440, height = 1080, stride = DEFAULT_STRIDE, rw, rh, gx = 8, gy = 8, n_wl = 16, reps = 3;
     double size_x = 0.3, size_y = 0.225, field_x = 6.0, field_y = 4.0, focus = 0.2, base_seconds = 1.0;
     double f_numbers[MAX_F] = {2.0, 8.0, 32.0};
-    int n_f = 3, i, k, head = -1, threads = max_threads(), center_pixel;
+    int n_f = 3, i, k, head = -1, threads = max_threads(), center_pixel, status = 1;
     long long samples = 16384, seed = 1;
     double housing_first, housing_last, stop_f1, center[2], wl[MAX_WL], *pix = NULL, t_start = now_seconds();
     char cpu[256], date[64];
@@ -484,14 +484,19 @@ int main(int argc, char **argv)
 
     memset(&init, 0, sizeof init);
     if ((r = lensrt_context_create(&init, &ctx)) != LENSRT_SUCCESS) return fail(NULL, "context", r);
-    if ((r = lensrt_lens_load(ctx, table, &lens)) != LENSRT_SUCCESS) return fail(ctx, table, r);
+    if ((r = lensrt_lens_load(ctx, table, &lens)) != LENSRT_SUCCESS) {
+        status = fail(ctx, table, r);
+        goto done;
+    }
     lensrt_lens_get_info(lens, &info);
     memset(&light, 0, sizeof light);
     light.field_x_deg = field_x;
     light.field_y_deg = field_y;
     if ((r = lensrt_lens_image_point(ctx, lens, &light, 0.5 * (info.wavelength_min_nm + info.wavelength_max_nm), focus,
-                                     center)) != LENSRT_SUCCESS)
-        return fail(ctx, "image point", r);
+                                     center)) != LENSRT_SUCCESS) {
+        status = fail(ctx, "image point", r);
+        goto done;
+    }
     for (i = 0; i < n_wl; i++)
         wl[i] = info.wavelength_min_nm + (info.wavelength_max_nm - info.wavelength_min_nm) * (i + 0.5) / (double)n_wl;
     cpu_model(cpu, sizeof cpu);
@@ -515,7 +520,10 @@ int main(int argc, char **argv)
     // Baseline pixels: a gx x gy grid of the frame's pixel centres; (gx/2, gy/2) is the
     // pixel at the window centre
     pix = malloc(sizeof(double) * 2 * (size_t)(gx * gy));
-    if (!pix) return 1;
+    if (!pix) {
+        fprintf(stderr, "lensrt-bench: out of memory\n");
+        goto done;
+    }
     {
         double pitch_x = size_x / (double)width, pitch_y = size_y / (double)height;
         long a, b;
@@ -574,14 +582,22 @@ int main(int argc, char **argv)
             baseline_result pre, post;
             pre = run_baseline(&sc, threads, 256, 0.5 * base_seconds, (uint64_t)seed + 2 * (uint64_t)k, center_pixel);
             desc.seed = (uint64_t)seed + (uint64_t)k;
-            if ((r = lensrt_render_create(ctx, &desc, &render)) != LENSRT_SUCCESS) return fail(ctx, "render", r);
-            if ((r = lensrt_render_run(render, (uint64_t)samples, NULL, NULL)) != LENSRT_SUCCESS) return fail(ctx, "run", r);
+            if ((r = lensrt_render_create(ctx, &desc, &render)) != LENSRT_SUCCESS) {
+                status = fail(ctx, "render", r);
+                goto done;
+            }
+            r = lensrt_render_run(render, (uint64_t)samples, NULL, NULL);
+            if (r != LENSRT_SUCCESS) {
+                status = fail(ctx, "run", r);
+                lensrt_render_destroy(render);
+                goto done;
+            }
             lensrt_render_get_stats(render, &fr->stats);
             lensrt_render_destroy(render);
             post = run_baseline(&sc, threads, 256, 0.5 * base_seconds, (uint64_t)seed + 2 * (uint64_t)k + 1, center_pixel);
             if (pre.seconds < 0 || post.seconds < 0) {
                 fprintf(stderr, "lensrt-bench: out of memory in the baseline\n");
-                return 1;
+                goto done;
             }
             fr->baseN[k] = combine(&pre, &post);
             fr->sps[k] = fr->stats.splats_per_second;
@@ -594,7 +610,7 @@ int main(int argc, char **argv)
         b1[1] = run_baseline(&sc, 1, 256, 0.5 * base_seconds, (uint64_t)seed + 101, center_pixel);
         if (b1[0].seconds < 0 || b1[1].seconds < 0) {
             fprintf(stderr, "lensrt-bench: out of memory in the baseline\n");
-            return 1;
+            goto done;
         }
         fr->base1 = combine(&b1[0], &b1[1]);
         {
@@ -635,7 +651,7 @@ int main(int argc, char **argv)
         const f_result *h = &res[head];
         if (!f) {
             fprintf(stderr, "lensrt-bench: %s: %s\n", json, strerror(errno));
-            return 1;
+            goto done;
         }
         fprintf(f, "{\n  \"benchmark\": \"lensrt-bench\",\n  \"lens\": ");
         json_string(f, info.name);
@@ -693,12 +709,14 @@ int main(int argc, char **argv)
         fprintf(f, "\n  },\n  \"wall_seconds\": %.17g\n}\n", now_seconds() - t_start);
         if (fclose(f) != 0) {
             fprintf(stderr, "lensrt-bench: %s: write failed\n", json);
-            return 1;
+            goto done;
         }
         printf("wrote %s\n", json);
     }
+    status = 0;
+done:
     free(pix);
-    lensrt_lens_destroy(ctx, lens);
+    if (lens) lensrt_lens_destroy(ctx, lens);
     lensrt_context_destroy(ctx);
-    return 0;
+    return status;
 }

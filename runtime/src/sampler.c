@@ -45,9 +45,8 @@ static uint32_t reverse_bits(uint32_t x)
     return x;
 }
 
-/* Stratified samples come in blocks of STRATA cells (a 32 x 32 grid). Within a block the
- * cells are visited in a pseudo-random order (an affine bijection mod 1024), so that a
- * run that ends mid-block still holds an unbiased subset of cells. */
+/* Stratified samples come in blocks of STRATA cells (a 32 x 32 grid), one jittered
+ * sample per cell, visited in an order whose prefixes are spread over the whole grid. */
 #define STRATA_SIDE 32u
 #define STRATA (STRATA_SIDE * STRATA_SIDE)
 
@@ -62,12 +61,15 @@ static void unit_square(lensrt_sampler sampler, uint64_t seed, int wavelength, u
         *v = unit(mix64(h ^ 0x2545f4914f6cdd1dULL));
         return;
     case LENSRT_SAMPLER_STRATIFIED: {
-        uint64_t block = index / STRATA;
-        uint64_t b = lensrt_hash3(stream, block, 2);
-        uint32_t a = (uint32_t)(b & 0x3ffu) | 1u, c = (uint32_t)((b >> 10) & 0x3ffu);
-        uint32_t cell = (a * (uint32_t)(index % STRATA) + c) & (STRATA - 1u);
-        *u = ((double)(cell % STRATA_SIDE) + unit(h)) / STRATA_SIDE;
-        *v = ((double)(cell / STRATA_SIDE) + unit(mix64(h ^ 0x2545f4914f6cdd1dULL))) / STRATA_SIDE;
+        // Cell of the k-th sample of its block: the k-th point of the (0,2)-sequence on the
+        // 32 x 32 grid (its first 1024 points hit every cell once, and every prefix of 2^m
+        // points is evenly spread), digit-scrambled per block by XOR of the cell indices
+        uint64_t b = lensrt_hash3(stream, index / STRATA, 2);
+        uint32_t k = (uint32_t)(index % STRATA);
+        uint32_t cx = (reverse_bits(k) >> 27) ^ (uint32_t)(b & 31u);
+        uint32_t cy = (sobol2(k) >> 27) ^ (uint32_t)((b >> 5) & 31u);
+        *u = ((double)cx + unit(h)) / STRATA_SIDE;
+        *v = ((double)cy + unit(mix64(h ^ 0x2545f4914f6cdd1dULL))) / STRATA_SIDE;
         return;
     }
     case LENSRT_SAMPLER_DEFAULT:
