@@ -178,36 +178,6 @@ static lensrt_result exr_map_result(exr_result_t rv)
     }
 }
 
-/* Open a unique temporary file next to `path` (O_EXCL); NULL name on failure. */
-static int exr_open_temporary(const lensrt_allocator *allocator, const char *path, char **out_name,
-                              int *out_errno)
-{
-    size_t size = strlen(path) + 64; /* room for ".tmp-<pid>-<clock>-<attempt>" */
-    char *name = (char *)allocator->alloc_fn(size, allocator->user_data);
-    struct timespec now;
-    int attempt;
-    *out_name = NULL;
-    *out_errno = ENOMEM;
-    if (!name)
-        return -1;
-    if (clock_gettime(CLOCK_REALTIME, &now) != 0)
-        now.tv_nsec = 0;
-    for (attempt = 0; attempt < 100; ++attempt) {
-        int fd;
-        snprintf(name, size, "%s.tmp-%ld-%ld-%d", path, (long)getpid(), (long)now.tv_nsec, attempt);
-        fd = open(name, O_WRONLY | O_CREAT | O_EXCL, 0666);
-        if (fd >= 0) {
-            *out_name = name;
-            return fd;
-        }
-        *out_errno = errno;
-        if (errno != EEXIST)
-            break;
-    }
-    allocator->free_fn(name, allocator->user_data);
-    return -1;
-}
-
 /* The lights as readable text: "2 lights: (field 0, 0 deg, distance inf, intensity 1);
  * ...". Returns NULL when out of memory. */
 static char *exr_lights_text(const lensrt_allocator *allocator, const lensrt_image_meta *meta)
@@ -323,7 +293,7 @@ lensrt_result lensrt_write_exr(const lensrt_allocator *allocator, const char *pa
     strcpy(names[n_wavelengths + 2], "B");
 
     /* Step 3: the temporary file, and an OpenEXRCore write context on it. */
-    sink.fd = exr_open_temporary(allocator, path, &tmp_name, &open_errno);
+    sink.fd = lensrt_open_temporary(allocator, path, &tmp_name, &open_errno);
     if (sink.fd < 0) {
         exr_set_error(err, err_size, "EXR '%s': cannot create a temporary file next to it: %s", path,
                       strerror(open_errno));

@@ -21,6 +21,12 @@ typedef struct lensrt_allocator {
     void *user_data;
 } lensrt_allocator;
 
+/* Create `<path>.tmp-<pid>-<clock>-<attempt>` exclusively and return its descriptor, its
+ * name in *out_name (free with the allocator) and 0 in *out_errno; -1 and the errno on
+ * failure (ENOMEM when the name cannot be allocated). */
+int lensrt_open_temporary(const lensrt_allocator *allocator, const char *path, char **out_name,
+                          int *out_errno);
+
 /* What a render records in its image files. Strings may be NULL (left out). */
 typedef struct lensrt_image_meta {
     const char *lens_name;      /* e.g. "Angenieux double Gauss 100 mm f/1.1 (1953)" */

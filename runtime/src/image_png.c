@@ -207,42 +207,23 @@ static void png_chunk(png_writer *w, const char type[4], const unsigned char *da
     png_put(w, tail, 4);
 }
 
-/* A unique temporary name next to `path`: `<path>.tmp-<pid>-<clock>-<attempt>`, created
- * with O_EXCL so that two writers never share one; the caller owns the returned FILE. */
+/* A unique temporary file next to `path` as a stdio stream; the caller owns it. */
 static FILE *png_open_temporary(const lensrt_allocator *allocator, const char *path, char **out_name,
                                 int *out_errno)
 {
-    size_t size = strlen(path) + 64; /* room for the suffix: 3 numbers and separators */
-    char *name = (char *)allocator->alloc_fn(size, allocator->user_data);
-    struct timespec now;
-    int attempt;
-    *out_name = NULL;
-    *out_errno = ENOMEM;
-    if (!name)
+    int fd = lensrt_open_temporary(allocator, path, out_name, out_errno);
+    FILE *file;
+    if (fd < 0)
         return NULL;
-    if (clock_gettime(CLOCK_REALTIME, &now) != 0)
-        now.tv_nsec = 0;
-    for (attempt = 0; attempt < 100; ++attempt) {
-        int fd;
-        snprintf(name, size, "%s.tmp-%ld-%ld-%d", path, (long)getpid(), (long)now.tv_nsec, attempt);
-        fd = open(name, O_WRONLY | O_CREAT | O_EXCL, 0666);
-        if (fd >= 0) {
-            FILE *file = fdopen(fd, "wb");
-            if (!file) {
-                *out_errno = errno;
-                close(fd);
-                remove(name);
-                break;
-            }
-            *out_name = name;
-            return file;
-        }
+    file = fdopen(fd, "wb");
+    if (!file) {
         *out_errno = errno;
-        if (errno != EEXIST)
-            break;
+        close(fd);
+        remove(*out_name);
+        allocator->free_fn(*out_name, allocator->user_data);
+        *out_name = NULL;
     }
-    allocator->free_fn(name, allocator->user_data);
-    return NULL;
+    return file;
 }
 
 lensrt_result lensrt_write_png(const lensrt_allocator *allocator, const char *path,

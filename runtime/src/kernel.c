@@ -11,24 +11,6 @@
 #define B LENSRT_BLOCK
 #define TWO_PI_F 6.28318530717958647692f
 
-/* sin and cos of 2 pi p: reduce p to [-1/2, 1/2], split off the quadrant q = rint(4 p),
- * evaluate Taylor polynomials on |2 pi r| <= pi/4 (errors below 3.3e-7 for sin and
- * 2.5e-8 for cos there), then rotate by the quadrant. */
-static inline void sincos2pi(float p, float *c_out, float *s_out)
-{
-    float t = p - rintf(p);
-    float q = rintf(4.0f * t);
-    float x = TWO_PI_F * (t - 0.25f * q);
-    float x2 = x * x;
-    float s = x * (1.0f + x2 * (-1.0f / 6.0f + x2 * (1.0f / 120.0f + x2 * (-1.0f / 5040.0f))));
-    float c = 1.0f + x2 * (-0.5f + x2 * (1.0f / 24.0f + x2 * (-1.0f / 720.0f + x2 * (1.0f / 40320.0f))));
-    int qi = (int)q & 3;
-    float swap_s = (qi & 1) ? c : s, swap_c = (qi & 1) ? s : c;
-    *s_out = (qi & 2) ? -swap_s : swap_s;
-    *c_out = ((qi + 1) & 2) ? -swap_c : swap_c;
-}
-
-void lensrt_sincos2pi_f(float p, float *c, float *s) { sincos2pi(p, c, s); }
 
 #if defined(__GNUC__) && !defined(LENSRT_SCALAR_KERNEL)
 /* GCC/Clang vector extensions: 16 floats per vector (two AVX2 registers, or one AVX-512
@@ -151,6 +133,23 @@ void lensrt_kernel_f(const float *mono, int n_lights, const float *sphase, const
 }
 
 #else
+
+/* sin and cos of 2 pi p: reduce p to [-1/2, 1/2], split off the quadrant q = rint(4 p),
+ * evaluate Taylor polynomials on |2 pi r| <= pi/4 (errors below 3.3e-7 for sin and
+ * 2.5e-8 for cos there), then rotate by the quadrant. */
+static inline void sincos2pi(float p, float *c_out, float *s_out)
+{
+    float t = p - rintf(p);
+    float q = rintf(4.0f * t);
+    float x = TWO_PI_F * (t - 0.25f * q);
+    float x2 = x * x;
+    float s = x * (1.0f + x2 * (-1.0f / 6.0f + x2 * (1.0f / 120.0f + x2 * (-1.0f / 5040.0f))));
+    float c = 1.0f + x2 * (-0.5f + x2 * (1.0f / 24.0f + x2 * (-1.0f / 720.0f + x2 * (1.0f / 40320.0f))));
+    int qi = (int)q & 3;
+    float swap_s = (qi & 1) ? c : s, swap_c = (qi & 1) ? s : c;
+    *s_out = (qi & 2) ? -swap_s : swap_s;
+    *c_out = ((qi + 1) & 2) ? -swap_c : swap_c;
+}
 
 /* out[j] = start + sum_k coef_k * mono[slot_k][j] */
 static void dot_f(const float *mono, const lensrt_terms_f *t, float start, float *out)

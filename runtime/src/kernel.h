@@ -58,8 +58,4 @@ void lensrt_kernel_free_space(const double *xy, int n_lights, const double *spha
                               const double *samp, double x, double y, double z,
                               double lambda_mm, int one_d, int naive, double *acc);
 
-/* (cos, sin) of 2 pi p for a float p (any range), the kernel's approximation; exported
- * for the tests of its accuracy. */
-void lensrt_sincos2pi_f(float p, float *c, float *s);
-
 #endif /* LENSRT_KERNEL_H */

@@ -76,10 +76,10 @@ static size_t n_sums(const lensrt_render r)
 lensrt_result lensrt_render_save(lensrt_render r, const char *path)
 {
     file_header hd;
-    char tmp[4096];
+    char *tmp = NULL;
     FILE *f;
     size_t n;
-    int ok;
+    int ok, fd, err = 0;
     if (!r || !path) return LENSRT_ERROR_INVALID_ARGUMENT;
     n = n_sums(r);
     memset(&hd, 0, sizeof hd);
@@ -97,17 +97,27 @@ lensrt_result lensrt_render_save(lensrt_render r, const char *path)
     hd.n_lights = r->n_lights;
     hd.has_sumsq = r->sumsq != NULL;
     // Write a temporary file next to the target, then rename it over the target
-    if (snprintf(tmp, sizeof tmp, "%s.tmp-%ld", path, (long)getpid()) >= (int)sizeof tmp)
-        return lensrt_fail(r->ctx, LENSRT_ERROR_INVALID_ARGUMENT, "save: path too long: %s", path);
-    f = fopen(tmp, "wb");
-    if (!f) return lensrt_fail(r->ctx, LENSRT_ERROR_IO, "%s: cannot write phasor sums: %s", path, strerror(errno));
+    fd = lensrt_open_temporary(&r->ctx->allocator, path, &tmp, &err);
+    f = fd >= 0 ? fdopen(fd, "wb") : NULL;
+    if (!f) {
+        if (fd >= 0) {
+            err = errno;
+            close(fd);
+            remove(tmp);
+        }
+        lensrt_free(r->ctx, tmp);
+        return lensrt_fail(r->ctx, LENSRT_ERROR_IO, "%s: cannot write phasor sums: %s", path, strerror(err));
+    }
     ok = fwrite(&hd, sizeof hd, 1, f) == 1 && fwrite(r->sum, sizeof(double), 2 * n, f) == 2 * n &&
          (!r->sumsq || fwrite(r->sumsq, sizeof(double), n, f) == n);
     ok = (fclose(f) == 0) && ok;
     if (!ok || rename(tmp, path) != 0) {
+        err = errno;
         remove(tmp);
-        return lensrt_fail(r->ctx, LENSRT_ERROR_IO, "%s: writing phasor sums failed: %s", path, strerror(errno));
+        lensrt_free(r->ctx, tmp);
+        return lensrt_fail(r->ctx, LENSRT_ERROR_IO, "%s: writing phasor sums failed: %s", path, strerror(err));
     }
+    lensrt_free(r->ctx, tmp);
     return LENSRT_SUCCESS;
 }
 
@@ -116,6 +126,7 @@ static lensrt_result read_file(lensrt_render r, const char *path, file_header *h
 {
     FILE *f;
     size_t n = n_sums(r);
+    uint64_t scene = scene_hash(r);
     int ok;
     *sum = *sumsq = NULL;
     f = fopen(path, "rb");
@@ -126,13 +137,13 @@ static lensrt_result read_file(lensrt_render r, const char *path, file_header *h
         return lensrt_fail(r->ctx, LENSRT_ERROR_PARSE, "%s: not a lensrt-phasors %u file of this byte order", path, VERSION);
     }
     if (hd->width != r->width || hd->height != r->height || hd->n_wl != r->n_wl || hd->n_lights != r->n_lights ||
-        hd->scene != scene_hash(r) || hd->has_sumsq != (r->sumsq != NULL)) {
+        hd->scene != scene || hd->has_sumsq != (r->sumsq != NULL)) {
         fclose(f);
         return lensrt_fail(r->ctx, LENSRT_ERROR_INCOMPATIBLE,
                            "%s: phasor sums of another scene (%d x %d pixels, %d wavelengths, %d lights%s); "
                            "the render has %d x %d, %d, %d and must match in lens, lights, aperture, focus, "
                            "window and estimator", path, hd->width, hd->height, hd->n_wl, hd->n_lights,
-                           hd->scene != scene_hash(r) ? ", other settings" : "", r->width, r->height, r->n_wl, r->n_lights);
+                           hd->scene != scene ? ", other settings" : "", r->width, r->height, r->n_wl, r->n_lights);
     }
     *sum = lensrt_alloc(r->ctx, sizeof(double) * 2 * n);
     if (hd->has_sumsq) *sumsq = lensrt_alloc(r->ctx, sizeof(double) * n);

@@ -178,12 +178,23 @@ static double ipow(double x, int e)
     return y;
 }
 
-static int slot_of(lensrt_render r, int m, int n)
+static int slot_of(int m, int n)
 {
     int d = m + n;
     // Slots are ordered by total degree, then by n: (d, n) -> d (d + 1) / 2 + n
     return d * (d + 1) / 2 + n;
-    (void)r;
+}
+
+/* Powers 0..15 of the normalised sensor coordinates of (x, y), for the P_s terms. */
+static void sensor_powers(const lensrt_lens lens, double x, double y, double px[16], double py[16])
+{
+    double xh = lensrt_normalise(&lens->p_s.inputs[0], x), yh = lensrt_normalise(&lens->p_s.inputs[1], y);
+    int e;
+    px[0] = py[0] = 1.0;
+    for (e = 1; e < 16; e++) {
+        px[e] = px[e - 1] * xh;
+        py[e] = py[e - 1] * yh;
+    }
 }
 
 /* Specialise output `o` of a system to fixed values of every input except the stop
@@ -212,15 +223,21 @@ static lensrt_result specialise(lensrt_render r, const lensrt_system *sys, int o
         if (keep_xy) {
             out->ix[n] = e[0];
             out->iy[n] = e[1];
-            out->slot[n] = slot_of(r, e[3], e[4]);
+            out->slot[n] = slot_of(e[3], e[4]);
             out->coef[n] = c;
             n++;
         } else {
-            slots[slot_of(r, e[3], e[4])] += c;
+            slots[slot_of(e[3], e[4])] += c;
         }
     }
     if (keep_xy) out->n = n;
     return LENSRT_SUCCESS;
+}
+
+/* P_o of light l, wavelength w, output o, as coefficients of the stop monomials. */
+static double *po_slots(lensrt_render r, int l, int w, int o)
+{
+    return r->po + ((size_t)(l * r->n_wl + w) * 4 + (size_t)o) * (size_t)r->n_slots;
 }
 
 static lensrt_result prepare_fitted(lensrt_render r)
@@ -253,8 +270,8 @@ static lensrt_result prepare_fitted(lensrt_render r)
     for (k = 0; k <= r->degree; k++) {
         int n;
         for (n = 0; n <= k; n++) {
-            r->slot_m[slot_of(r, k - n, n)] = k - n;
-            r->slot_n[slot_of(r, k - n, n)] = n;
+            r->slot_m[slot_of(k - n, n)] = k - n;
+            r->slot_n[slot_of(k - n, n)] = n;
         }
     }
     r->ps = lensrt_calloc(r->ctx, (size_t)r->n_wl * 4, sizeof *r->ps);
@@ -277,8 +294,7 @@ static lensrt_result prepare_fitted(lensrt_render r)
             xhat[2] = lensrt_normalise(&lens->p_o.inputs[2], u);
             xhat[5] = lensrt_normalise(&lens->p_o.inputs[5], r->wavelengths[w]);
             for (o = 0; o < 4; o++)
-                specialise(r, &lens->p_o, o, xhat, 0, NULL,
-                           r->po + ((size_t)(l * r->n_wl + w) * 4 + (size_t)o) * (size_t)r->n_slots);
+                specialise(r, &lens->p_o, o, xhat, 0, NULL, po_slots(r, l, w, o));
         }
     }
     return LENSRT_SUCCESS;
@@ -380,9 +396,8 @@ static int basis_keep(const double *V, int n, int R, const double *c, double lim
 static lensrt_result prepare_basis(lensrt_render r)
 {
     const int ns = r->n_slots, n = ns - 1;
-    const lensrt_input *inx = &r->lens->p_s.inputs[0], *iny = &r->lens->p_s.inputs[1];
-    int w, gi, gj, k, q, grid_x = r->width < 33 ? r->width : 33, grid_y = r->height < 33 ? r->height : 33;
-    double *g, *eig, c[136];
+    int w, k, q, grid_x = r->width < 33 ? r->width : 33, grid_y = r->height < 33 ? r->height : 33;
+    double *g, *eig, *cs;
     r->n_rows = ns;
     r->use_basis = r->desc.precision == LENSRT_PRECISION_DEFAULT && n > 0;
     if (!r->use_basis) return LENSRT_SUCCESS;
@@ -390,57 +405,49 @@ static lensrt_result prepare_basis(lensrt_render r)
     r->basis_rank = lensrt_calloc(r->ctx, (size_t)r->n_wl * 2, sizeof(int));
     g = lensrt_calloc(r->ctx, (size_t)n * (size_t)n, sizeof(double));
     eig = lensrt_calloc(r->ctx, (size_t)n, sizeof(double));
-    if (!r->basis || !r->basis_rank || !g || !eig) {
+    cs = lensrt_calloc(r->ctx, (size_t)(grid_x * grid_y) * (size_t)ns, sizeof(double));
+    if (!r->basis || !r->basis_rank || !g || !eig || !cs) {
         lensrt_free(r->ctx, g);
         lensrt_free(r->ctx, eig);
+        lensrt_free(r->ctx, cs);
         return lensrt_fail(r->ctx, LENSRT_ERROR_OUT_OF_MEMORY, "render: out of memory");
     }
     for (w = 0; w < 2 * r->n_wl; w++) {
         /* basis b = w % 2 (0: phase in waves, 1: transmittance) of wavelength w / 2 */
-        int o = w % 2 ? 2 : 3;
+        int o = w % 2 ? 2 : 3, cell;
         double inv_lambda = o == 3 ? NM_PER_MM / r->wavelengths[w / 2] : 1.0;
+        const double *V = r->basis + (size_t)w * (size_t)n * (size_t)n;
+        // The grid's coefficients, then their Gram matrix (phase in waves)
+        for (cell = 0; cell < grid_x * grid_y; cell++) {
+            int gi = cell % grid_x, gj = cell / grid_x;
+            int ix = grid_x > 1 ? (int)((double)gi * (r->width - 1) / (grid_x - 1) + 0.5) : 0;
+            int iy = grid_y > 1 ? (int)((double)gj * (r->height - 1) / (grid_y - 1) + 0.5) : 0;
+            double px[16], py[16], *c = cs + (size_t)cell * (size_t)ns;
+            sensor_powers(r->lens, r->xs[ix], r->ys[iy], px, py);
+            slot_coefficients(&r->ps[(w / 2) * 4 + o], px, py, c, ns);
+        }
         memset(g, 0, sizeof(double) * (size_t)n * (size_t)n);
-        // Gram matrix of the phase coefficients over the grid
-        for (gj = 0; gj < grid_y; gj++)
-            for (gi = 0; gi < grid_x; gi++) {
-                int ix = grid_x > 1 ? (int)((double)gi * (r->width - 1) / (grid_x - 1) + 0.5) : 0;
-                int iy = grid_y > 1 ? (int)((double)gj * (r->height - 1) / (grid_y - 1) + 0.5) : 0;
-                double xh = lensrt_normalise(inx, r->xs[ix]), yh = lensrt_normalise(iny, r->ys[iy]);
-                double px[16], py[16];
-                int e;
-                px[0] = py[0] = 1.0;
-                for (e = 1; e < 16; e++) {
-                    px[e] = px[e - 1] * xh;
-                    py[e] = py[e - 1] * yh;
-                }
-                slot_coefficients(&r->ps[(w / 2) * 4 + o], px, py, c, ns);
-                for (k = 0; k < n; k++)
-                    for (q = 0; q < n; q++) g[k * n + q] += c[k + 1] * c[q + 1] * inv_lambda * inv_lambda;
-            }
+        for (cell = 0; cell < grid_x * grid_y; cell++) {
+            const double *c = cs + (size_t)cell * (size_t)ns;
+            for (k = 0; k < n; k++)
+                for (q = 0; q < n; q++) g[k * n + q] += c[k + 1] * c[q + 1] * inv_lambda * inv_lambda;
+        }
         jacobi_eigen(n, g, r->basis + (size_t)w * (size_t)n * (size_t)n, eig);
         // How many basis vectors the grid's pixels need (others fall back to monomials)
         r->basis_rank[w] = 0;
-        for (gj = 0; gj < grid_y; gj++)
-            for (gi = 0; gi < grid_x; gi++) {
-                int ix = grid_x > 1 ? (int)((double)gi * (r->width - 1) / (grid_x - 1) + 0.5) : 0;
-                int iy = grid_y > 1 ? (int)((double)gj * (r->height - 1) / (grid_y - 1) + 0.5) : 0;
-                double xh = lensrt_normalise(inx, r->xs[ix]), yh = lensrt_normalise(iny, r->ys[iy]);
-                double px[16], py[16], u[135], limit;
-                int e, keep;
-                px[0] = py[0] = 1.0;
-                for (e = 1; e < 16; e++) {
-                    px[e] = px[e - 1] * xh;
-                    py[e] = py[e - 1] * yh;
-                }
-                slot_coefficients(&r->ps[(w / 2) * 4 + o], px, py, c, ns);
-                for (k = 1; k < ns; k++) c[k] *= inv_lambda;
-                limit = o == 3 ? r->desc.phase_tolerance_waves : 1e-3 * fabs(c[0]);
-                keep = basis_keep(r->basis + (size_t)w * (size_t)n * (size_t)n, n, n, c, limit, u);
-                if (keep > r->basis_rank[w]) r->basis_rank[w] = keep;
-            }
+        for (cell = 0; cell < grid_x * grid_y; cell++) {
+            double c[136], u[135], limit;
+            int keep;
+            c[0] = cs[(size_t)cell * (size_t)ns];
+            for (k = 1; k < ns; k++) c[k] = cs[(size_t)cell * (size_t)ns + (size_t)k] * inv_lambda;
+            limit = o == 3 ? r->desc.phase_tolerance_waves : 1e-3 * fabs(c[0]);
+            keep = basis_keep(V, n, n, c, limit, u);
+            if (keep > r->basis_rank[w]) r->basis_rank[w] = keep;
+        }
         // A margin for pixels between grid points
         r->basis_rank[w] = r->basis_rank[w] + 2 < n ? r->basis_rank[w] + 2 : n;
     }
+    lensrt_free(r->ctx, cs);
     lensrt_free(r->ctx, g);
     lensrt_free(r->ctx, eig);
     r->n_rows = ns + 2 * n;
@@ -601,8 +608,8 @@ lensrt_result lensrt_render_create(lensrt_context ctx, const lensrt_render_desc 
     r->xs = lensrt_calloc(ctx, (size_t)r->width, sizeof(double));
     r->ys = lensrt_calloc(ctx, (size_t)r->height, sizeof(double));
     if (!r->lights || !r->wavelengths || !r->light_x || !r->light_y || !r->light_d || !r->xs || !r->ys) {
-        free_render(r);
-        return lensrt_fail(ctx, LENSRT_ERROR_OUT_OF_MEMORY, "render: out of memory");
+        res = lensrt_fail(ctx, LENSRT_ERROR_OUT_OF_MEMORY, "render: out of memory");
+        goto fail;
     }
     for (i = 0; i < desc->n_lights; i++) r->lights[i] = desc->lights[i];
     for (i = 0; i < r->n_lights; i++)
@@ -627,10 +634,8 @@ lensrt_result lensrt_render_create(lensrt_context ctx, const lensrt_render_desc 
     for (i = 0; i < r->width; i++) r->xs[i] = desc->sensor.center_x_mm + (i + 0.5 - 0.5 * r->width) * r->pitch_x;
     for (i = 0; i < r->height; i++) r->ys[i] = desc->sensor.center_y_mm + (0.5 * r->height - i - 0.5) * r->pitch_y;
     if (desc->lens->analytic && desc->lens->model.one_dimensional) r->ys[0] = desc->sensor.center_y_mm;
-    if ((res = check_lights(r, &info)) != LENSRT_SUCCESS || (res = choose_stop(r, &info)) != LENSRT_SUCCESS) {
-        free_render(r);
-        return res;
-    }
+    if ((res = check_lights(r, &info)) != LENSRT_SUCCESS || (res = choose_stop(r, &info)) != LENSRT_SUCCESS)
+        goto fail;
     if (!info.analytic) {
         // The window must lie inside the fitted sensor square
         const lensrt_input *xs = &desc->lens->p_s.inputs[0], *ys = &desc->lens->p_s.inputs[1];
@@ -639,8 +644,7 @@ lensrt_result lensrt_render_create(lensrt_context ctx, const lensrt_render_desc 
             res = lensrt_fail(ctx, LENSRT_ERROR_OUT_OF_DOMAIN,
                               "sensor: pixel centres span x [%g, %g] mm, y [%g, %g] mm, beyond the fitted "
                               "[%g, %g] x [%g, %g] mm of %s", x0, x1, y0, y1, xs->lo, xs->hi, ys->lo, ys->hi, info.name);
-            free_render(r);
-            return res;
+            goto fail;
         }
     }
     // Where samples are drawn: the bounding disc, the slits' box, or an interval
@@ -649,16 +653,14 @@ lensrt_result lensrt_render_create(lensrt_context ctx, const lensrt_render_desc 
         int one_d = info.analytic && desc->lens->model.one_dimensional;
         if (!one_d && !(r->stop_radius > 0)) {
             res = lensrt_fail(ctx, LENSRT_ERROR_INVALID_ARGUMENT, "aperture: a two-dimensional slit needs radius_mm (half its length)");
-            free_render(r);
-            return res;
+            goto fail;
         }
         r->region.kind = one_d ? LENSRT_REGION_INTERVAL : LENSRT_REGION_BOX;
         r->region.rx = half;
         r->region.ry = one_d ? 0.0 : r->stop_radius;
         if (!one_d && !info.analytic && (half > r->stop_radius)) {
             res = lensrt_fail(ctx, LENSRT_ERROR_OUT_OF_DOMAIN, "aperture: the slits reach %g mm, beyond the stop radius %g mm", half, r->stop_radius);
-            free_render(r);
-            return res;
+            goto fail;
         }
     } else {
         int one_d = info.analytic && desc->lens->model.one_dimensional;
@@ -667,31 +669,27 @@ lensrt_result lensrt_render_create(lensrt_context ctx, const lensrt_render_desc 
     }
     r->measure = lensrt_region_measure(&r->region);
     r->mono_radius = fmax(r->region.rx, r->region.ry);
-    if (!info.analytic && (res = prepare_fitted(r)) != LENSRT_SUCCESS) {
-        free_render(r);
-        return res;
-    }
-    if (!info.analytic && (res = prepare_basis(r)) != LENSRT_SUCCESS) {
-        free_render(r);
-        return res;
-    }
+    if (!info.analytic && ((res = prepare_fitted(r)) != LENSRT_SUCCESS || (res = prepare_basis(r)) != LENSRT_SUCCESS))
+        goto fail;
     // Phasor sums, and sums of squares for the unbiased estimator
     npix = (size_t)r->width * (size_t)r->height;
     nsum = (size_t)r->n_lights * (size_t)r->n_wl * npix;
     r->sum = lensrt_calloc(ctx, nsum * 2, sizeof(double));
     if (r->desc.estimator == LENSRT_ESTIMATOR_UNBIASED) r->sumsq = lensrt_calloc(ctx, nsum, sizeof(double));
     if (!r->sum || (r->desc.estimator == LENSRT_ESTIMATOR_UNBIASED && !r->sumsq)) {
-        int width = r->width, height = r->height, n_wl = r->n_wl, n_lights = r->n_lights;
-        free_render(r);
-        return lensrt_fail(ctx, LENSRT_ERROR_OUT_OF_MEMORY,
-                           "render: out of memory for %zu phasor sums (%d x %d pixels, %d wavelengths, %d lights)",
-                           nsum, width, height, n_wl, n_lights);
+        res = lensrt_fail(ctx, LENSRT_ERROR_OUT_OF_MEMORY,
+                          "render: out of memory for %zu phasor sums (%d x %d pixels, %d wavelengths, %d lights)",
+                          nsum, r->width, r->height, r->n_wl, r->n_lights);
+        goto fail;
     }
     lensrt_log(ctx, LENSRT_LOG_INFO, "render: %s, %d x %d pixels, %d wavelengths, %d lights, stop %.4g mm (f/%.3g), %s sampling",
                info.name, r->width, r->height, r->n_wl, r->n_lights, r->stop_radius, r->f_number,
                sampler_name(r->desc.sampler));
     *out = r;
     return LENSRT_SUCCESS;
+fail:
+    free_render(r);
+    return res;
 }
 
 /* ------------------------------------------------------------- the passes ----- */
@@ -706,10 +704,6 @@ typedef struct pass_data {
     double *phase_d, *amp_d;
 } pass_data;
 
-static double *po_slots(lensrt_render r, int l, int w, int o)
-{
-    return r->po + ((size_t)(l * r->n_wl + w) * 4 + (size_t)o) * (size_t)r->n_slots;
-}
 
 /* Evaluate P_o (or the analytic incoming wave) per sample and light, and the stop
  * monomials, for samples xy[0 .. n). */
@@ -827,16 +821,11 @@ static void slot_coefficients(const lensrt_pixel_poly *p, const double *px, cons
 }
 
 /* The slot (1,0) and (0,1) coefficients of phi at a sensor point: d phi / d u, d phi / d v. */
-static void phase_gradient(const lensrt_pixel_poly *p, const lensrt_input *ix, const lensrt_input *iy,
-                           double x, double y, double g[2])
+static void phase_gradient(const lensrt_lens lens, const lensrt_pixel_poly *p, double x, double y, double g[2])
 {
-    double xh = lensrt_normalise(ix, x), yh = lensrt_normalise(iy, y), px[16], py[16];
-    int t, e;
-    px[0] = py[0] = 1.0;
-    for (e = 1; e < 16; e++) {
-        px[e] = px[e - 1] * xh;
-        py[e] = py[e - 1] * yh;
-    }
+    double px[16], py[16];
+    int t;
+    sensor_powers(lens, x, y, px, py);
     g[0] = g[1] = 0.0;
     for (t = 0; t < p->n; t++) {
         if (p->slot[t] == 1) g[0] += p->coef[t] * px[p->ix[t]] * py[p->iy[t]];
@@ -849,19 +838,13 @@ static void phase_gradient(const lensrt_pixel_poly *p, const lensrt_input *ix, c
 static int setup_pixel(lensrt_render r, int w, double x, double y, pixel_terms *pt, lensrt_pixel_f *pf, lensrt_pixel_d *pdb)
 {
     const lensrt_lens lens = r->lens;
-    const lensrt_input *inx = &lens->p_s.inputs[0], *iny = &lens->p_s.inputs[1];
     const double lambda_mm = r->wavelengths[w] / NM_PER_MM, tol = r->desc.phase_tolerance_waves;
     const int dbl = r->desc.precision == LENSRT_PRECISION_DOUBLE;
     const int naive = r->desc.precision == LENSRT_PRECISION_NAIVE_FLOAT;
     const int ns = r->n_slots;
     double px[16], py[16], c[4][136], bound[4], h = lens->housing_last_mm, grad[4][2], det, step;
-    int e, o, k, counts[4];
-    double xh = lensrt_normalise(inx, x), yh = lensrt_normalise(iny, y);
-    px[0] = py[0] = 1.0;
-    for (e = 1; e < 16; e++) {
-        px[e] = px[e - 1] * xh;
-        py[e] = py[e - 1] * yh;
-    }
+    int o, k, counts[4];
+    sensor_powers(lens, x, y, px, py);
     // Coefficients of the stop monomials at this pixel, and bounds of the varying parts
     for (o = 0; o < 4; o++) {
         slot_coefficients(&r->ps[w * 4 + o], px, py, c[o], ns);
@@ -886,6 +869,7 @@ static int setup_pixel(lensrt_render r, int w, double x, double y, pixel_terms *
         tols[3] = tol;                  /* phase, waves */
         for (o = 0; o < 4; o++) {
             int order[136], n = 0, i, j;
+            unsigned char kept[136];
             double dropped = 0.0;
             counts[o] = 0;
             if ((o == 0 || o == 1) && !pf->clip) continue;
@@ -902,11 +886,10 @@ static int setup_pixel(lensrt_render r, int w, double x, double y, pixel_terms *
             if (!dbl)
                 while (i < n && dropped + fabs(c[o][order[i]]) <= tols[o]) dropped += fabs(c[o][order[i++]]);
             // Keep the rest in slot order (the kernel streams monomial rows)
+            memset(kept, 0, sizeof kept);
+            for (j = i; j < n; j++) kept[order[j]] = 1;
             for (j = 0, k = 0; k < ns; k++) {
-                int keep = 0, q;
-                for (q = i; q < n; q++)
-                    if (order[q] == k) keep = 1;
-                if (!keep) continue;
+                if (!kept[k]) continue;
                 pt->slot[o][j] = k;
                 pt->coef_f[o][j] = (float)c[o][k];
                 pt->coef_d[o][j] = c[o][k];
@@ -956,10 +939,10 @@ static int setup_pixel(lensrt_render r, int w, double x, double y, pixel_terms *
     // Huygens amplitude: sqrt|det d2 phi / (d a d s)| / lambda at the stop centre
     // (Rayleigh-Sommerfeld's cos(theta) / (lambda r) in free space), by central differences
     step = 1e-3 * fmax(r->pitch_x, 1e-3);
-    phase_gradient(&r->ps[w * 4 + 3], inx, iny, x + step, y, grad[0]);
-    phase_gradient(&r->ps[w * 4 + 3], inx, iny, x - step, y, grad[1]);
-    phase_gradient(&r->ps[w * 4 + 3], inx, iny, x, y + step, grad[2]);
-    phase_gradient(&r->ps[w * 4 + 3], inx, iny, x, y - step, grad[3]);
+    phase_gradient(lens, &r->ps[w * 4 + 3], x + step, y, grad[0]);
+    phase_gradient(lens, &r->ps[w * 4 + 3], x - step, y, grad[1]);
+    phase_gradient(lens, &r->ps[w * 4 + 3], x, y + step, grad[2]);
+    phase_gradient(lens, &r->ps[w * 4 + 3], x, y - step, grad[3]);
     {
         double s = 1.0 / (2.0 * step * r->mono_radius); /* slot coefficients are per unit u */
         double a11 = (grad[0][0] - grad[1][0]) * s, a12 = (grad[2][0] - grad[3][0]) * s;

@@ -134,7 +134,6 @@ static int find_table(const char *dir, const char *id, char *path, size_t size)
 
 typedef struct progress_state {
     int quiet;
-    double last;
 } progress_state;
 
 static int on_progress(double fraction, double eta, void *user)
@@ -171,7 +170,7 @@ int main(int argc, char **argv)
     lensrt_render_desc desc;
     lensrt_render_stats st;
     lensrt_result res;
-    progress_state ps = {0, 0};
+    progress_state ps = {0};
     char table[4096];
     if (!gen) gen = LENSRT_GENERATED_DIR;
 

@@ -16,8 +16,9 @@ import pytest
 ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT / "runtime" / "python"))
 
-LIBRARY = Path(os.environ.get("LENSRT_LIBRARY")
-               or ROOT / "build" / "runtime" / "runtime" / "liblensrt.so")
+from lensrt_ctypes import DEFAULT_LIBRARY  # noqa: E402  (needs the path above)
+
+LIBRARY = Path(os.environ.get("LENSRT_LIBRARY") or DEFAULT_LIBRARY)
 
 
 SKIP_MESSAGE = (f"lensrt runtime tests need {LIBRARY}: build it with `make runtime` "
