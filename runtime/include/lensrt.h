@@ -8,7 +8,8 @@
  *   lensrt_context     allocator and log hooks, the last error message; no globals
  *   lensrt_lens        a lens: a fitted polynomial table (generated/<lens>/lens<ID>.table)
  *                      or an analytic one (free space or a perfect thin lens)
- *   lensrt_render      a prepared scene plus its phasor sums; run() adds samples
+ *   lensrt_render      a prepared scene plus its phasor sums; run() adds samples,
+ *                      on the CPU (OpenMP) or on an OpenGL 4.3 device (compute shaders)
  *
  * Every call returns a lensrt_result; lensrt_result_string() names it and
  * lensrt_context_last_error() says what was wrong (file, key, value). Option structs
@@ -16,7 +17,9 @@
  * the caller; memory the library allocates goes through the context's hooks.
  *
  * Threads: a context and the renders made from it are used by one thread at a time
- * (a render uses OpenMP threads inside run()). Lenses are immutable once loaded. Renders
+ * (a render uses OpenMP threads inside run()). The GL device belongs to the context: it
+ * is made current around each call that uses it and the caller's EGL context is
+ * restored after. Lenses are immutable once loaded. Renders
  * are deterministic for a seed whatever the number of threads.
  *
  * Units: millimetres for lengths, nanometres for wavelengths, degrees for angles.
@@ -53,7 +56,9 @@ typedef enum lensrt_result {
     LENSRT_ERROR_OUT_OF_DOMAIN,    /* outside what the lens was fitted for */
     LENSRT_ERROR_INCOMPATIBLE,     /* phasor sums of a different scene */
     LENSRT_ERROR_UNSUPPORTED,      /* a feature left out of this build */
-    LENSRT_ERROR_CANCELLED         /* the progress callback asked to stop */
+    LENSRT_ERROR_CANCELLED,        /* the progress callback asked to stop */
+    LENSRT_ERROR_NO_DEVICE,        /* no OpenGL 4.3 context could be made (the CPU still works) */
+    LENSRT_ERROR_DEVICE            /* the GL device failed (a shader, a buffer) */
 } lensrt_result;
 
 /* A static string naming the result ("success", "invalid argument", ...). */
@@ -69,6 +74,18 @@ typedef enum lensrt_log_level {
 
 typedef struct lensrt_context_s *lensrt_context;
 
+/* Where the GL device's context comes from (see lensrt_context_gl_info). AUTO tries,
+ * in order: the EGL device platform (non-software devices first, as NVIDIA's driver
+ * offers), Mesa's surfaceless EGL platform, then GLFW 3.3 with a hidden window (needs an
+ * X server, e.g. xvfb-run). Libraries are loaded at run time: a machine without them
+ * still runs the CPU path. */
+typedef enum lensrt_gl_platform {
+    LENSRT_GL_PLATFORM_AUTO = 0,
+    LENSRT_GL_PLATFORM_EGL_DEVICE,
+    LENSRT_GL_PLATFORM_EGL_SURFACELESS,
+    LENSRT_GL_PLATFORM_GLFW
+} lensrt_gl_platform;
+
 typedef struct lensrt_context_init {
     /* Allocator hooks: both or neither (NULL: malloc and free). */
     void *(*alloc_fn)(size_t size, void *user_data);
@@ -78,12 +95,27 @@ typedef struct lensrt_context_init {
     void *user_data;
     /* OpenMP threads for run() (0: the OpenMP default). */
     int threads;
+    /* Where a GL device comes from, for renders with LENSRT_DEVICE_GL. */
+    lensrt_gl_platform gl_platform;
 } lensrt_context_init;
 
 LENSRT_API lensrt_result lensrt_context_create(const lensrt_context_init *init, lensrt_context *out);
 LENSRT_API void lensrt_context_destroy(lensrt_context ctx);
 /* The message of the last failing call made with ctx ("" when none). */
 LENSRT_API const char *lensrt_context_last_error(lensrt_context ctx);
+
+/* The context's GL device, made on first use: LENSRT_ERROR_NO_DEVICE (with the reason
+ * of every platform tried in the last error) when no OpenGL 4.3 core context can be
+ * made, LENSRT_ERROR_UNSUPPORTED when the build has no GL path. Strings stay valid
+ * while the context lives. */
+typedef struct lensrt_gl_info {
+    const char *platform;   /* "egl-device", "egl-surfaceless" or "glfw" */
+    const char *renderer;   /* GL_RENDERER, e.g. "llvmpipe (LLVM 15.0.6, 256 bits)" */
+    const char *version;    /* GL_VERSION */
+    int software;           /* 1 for a CPU rasteriser (llvmpipe, softpipe, swrast) */
+} lensrt_gl_info;
+
+LENSRT_API lensrt_result lensrt_context_gl_info(lensrt_context ctx, lensrt_gl_info *out);
 
 /* ------------------------------------------------------------------ lenses ----- */
 
@@ -155,6 +187,11 @@ typedef enum lensrt_precision {
     LENSRT_PRECISION_NAIVE_FLOAT  /* total OPL in float, no reduction (to show why not) */
 } lensrt_precision;
 
+typedef enum lensrt_device {
+    LENSRT_DEVICE_CPU = 0,        /* OpenMP threads, SIMD splat kernel */
+    LENSRT_DEVICE_GL              /* OpenGL 4.3 compute shaders; the same samples and sums */
+} lensrt_device;
+
 typedef enum lensrt_aperture_shape {
     LENSRT_APERTURE_CIRCLE = 0,
     LENSRT_APERTURE_BLADES,       /* a regular polygon of `blades`, optionally curved */
@@ -198,6 +235,7 @@ typedef struct lensrt_render_desc {
     lensrt_precision precision;
     uint64_t seed;
     double phase_tolerance_waves; /* largest phase the pruned per-pixel terms may drop; 0: 3e-3 */
+    lensrt_device device;         /* where run() splats; GL takes precision DEFAULT or NAIVE_FLOAT */
 } lensrt_render_desc;
 
 typedef struct lensrt_render_s *lensrt_render;

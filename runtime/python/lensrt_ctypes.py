@@ -26,6 +26,9 @@ SAMPLERS = {"default": 0, "random": 1, "stratified": 2, "sobol": 3}
 ESTIMATORS = {"default": 0, "paper": 1, "unbiased": 2}
 PRECISIONS = {"default": 0, "double": 1, "naive_float": 2}
 SHAPES = {"circle": 0, "blades": 1, "slit": 2}
+DEVICES = {"cpu": 0, "gl": 1}
+GL_PLATFORMS = {"auto": 0, "egl-device": 1, "egl-surfaceless": 2, "glfw": 3}
+NO_DEVICE = 9  # LENSRT_ERROR_NO_DEVICE
 
 
 class LensrtError(RuntimeError):
@@ -36,7 +39,12 @@ class LensrtError(RuntimeError):
 
 class ContextInit(C.Structure):
     _fields_ = [("alloc_fn", C.c_void_p), ("free_fn", C.c_void_p), ("log_fn", C.c_void_p),
-                ("user_data", C.c_void_p), ("threads", C.c_int)]
+                ("user_data", C.c_void_p), ("threads", C.c_int), ("gl_platform", C.c_int)]
+
+
+class GlInfo(C.Structure):
+    _fields_ = [("platform", C.c_char_p), ("renderer", C.c_char_p), ("version", C.c_char_p),
+                ("software", C.c_int)]
 
 
 class AnalyticLens(C.Structure):
@@ -76,7 +84,8 @@ class RenderDesc(C.Structure):
                 ("lights", C.POINTER(Light)), ("n_lights", C.c_int),
                 ("wavelengths_nm", C.POINTER(C.c_double)), ("n_wavelengths", C.c_int),
                 ("sampler", C.c_int), ("estimator", C.c_int), ("precision", C.c_int),
-                ("seed", C.c_uint64), ("phase_tolerance_waves", C.c_double)]
+                ("seed", C.c_uint64), ("phase_tolerance_waves", C.c_double),
+                ("device", C.c_int)]
 
 
 class Stats(C.Structure):
@@ -149,7 +158,8 @@ class Render:
 class Lensrt:
     """One lensrt context (and the library it came from)."""
 
-    def __init__(self, library: str | os.PathLike[str] | None = None, threads: int = 0) -> None:
+    def __init__(self, library: str | os.PathLike[str] | None = None, threads: int = 0,
+                 gl_platform: str = "auto") -> None:
         path = Path(library or os.environ.get("LENSRT_LIBRARY", DEFAULT_LIBRARY))
         if not path.exists():
             raise FileNotFoundError(f"{path}: lensrt is not built (run `make runtime`)")
@@ -179,7 +189,8 @@ class Lensrt:
         for name in ("save", "load", "merge", "write_exr"):
             getattr(lib, f"lensrt_render_{name}").argtypes = [C.c_void_p, C.c_char_p]
         lib.lensrt_render_write_png.argtypes = [C.c_void_p, C.c_char_p, C.c_double]
-        init = ContextInit(threads=threads)
+        lib.lensrt_context_gl_info.argtypes = [C.c_void_p, C.POINTER(GlInfo)]
+        init = ContextInit(threads=threads, gl_platform=GL_PLATFORMS[gl_platform])
         ctx = C.c_void_p()
         code = lib.lensrt_context_create(C.byref(init), C.byref(ctx))
         if code != 0:
@@ -198,6 +209,13 @@ class Lensrt:
         if code != 0:
             message = self.lib.lensrt_context_last_error(self.ctx).decode()
             raise LensrtError(code, message or self.lib.lensrt_result_string(code).decode())
+
+    def gl_info(self) -> dict[str, Any]:
+        """The context's GL device (made on first use); LensrtError(NO_DEVICE) without one."""
+        info = GlInfo()
+        self._check(self.lib.lensrt_context_gl_info(self.ctx, C.byref(info)))
+        return {"platform": info.platform.decode(), "renderer": info.renderer.decode(),
+                "version": info.version.decode(), "software": bool(info.software)}
 
     def load(self, table: str | os.PathLike[str]) -> C.c_void_p:
         lens = C.c_void_p()
@@ -236,7 +254,7 @@ class Lensrt:
                slit_separation_mm: float = 0.0, lights: Sequence[Sequence[float]] = (),
                wavelengths: Sequence[float] | int = 0, sampler: str = "default",
                estimator: str = "default", precision: str = "default", seed: int = 0,
-               phase_tolerance_waves: float = 0.0) -> Render:
+               phase_tolerance_waves: float = 0.0, device: str = "cpu") -> Render:
         keep: list[Any] = []
         desc = RenderDesc()
         desc.lens = lens
@@ -261,6 +279,7 @@ class Lensrt:
         desc.precision = PRECISIONS[precision]
         desc.seed = seed
         desc.phase_tolerance_waves = phase_tolerance_waves
+        desc.device = DEVICES[device]
         handle = C.c_void_p()
         self._check(self.lib.lensrt_render_create(self.ctx, C.byref(desc), C.byref(handle)))
         return Render(self, handle, keep)

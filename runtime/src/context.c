@@ -30,6 +30,8 @@ const char *lensrt_result_string(lensrt_result result)
     case LENSRT_ERROR_INCOMPATIBLE: return "incompatible phasor sums";
     case LENSRT_ERROR_UNSUPPORTED: return "not supported by this build";
     case LENSRT_ERROR_CANCELLED: return "cancelled";
+    case LENSRT_ERROR_NO_DEVICE: return "no GL device";
+    case LENSRT_ERROR_DEVICE: return "GL device failure";
     }
     return "unknown result";
 }
@@ -44,7 +46,7 @@ lensrt_result lensrt_context_create(const lensrt_context_init *init, lensrt_cont
     if (!init) init = &zero;
     // Allocator hooks come as a pair or not at all
     if ((init->alloc_fn == NULL) != (init->free_fn == NULL)) return LENSRT_ERROR_INVALID_ARGUMENT;
-    if (init->threads < 0) return LENSRT_ERROR_INVALID_ARGUMENT;
+    if (init->threads < 0 || (unsigned)init->gl_platform > LENSRT_GL_PLATFORM_GLFW) return LENSRT_ERROR_INVALID_ARGUMENT;
     ctx = init->alloc_fn ? init->alloc_fn(sizeof *ctx, init->user_data) : malloc(sizeof *ctx);
     if (!ctx) return LENSRT_ERROR_OUT_OF_MEMORY;
     memset(ctx, 0, sizeof *ctx);
@@ -54,14 +56,28 @@ lensrt_result lensrt_context_create(const lensrt_context_init *init, lensrt_cont
     ctx->log_fn = init->log_fn;
     ctx->user_data = init->user_data;
     ctx->threads = init->threads;
+    ctx->gl_platform = init->gl_platform;
     *out = ctx;
     return LENSRT_SUCCESS;
 }
 
 void lensrt_context_destroy(lensrt_context ctx)
 {
-    if (ctx) ctx->allocator.free_fn(ctx, ctx->allocator.user_data);
+    if (!ctx) return;
+#ifdef LENSRT_GL
+    lensrt_gl_close(ctx);
+#endif
+    ctx->allocator.free_fn(ctx, ctx->allocator.user_data);
 }
+
+#ifndef LENSRT_GL
+lensrt_result lensrt_context_gl_info(lensrt_context ctx, lensrt_gl_info *out)
+{
+    if (!ctx || !out) return LENSRT_ERROR_INVALID_ARGUMENT;
+    return lensrt_fail(ctx, LENSRT_ERROR_UNSUPPORTED,
+                       "GL: this build of lensrt has no GL path (configure with EGL and GL headers, LENSRT_WITH_GL=ON)");
+}
+#endif
 
 const char *lensrt_context_last_error(lensrt_context ctx)
 {

@@ -17,8 +17,15 @@ struct lensrt_context_s {
     void (*log_fn)(lensrt_log_level level, const char *message, void *user_data);
     void *user_data;
     int threads;
+    lensrt_gl_platform gl_platform;
+    struct lensrt_gl_s *gl;   /* the GL device, made on first use (gl/gl_device.c) */
     char error[LENSRT_ERROR_SIZE];
 };
+
+#ifdef LENSRT_GL
+/* Close the context's GL device, if one was made. */
+void lensrt_gl_close(lensrt_context ctx);
+#endif
 
 /* Allocation through the context's hooks (zeroed by lensrt_calloc). */
 void *lensrt_alloc(lensrt_context ctx, size_t size);

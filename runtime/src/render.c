@@ -11,6 +11,9 @@
  * Pixels never share sums and samples are pure functions of their index, so the result
  * does not depend on the number of threads. */
 #include "render.h"
+#ifdef LENSRT_GL
+#include "gl/gl_render.h"
+#endif
 
 #include <math.h>
 #include <stdio.h>
@@ -22,7 +25,7 @@
 
 #define PI 3.14159265358979323846
 #define NM_PER_MM 1e6
-#define PASS 16384           /* samples per wavelength and pass (a multiple of LENSRT_BLOCK) */
+#define PASS LENSRT_PASS
 #define TILE 16              /* pixels per tile */
 #define DEFAULT_WAVELENGTHS 16
 
@@ -65,8 +68,9 @@ static lensrt_result check_desc(lensrt_context ctx, const lensrt_render_desc *d,
                                i, w, info->wavelength_min_nm, info->wavelength_max_nm, info->name);
     }
     if ((unsigned)d->sampler > LENSRT_SAMPLER_SOBOL || (unsigned)d->estimator > LENSRT_ESTIMATOR_UNBIASED ||
-        (unsigned)d->precision > LENSRT_PRECISION_NAIVE_FLOAT || (unsigned)a->shape > LENSRT_APERTURE_SLIT)
-        return lensrt_fail(ctx, LENSRT_ERROR_INVALID_ARGUMENT, "sampler, estimator, precision or aperture shape: unknown value");
+        (unsigned)d->precision > LENSRT_PRECISION_NAIVE_FLOAT || (unsigned)a->shape > LENSRT_APERTURE_SLIT ||
+        (unsigned)d->device > LENSRT_DEVICE_GL)
+        return lensrt_fail(ctx, LENSRT_ERROR_INVALID_ARGUMENT, "sampler, estimator, precision, device or aperture shape: unknown value");
     // (|sum X|^2 - sum |X|^2) / (N (N - 1)) is unbiased for independent samples only:
     // with correlated ones (Sobol, strata) the mean's error is far below the i.i.d. term
     if (d->estimator == LENSRT_ESTIMATOR_UNBIASED &&
@@ -389,20 +393,33 @@ static int basis_keep(const double *V, int n, int R, const double *c, double lim
     return 0;
 }
 
-/* The window's phase basis per wavelength: eigenvectors of sum_p c_p c_p^T over a grid of
- * up to 33 x 33 pixels of the window (c_p: the pixel's non-constant phase coefficients in
- * waves). Each pixel later keeps the fewest leading basis vectors whose dropped tail
- * stays under the phase tolerance, so the basis only ever speeds things up. */
+/* The largest l1 norm of the non-constant coefficients an output may drop: inner pupil
+ * position 0.01% of the housing, transmittance 1e-3 relative (5e-4 in amplitude), phase
+ * the render's tolerance (waves). */
+static double output_limit(const lensrt_render r, int o, double c0)
+{
+    return o < 2 ? 1e-4 * r->lens->housing_last_mm : o == 2 ? 1e-3 * fabs(c0) : r->desc.phase_tolerance_waves;
+}
+
+/* The window's bases per wavelength and output: eigenvectors of sum_p c_p c_p^T over a
+ * grid of up to 33 x 33 pixels of the window (c_p: the pixel's non-constant coefficients
+ * of the output, the phase in waves). Each pixel later keeps the fewest leading basis
+ * vectors whose dropped tail stays under the output's limit, so the basis only ever
+ * speeds things up. The CPU path uses the phase and transmittance bases (b = 0, 1), the
+ * GL path all four outputs in order (x_i, y_i, tau_i, phi_i). */
 static lensrt_result prepare_basis(lensrt_render r)
 {
     const int ns = r->n_slots, n = ns - 1;
+    const int gl = r->desc.device == LENSRT_DEVICE_GL;
     int w, k, q, grid_x = r->width < 33 ? r->width : 33, grid_y = r->height < 33 ? r->height : 33;
     double *g, *eig, *cs;
     r->n_rows = ns;
-    r->use_basis = r->desc.precision == LENSRT_PRECISION_DEFAULT && n > 0;
+    r->use_basis = (r->desc.precision == LENSRT_PRECISION_DEFAULT || gl) && n > 0;
     if (!r->use_basis) return LENSRT_SUCCESS;
-    r->basis = lensrt_calloc(r->ctx, (size_t)r->n_wl * 2 * (size_t)n * (size_t)n, sizeof(double));
-    r->basis_rank = lensrt_calloc(r->ctx, (size_t)r->n_wl * 2, sizeof(int));
+    r->n_bases = gl ? 4 : 2;
+    for (k = 0; k < r->n_bases; k++) r->basis_output[k] = gl ? k : (k ? 2 : 3);
+    r->basis = lensrt_calloc(r->ctx, (size_t)r->n_wl * (size_t)r->n_bases * (size_t)n * (size_t)n, sizeof(double));
+    r->basis_rank = lensrt_calloc(r->ctx, (size_t)r->n_wl * (size_t)r->n_bases, sizeof(int));
     g = lensrt_calloc(r->ctx, (size_t)n * (size_t)n, sizeof(double));
     eig = lensrt_calloc(r->ctx, (size_t)n, sizeof(double));
     cs = lensrt_calloc(r->ctx, (size_t)(grid_x * grid_y) * (size_t)ns, sizeof(double));
@@ -412,10 +429,10 @@ static lensrt_result prepare_basis(lensrt_render r)
         lensrt_free(r->ctx, cs);
         return lensrt_fail(r->ctx, LENSRT_ERROR_OUT_OF_MEMORY, "render: out of memory");
     }
-    for (w = 0; w < 2 * r->n_wl; w++) {
-        /* basis b = w % 2 (0: phase in waves, 1: transmittance) of wavelength w / 2 */
-        int o = w % 2 ? 2 : 3, cell;
-        double inv_lambda = o == 3 ? NM_PER_MM / r->wavelengths[w / 2] : 1.0;
+    for (w = 0; w < r->n_bases * r->n_wl; w++) {
+        /* basis b = w % n_bases of wavelength w / n_bases, for output o */
+        int o = r->basis_output[w % r->n_bases], cell;
+        double inv_lambda = o == 3 ? NM_PER_MM / r->wavelengths[w / r->n_bases] : 1.0;
         const double *V = r->basis + (size_t)w * (size_t)n * (size_t)n;
         // The grid's coefficients, then their Gram matrix (phase in waves)
         for (cell = 0; cell < grid_x * grid_y; cell++) {
@@ -424,7 +441,7 @@ static lensrt_result prepare_basis(lensrt_render r)
             int iy = grid_y > 1 ? (int)((double)gj * (r->height - 1) / (grid_y - 1) + 0.5) : 0;
             double px[16], py[16], *c = cs + (size_t)cell * (size_t)ns;
             sensor_powers(r->lens, r->xs[ix], r->ys[iy], px, py);
-            slot_coefficients(&r->ps[(w / 2) * 4 + o], px, py, c, ns);
+            slot_coefficients(&r->ps[(w / r->n_bases) * 4 + o], px, py, c, ns);
         }
         memset(g, 0, sizeof(double) * (size_t)n * (size_t)n);
         for (cell = 0; cell < grid_x * grid_y; cell++) {
@@ -436,12 +453,11 @@ static lensrt_result prepare_basis(lensrt_render r)
         // How many basis vectors the grid's pixels need (others fall back to monomials)
         r->basis_rank[w] = 0;
         for (cell = 0; cell < grid_x * grid_y; cell++) {
-            double c[136], u[135], limit;
+            double c[136], u[135];
             int keep;
             c[0] = cs[(size_t)cell * (size_t)ns];
             for (k = 1; k < ns; k++) c[k] = cs[(size_t)cell * (size_t)ns + (size_t)k] * inv_lambda;
-            limit = o == 3 ? r->desc.phase_tolerance_waves : 1e-3 * fabs(c[0]);
-            keep = basis_keep(V, n, n, c, limit, u);
+            keep = basis_keep(V, n, n, c, output_limit(r, o, c[0]), u);
             if (keep > r->basis_rank[w]) r->basis_rank[w] = keep;
         }
         // A margin for pixels between grid points
@@ -544,6 +560,9 @@ static void free_render(lensrt_render r)
 {
     lensrt_context ctx = r->ctx;
     int i;
+#ifdef LENSRT_GL
+    lensrt_gl_render_destroy(r);
+#endif
     if (r->ps)
         for (i = 0; i < r->n_wl * 4; i++) {
             lensrt_free(ctx, r->ps[i].ix);
@@ -681,6 +700,14 @@ lensrt_result lensrt_render_create(lensrt_context ctx, const lensrt_render_desc 
                           "render: out of memory for %zu phasor sums (%d x %d pixels, %d wavelengths, %d lights)",
                           nsum, r->width, r->height, r->n_wl, r->n_lights);
         goto fail;
+    }
+    if (r->desc.device == LENSRT_DEVICE_GL) {
+#ifdef LENSRT_GL
+        if ((res = lensrt_gl_render_create(r)) != LENSRT_SUCCESS) goto fail;
+#else
+        res = lensrt_fail(ctx, LENSRT_ERROR_UNSUPPORTED, "device gl: this build of lensrt has no GL path");
+        goto fail;
+#endif
     }
     lensrt_log(ctx, LENSRT_LOG_INFO, "render: %s, %d x %d pixels, %d wavelengths, %d lights, stop %.4g mm (f/%.3g), %s sampling",
                info.name, r->width, r->height, r->n_wl, r->n_lights, r->stop_radius, r->f_number,
@@ -914,7 +941,7 @@ static int setup_pixel(lensrt_render r, int w, double x, double y, pixel_terms *
         for (bb = 0; bb < 2; bb++) {
             const int oo = bb ? 2 : 3;
             const double *V = r->basis + (size_t)(2 * w + bb) * (size_t)n * (size_t)n;
-            const double limit = bb ? 1e-3 * fabs(c[2][0]) : tol;
+            const double limit = output_limit(r, oo, c[2][0]);
             double u[135];
             int j, keep, have = counts[oo] - (oo == 2 && counts[2] > 0);
             if (oo == 2 && counts[2] == 0) continue; /* constant transmittance */
@@ -1083,6 +1110,12 @@ static lensrt_result alloc_pass(lensrt_render r, int n, pass_data *pd)
     const int dbl = r->desc.precision == LENSRT_PRECISION_DOUBLE || r->lens->analytic;
     size_t nb, rows, lanes;
     memset(pd, 0, sizeof *pd);
+    if (r->desc.device == LENSRT_DEVICE_GL) {
+        // The device evaluates the samples: the host only draws their positions
+        pd->n = n;
+        pd->xy = lensrt_calloc(r->ctx, (size_t)n * 2 + 2, sizeof(double));
+        return pd->xy ? LENSRT_SUCCESS : lensrt_fail(r->ctx, LENSRT_ERROR_OUT_OF_MEMORY, "render: out of memory");
+    }
     pd->n = n;
     pd->n_blocks = (n + LENSRT_BLOCK - 1) / LENSRT_BLOCK;
     nb = (size_t)pd->n_blocks;
@@ -1105,6 +1138,36 @@ static lensrt_result alloc_pass(lensrt_render r, int n, pass_data *pd)
     return LENSRT_SUCCESS;
 }
 
+/* One wavelength's samples (pd->xy), splatted on the render's device. */
+static lensrt_result splat_samples(lensrt_render r, int w, pass_data *pd)
+{
+#ifdef LENSRT_GL
+    if (r->gl) return lensrt_gl_pass(r, w, pd->xy, pd->n);
+#endif
+    prepare_samples(r, w, pd);
+    splat_pass(r, w, pd);
+    return LENSRT_SUCCESS;
+}
+
+/* Passes run between begin and end: the GL device holds the sums in between. */
+static lensrt_result begin_passes(lensrt_render r, pass_data *pd)
+{
+    lensrt_result res = alloc_pass(r, PASS, pd);
+#ifdef LENSRT_GL
+    if (res == LENSRT_SUCCESS && r->gl && (res = lensrt_gl_begin(r)) != LENSRT_SUCCESS) free_pass(r->ctx, pd);
+#endif
+    return res;
+}
+
+static lensrt_result end_passes(lensrt_render r, pass_data *pd, lensrt_result status)
+{
+#ifdef LENSRT_GL
+    if (r->gl) status = lensrt_gl_end(r, status);
+#endif
+    free_pass(r->ctx, pd);
+    return status;
+}
+
 lensrt_result lensrt_render_run(lensrt_render r, uint64_t samples_per_wavelength, lensrt_progress_fn progress, void *user_data)
 {
     uint64_t done = 0;
@@ -1115,19 +1178,18 @@ lensrt_result lensrt_render_run(lensrt_render r, uint64_t samples_per_wavelength
     if (samples_per_wavelength == 0 || samples_per_wavelength > ((uint64_t)1 << 40))
         return lensrt_fail(r->ctx, LENSRT_ERROR_INVALID_ARGUMENT,
                            "run: samples per wavelength must be 1..2^40, got %llu", (unsigned long long)samples_per_wavelength);
-    if ((res = alloc_pass(r, PASS, &pd)) != LENSRT_SUCCESS) return res;
-    while (done < samples_per_wavelength) {
+    if ((res = begin_passes(r, &pd)) != LENSRT_SUCCESS) return res;
+    while (done < samples_per_wavelength && res == LENSRT_SUCCESS) {
         uint64_t n = samples_per_wavelength - done < PASS ? samples_per_wavelength - done : PASS;
         int w, cancelled = 0;
         double elapsed, frac;
         // One pass: the same sample indices for every wavelength (each its own sequence)
-        for (w = 0; w < r->n_wl; w++) {
+        for (w = 0; w < r->n_wl && res == LENSRT_SUCCESS; w++) {
             memset(pd.xy, 0, sizeof(double) * PASS * 2);
             pd.n = (int)n;
             pd.n_blocks = (int)((n + LENSRT_BLOCK - 1) / LENSRT_BLOCK);
             lensrt_sample_aperture(r->desc.sampler, r->desc.seed, w, r->samples, n, &r->region, pd.xy);
-            prepare_samples(r, w, &pd);
-            splat_pass(r, w, &pd);
+            res = splat_samples(r, w, &pd);
             elapsed = lensrt_seconds() - t0;
             frac = ((double)done + (double)n * (w + 1) / r->n_wl) / (double)samples_per_wavelength;
             // A request to stop takes effect when the pass is complete (every wavelength
@@ -1135,22 +1197,20 @@ lensrt_result lensrt_render_run(lensrt_render r, uint64_t samples_per_wavelength
             if (progress && w + 1 < r->n_wl && progress(frac, elapsed * (1.0 - frac) / frac, user_data))
                 cancelled = 1;
         }
+        if (res != LENSRT_SUCCESS) break;
         r->samples += n;
         done += n;
         r->splats += n * (uint64_t)r->n_wl * (uint64_t)r->width * (uint64_t)r->height;
         elapsed = lensrt_seconds() - t0;
         if (progress && (progress((double)done / (double)samples_per_wavelength,
                                   elapsed * (double)(samples_per_wavelength - done) / (double)done, user_data) ||
-                         cancelled)) {
-            r->seconds += lensrt_seconds() - t0;
-            free_pass(r->ctx, &pd);
-            return lensrt_fail(r->ctx, LENSRT_ERROR_CANCELLED, "run: cancelled after %llu samples per wavelength",
-                               (unsigned long long)done);
-        }
+                         cancelled))
+            res = lensrt_fail(r->ctx, LENSRT_ERROR_CANCELLED, "run: cancelled after %llu samples per wavelength",
+                              (unsigned long long)done);
     }
+    res = end_passes(r, &pd, res);
     r->seconds += lensrt_seconds() - t0;
-    free_pass(r->ctx, &pd);
-    return LENSRT_SUCCESS;
+    return res;
 }
 
 lensrt_result lensrt_render_splat_points(lensrt_render r, int wavelength, const double *xy_mm, size_t n_points)
@@ -1166,22 +1226,23 @@ lensrt_result lensrt_render_splat_points(lensrt_render r, int wavelength, const 
     if (r->n_wl != 1)
         return lensrt_fail(r->ctx, LENSRT_ERROR_INVALID_ARGUMENT,
                            "splat_points: needs a render with one wavelength (sample counts are shared), it has %d", r->n_wl);
-    if ((res = alloc_pass(r, PASS, &pd)) != LENSRT_SUCCESS) return res;
-    while (done < n_points) {
+    if ((res = begin_passes(r, &pd)) != LENSRT_SUCCESS) return res;
+    while (done < n_points && res == LENSRT_SUCCESS) {
         size_t n = n_points - done < PASS ? n_points - done : PASS;
         memset(pd.xy, 0, sizeof(double) * PASS * 2);
         memcpy(pd.xy, xy_mm + 2 * done, sizeof(double) * 2 * n);
         pd.n = (int)n;
         pd.n_blocks = (int)((n + LENSRT_BLOCK - 1) / LENSRT_BLOCK);
-        prepare_samples(r, wavelength, &pd);
-        splat_pass(r, wavelength, &pd);
-        done += n;
+        res = splat_samples(r, wavelength, &pd);
+        if (res == LENSRT_SUCCESS) {
+            done += n;
+            r->samples += n;
+            r->splats += (uint64_t)n * (uint64_t)r->width * (uint64_t)r->height;
+        }
     }
-    r->samples += n_points;
-    r->splats += (uint64_t)n_points * (uint64_t)r->width * (uint64_t)r->height;
+    res = end_passes(r, &pd, res);
     r->seconds += lensrt_seconds() - t0;
-    free_pass(r->ctx, &pd);
-    return LENSRT_SUCCESS;
+    return res;
 }
 
 /* ------------------------------------------------------------- results ----- */

@@ -5,6 +5,8 @@
 #include "internal.h"
 #include "kernel.h"
 
+#define LENSRT_PASS 16384 /* samples per wavelength and pass (a multiple of LENSRT_BLOCK) */
+
 /* A polynomial in (x_S, y_S) and the stop monomials, for one output and wavelength:
  * sum_t coef[t] * xS^ix[t] * yS^iy[t] * mono[slot[t]] (normalised x_S, y_S). */
 typedef struct lensrt_pixel_poly {
@@ -34,8 +36,9 @@ struct lensrt_render_s {
      * eigenvectors of the window's phase-coefficient Gram matrix, so that a few g_j
      * carry the phase of every pixel of a small window. */
     int n_rows, use_basis;
+    int n_bases, basis_output[4]; /* bases per wavelength and the output of each */
     double *basis;                /* [w][b][(n_slots - 1)^2], V[(k - 1) * (n_slots - 1) + j];
-                                     b = 0: phase (waves), 1: transmittance */
+                                     CPU: b = 0 phase (waves), 1 transmittance; GL: b = output */
     int *basis_rank;              /* [w][b]: rows computed per sample */
     int slot_m[136], slot_n[136];
     /* fitted lenses: P_s per wavelength and output (x_i, y_i, tau_i, phi_i), and P_o per
@@ -49,6 +52,7 @@ struct lensrt_render_s {
     uint64_t samples;             /* N per wavelength */
     uint64_t splats;
     double seconds;
+    struct lensrt_gl_render_s *gl; /* the GL device's buffers and programs (device GL) */
     /* pruning statistics of the last pass: sums over (pixel, wavelength) */
     double stat_terms, stat_clip, stat_tau, stat_dark, stat_count;
 };

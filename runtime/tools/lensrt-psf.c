@@ -47,10 +47,14 @@ static void usage(FILE *f)
         "  --sampler sobol|random|stratified (default sobol; random with --estimator unbiased)\n"
         "  --estimator paper|unbiased (default paper; unbiased needs independent samples)\n"
         "  --threads N            OpenMP threads (default: all)\n"
+        "  --device cpu|gl        where to splat (default cpu); gl: OpenGL 4.3 compute shaders\n"
+        "  --gl-platform auto|egl-device|egl-surfaceless|glfw\n"
+        "                         where the GL context comes from (default auto: in that order)\n"
         "  --save-phasors FILE    write the phasor sums (to resume or merge later)\n"
         "  --resume FILE          start from saved phasor sums of the same scene\n"
         "  --merge FILE           add phasor sums of the same scene rendered with another seed\n"
-        "  --quiet                no progress\n",
+        "  --quiet                no progress\n"
+        "exit status: 0 done, 1 failed, 2 bad input, 3 no GL device (--device gl)\n",
         LENSRT_GENERATED_DIR);
 }
 
@@ -163,6 +167,8 @@ int main(int argc, char **argv)
     double curvature = 0.0, rotation = 0.0;
     lensrt_sampler sampler = LENSRT_SAMPLER_DEFAULT;
     lensrt_estimator estimator = LENSRT_ESTIMATOR_PAPER;
+    lensrt_device device = LENSRT_DEVICE_CPU;
+    lensrt_gl_platform gl_platform = LENSRT_GL_PLATFORM_AUTO;
     lensrt_context_init init;
     lensrt_context ctx = NULL;
     lensrt_lens lens = NULL;
@@ -233,6 +239,16 @@ int main(int argc, char **argv)
             else if (strcmp(v, "random") == 0) sampler = LENSRT_SAMPLER_RANDOM;
             else if (strcmp(v, "stratified") == 0) sampler = LENSRT_SAMPLER_STRATIFIED;
             else return bad(a, v, "expected sobol, random or stratified");
+        } else if (strcmp(a, "--device") == 0) {
+            if (strcmp(v, "cpu") == 0) device = LENSRT_DEVICE_CPU;
+            else if (strcmp(v, "gl") == 0) device = LENSRT_DEVICE_GL;
+            else return bad(a, v, "expected cpu or gl");
+        } else if (strcmp(a, "--gl-platform") == 0) {
+            if (strcmp(v, "auto") == 0) gl_platform = LENSRT_GL_PLATFORM_AUTO;
+            else if (strcmp(v, "egl-device") == 0) gl_platform = LENSRT_GL_PLATFORM_EGL_DEVICE;
+            else if (strcmp(v, "egl-surfaceless") == 0) gl_platform = LENSRT_GL_PLATFORM_EGL_SURFACELESS;
+            else if (strcmp(v, "glfw") == 0) gl_platform = LENSRT_GL_PLATFORM_GLFW;
+            else return bad(a, v, "expected auto, egl-device, egl-surfaceless or glfw");
         } else if (strcmp(a, "--estimator") == 0) {
             if (strcmp(v, "paper") == 0) estimator = LENSRT_ESTIMATOR_PAPER;
             else if (strcmp(v, "unbiased") == 0) estimator = LENSRT_ESTIMATOR_UNBIASED;
@@ -264,6 +280,7 @@ int main(int argc, char **argv)
     init.log_fn = on_log;
     init.user_data = &ps;
     init.threads = (int)threads;
+    init.gl_platform = gl_platform;
     if ((res = lensrt_context_create(&init, &ctx)) != LENSRT_SUCCESS) {
         fprintf(stderr, "lensrt-psf: %s\n", lensrt_result_string(res));
         return 1;
@@ -303,6 +320,13 @@ int main(int argc, char **argv)
     desc.sampler = sampler;
     desc.estimator = estimator;
     desc.seed = (uint64_t)seed;
+    desc.device = device;
+    if (device == LENSRT_DEVICE_GL) {
+        // The device first: a machine without GL says so before any other work
+        lensrt_gl_info gi;
+        if ((res = lensrt_context_gl_info(ctx, &gi)) != LENSRT_SUCCESS) goto fail_input;
+        if (!quiet) fprintf(stderr, "lensrt-psf: device gl: %s, GL_RENDERER %s, GL_VERSION %s\n", gi.platform, gi.renderer, gi.version);
+    }
     if (!have_center) {
         lensrt_light axis;
         lensrt_lens_info info;
@@ -338,9 +362,9 @@ int main(int argc, char **argv)
     rc = 0;
     goto done;
 fail_input:
-    rc = 2;
+    rc = res == LENSRT_ERROR_NO_DEVICE || res == LENSRT_ERROR_UNSUPPORTED ? 3 : 2;
 fail:
-    if (rc != 2) rc = 1;
+    if (rc != 2 && rc != 3) rc = 1;
     fprintf(stderr, "lensrt-psf: %s\n", lensrt_context_last_error(ctx)[0] ? lensrt_context_last_error(ctx)
                                                                         : lensrt_result_string(res));
 done:

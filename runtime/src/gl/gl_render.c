@@ -1,0 +1,508 @@
+/* The GL path of a render: the paper's two compute shaders plus the pixel set-up.
+ *
+ * Per wavelength and pass of LENSRT_PASS samples:
+ *   1. samples.comp: P_o per sample and light (phase reduced in double), and the
+ *      window's basis rows per sample;
+ *   2. pixels.comp:  P_s specialised to each pixel in double, in the window's basis;
+ *   3. splat.comp:   every sample to every pixel, phasors added to the sums.
+ * Pixels are processed in chunks that bound the per-pixel records. The number of basis
+ * terms each output needs per wavelength is found once, by a first run of pixels.comp
+ * that folds every pixel's need into ranks[] (atomicMax), and compiled into splat.comp
+ * as constants, so its inner loops unroll with the coefficients in registers. */
+#include "gl_render.h"
+
+#include "gl_device.h"
+
+#include <math.h>
+#include <stdio.h>
+#include <string.h>
+
+extern const char lensrt_samples_comp[], lensrt_pixels_comp[], lensrt_splat_comp[];
+
+/* Buffers, by binding point (the shaders' `binding = N`) */
+enum {
+    B_XY, B_INSIDE, B_PO, B_BASIS, B_LIGHTS, B_LAMBDA, B_ROWS, B_LSAMPLE, B_PIXX, B_PIXY,
+    B_PSCOEF, B_PSCODE, B_PSOFF, B_RECORDS, B_RANKS, B_SUMS, B_SUMSQ, B_NORM1, B_COUNT
+};
+
+#define BLOCK 256          /* samples summed in float before the double sums */
+#define GROUP 64           /* local_size_x of every shader */
+#define MAX_VARIANTS 64    /* splat programs kept (one per set of term counts) */
+#define RECORD_BYTES (256u << 20) /* per-pixel records of one chunk, at most */
+
+typedef struct lensrt_gl_render_s lensrt_gl_render_s;
+
+typedef struct splat_variant {
+    int k[4];
+    GLuint program;
+} splat_variant;
+
+struct lensrt_gl_render_s {
+    lensrt_gl *gl;
+    GLuint buffers[B_COUNT];
+    GLuint samples, pixels;
+    splat_variant variants[MAX_VARIANTS];
+    int n_variants;
+    int *k;                /* [w][4]: basis terms per output (-1: not yet known) */
+    int nb;                /* basis functions per output (n_slots - 1) */
+    long npix, chunk;      /* pixels, pixels per chunk */
+    char defines[4096];    /* the scene's constants, for every shader */
+    float *inside;         /* [LENSRT_PASS] aperture-shape mask of the pass */
+    double *xy_pad;        /* [2 LENSRT_PASS] */
+};
+
+/* ------------------------------------------------------------ programs ----- */
+
+/* A double constant as a GLSL literal (always with a point or an exponent). */
+static void append_double(char *buf, size_t size, const char *name, double v)
+{
+    char num[64];
+    size_t used = strlen(buf);
+    snprintf(num, sizeof num, "%.17g", v);
+    if (!strpbrk(num, ".e")) strcat(num, ".0");
+    snprintf(buf + used, size - used, "#define %s %sLF\n", name, num);
+}
+
+static void append_int(char *buf, size_t size, const char *name, long v)
+{
+    size_t used = strlen(buf);
+    snprintf(buf + used, size - used, "#define %s %ld\n", name, v);
+}
+
+static lensrt_result compile(lensrt_render r, const char *name, const char *body, const char *extra, GLuint *out)
+{
+    lensrt_gl *gl = r->gl->gl;
+    const char *parts[4];
+    GLuint shader, program;
+    GLint ok = 0;
+    char log[1024] = "";
+    parts[0] = "#version 430 core\n";
+    parts[1] = r->gl->defines;
+    parts[2] = extra;
+    parts[3] = body;
+    shader = gl->CreateShader(GL_COMPUTE_SHADER);
+    gl->ShaderSource(shader, 4, parts, NULL);
+    gl->CompileShader(shader);
+    gl->GetShaderiv(shader, GL_COMPILE_STATUS, &ok);
+    if (!ok) {
+        gl->GetShaderInfoLog(shader, sizeof log, NULL, log);
+        gl->DeleteShader(shader);
+        return lensrt_fail(r->ctx, LENSRT_ERROR_DEVICE, "GL: %s does not compile on %s: %s", name, gl->renderer, log);
+    }
+    program = gl->CreateProgram();
+    gl->AttachShader(program, shader);
+    gl->LinkProgram(program);
+    gl->DeleteShader(shader);
+    gl->GetProgramiv(program, GL_LINK_STATUS, &ok);
+    if (!ok) {
+        gl->GetProgramInfoLog(program, sizeof log, NULL, log);
+        gl->DeleteProgram(program);
+        return lensrt_fail(r->ctx, LENSRT_ERROR_DEVICE, "GL: %s does not link on %s: %s", name, gl->renderer, log);
+    }
+    *out = program;
+    return LENSRT_SUCCESS;
+}
+
+static void set_uint(lensrt_gl *gl, GLuint program, const char *name, unsigned v)
+{
+    GLint at = gl->GetUniformLocation(program, name);
+    if (at >= 0) gl->Uniform1ui(at, v);
+}
+
+static void set_ivec4(lensrt_gl *gl, GLuint program, const char *name, const int *v)
+{
+    GLint at = gl->GetUniformLocation(program, name);
+    if (at >= 0) gl->Uniform4i(at, v[0], v[1], v[2], v[3]);
+}
+
+/* The splat program for wavelength w's term counts, compiled on first use. */
+static lensrt_result splat_program(lensrt_render r, int w, GLuint *out)
+{
+    lensrt_gl_render_s *g = r->gl;
+    const int *k = r->lens->analytic ? (const int[4]){0, 0, 0, 0} : g->k + 4 * w;
+    char extra[256];
+    lensrt_result res;
+    int i;
+    for (i = 0; i < g->n_variants; i++)
+        if (!memcmp(g->variants[i].k, k, sizeof g->variants[i].k)) {
+            *out = g->variants[i].program;
+            return LENSRT_SUCCESS;
+        }
+    if (g->n_variants == MAX_VARIANTS)
+        return lensrt_fail(r->ctx, LENSRT_ERROR_DEVICE, "GL: more than %d splat programs", MAX_VARIANTS);
+    snprintf(extra, sizeof extra, "#define KX %d\n#define KY %d\n#define KT %d\n#define KP %d\n", k[0], k[1], k[2], k[3]);
+    if ((res = compile(r, "splat.comp", lensrt_splat_comp, extra, out)) != LENSRT_SUCCESS) return res;
+    memcpy(g->variants[g->n_variants].k, k, sizeof g->variants[0].k);
+    g->variants[g->n_variants++].program = *out;
+    return LENSRT_SUCCESS;
+}
+
+/* ------------------------------------------------------------- buffers ----- */
+
+static void upload(lensrt_gl *gl, GLuint buffer, size_t bytes, const void *data)
+{
+    gl->BindBuffer(GL_SHADER_STORAGE_BUFFER, buffer);
+    gl->BufferData(GL_SHADER_STORAGE_BUFFER, (GLsizeiptr)(bytes ? bytes : 16), NULL, GL_STATIC_DRAW);
+    if (data && bytes) gl->BufferSubData(GL_SHADER_STORAGE_BUFFER, 0, (GLsizeiptr)bytes, data);
+}
+
+static lensrt_result check_gl(lensrt_render r, const char *what)
+{
+    GLenum e = r->gl->gl->GetError();
+    if (e == GL_NO_ERROR) return LENSRT_SUCCESS;
+    return lensrt_fail(r->ctx, LENSRT_ERROR_DEVICE, "GL: %s failed on %s (%s)", what, r->gl->gl->renderer,
+                       e == GL_OUT_OF_MEMORY ? "out of device memory" : "GL error");
+}
+
+/* The fitted lens's P_s terms per (wavelength, output) and P_o coefficients. */
+static lensrt_result upload_polynomials(lensrt_render r)
+{
+    lensrt_gl *gl = r->gl->gl;
+    size_t n = 0, i, at = 0;
+    double *coef;
+    GLuint *code, *off;
+    int t;
+    for (i = 0; i < (size_t)r->n_wl * 4; i++) n += (size_t)r->ps[i].n;
+    coef = lensrt_calloc(r->ctx, n + 1, sizeof *coef);
+    code = lensrt_calloc(r->ctx, n + 1, sizeof *code);
+    off = lensrt_calloc(r->ctx, (size_t)r->n_wl * 4 + 1, sizeof *off);
+    if (!coef || !code || !off) {
+        lensrt_free(r->ctx, coef);
+        lensrt_free(r->ctx, code);
+        lensrt_free(r->ctx, off);
+        return lensrt_fail(r->ctx, LENSRT_ERROR_OUT_OF_MEMORY, "GL: out of memory");
+    }
+    for (i = 0; i < (size_t)r->n_wl * 4; i++) {
+        const lensrt_pixel_poly *p = &r->ps[i];
+        off[i] = (GLuint)at;
+        for (t = 0; t < p->n; t++, at++) {
+            coef[at] = p->coef[t];
+            code[at] = (GLuint)p->ix[t] | (GLuint)p->iy[t] << 8 | (GLuint)p->slot[t] << 16;
+        }
+    }
+    off[(size_t)r->n_wl * 4] = (GLuint)at;
+    upload(gl, r->gl->buffers[B_PSCOEF], n * sizeof *coef, coef);
+    upload(gl, r->gl->buffers[B_PSCODE], n * sizeof *code, code);
+    upload(gl, r->gl->buffers[B_PSOFF], ((size_t)r->n_wl * 4 + 1) * sizeof *off, off);
+    lensrt_free(r->ctx, coef);
+    lensrt_free(r->ctx, code);
+    lensrt_free(r->ctx, off);
+    upload(gl, r->gl->buffers[B_PO], (size_t)r->n_lights * (size_t)r->n_wl * 4 * (size_t)r->n_slots * sizeof(double), r->po);
+    upload(gl, r->gl->buffers[B_BASIS], (size_t)r->n_wl * 4 * (size_t)r->gl->nb * (size_t)r->gl->nb * sizeof(double), r->basis);
+    // l1 norms of the basis vectors: |V_j|_1 bounds how much a dropped u_j can change
+    {
+        const size_t nb = (size_t)r->gl->nb, nv = (size_t)r->n_wl * 4 * nb;
+        double *norm1 = lensrt_calloc(r->ctx, nv, sizeof(double));
+        size_t v, k;
+        if (!norm1) return lensrt_fail(r->ctx, LENSRT_ERROR_OUT_OF_MEMORY, "GL: out of memory");
+        for (v = 0; v < nv; v++)
+            for (k = 0; k < nb; k++) norm1[v] += fabs(r->basis[(v / nb) * nb * nb + k * nb + v % nb]);
+        upload(gl, r->gl->buffers[B_NORM1], nv * sizeof(double), norm1);
+        lensrt_free(r->ctx, norm1);
+    }
+    return LENSRT_SUCCESS;
+}
+
+/* ------------------------------------------------------------- create ----- */
+
+static void scene_defines(lensrt_render r)
+{
+    lensrt_gl_render_s *g = r->gl;
+    char *d = g->defines;
+    const size_t size = sizeof g->defines;
+    const lensrt_lens lens = r->lens;
+    d[0] = '\0';
+    append_int(d, size, "NL", r->n_lights);
+    append_int(d, size, "NW", r->n_wl);
+    append_int(d, size, "PASS", LENSRT_PASS);
+    append_int(d, size, "BLOCK", BLOCK);
+    append_int(d, size, "W", r->width);
+    append_int(d, size, "NAIVE", r->desc.precision == LENSRT_PRECISION_NAIVE_FLOAT);
+    append_int(d, size, "UNBIASED", r->desc.estimator == LENSRT_ESTIMATOR_UNBIASED);
+    append_int(d, size, "ANALYTIC", lens->analytic);
+    if (lens->analytic) {
+        // Placeholders keep the fitted-lens declarations valid
+        append_int(d, size, "NS", 2);
+        append_int(d, size, "NB", 1);
+        append_int(d, size, "DEGREE", 1);
+        append_int(d, size, "FOCAL_MM_SET", lens->model.focal_length_mm > 0);
+        append_double(d, size, "FOCAL_MM", lens->model.focal_length_mm);
+        append_int(d, size, "ONE_D", lens->model.one_dimensional);
+        append_double(d, size, "SENSOR_Z_MM", lens->model.sensor_distance_mm + r->desc.sensor.focus_offset_mm);
+        return;
+    }
+    append_int(d, size, "NS", r->n_slots);
+    append_int(d, size, "NB", r->n_slots - 1);
+    append_int(d, size, "DEGREE", r->degree);
+    append_double(d, size, "MONO_RADIUS", r->mono_radius);
+    append_double(d, size, "HOUSING_FIRST", lens->housing_first_mm);
+    append_double(d, size, "HOUSING_LAST", lens->housing_last_mm);
+    append_double(d, size, "SENSOR_CX", lens->p_s.inputs[0].c);
+    append_double(d, size, "SENSOR_SX", lens->p_s.inputs[0].s);
+    append_double(d, size, "SENSOR_CY", lens->p_s.inputs[1].c);
+    append_double(d, size, "SENSOR_SY", lens->p_s.inputs[1].s);
+    append_double(d, size, "TOL_PHASE", r->desc.phase_tolerance_waves);
+    // The Huygens amplitude's finite-difference step, as on the CPU
+    append_double(d, size, "STEP_MM", 1e-3 * fmax(r->pitch_x, 1e-3));
+}
+
+lensrt_result lensrt_gl_render_create(lensrt_render r)
+{
+    lensrt_gl_render_s *g;
+    lensrt_gl *gl;
+    lensrt_result res;
+    double *lights;
+    size_t nsum;
+    int i;
+    // What the GL path does not do, said before any device work
+    if (r->desc.precision == LENSRT_PRECISION_DOUBLE)
+        return lensrt_fail(r->ctx, LENSRT_ERROR_INVALID_ARGUMENT,
+                           "device gl: precision double is CPU-only (GLSL has no double sine or cosine; the GL path "
+                           "reduces the phase in double and evaluates the trigonometry in float)");
+    if (!r->lens->analytic) {
+        if (r->n_slots < 2)
+            return lensrt_fail(r->ctx, LENSRT_ERROR_UNSUPPORTED, "device gl: %s has no stop dependence", r->lens->file);
+        if (r->lens->p_s.inputs[0].transform != LENSRT_TRANSFORM_AFFINE ||
+            r->lens->p_s.inputs[1].transform != LENSRT_TRANSFORM_AFFINE)
+            return lensrt_fail(r->ctx, LENSRT_ERROR_UNSUPPORTED, "device gl: %s: sensor inputs must be affine", r->lens->file);
+    }
+    if ((res = lensrt_gl_get(r->ctx, &gl)) != LENSRT_SUCCESS) return res;
+    g = lensrt_calloc(r->ctx, 1, sizeof *g);
+    if (!g) return lensrt_fail(r->ctx, LENSRT_ERROR_OUT_OF_MEMORY, "GL: out of memory");
+    r->gl = g;
+    g->gl = gl;
+    g->nb = r->lens->analytic ? 1 : r->n_slots - 1;
+    g->npix = (long)r->width * r->height;
+    // Chunks: records of at most RECORD_BYTES, and a dispatch within the group limit
+    g->chunk = (long)(RECORD_BYTES / ((6u + 4u * (unsigned)g->nb) * sizeof(float)));
+    if (g->chunk > (long)gl->max_groups_x * GROUP) g->chunk = (long)gl->max_groups_x * GROUP;
+    if (g->chunk > g->npix) g->chunk = g->npix;
+    g->k = lensrt_calloc(r->ctx, (size_t)r->n_wl * 4, sizeof(int));
+    g->inside = lensrt_calloc(r->ctx, LENSRT_PASS, sizeof(float));
+    g->xy_pad = lensrt_calloc(r->ctx, 2 * LENSRT_PASS, sizeof(double));
+    lights = lensrt_calloc(r->ctx, (size_t)r->n_lights * 4, sizeof(double));
+    if (!g->k || !g->inside || !g->xy_pad || !lights) {
+        lensrt_free(r->ctx, lights);
+        return lensrt_fail(r->ctx, LENSRT_ERROR_OUT_OF_MEMORY, "GL: out of memory");
+    }
+    for (i = 0; i < r->n_wl * 4; i++) g->k[i] = -1;
+    for (i = 0; i < r->n_lights; i++) {
+        lights[4 * i + 0] = sqrt(r->lights[i].intensity);
+        lights[4 * i + 1] = r->light_d[i];
+        lights[4 * i + 2] = r->light_x[i];
+        lights[4 * i + 3] = r->light_y[i];
+    }
+    scene_defines(r);
+    if ((res = lensrt_gl_acquire(r->ctx, gl)) != LENSRT_SUCCESS) {
+        lensrt_free(r->ctx, lights);
+        return res;
+    }
+    // Programs: the sample shader, and the pixel set-up for fitted lenses
+    res = compile(r, "samples.comp", lensrt_samples_comp, "", &g->samples);
+    if (res == LENSRT_SUCCESS && !r->lens->analytic) res = compile(r, "pixels.comp", lensrt_pixels_comp, "", &g->pixels);
+    if (res == LENSRT_SUCCESS) {
+        // What stays fixed: lights, wavelengths, pixel centres, polynomials; then space
+        // for the pass's samples and rows, the chunk's records and the phasor sums
+        double *lambda = lensrt_calloc(r->ctx, (size_t)r->n_wl, sizeof(double));
+        gl->GenBuffers(B_COUNT, g->buffers);
+        upload(gl, g->buffers[B_LIGHTS], (size_t)r->n_lights * 4 * sizeof(double), lights);
+        if (lambda) {
+            for (i = 0; i < r->n_wl; i++) lambda[i] = r->wavelengths[i] * 1e-6;
+            upload(gl, g->buffers[B_LAMBDA], (size_t)r->n_wl * sizeof(double), lambda);
+        }
+        lensrt_free(r->ctx, lambda);
+        upload(gl, g->buffers[B_PIXX], (size_t)r->width * sizeof(double), r->xs);
+        upload(gl, g->buffers[B_PIXY], (size_t)r->height * sizeof(double), r->ys);
+        upload(gl, g->buffers[B_XY], 2 * LENSRT_PASS * sizeof(double), NULL);
+        upload(gl, g->buffers[B_INSIDE], LENSRT_PASS * sizeof(float), NULL);
+        upload(gl, g->buffers[B_LSAMPLE], (size_t)r->n_lights * LENSRT_PASS * 2 * sizeof(float), NULL);
+        nsum = (size_t)r->n_lights * (size_t)r->n_wl * (size_t)g->npix;
+        upload(gl, g->buffers[B_SUMS], nsum * 2 * sizeof(double), NULL);
+        upload(gl, g->buffers[B_SUMSQ], r->sumsq ? nsum * sizeof(double) : 0, NULL);
+        if (!r->lens->analytic) {
+            upload(gl, g->buffers[B_ROWS], 4 * (size_t)g->nb * LENSRT_PASS * sizeof(float), NULL);
+            upload(gl, g->buffers[B_RECORDS], (size_t)g->chunk * (6 + 4 * (size_t)g->nb) * sizeof(float), NULL);
+            upload(gl, g->buffers[B_RANKS], ((size_t)r->n_wl * 4 + 3) * sizeof(GLuint), NULL);
+            res = lambda ? upload_polynomials(r) : lensrt_fail(r->ctx, LENSRT_ERROR_OUT_OF_MEMORY, "GL: out of memory");
+        }
+        if (res == LENSRT_SUCCESS) res = check_gl(r, "allocating the render's buffers");
+    }
+    lensrt_free(r->ctx, lights);
+    lensrt_gl_release(gl);
+    if (res == LENSRT_SUCCESS)
+        lensrt_log(r->ctx, LENSRT_LOG_INFO, "render: device gl (%s, %s), %ld-pixel chunks", gl->renderer, gl->version, g->chunk);
+    return res;
+}
+
+void lensrt_gl_render_destroy(lensrt_render r)
+{
+    lensrt_gl_render_s *g = r->gl;
+    int i;
+    if (!g) return;
+    if (g->gl && lensrt_gl_acquire(r->ctx, g->gl) == LENSRT_SUCCESS) {
+        lensrt_gl *gl = g->gl;
+        if (g->buffers[0]) gl->DeleteBuffers(B_COUNT, g->buffers);
+        if (g->samples) gl->DeleteProgram(g->samples);
+        if (g->pixels) gl->DeleteProgram(g->pixels);
+        for (i = 0; i < g->n_variants; i++) gl->DeleteProgram(g->variants[i].program);
+        lensrt_gl_release(gl);
+    }
+    lensrt_free(r->ctx, g->k);
+    lensrt_free(r->ctx, g->inside);
+    lensrt_free(r->ctx, g->xy_pad);
+    lensrt_free(r->ctx, g);
+    r->gl = NULL;
+}
+
+/* -------------------------------------------------------------- passes ----- */
+
+/* pixels.comp over every chunk for wavelength w, writing k[] coefficients per output. */
+static void dispatch_pixels(lensrt_render r, int w, long first, long count, const int *k)
+{
+    lensrt_gl_render_s *g = r->gl;
+    lensrt_gl *gl = g->gl;
+    gl->UseProgram(g->pixels);
+    set_uint(gl, g->pixels, "u_w", (unsigned)w);
+    set_uint(gl, g->pixels, "u_nw", (unsigned)r->n_wl);
+    set_uint(gl, g->pixels, "u_first", (unsigned)first);
+    set_uint(gl, g->pixels, "u_count", (unsigned)count);
+    set_uint(gl, g->pixels, "u_stride", (unsigned)(6 + k[0] + k[1] + k[2] + k[3]));
+    set_ivec4(gl, g->pixels, "u_k", k);
+    gl->DispatchCompute((GLuint)((count + GROUP - 1) / GROUP), 1, 1);
+    gl->MemoryBarrier(GL_SHADER_STORAGE_BARRIER_BIT);
+}
+
+/* Zero the ranks and the per-pass counters. */
+static void clear_ranks(lensrt_render r)
+{
+    lensrt_gl *gl = r->gl->gl;
+    size_t n = (size_t)r->n_wl * 4 + 3;
+    GLuint zero[4096 * 4 + 3];
+    memset(zero, 0, n * sizeof(GLuint));
+    gl->BindBuffer(GL_SHADER_STORAGE_BUFFER, r->gl->buffers[B_RANKS]);
+    gl->BufferSubData(GL_SHADER_STORAGE_BUFFER, 0, (GLsizeiptr)(n * sizeof(GLuint)), zero);
+}
+
+/* The basis terms each output needs, per wavelength: the largest need of any pixel. */
+static lensrt_result find_ranks(lensrt_render r)
+{
+    lensrt_gl_render_s *g = r->gl;
+    lensrt_gl *gl = g->gl;
+    static const int none[4] = {0, 0, 0, 0};
+    GLuint ranks[4096 * 4 + 3];
+    long first;
+    int w, o;
+    if (r->lens->analytic || g->k[0] >= 0) return LENSRT_SUCCESS;
+    clear_ranks(r);
+    for (w = 0; w < r->n_wl; w++)
+        for (first = 0; first < g->npix; first += g->chunk)
+            dispatch_pixels(r, w, first, g->npix - first < g->chunk ? g->npix - first : g->chunk, none);
+    gl->MemoryBarrier(GL_BUFFER_UPDATE_BARRIER_BIT);
+    gl->BindBuffer(GL_SHADER_STORAGE_BUFFER, g->buffers[B_RANKS]);
+    gl->GetBufferSubData(GL_SHADER_STORAGE_BUFFER, 0, (GLsizeiptr)((size_t)r->n_wl * 4 * sizeof(GLuint)), ranks);
+    for (w = 0; w < r->n_wl; w++)
+        for (o = 0; o < 4; o++) g->k[4 * w + o] = (int)ranks[4 * w + o] < g->nb ? (int)ranks[4 * w + o] : g->nb;
+    clear_ranks(r);
+    return check_gl(r, "the pixel set-up");
+}
+
+lensrt_result lensrt_gl_begin(lensrt_render r)
+{
+    lensrt_gl_render_s *g = r->gl;
+    lensrt_gl *gl = g->gl;
+    size_t nsum = (size_t)r->n_lights * (size_t)r->n_wl * (size_t)g->npix;
+    lensrt_result res;
+    int i;
+    if ((res = lensrt_gl_acquire(r->ctx, gl)) != LENSRT_SUCCESS) return res;
+    // Binding points are the GL context's, shared by every render made from it
+    for (i = 0; i < B_COUNT; i++) gl->BindBufferBase(GL_SHADER_STORAGE_BUFFER, (GLuint)i, g->buffers[i]);
+    // The sums may have changed on the host (load, merge): the host copy is the truth
+    gl->BindBuffer(GL_SHADER_STORAGE_BUFFER, g->buffers[B_SUMS]);
+    gl->BufferSubData(GL_SHADER_STORAGE_BUFFER, 0, (GLsizeiptr)(nsum * 2 * sizeof(double)), r->sum);
+    if (r->sumsq) {
+        gl->BindBuffer(GL_SHADER_STORAGE_BUFFER, g->buffers[B_SUMSQ]);
+        gl->BufferSubData(GL_SHADER_STORAGE_BUFFER, 0, (GLsizeiptr)(nsum * sizeof(double)), r->sumsq);
+    }
+    if ((res = find_ranks(r)) != LENSRT_SUCCESS) lensrt_gl_release(gl);
+    return res;
+}
+
+lensrt_result lensrt_gl_pass(lensrt_render r, int w, const double *xy, int n)
+{
+    lensrt_gl_render_s *g = r->gl;
+    lensrt_gl *gl = g->gl;
+    static const int zero4[4] = {0, 0, 0, 0};
+    const int *k = r->lens->analytic ? zero4 : g->k + 4 * w;
+    GLuint splat;
+    lensrt_result res;
+    long first;
+    int j;
+    // The pass's samples: positions and whether each lies inside the aperture shape
+    memset(g->xy_pad, 0, 2 * LENSRT_PASS * sizeof(double));
+    memcpy(g->xy_pad, xy, 2 * (size_t)n * sizeof(double));
+    for (j = 0; j < LENSRT_PASS; j++)
+        g->inside[j] = j < n && lensrt_aperture_contains(&r->desc.aperture, r->stop_radius, xy[2 * j], xy[2 * j + 1]);
+    gl->BindBuffer(GL_SHADER_STORAGE_BUFFER, g->buffers[B_XY]);
+    gl->BufferSubData(GL_SHADER_STORAGE_BUFFER, 0, 2 * LENSRT_PASS * sizeof(double), g->xy_pad);
+    gl->BindBuffer(GL_SHADER_STORAGE_BUFFER, g->buffers[B_INSIDE]);
+    gl->BufferSubData(GL_SHADER_STORAGE_BUFFER, 0, LENSRT_PASS * sizeof(float), g->inside);
+    // Shader 1: per sample
+    gl->UseProgram(g->samples);
+    set_uint(gl, g->samples, "u_w", (unsigned)w);
+    set_uint(gl, g->samples, "u_n", (unsigned)n);
+    set_ivec4(gl, g->samples, "u_rows", k);
+    gl->DispatchCompute(LENSRT_PASS / GROUP, 1, 1);
+    gl->MemoryBarrier(GL_SHADER_STORAGE_BARRIER_BIT);
+    if ((res = splat_program(r, w, &splat)) != LENSRT_SUCCESS) return res;
+    // Per chunk of pixels: set-up, then shader 2
+    for (first = 0; first < g->npix; first += g->chunk) {
+        long count = g->npix - first < g->chunk ? g->npix - first : g->chunk;
+        if (!r->lens->analytic) dispatch_pixels(r, w, first, count, k);
+        gl->UseProgram(splat);
+        set_uint(gl, splat, "u_w", (unsigned)w);
+        set_uint(gl, splat, "u_n", (unsigned)n);
+        set_uint(gl, splat, "u_first", (unsigned)first);
+        set_uint(gl, splat, "u_count", (unsigned)count);
+        set_uint(gl, splat, "u_stride", (unsigned)(6 + k[0] + k[1] + k[2] + k[3]));
+        set_uint(gl, splat, "u_npix", (unsigned)g->npix);
+        gl->DispatchCompute((GLuint)((count + GROUP - 1) / GROUP), 1, 1);
+        gl->MemoryBarrier(GL_SHADER_STORAGE_BARRIER_BIT);
+    }
+    // Statistics of the pass, once every wavelength is done
+    if (!r->lens->analytic && w == r->n_wl - 1) {
+        GLuint counts[3];
+        double terms = 0.0;
+        gl->MemoryBarrier(GL_BUFFER_UPDATE_BARRIER_BIT);
+        gl->BindBuffer(GL_SHADER_STORAGE_BUFFER, g->buffers[B_RANKS]);
+        gl->GetBufferSubData(GL_SHADER_STORAGE_BUFFER, (GLintptr)((size_t)r->n_wl * 4 * sizeof(GLuint)),
+                             sizeof counts, counts);
+        clear_ranks(r);
+        for (j = 0; j < r->n_wl; j++) terms += g->k[4 * j + 3];
+        r->stat_count = (double)g->npix * r->n_wl;
+        r->stat_dark = counts[0];
+        r->stat_clip = counts[1];
+        r->stat_tau = counts[2];
+        r->stat_terms = terms / r->n_wl * (r->stat_count - r->stat_dark);
+    }
+    gl->Finish();
+    return check_gl(r, "a pass");
+}
+
+lensrt_result lensrt_gl_end(lensrt_render r, lensrt_result status)
+{
+    lensrt_gl_render_s *g = r->gl;
+    lensrt_gl *gl = g->gl;
+    size_t nsum = (size_t)r->n_lights * (size_t)r->n_wl * (size_t)g->npix;
+    lensrt_result res;
+    // Bring the sums home whatever happened: completed passes stay counted
+    gl->MemoryBarrier(GL_BUFFER_UPDATE_BARRIER_BIT);
+    gl->BindBuffer(GL_SHADER_STORAGE_BUFFER, g->buffers[B_SUMS]);
+    gl->GetBufferSubData(GL_SHADER_STORAGE_BUFFER, 0, (GLsizeiptr)(nsum * 2 * sizeof(double)), r->sum);
+    if (r->sumsq) {
+        gl->BindBuffer(GL_SHADER_STORAGE_BUFFER, g->buffers[B_SUMSQ]);
+        gl->GetBufferSubData(GL_SHADER_STORAGE_BUFFER, 0, (GLsizeiptr)(nsum * sizeof(double)), r->sumsq);
+    }
+    res = check_gl(r, "reading the phasor sums back");
+    lensrt_gl_release(gl);
+    return status != LENSRT_SUCCESS ? status : res;
+}
