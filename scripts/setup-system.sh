@@ -22,6 +22,12 @@ done
 for pkg in glslang-tools; do
   have "$pkg" || need+=("$pkg")
 done
+# The GL path: EGL and GL headers to build it (no GL library is linked); at run time
+# libEGL with Mesa's EGL vendor and llvmpipe (a GL 4.5 device on any CPU), and GLFW with
+# a virtual X server for the GLFW fallback's tests
+for pkg in libegl-dev libgl-dev libegl1 libegl-mesa0 libgl1-mesa-dri libglfw3 xvfb xauth; do
+  have "$pkg" || need+=("$pkg")
+done
 
 if [ ${#need[@]} -eq 0 ]; then
   exit 0

@@ -359,11 +359,12 @@ static void test_result_strings(void)
 {
     const lensrt_result all[] = {LENSRT_SUCCESS, LENSRT_ERROR_INVALID_ARGUMENT, LENSRT_ERROR_OUT_OF_MEMORY,
                                  LENSRT_ERROR_IO, LENSRT_ERROR_PARSE, LENSRT_ERROR_OUT_OF_DOMAIN,
-                                 LENSRT_ERROR_INCOMPATIBLE, LENSRT_ERROR_UNSUPPORTED, LENSRT_ERROR_CANCELLED};
+                                 LENSRT_ERROR_INCOMPATIBLE, LENSRT_ERROR_UNSUPPORTED, LENSRT_ERROR_CANCELLED,
+                                 LENSRT_ERROR_NO_DEVICE, LENSRT_ERROR_DEVICE};
     const int n = (int)(sizeof all / sizeof all[0]);
     int i, j;
     CHECK(LENSRT_SUCCESS == 0, "LENSRT_SUCCESS must be 0");
-    CHECK(n == LENSRT_ERROR_CANCELLED + 1, "result codes are not 0..LENSRT_ERROR_CANCELLED");
+    CHECK(n == LENSRT_ERROR_DEVICE + 1, "result codes are not 0..LENSRT_ERROR_DEVICE");
     for (i = 0; i < n; i++) {
         const char *s = lensrt_result_string(all[i]);
         CHECK(s != NULL && s[0] != '\0', "result %d has an empty name", (int)all[i]);
@@ -408,6 +409,14 @@ static void test_context(void)
     init.free_fn = NULL;
     init.threads = -1;
     CHECK_RES(NULL, LENSRT_ERROR_INVALID_ARGUMENT, lensrt_context_create(&init, &ctx));
+    init.threads = 0;
+    init.gl_platform = (lensrt_gl_platform)9;
+    CHECK_RES(NULL, LENSRT_ERROR_INVALID_ARGUMENT, lensrt_context_create(&init, &ctx));
+    init.gl_platform = LENSRT_GL_PLATFORM_AUTO;
+    {
+        lensrt_gl_info gi;
+        CHECK_RES(NULL, LENSRT_ERROR_INVALID_ARGUMENT, lensrt_context_gl_info(NULL, &gi));
+    }
 
     // The context itself comes from the hooks, and goes back to them
     hooks_reset(&h);
