@@ -58,7 +58,7 @@ demo: setup runtime
 	@# The f/8 scene again on the GL device (OpenGL 4.3 compute shaders; llvmpipe on a
 	@# machine without a GPU, so smaller here); exit status 3 means no GL device
 	$(PSF) --lens $(DEMO_LENS) --light 6,4 --focus 0.2 --f-number 8 --blades 7 --curvature 0.3 \
-		--rotation 10 --size 0.1 --resolution 96x96 --wavelengths 8 --samples 16384 --device gl \
+		--rotation 10 --size 0.1 --resolution 64x64 --wavelengths 8 --samples 16384 --device gl \
 		-o build/demo/psf/f8-gl.exr --png build/demo/psf/f8-gl.png \
 		|| { rc=$$?; [ $$rc -eq 3 ] && echo "demo: no GL device here, the CPU renders above stand"; [ $$rc -eq 3 ]; }
 

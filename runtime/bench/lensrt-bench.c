@@ -28,7 +28,20 @@
  * wavelength. It runs with OpenMP over pixels at the same thread count as lensrt, right
  * before and right after every lensrt render (the ratio of each render is against the
  * baseline that bracketed it; medians over the repetitions are reported), and
- * single-threaded for context. */
+ * single-threaded for context.
+ *
+ * GL side (`--device gl` or `both`, the default): the same scene with device
+ * LENSRT_DEVICE_GL, once per f-number after the lensrt repetitions, bracketed by the
+ * baseline like them. The first run() of a GL render finds the basis terms every pixel
+ * needs and compiles the splat shaders for them (one per wavelength at most); that is
+ * set-up, not splatting, so each GL render first runs an untimed warm-up of `--gl-warmup`
+ * samples per wavelength (default 256: it pays every compile and the term search whatever
+ * its size) and the figure is the second run() call, from the difference of the render's
+ * stats. A software GL (llvmpipe) is an order of magnitude slower than the CPU path, so GL
+ * renders one pixel per 36 x 36 block (40 x 30 pixels over the same window; `--gl-stride`;
+ * its splats per second do not depend on the pitch either) and `--gl-samples` per
+ * wavelength (default 16384, one pass). Without a GL device the GL part is skipped with
+ * the reason; the CPU part still runs. */
 #include "lensrt.h"
 #include "lens0001.h"
 
@@ -54,6 +67,8 @@
 #define MAX_WL 256
 #define MAX_REP 32
 #define DEFAULT_STRIDE 12
+#define DEFAULT_GL_STRIDE 36
+#define DEFAULT_GL_WARMUP 256
 
 /* ------------------------------------------------------------------ helpers ----- */
 
@@ -107,8 +122,18 @@ static void usage(FILE *f)
         "  --baseline-grid BxC    baseline pixels, a grid spread over the frame (default 8x8)\n"
         "  --baseline-seconds T   seconds of baseline per repetition, half right before and half right\n"
         "                         after the render (default 1)\n"
-        "  --seed S               (default 1)\n",
-        DEFAULT_TABLE, DEFAULT_STRIDE);
+        "  --seed S               (default 1)\n"
+        "  --device cpu|gl|both   what to measure against the baseline (default both); without a GL\n"
+        "                         device `both` skips GL and says why, `gl` exits with status 3\n"
+        "  --gl-platform auto|egl-device|egl-surfaceless|glfw\n"
+        "                         where the GL context comes from (default auto: in that order)\n"
+        "  --gl-stride K          GL renders one pixel per K x K block of the frame (default %d: a\n"
+        "                         software GL is an order of magnitude slower than the CPU path)\n"
+        "  --gl-samples N         aperture samples per wavelength of the timed GL run (default 16384)\n"
+        "  --gl-warmup N          samples per wavelength of the untimed first run() of each GL render,\n"
+        "                         which compiles the shaders and finds the terms per pixel (default %d;\n"
+        "                         0: time the first call, set-up included)\n",
+        DEFAULT_TABLE, DEFAULT_STRIDE, DEFAULT_GL_STRIDE, DEFAULT_GL_WARMUP);
 }
 
 static int parse_pair_d(const char *s, char sep, double *a, double *b)
@@ -373,6 +398,58 @@ static int fail(lensrt_context ctx, const char *what, lensrt_result r)
     return 1;
 }
 
+/* The GL measurement of one f-number. */
+typedef struct gl_result {
+    double f_number;
+    double sps, seconds, splats;             /* of the timed run() */
+    double setup_seconds;                    /* render_create and the warm-up run() */
+    lensrt_render_stats stats;               /* after the timed run */
+    baseline_result base;                    /* the baseline that bracketed it */
+    double ratio_base, ratio_cpu;            /* ratio_cpu < 0: no CPU figure */
+} gl_result;
+
+/* One GL render: create, the warm-up run() (untimed), then the timed run(); splats and
+ * seconds of the timed call are the difference of the render's stats around it. */
+static lensrt_result run_gl(lensrt_context ctx, const lensrt_render_desc *desc, long long warmup, long long samples,
+                            gl_result *gr)
+{
+    lensrt_render render = NULL;
+    lensrt_render_stats s0;
+    lensrt_result r;
+    double t0 = now_seconds();
+    memset(&s0, 0, sizeof s0);
+    if ((r = lensrt_render_create(ctx, desc, &render)) != LENSRT_SUCCESS) return r;
+    if (warmup > 0 && (r = lensrt_render_run(render, (uint64_t)warmup, NULL, NULL)) == LENSRT_SUCCESS)
+        lensrt_render_get_stats(render, &s0);
+    gr->setup_seconds = now_seconds() - t0;
+    if (r == LENSRT_SUCCESS) r = lensrt_render_run(render, (uint64_t)samples, NULL, NULL);
+    if (r == LENSRT_SUCCESS) {
+        lensrt_render_get_stats(render, &gr->stats);
+        gr->splats = (double)(gr->stats.splats - s0.splats);
+        gr->seconds = gr->stats.seconds - s0.seconds;
+        gr->sps = gr->splats / gr->seconds;
+    }
+    lensrt_render_destroy(render);
+    return r;
+}
+
+/* The context's last error on one line (the GL device lists every platform it tried). */
+static void last_error_line(lensrt_context ctx, lensrt_result r, char *buf, size_t size)
+{
+    const char *e = lensrt_context_last_error(ctx);
+    char *p;
+    snprintf(buf, size, "%s: %s", lensrt_result_string(r), e[0] ? e : "no message");
+    for (p = buf; *p; p++)
+        if (*p == '\n' || *p == '\r') *p = ' ';
+}
+
+/* A number, or null where there is none (`--device gl` has no lensrt cpu figures). */
+static void json_num(FILE *f, double v, int valid)
+{
+    if (valid && isfinite(v)) fprintf(f, "%.17g", v);
+    else fputs("null", f);
+}
+
 static void json_list(FILE *f, const double *v, int n)
 {
     int i;
@@ -389,6 +466,16 @@ int main(int argc, char **argv)
     double f_numbers[MAX_F] = {2.0, 8.0, 32.0};
     int n_f = 3, i, k, head = -1, threads = max_threads(), center_pixel, status = 1;
     long long samples = 16384, seed = 1;
+    // GL: what to measure, where its context comes from, its pixel grid and sample counts
+    int do_cpu = 1, do_gl = 1, gl_ok = 0;
+    long gl_stride = DEFAULT_GL_STRIDE, gw = 0, gh = 0;
+    long long gl_samples = 16384, gl_warmup = DEFAULT_GL_WARMUP;
+    const char *device_arg = "both";
+    lensrt_gl_platform gl_platform = LENSRT_GL_PLATFORM_AUTO;
+    lensrt_gl_info gl_info;
+    char gl_why[1024] = "";                  /* why GL was skipped or failed */
+    gl_result glres[MAX_F];
+    int n_gl = 0, gl_failed = 0;             /* GL results so far; a GL render failed */
     double housing_first, housing_last, stop_f1, center[2], wl[MAX_WL], *pix = NULL, t_start = now_seconds();
     char cpu[256], date[64];
     lensrt_context ctx = NULL;
@@ -403,6 +490,7 @@ int main(int argc, char **argv)
 
     for (i = 1; i < argc; i++) {
         const char *a = argv[i], *v = i + 1 < argc ? argv[i + 1] : NULL;
+        const char *expected = NULL;        /* what a word-valued option takes */
         int ok = 1;
         if (strcmp(a, "-h") == 0 || strcmp(a, "--help") == 0) {
             usage(stdout);
@@ -418,8 +506,22 @@ int main(int argc, char **argv)
         else if (strcmp(a, "--focus") == 0) ok = parse_d(v, &focus);
         else if (strcmp(a, "--baseline-grid") == 0) ok = parse_pair_i(v, 'x', &gx, &gy) && gx > 0 && gy > 0 && gx * gy <= 65536;
         else if (strcmp(a, "--baseline-seconds") == 0) ok = parse_d(v, &base_seconds) && base_seconds >= 0;
-        else if (strcmp(a, "--samples") == 0 || strcmp(a, "--seed") == 0 || strcmp(a, "--wavelengths") == 0 ||
-                 strcmp(a, "--stride") == 0 || strcmp(a, "--repeats") == 0) {
+        else if (strcmp(a, "--device") == 0) {
+            expected = "expected cpu, gl or both";
+            device_arg = v;
+            do_cpu = strcmp(v, "gl") != 0;
+            do_gl = strcmp(v, "cpu") != 0;
+            ok = !do_cpu || !do_gl || strcmp(v, "both") == 0;
+        } else if (strcmp(a, "--gl-platform") == 0) {
+            expected = "expected auto, egl-device, egl-surfaceless or glfw";
+            if (strcmp(v, "auto") == 0) gl_platform = LENSRT_GL_PLATFORM_AUTO;
+            else if (strcmp(v, "egl-device") == 0) gl_platform = LENSRT_GL_PLATFORM_EGL_DEVICE;
+            else if (strcmp(v, "egl-surfaceless") == 0) gl_platform = LENSRT_GL_PLATFORM_EGL_SURFACELESS;
+            else if (strcmp(v, "glfw") == 0) gl_platform = LENSRT_GL_PLATFORM_GLFW;
+            else ok = 0;
+        } else if (strcmp(a, "--samples") == 0 || strcmp(a, "--seed") == 0 || strcmp(a, "--wavelengths") == 0 ||
+                   strcmp(a, "--stride") == 0 || strcmp(a, "--repeats") == 0 || strcmp(a, "--gl-stride") == 0 ||
+                   strcmp(a, "--gl-samples") == 0 || strcmp(a, "--gl-warmup") == 0) {
             char *end;
             long long x;
             errno = 0;
@@ -437,6 +539,15 @@ int main(int argc, char **argv)
             } else if (strcmp(a, "--stride") == 0) {
                 ok = x >= 1 && x <= 65536;
                 stride = (long)x;
+            } else if (strcmp(a, "--gl-stride") == 0) {
+                ok = x >= 1 && x <= 65536;
+                gl_stride = (long)x;
+            } else if (strcmp(a, "--gl-samples") == 0) {
+                ok = x > 0 && x <= (long long)1 << 40;
+                gl_samples = x;
+            } else if (strcmp(a, "--gl-warmup") == 0) {
+                ok = x <= (long long)1 << 40;
+                gl_warmup = x;
             } else {
                 ok = x >= 1 && x <= MAX_REP;
                 reps = (long)x;
@@ -457,6 +568,10 @@ int main(int argc, char **argv)
             usage(stderr);
             return 2;
         }
+        if (!ok && expected) {
+            fprintf(stderr, "lensrt-bench: %s: %s, got '%s'\n", a, expected, v);
+            return 2;
+        }
         if (!ok) {
             fprintf(stderr, "lensrt-bench: %s: bad or missing value '%s'\n", a, v ? v : "");
             return 2;
@@ -470,8 +585,14 @@ int main(int argc, char **argv)
         fprintf(stderr, "lensrt-bench: --stride %ld must divide the resolution %ldx%ld\n", stride, width, height);
         return 2;
     }
+    if (do_gl && (width % gl_stride != 0 || height % gl_stride != 0)) {
+        fprintf(stderr, "lensrt-bench: --gl-stride %ld must divide the resolution %ldx%ld\n", gl_stride, width, height);
+        return 2;
+    }
     rw = width / stride;
     rh = height / stride;
+    gw = width / gl_stride;
+    gh = height / gl_stride;
 
     // Lens facts the baseline needs, from the table's lens lines
     if (!table_lens_value(table, "housing_first_mm", &housing_first) ||
@@ -483,6 +604,7 @@ int main(int argc, char **argv)
     }
 
     memset(&init, 0, sizeof init);
+    init.gl_platform = gl_platform;
     if ((r = lensrt_context_create(&init, &ctx)) != LENSRT_SUCCESS) return fail(NULL, "context", r);
     if ((r = lensrt_lens_load(ctx, table, &lens)) != LENSRT_SUCCESS) {
         status = fail(ctx, table, r);
@@ -499,6 +621,24 @@ int main(int argc, char **argv)
     }
     for (i = 0; i < n_wl; i++)
         wl[i] = info.wavelength_min_nm + (info.wavelength_max_nm - info.wavelength_min_nm) * (i + 0.5) / (double)n_wl;
+    // The GL device first: without one, `both` measures the CPU only and says why
+    memset(&gl_info, 0, sizeof gl_info);
+    if (do_gl) {
+        r = lensrt_context_gl_info(ctx, &gl_info);
+        if (r == LENSRT_SUCCESS) {
+            gl_ok = 1;
+        } else if (r == LENSRT_ERROR_NO_DEVICE || r == LENSRT_ERROR_UNSUPPORTED) {
+            last_error_line(ctx, r, gl_why, sizeof gl_why);
+            if (!do_cpu) {
+                fprintf(stderr, "lensrt-bench: --device gl: %s\n", gl_why);
+                status = 3;
+                goto done;
+            }
+        } else {
+            status = fail(ctx, "GL device", r);
+            goto done;
+        }
+    }
     cpu_model(cpu, sizeof cpu);
     gmtime_r(&t, &tmv);
     strftime(date, sizeof date, "%Y-%m-%dT%H:%M:%SZ", &tmv);
@@ -507,13 +647,28 @@ int main(int argc, char **argv)
     printf("  table %s\n", table);
     printf("  light (%g, %g) deg at infinity, image point (%.6f, %.6f) mm, focus offset %g mm\n",
            field_x, field_y, center[0], center[1], focus);
-    printf("  frame %ldx%ld pixels over %g x %g mm, %ld wavelengths, %lld samples per wavelength\n",
-           width, height, size_x, size_y, n_wl, samples);
-    if (stride > 1)
+    printf("  frame %ldx%ld pixels over %g x %g mm, %ld wavelengths", width, height, size_x, size_y, n_wl);
+    if (do_cpu) printf(", %lld samples per wavelength", samples);
+    printf("\n");
+    if (do_cpu && stride > 1)
         printf("  lensrt renders one pixel per %ldx%ld block of the frame: %ldx%ld pixels over the same window\n",
                stride, stride, rw, rh);
-    printf("  %ld repetitions per f-number, each bracketed by %g s of the %d-thread baseline\n", reps, base_seconds,
-           threads);
+    if (do_cpu)
+        printf("  %ld repetitions per f-number, each bracketed by %g s of the %d-thread baseline\n", reps,
+               base_seconds, threads);
+    if (gl_ok) {
+        printf("  gl: %s, GL_RENDERER %s, GL_VERSION %s%s\n", gl_info.platform, gl_info.renderer, gl_info.version,
+               gl_info.software ? " (software)" : "");
+        printf("  gl: one render per f-number, bracketed by the baseline, one pixel per %ldx%ld block of the frame\n"
+               "      (%ldx%ld pixels over the same window), %lld samples per wavelength timed ", gl_stride, gl_stride,
+               gw, gh, gl_samples);
+        if (gl_warmup > 0)
+            printf("after an untimed\n      warm-up run() of %lld (shader compiles, terms per pixel)\n", gl_warmup);
+        else
+            printf("in the first run()\n      (shader compiles and terms per pixel included)\n");
+    } else if (do_gl) {
+        printf("  gl: skipped: %s\n", gl_why);
+    }
     printf("  housings: first %g mm, last %g mm; threads %d; cpu %s\n", housing_first, housing_last, threads, cpu);
     fflush(stdout);
 
@@ -557,7 +712,7 @@ int main(int argc, char **argv)
         desc.wavelengths_nm = wl;
         desc.n_wavelengths = (int)n_wl;
         fr->f_number = f_numbers[i];
-        fr->reps = (int)reps;
+        fr->reps = do_cpu ? (int)reps : 0;
         {
             // Direction cosines along (tan x, tan y, 1), as lensrt turns field angles into P_o inputs
             double tx = tan(field_x * PI / 180.0), ty = tan(field_y * PI / 180.0), n = sqrt(1.0 + tx * tx + ty * ty);
@@ -577,7 +732,7 @@ int main(int argc, char **argv)
         b1[0] = run_baseline(&sc, 1, 256, 0.5 * base_seconds, (uint64_t)seed + 100, center_pixel);
         // Each repetition: baseline, lensrt, baseline, so that the two halves of the
         // baseline bracket the render in time and see the same machine
-        for (k = 0; k < reps; k++) {
+        for (k = 0; k < fr->reps; k++) {
             lensrt_render render = NULL;
             baseline_result pre, post;
             pre = run_baseline(&sc, threads, 256, 0.5 * base_seconds, (uint64_t)seed + 2 * (uint64_t)k, center_pixel);
@@ -607,44 +762,112 @@ int main(int argc, char **argv)
                    fr->baseN[k].splats_per_second, fr->ratio[k]);
             fflush(stdout);
         }
+        if (fr->reps > 0) {
+            double bn[MAX_REP];
+            for (k = 0; k < fr->reps; k++) bn[k] = fr->baseN[k].splats_per_second;
+            fr->sps_med = median(fr->sps, fr->reps);
+            fr->baseN_med = median(bn, fr->reps);
+            fr->ratio_med = median(fr->ratio, fr->reps);
+        }
+        // GL: the same scene on its own pixel grid, bracketed by the baseline like a repetition
+        if (gl_ok) {
+            lensrt_render_desc gdesc = desc;
+            baseline_result pre, post;
+            gl_result *gr = &glres[n_gl];
+            memset(gr, 0, sizeof *gr);
+            gr->f_number = f_numbers[i];
+            gdesc.device = LENSRT_DEVICE_GL;
+            gdesc.sensor.width = (int)gw;
+            gdesc.sensor.height = (int)gh;
+            gdesc.seed = (uint64_t)seed;
+            pre = run_baseline(&sc, threads, 256, 0.5 * base_seconds, (uint64_t)seed + 2 * (uint64_t)reps,
+                               center_pixel);
+            r = run_gl(ctx, &gdesc, gl_warmup, gl_samples, gr);
+            post = run_baseline(&sc, threads, 256, 0.5 * base_seconds, (uint64_t)seed + 2 * (uint64_t)reps + 1,
+                                center_pixel);
+            if (pre.seconds < 0 || post.seconds < 0) {
+                fprintf(stderr, "lensrt-bench: out of memory in the baseline\n");
+                goto done;
+            }
+            if (r != LENSRT_SUCCESS) {
+                // A device that fails mid-way: the CPU figures still count, the exit status says so
+                last_error_line(ctx, r, gl_why, sizeof gl_why);
+                printf(" [gl failed: %s]", gl_why);
+                gl_ok = 0;
+                gl_failed = 1;
+            } else {
+                gr->base = combine(&pre, &post);
+                gr->ratio_base = gr->sps / gr->base.splats_per_second;
+                gr->ratio_cpu = fr->reps > 0 ? gr->sps / fr->sps_med : -1.0;
+                printf(" [gl %.3g/s in %.1f s (set-up %.1f s), baseline %.3g/s: %.2fx", gr->sps, gr->seconds,
+                       gr->setup_seconds, gr->base.splats_per_second, gr->ratio_base);
+                if (gr->ratio_cpu >= 0) printf(", %.3gx lensrt cpu", gr->ratio_cpu);
+                printf("]");
+                n_gl++;
+            }
+            fflush(stdout);
+        }
         b1[1] = run_baseline(&sc, 1, 256, 0.5 * base_seconds, (uint64_t)seed + 101, center_pixel);
         if (b1[0].seconds < 0 || b1[1].seconds < 0) {
             fprintf(stderr, "lensrt-bench: out of memory in the baseline\n");
             goto done;
         }
         fr->base1 = combine(&b1[0], &b1[1]);
-        {
-            double bn[MAX_REP];
-            for (k = 0; k < reps; k++) bn[k] = fr->baseN[k].splats_per_second;
-            fr->sps_med = median(fr->sps, (int)reps);
-            fr->baseN_med = median(bn, (int)reps);
-            fr->ratio_med = median(fr->ratio, (int)reps);
-        }
         printf(" 1 thread %.3g/s; baseline splats clipped: %.3g%%\n", fr->base1.splats_per_second,
                100.0 * fr->base1.clipped / fr->base1.splats);
         fflush(stdout);
     }
 
-    // The table
-    printf("\nsplats per second (one aperture sample at one pixel, one wavelength), median of %ld; %d threads\n", reps,
-           threads);
-    printf("%-6s %9s %9s %10s %7s %6s %6s %11s %11s %10s %8s %9s\n", "f/N", "stop mm", "seconds", "lensrt/s", "terms",
-           "clip", "tau", "base Nt/s", "base 1t/s", "base coh.", "ratio", "ratio 1t");
-    for (i = 0; i < n_f; i++) {
-        const f_result *fr = &res[i];
-        const lensrt_render_stats *st = &fr->stats;
-        printf("%-6g %9.4f %9.2f %10.3g %7.2f %6.3f %6.3f %11.3g %11.3g %10.3f %8.1f %9.1f\n", fr->f_number,
-               st->stop_radius_mm, median(fr->seconds, fr->reps), fr->sps_med, st->phase_terms, st->clip_fraction,
-               st->tau_fraction, fr->baseN_med, fr->base1.splats_per_second, fr->base1.coherence_center, fr->ratio_med,
-               fr->sps_med / fr->base1.splats_per_second);
+    // The tables
+    if (do_cpu) {
+        printf("\nsplats per second (one aperture sample at one pixel, one wavelength), median of %ld; %d threads\n",
+               reps, threads);
+        printf("%-6s %9s %9s %10s %7s %6s %6s %11s %11s %10s %8s %9s\n", "f/N", "stop mm", "seconds", "lensrt/s",
+               "terms", "clip", "tau", "base Nt/s", "base 1t/s", "base coh.", "ratio", "ratio 1t");
+        for (i = 0; i < n_f; i++) {
+            const f_result *fr = &res[i];
+            const lensrt_render_stats *st = &fr->stats;
+            printf("%-6g %9.4f %9.2f %10.3g %7.2f %6.3f %6.3f %11.3g %11.3g %10.3f %8.1f %9.1f\n", fr->f_number,
+                   st->stop_radius_mm, median(fr->seconds, fr->reps), fr->sps_med, st->phase_terms,
+                   st->clip_fraction, st->tau_fraction, fr->baseN_med, fr->base1.splats_per_second,
+                   fr->base1.coherence_center, fr->ratio_med, fr->sps_med / fr->base1.splats_per_second);
+        }
+        printf("headline f/%g: %.3g splats/s, %.1fx the scalar double baseline at %d threads (baseline %.3g splats/s)\n",
+               res[head].f_number, res[head].sps_med, res[head].ratio_med, threads, res[head].baseN_med);
+        printf("(ratio: median over the repetitions of lensrt / the %d-thread baseline that bracketed it; terms: phase\n"
+               " terms per splat after pruning; clip, tau: fractions of pixels that needed the inner-pupil clip or a\n"
+               " varying transmittance; base coh.: |sum X| / sum |X| of the baseline at the window centre, a check\n"
+               " that its phases agree to a fraction of a wave across the aperture)\n", threads);
     }
-    printf("headline f/%g: %.3g splats/s, %.1fx the scalar double baseline at %d threads (baseline %.3g splats/s)\n",
-           res[head].f_number, res[head].sps_med, res[head].ratio_med, threads, res[head].baseN_med);
-    printf("(ratio: median over the repetitions of lensrt / the %d-thread baseline that bracketed it; terms: phase\n"
-           " terms per splat after pruning; clip, tau: fractions of pixels that needed the inner-pupil clip or a\n"
-           " varying transmittance; base coh.: |sum X| / sum |X| of the baseline at the window centre, a check that\n"
-           " its phases agree to a fraction of a wave across the aperture; %.0f s in all)\n", threads,
-           now_seconds() - t_start);
+    if (n_gl > 0) {
+        const gl_result *gh_ = NULL;
+        printf("\ngl splats per second, %s on %s (%s),\none render per f-number, %ldx%ld pixels, %lld samples per "
+               "wavelength (warm-up %lld)\n", gl_info.renderer, gl_info.platform,
+               gl_info.software ? "software" : "hardware", gw, gh, gl_samples, gl_warmup);
+        printf("%-6s %9s %9s %10s %9s %7s %11s %8s %10s\n", "f/N", "stop mm", "seconds", "gl/s", "set-up s", "terms",
+               "base Nt/s", "ratio", "vs cpu");
+        for (i = 0; i < n_gl; i++) {
+            const gl_result *gr = &glres[i];
+            char vs[32] = "-";
+            if (gr->ratio_cpu >= 0) snprintf(vs, sizeof vs, "%.3g", gr->ratio_cpu);
+            printf("%-6g %9.4f %9.2f %10.3g %9.2f %7.2f %11.3g %8.2f %10s\n", gr->f_number, gr->stats.stop_radius_mm,
+                   gr->seconds, gr->sps, gr->setup_seconds, gr->stats.phase_terms, gr->base.splats_per_second,
+                   gr->ratio_base, vs);
+            if (gr->f_number == res[head].f_number) gh_ = gr;
+        }
+        if (gh_) {
+            printf("headline gl f/%g: %.3g splats/s, %.2fx the baseline at %d threads", gh_->f_number, gh_->sps,
+                   gh_->ratio_base, threads);
+            if (gh_->ratio_cpu >= 0) printf(", %.3gx lensrt on the cpu", gh_->ratio_cpu);
+            printf(" (%s)\n", gl_info.renderer);
+        }
+        printf("(ratio: gl / the %d-thread baseline that bracketed it; vs cpu: gl / the median lensrt cpu figure\n"
+               " of the same f-number; terms: phase terms the gl splat shader evaluates, the most any pixel needs)\n",
+               threads);
+    } else if (gl_failed) {
+        printf("\ngl: failed: %s\n", gl_why);
+    }
+    printf("(%.0f s in all)\n", now_seconds() - t_start);
 
     if (json) {
         FILE *f = fopen(json, "w");
@@ -666,13 +889,20 @@ int main(int argc, char **argv)
         fprintf(f, "  \"center_mm\": [%.17g, %.17g],\n  \"focus_offset_mm\": %.17g,\n", center[0], center[1], focus);
         fprintf(f, "  \"light_field_deg\": [%.17g, %.17g],\n  \"wavelengths\": %ld,\n  \"samples\": %lld,\n",
                 field_x, field_y, n_wl, samples);
-        fprintf(f, "  \"repeats\": %ld,\n  \"f_number\": %.17g,\n", reps, h->f_number);
-        fprintf(f, "  \"splats_per_second\": %.17g,\n", h->sps_med);
-        fprintf(f, "  \"baseline_splats_per_second\": %.17g,\n", h->baseN_med);
-        fprintf(f, "  \"baseline_threads\": %d,\n", threads);
+        fprintf(f, "  \"repeats\": %d,\n  \"f_number\": %.17g,\n", h->reps, h->f_number);
+        fprintf(f, "  \"device\": ");
+        json_string(f, device_arg);
+        fprintf(f, ",\n  \"splats_per_second\": ");
+        json_num(f, h->sps_med, do_cpu);
+        fprintf(f, ",\n  \"baseline_splats_per_second\": ");
+        json_num(f, h->baseN_med, do_cpu);
+        fprintf(f, ",\n  \"baseline_threads\": %d,\n", threads);
         fprintf(f, "  \"baseline_single_thread_splats_per_second\": %.17g,\n", h->base1.splats_per_second);
-        fprintf(f, "  \"ratio\": %.17g,\n", h->ratio_med);
-        fprintf(f, "  \"ratio_vs_single_thread\": %.17g,\n", h->sps_med / h->base1.splats_per_second);
+        fprintf(f, "  \"ratio\": ");
+        json_num(f, h->ratio_med, do_cpu);
+        fprintf(f, ",\n  \"ratio_vs_single_thread\": ");
+        json_num(f, h->sps_med / h->base1.splats_per_second, do_cpu);
+        fprintf(f, ",\n");
         fprintf(f, "  \"baseline\": {\"algorithm\": \"paper section 3.2 as a plain scalar double loop: generated Horner "
                    "lens0001_P_o_d once per sample, lens0001_P_s_d per splat, housing clips, amplitude "
                    "sqrt(tau_o tau_i), phase 2 pi / lambda (phi_o + phi_i), libm cos/sin\", \"pixels\": %ld, "
@@ -680,7 +910,7 @@ int main(int argc, char **argv)
                    "\"housing_last_mm\": %.17g},\n",
                 gx * gy, gx, gy, base_seconds, housing_first, housing_last);
         fprintf(f, "  \"per_f_number\": {");
-        for (i = 0; i < n_f; i++) {
+        for (i = 0; i < n_f && do_cpu; i++) {
             const f_result *fr = &res[i];
             const lensrt_render_stats *st = &fr->stats;
             double bn[MAX_REP];
@@ -706,14 +936,53 @@ int main(int argc, char **argv)
             json_list(f, fr->ratio, fr->reps);
             fprintf(f, "}}");
         }
-        fprintf(f, "\n  },\n  \"wall_seconds\": %.17g\n}\n", now_seconds() - t_start);
+        fprintf(f, "\n  },\n  \"gl\": ");
+        if (!gl_info.renderer) {
+            // No device (or not asked for): why
+            fprintf(f, "{\"skipped\": ");
+            json_string(f, do_gl ? gl_why : "--device cpu");
+            fprintf(f, "}");
+        } else {
+            fprintf(f, "{\"renderer\": ");
+            json_string(f, gl_info.renderer);
+            fprintf(f, ", \"version\": ");
+            json_string(f, gl_info.version);
+            fprintf(f, ", \"platform\": ");
+            json_string(f, gl_info.platform);
+            fprintf(f, ", \"software\": %s,\n    \"stride\": %ld, \"rendered_resolution\": [%ld, %ld], "
+                       "\"samples\": %lld, \"warmup_samples\": %lld, \"timing\": \"%s\",\n",
+                    gl_info.software ? "true" : "false", gl_stride, gw, gh, gl_samples, gl_warmup,
+                    gl_warmup > 0 ? "the second run() of the render, after an untimed warm-up run()"
+                                  : "the first run() of the render, shader compiles and set-up included");
+            if (gl_failed) {
+                fprintf(f, "    \"error\": ");
+                json_string(f, gl_why);
+                fprintf(f, ",\n");
+            }
+            fprintf(f, "    \"results\": [");
+            for (i = 0; i < n_gl; i++) {
+                const gl_result *gr = &glres[i];
+                fprintf(f, "%s\n      {\"f_number\": %.17g, \"splats_per_second\": %.17g, \"seconds\": %.17g, "
+                           "\"splats\": %.17g, \"setup_seconds\": %.17g, \"baseline_splats_per_second\": %.17g, "
+                           "\"ratio_vs_baseline\": %.17g, \"ratio_vs_cpu\": ",
+                        i ? "," : "", gr->f_number, gr->sps, gr->seconds, gr->splats, gr->setup_seconds,
+                        gr->base.splats_per_second, gr->ratio_base);
+                json_num(f, gr->ratio_cpu, gr->ratio_cpu >= 0);
+                fprintf(f, ", \"stop_radius_mm\": %.17g, \"phase_terms\": %.17g, \"clip_fraction\": %.17g, "
+                           "\"tau_fraction\": %.17g, \"dark_fraction\": %.17g}",
+                        gr->stats.stop_radius_mm, gr->stats.phase_terms, gr->stats.clip_fraction,
+                        gr->stats.tau_fraction, gr->stats.dark_fraction);
+            }
+            fprintf(f, "%s]}", n_gl ? "\n    " : "");
+        }
+        fprintf(f, ",\n  \"wall_seconds\": %.17g\n}\n", now_seconds() - t_start);
         if (fclose(f) != 0) {
             fprintf(stderr, "lensrt-bench: %s: write failed\n", json);
             goto done;
         }
         printf("wrote %s\n", json);
     }
-    status = 0;
+    status = gl_failed ? 1 : 0;
 done:
     free(pix);
     if (lens) lensrt_lens_destroy(ctx, lens);
