@@ -154,7 +154,7 @@ static int open_egl(lensrt_gl *gl, lensrt_gl_platform platform, char *why, size_
     egl_api egl;
     const char *client;
     memset(&egl, 0, sizeof egl);
-    if (!gl->egl_lib) gl->egl_lib = dlopen("libEGL.so.1", RTLD_NOW | RTLD_LOCAL);
+    if (!gl->egl_lib) gl->egl_lib = dlopen("libEGL.so.1", RTLD_NOW | RTLD_LOCAL | RTLD_NODELETE);
     if (!gl->egl_lib) {
         snprintf(why, size, "libEGL.so.1 not found (%s)", dlerror());
         return 1;
@@ -260,7 +260,7 @@ static int open_glfw(lensrt_gl *gl, char *why, size_t size)
     set_error_fn set_error;
     get_error_fn get_error;
     const char *description = NULL;
-    gl->glfw_lib = dlopen("libglfw.so.3", RTLD_NOW | RTLD_LOCAL);
+    gl->glfw_lib = dlopen("libglfw.so.3", RTLD_NOW | RTLD_LOCAL | RTLD_NODELETE);
     if (!gl->glfw_lib) {
         snprintf(why, size, "libglfw.so.3 not found");
         return 1;
