@@ -396,7 +396,7 @@ static int basis_keep(const double *V, int n, int R, const double *c, double lim
 /* The largest l1 norm of the non-constant coefficients an output may drop: inner pupil
  * position 0.01% of the housing, transmittance 1e-3 relative (5e-4 in amplitude), phase
  * the render's tolerance (waves). */
-static double output_limit(const lensrt_render r, int o, double c0)
+double lensrt_output_limit(const lensrt_render r, int o, double c0)
 {
     return o < 2 ? 1e-4 * r->lens->housing_last_mm : o == 2 ? 1e-3 * fabs(c0) : r->desc.phase_tolerance_waves;
 }
@@ -450,14 +450,16 @@ static lensrt_result prepare_basis(lensrt_render r)
                 for (q = 0; q < n; q++) g[k * n + q] += c[k + 1] * c[q + 1] * inv_lambda * inv_lambda;
         }
         jacobi_eigen(n, g, r->basis + (size_t)w * (size_t)n * (size_t)n, eig);
-        // How many basis vectors the grid's pixels need (others fall back to monomials)
+        // How many basis vectors the grid's pixels need (others fall back to monomials);
+        // the GL path finds every pixel's need on the device instead
         r->basis_rank[w] = 0;
+        if (gl) continue;
         for (cell = 0; cell < grid_x * grid_y; cell++) {
             double c[136], u[135];
             int keep;
             c[0] = cs[(size_t)cell * (size_t)ns];
             for (k = 1; k < ns; k++) c[k] = cs[(size_t)cell * (size_t)ns + (size_t)k] * inv_lambda;
-            keep = basis_keep(V, n, n, c, output_limit(r, o, c[0]), u);
+            keep = basis_keep(V, n, n, c, lensrt_output_limit(r, o, c[0]), u);
             if (keep > r->basis_rank[w]) r->basis_rank[w] = keep;
         }
         // A margin for pixels between grid points
@@ -941,7 +943,7 @@ static int setup_pixel(lensrt_render r, int w, double x, double y, pixel_terms *
         for (bb = 0; bb < 2; bb++) {
             const int oo = bb ? 2 : 3;
             const double *V = r->basis + (size_t)(2 * w + bb) * (size_t)n * (size_t)n;
-            const double limit = output_limit(r, oo, c[2][0]);
+            const double limit = lensrt_output_limit(r, oo, c[2][0]);
             double u[135];
             int j, keep, have = counts[oo] - (oo == 2 && counts[2] > 0);
             if (oo == 2 && counts[2] == 0) continue; /* constant transmittance */

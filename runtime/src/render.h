@@ -57,4 +57,8 @@ struct lensrt_render_s {
     double stat_terms, stat_clip, stat_tau, stat_dark, stat_count;
 };
 
+/* The largest l1 norm of the non-constant coefficients output o (x_i, y_i, tau_i, phi_i)
+ * may drop at a pixel whose constant term is c0. */
+double lensrt_output_limit(const lensrt_render r, int o, double c0);
+
 #endif /* LENSRT_RENDER_H */

@@ -48,7 +48,6 @@ struct lensrt_gl_render_s {
     long npix, chunk;      /* pixels, pixels per chunk */
     char defines[4096];    /* the scene's constants, for every shader */
     float *inside;         /* [LENSRT_PASS] aperture-shape mask of the pass */
-    double *xy_pad;        /* [2 LENSRT_PASS] */
 };
 
 /* ------------------------------------------------------------ programs ----- */
@@ -115,11 +114,10 @@ static void set_ivec4(lensrt_gl *gl, GLuint program, const char *name, const int
     if (at >= 0) gl->Uniform4i(at, v[0], v[1], v[2], v[3]);
 }
 
-/* The splat program for wavelength w's term counts, compiled on first use. */
-static lensrt_result splat_program(lensrt_render r, int w, GLuint *out)
+/* The splat program for basis term counts k (per output), compiled on first use. */
+static lensrt_result splat_program(lensrt_render r, const int k[4], GLuint *out)
 {
     lensrt_gl_render_s *g = r->gl;
-    const int *k = r->lens->analytic ? (const int[4]){0, 0, 0, 0} : g->k + 4 * w;
     char extra[256];
     lensrt_result res;
     int i;
@@ -241,7 +239,11 @@ static void scene_defines(lensrt_render r)
     append_double(d, size, "SENSOR_SX", lens->p_s.inputs[0].s);
     append_double(d, size, "SENSOR_CY", lens->p_s.inputs[1].c);
     append_double(d, size, "SENSOR_SY", lens->p_s.inputs[1].s);
-    append_double(d, size, "TOL_PHASE", r->desc.phase_tolerance_waves);
+    // The largest l1 norm each output may drop (lensrt_output_limit: one definition for
+    // both devices); the transmittance's is relative to its constant term
+    append_double(d, size, "LIMIT_PUPIL", lensrt_output_limit(r, 0, 0.0));
+    append_double(d, size, "LIMIT_TAU_REL", lensrt_output_limit(r, 2, 1.0));
+    append_double(d, size, "TOL_PHASE", lensrt_output_limit(r, 3, 0.0));
     // The Huygens amplitude's finite-difference step, as on the CPU
     append_double(d, size, "STEP_MM", 1e-3 * fmax(r->pitch_x, 1e-3));
 }
@@ -279,9 +281,8 @@ lensrt_result lensrt_gl_render_create(lensrt_render r)
     if (g->chunk > g->npix) g->chunk = g->npix;
     g->k = lensrt_calloc(r->ctx, (size_t)r->n_wl * 4, sizeof(int));
     g->inside = lensrt_calloc(r->ctx, LENSRT_PASS, sizeof(float));
-    g->xy_pad = lensrt_calloc(r->ctx, 2 * LENSRT_PASS, sizeof(double));
     lights = lensrt_calloc(r->ctx, (size_t)r->n_lights * 4, sizeof(double));
-    if (!g->k || !g->inside || !g->xy_pad || !lights) {
+    if (!g->k || !g->inside || !lights) {
         lensrt_free(r->ctx, lights);
         return lensrt_fail(r->ctx, LENSRT_ERROR_OUT_OF_MEMORY, "GL: out of memory");
     }
@@ -349,7 +350,6 @@ void lensrt_gl_render_destroy(lensrt_render r)
     }
     lensrt_free(r->ctx, g->k);
     lensrt_free(r->ctx, g->inside);
-    lensrt_free(r->ctx, g->xy_pad);
     lensrt_free(r->ctx, g);
     r->gl = NULL;
 }
@@ -438,12 +438,10 @@ lensrt_result lensrt_gl_pass(lensrt_render r, int w, const double *xy, int n)
     long first;
     int j;
     // The pass's samples: positions and whether each lies inside the aperture shape
-    memset(g->xy_pad, 0, 2 * LENSRT_PASS * sizeof(double));
-    memcpy(g->xy_pad, xy, 2 * (size_t)n * sizeof(double));
     for (j = 0; j < LENSRT_PASS; j++)
         g->inside[j] = j < n && lensrt_aperture_contains(&r->desc.aperture, r->stop_radius, xy[2 * j], xy[2 * j + 1]);
     gl->BindBuffer(GL_SHADER_STORAGE_BUFFER, g->buffers[B_XY]);
-    gl->BufferSubData(GL_SHADER_STORAGE_BUFFER, 0, 2 * LENSRT_PASS * sizeof(double), g->xy_pad);
+    gl->BufferSubData(GL_SHADER_STORAGE_BUFFER, 0, 2 * LENSRT_PASS * sizeof(double), xy);
     gl->BindBuffer(GL_SHADER_STORAGE_BUFFER, g->buffers[B_INSIDE]);
     gl->BufferSubData(GL_SHADER_STORAGE_BUFFER, 0, LENSRT_PASS * sizeof(float), g->inside);
     // Shader 1: per sample
@@ -453,7 +451,7 @@ lensrt_result lensrt_gl_pass(lensrt_render r, int w, const double *xy, int n)
     set_ivec4(gl, g->samples, "u_rows", k);
     gl->DispatchCompute(LENSRT_PASS / GROUP, 1, 1);
     gl->MemoryBarrier(GL_SHADER_STORAGE_BARRIER_BIT);
-    if ((res = splat_program(r, w, &splat)) != LENSRT_SUCCESS) return res;
+    if ((res = splat_program(r, k, &splat)) != LENSRT_SUCCESS) return res;
     // Per chunk of pixels: set-up, then shader 2
     for (first = 0; first < g->npix; first += g->chunk) {
         long count = g->npix - first < g->chunk ? g->npix - first : g->chunk;

@@ -13,6 +13,7 @@ lensrt_result lensrt_gl_render_create(lensrt_render r);
 void lensrt_gl_render_destroy(lensrt_render r);
 /* Make the device current and upload the phasor sums; then passes; then download. */
 lensrt_result lensrt_gl_begin(lensrt_render r);
+/* Wavelength w's pass: xy holds 2 LENSRT_PASS values, n samples then zeros. */
 lensrt_result lensrt_gl_pass(lensrt_render r, int w, const double *xy, int n);
 lensrt_result lensrt_gl_end(lensrt_render r, lensrt_result status);
 

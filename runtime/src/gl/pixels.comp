@@ -13,7 +13,8 @@
 //
 // The host prepends the scene's constants: NS, NB, W (pixels per row), SENSOR_CX,
 // SENSOR_SX, SENSOR_CY, SENSOR_SY (normalisation of x_S, y_S), HOUSING_LAST (mm),
-// TOL_PHASE (waves), STEP_MM, MONO_RADIUS (mm), NAIVE.
+// LIMIT_PUPIL (mm), LIMIT_TAU_REL, TOL_PHASE (waves): the l1 norm each output may drop
+// (render.c, lensrt_output_limit), STEP_MM, MONO_RADIUS (mm), NAIVE.
 layout(local_size_x = 64) in;
 
 layout(std430, binding = 3) readonly buffer Basis { double basis[]; };  // [(w 4 + o) NB NB + (slot - 1) NB + j]
@@ -95,7 +96,7 @@ void main()
     bool clip = hi > h;
     // Each output in the window's basis, and the leading vectors it needs (the phase
     // in waves; its constant part is kept only by the naive mode)
-    double limit[4] = double[4](1e-4LF * h, 1e-4LF * h, 1e-3LF * abs(c0[2]), TOL_PHASE);
+    double limit[4] = double[4](LIMIT_PUPIL, LIMIT_PUPIL, LIMIT_TAU_REL * abs(c0[2]), TOL_PHASE);
     uint off = 6u;
     for (int o = 0; o < 4; o++) {
         if (o < 2 && !clip) {
