@@ -100,6 +100,8 @@ typedef struct lensrt_context_init {
 } lensrt_context_init;
 
 LENSRT_API lensrt_result lensrt_context_create(const lensrt_context_init *init, lensrt_context *out);
+/* Destroy every render and lens made with ctx first: their destruction uses the context
+ * (its allocator and GL device). */
 LENSRT_API void lensrt_context_destroy(lensrt_context ctx);
 /* The message of the last failing call made with ctx ("" when none). */
 LENSRT_API const char *lensrt_context_last_error(lensrt_context ctx);

@@ -106,7 +106,7 @@ class Render:
 
     def __del__(self) -> None:
         if getattr(self, "handle", None):
-            self.rt.lib.lensrt_render_destroy(self.handle)
+            self.rt._destroy_render(self.handle)
             self.handle = None
 
     def run(self, samples_per_wavelength: int) -> None:
@@ -197,13 +197,25 @@ class Lensrt:
             raise LensrtError(code, lib.lensrt_result_string(code).decode())
         self.ctx = ctx
         self._lenses: list[C.c_void_p] = []
+        self._renders: dict[int, C.c_void_p] = {}  # live renders by address
 
     def __del__(self) -> None:
+        # The garbage collector finalises a cycle's objects in any order, so this may run
+        # before the __del__ of a Render made here: renders go first, then lenses, since
+        # lensrt_context_destroy must come last (render destruction uses the context)
         if getattr(self, "ctx", None):
+            for handle in self._renders.values():
+                self.lib.lensrt_render_destroy(handle)
+            self._renders.clear()
             for lens in self._lenses:
                 self.lib.lensrt_lens_destroy(self.ctx, lens)
             self.lib.lensrt_context_destroy(self.ctx)
             self.ctx = None
+
+    def _destroy_render(self, handle: C.c_void_p) -> None:
+        # Already destroyed with the context when the context went first
+        if self._renders.pop(handle.value, None) is not None:
+            self.lib.lensrt_render_destroy(handle)
 
     def _check(self, code: int) -> None:
         if code != 0:
@@ -282,6 +294,7 @@ class Lensrt:
         desc.device = DEVICES[device]
         handle = C.c_void_p()
         self._check(self.lib.lensrt_render_create(self.ctx, C.byref(desc), C.byref(handle)))
+        self._renders[handle.value] = handle
         return Render(self, handle, keep)
 
     def render(self, lens: C.c_void_p, *, samples: int, **kwargs: Any) -> np.ndarray:

@@ -314,3 +314,35 @@ def test_fallback_platforms_render_the_same(gl, lens0001, tmp_path, platform):
     ref = gl.render(lens0001, width=12, height=12, width_mm=0.03, f_number=8.0, wavelengths=[550.0],
                     samples=1 << 13, device="gl")
     assert rel_l2(np.load(tmp_path / "img.npy"), ref) < 1e-6
+
+
+FINALISE_SCRIPT = """
+import gc, sys
+sys.path.insert(0, sys.argv[1])
+from lensrt_ctypes import Lensrt
+rt = Lensrt(sys.argv[2])
+lens = rt.analytic(sensor_distance_mm=50.0, focal_length_mm=50.0)
+for device in ("cpu", "gl"):
+    r = rt.create(lens, width=8, height=8, width_mm=0.02, f_number=8.0, wavelengths=[550.0],
+                  device=device)
+    r.run(1 << 10)
+    # A reference cycle holding the render and its context: the collector finalises them
+    # in whatever order; here the context's finaliser is made to run first
+    r.cycle = r
+    rt.__del__()
+    del r
+    gc.collect()
+    rt = Lensrt(sys.argv[2])
+    lens = rt.analytic(sensor_distance_mm=50.0, focal_length_mm=50.0)
+print("ok")
+"""
+
+
+def test_context_finalised_before_its_render(gl):
+    # pytest's final garbage collection once finalised a Lensrt before a Render of it, and
+    # the render's destruction then used the freed context (and its GL device): a crash at
+    # exit. The binding must destroy renders with their context, and a render finalised
+    # afterwards must do nothing. Run in a child so a crash fails this test, not the run.
+    run = subprocess.run([sys.executable, "-c", FINALISE_SCRIPT, str(ROOT / "runtime" / "python"),
+                          str(LIBRARY)], capture_output=True, text=True, timeout=300)
+    assert run.returncode == 0 and run.stdout.strip() == "ok", (run.returncode, run.stderr)
