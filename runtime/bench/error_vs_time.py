@@ -209,6 +209,28 @@ def git_state() -> dict[str, Any]:
                 dirty=bool(run("git", "status", "--porcelain", "--untracked-files=no")))
 
 
+def gl_table(gl: dict | None) -> list[str]:
+    """The GL path's splats per second (same run, same lens and scene) as markdown."""
+    if not gl:
+        return []
+    if "skipped" in gl:
+        return ["## GL compute path", "", f"Not measured: {gl['skipped']}", ""]
+    md = ["## GL compute path", "",
+          f"`GL_RENDERER` {gl['renderer']}, `GL_VERSION` {gl['version']} ({gl['platform']}"
+          + (", a software renderer" if gl["software"] else "") + "). Same lens, light and "
+          f"window; {gl['rendered_resolution'][0]}x{gl['rendered_resolution'][1]} pixels "
+          f"(one per {gl['stride']}x{gl['stride']} block), {gl['samples']} samples per "
+          f"wavelength, timed on {gl['timing']}.", "",
+          "| f/N | GL splats/s | seconds | set-up seconds (create, compile, warm-up run) "
+          "| vs baseline | vs CPU path |",
+          "|---:|---:|---:|---:|---:|---:|"]
+    for r in gl["results"]:
+        cpu = "" if r.get("ratio_vs_cpu") is None else f"{r['ratio_vs_cpu']:.3g}x"
+        md.append(f"| {r['f_number']:g} | {r['splats_per_second']:.3g} | {r['seconds']:.2f} | "
+                  f"{r['setup_seconds']:.2f} | {r['ratio_vs_baseline']:.3g}x | {cpu} |")
+    return md + [""]
+
+
 def summarise(out: Path, lensrt_json: Path) -> int:
     evt = json.loads((out / "error_vs_time.json").read_text())
     if not lensrt_json.exists():
@@ -266,7 +288,11 @@ def summarise(out: Path, lensrt_json: Path) -> int:
                   f"{p['baseline_splats_per_second']:.3g} | **{p['ratio']:.0f}x** | "
                   + ", ".join(f"{x:.0f}" for x in reps["ratio"]) + " | "
                   f"{p['baseline_single_thread_splats_per_second']:.3g} | {single:.0f}x |")
-    md += ["",
+    if lb["splats_per_second"] is None:
+        del md[-2:]  # no rows: drop the table's header
+        md += ["", "The CPU path was not measured in this run (`lensrt-bench --device gl`).", ""]
+    else:
+        md += ["",
            f"**f/{lb['f_number']:g}: {lb['splats_per_second']:.3g} splats/s, "
            f"{lb['ratio']:.0f}x the "
            f"scalar double baseline ({lb['baseline_splats_per_second']:.3g} splats/s, "
@@ -277,8 +303,9 @@ def summarise(out: Path, lensrt_json: Path) -> int:
            "pixels that needed the inner-pupil clip or a varying transmittance (of the last "
            "render). Fraction of the baseline's splats clipped at a housing: "
            + ", ".join(f"f/{f} {100 * p['baseline_clipped_fraction']:.2g}%"
-                       for f, p in lb["per_f_number"].items()) + ".", "",
-           "## Error against run time", "",
+                       for f, p in lb["per_f_number"].items()) + ".", ""]
+    md += gl_table(lb.get("gl"))
+    md += ["## Error against run time", "",
            "Relative L2 error of the spectral image against a converged reference, for fresh "
            f"renders of 2^{lo} .. 2^{hi} samples per wavelength with each sampler (error: mean "
            f"over {evt['studies'][0]['rows'][0]['seeds']} seeds), against the seconds lensrt spent "
