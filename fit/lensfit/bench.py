@@ -41,16 +41,16 @@ def _best_of(fn, repeats: int) -> float:
     return best
 
 
-def _intersections(out: Rays, n_surfaces: int) -> int:
-    """Intersections actually computed: a ray stops being traced where it fails."""
-    done = np.where(out.surface >= 0, out.surface + 1, n_surfaces)
-    return int(done.sum())
+def _intersections(out: Rays, n_surfaces: int) -> np.ndarray:
+    """Intersections actually computed, per ray: a ray stops being traced where it fails."""
+    return np.where(out.surface >= 0, out.surface + 1, n_surfaces)
 
 
 def bench_lens(lens: Lens, n_rays: int, n_scalar: int, fresnel_loss: bool) -> dict[str, Any]:
     rays = _bundle(lens, n_rays)
     out = trace(lens, rays, fresnel_loss=fresnel_loss, clip=True)
-    count = _intersections(out, len(lens.surfaces))
+    per_ray = _intersections(out, len(lens.surfaces))
+    count = int(per_ray.sum())
     t_vec = _best_of(lambda: trace(lens, rays, fresnel_loss=fresnel_loss), 3)
 
     # Baseline: the same tracer, one ray per call
@@ -58,7 +58,7 @@ def bench_lens(lens: Lens, n_rays: int, n_scalar: int, fresnel_loss: bool) -> di
         Rays(rays.pos[i : i + 1], rays.dir[i : i + 1], rays.wavelength_nm[i : i + 1])
         for i in range(n_scalar)
     ]
-    count_s = _intersections(trace(lens, _bundle(lens, n_scalar)), len(lens.surfaces))
+    count_s = int(per_ray[:n_scalar].sum())  # the intersections of these very rays
 
     def scalar() -> None:
         for r in singles:
