@@ -19,15 +19,19 @@ import numpy as np  # noqa: E402
 
 from lensfit.paraxial import D_LINE_NM, paraxial, stop_radius_for_f_number  # noqa: E402
 from lensfit.prescription.model import Lens  # noqa: E402
+from lensfit.sample.domain import FULL_FRAME_HALF_DIAGONAL_MM, MAX_DEFAULT_FIELD_DEG  # noqa: E402
 from lensfit.trace.tracer import Rays, Status, forward_path, trace  # noqa: E402
 
 FAN_OVERFILL = 1.25  # fans span 125% of the entrance pupil so that clipping shows
 
 
 def default_field_deg(lens: Lens) -> float:
-    """Half the field of a 36 x 24 mm frame's diagonal (21.6 mm), at most 60 degrees."""
+    """Half the field of a 36 x 24 mm frame's diagonal (21.6 mm), at most 60 degrees (the
+    fit's default field, :func:`lensfit.sample.default_domain`, along one meridian)."""
     efl = abs(paraxial(lens).efl_mm)
-    return min(60.0, math.degrees(math.atan(0.5 * 21.63 / efl))) if math.isfinite(efl) else 10.0
+    if not math.isfinite(efl):
+        return 10.0
+    return min(MAX_DEFAULT_FIELD_DEG, math.degrees(math.atan(FULL_FRAME_HALF_DIAGONAL_MM / efl)))
 
 
 def fan(

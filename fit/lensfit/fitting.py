@@ -21,7 +21,7 @@ How each output is fitted:
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -97,7 +97,6 @@ class SystemFit:
     test: Samples
     seconds_sampling: float
     seconds_fitting: float
-    extra: dict[str, Any] = field(default_factory=dict)
 
 
 def _parity_mask(exps: np.ndarray, odd_x: bool, odd_y: bool) -> np.ndarray:

@@ -21,12 +21,14 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import tempfile
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
 from lensfit.codegen import emit_c, emit_glsl, write_table
+from lensfit.codegen.c_horner import file_stem
 from lensfit.facts import LensFacts, lens_facts
 from lensfit.poly import System
 from lensfit.prescription.model import Lens
@@ -38,7 +40,9 @@ def lens_id(lens: Lens) -> str:
     """The lens's id from its file ('0001'), else a slug of its name."""
     ident = str(lens.raw.get("lens", {}).get("id", "")) if lens.raw else ""
     if not ident:
-        ident = "".join(c if c.isalnum() else "_" for c in lens.name.lower())[:24]
+        # C-identifier safe: ASCII letters and digits, single '_' between, none at the end
+        slug = re.sub(r"_+", "_", re.sub(r"[^a-z0-9]", "_", lens.name.lower()))
+        ident = slug[:24].rstrip("_")
     return ident
 
 
@@ -59,8 +63,14 @@ def sources_for(systems: Sequence[System], prefix: str, comment: str, *,
     files.update(emit_c(systems, prefix, header_comment=comment, which="horner"))
     files.update(emit_c(systems, prefix, header_comment=comment, which="casadi"))
     files.update(emit_glsl(systems, prefix, header_comment=comment))
-    files[prefix.rstrip("_") + ".table"] = write_table(systems, comment=comment, lens=facts)
+    files.update(table_file(systems, prefix, comment, facts))
     return files
+
+
+def table_file(systems: Sequence[System], prefix: str, comment: str,
+               facts: LensFacts | None) -> dict[str, str]:
+    """The coefficient table the runtime loads, ``{"<stem>.table": text}``."""
+    return {f"{file_stem(prefix)}.table": write_table(systems, comment=comment, lens=facts)}
 
 
 def lens_files(lens: Lens, systems: Sequence[System], meta: dict[str, Any]) -> dict[str, str]:
@@ -102,10 +112,8 @@ def scene_files(lens: Lens, special: Sequence[System], scene_name: str,
     and the table, which carries the lens's facts like the lens folder's."""
     prefix = f"{lens_prefix(lens)}{scene_name.replace('-', '_')}_"
     comment = header_comment(lens, f"Specialised for scene {Path(scene_file).name}.")
-    files = emit_c(special, prefix, header_comment=comment)
-    files[prefix.rstrip("_") + ".table"] = write_table(special, comment=comment,
-                                                       lens=lens_facts(lens))
-    return files
+    return emit_c(special, prefix, header_comment=comment) | table_file(
+        special, prefix, comment, lens_facts(lens))
 
 
 def header_comment(lens: Lens, extra: str = "") -> str:

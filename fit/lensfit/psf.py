@@ -418,11 +418,24 @@ def geometric_image_point(lens: Lens, field_deg: tuple[float, float],
     """Where the chief ray (through the stop centre) of the light meets the sensor moved
     by ``focus_offset_mm`` (z_S): (x, y) in mm."""
     lam = _wavelength(wavelength_nm)
+    chief = _chief_ray(lens, field_deg, distance_mm, lam)
+    return _chief_image(lens, chief, field_deg, lam, focus_offset_mm)
+
+
+def _chief_ray(lens: Lens, field_deg: tuple[float, float], distance_mm: float,
+               lam: float) -> Aimed:
+    """The light's ray through the stop centre, aimed on the object side."""
     x_O, y_O = light_direction(*field_deg)
     chief = aim_object_side(lens, x_O, y_O, _inverse_distance(distance_mm), 0.0, 0.0, lam)
     if not chief.ok[0]:
         raise ValueError(f"field_deg = {tuple(field_deg)!r}: the chief ray of {lens.name} "
                          "misses or does not converge")
+    return chief
+
+
+def _chief_image(lens: Lens, chief: Aimed, field_deg: tuple[float, float], lam: float,
+                 focus_offset_mm: float) -> tuple[float, float]:
+    """Where ``chief`` meets the sensor moved by ``focus_offset_mm``: (x, y) in mm."""
     out = _rear_trace(lens, chief, lam, lens.sensor_z + _check_focus(focus_offset_mm))
     if out.status[0] != Status.OK:
         raise ValueError(f"field_deg = {tuple(field_deg)!r}: the chief ray of {lens.name} "
@@ -447,9 +460,10 @@ def _wavefront(lens: Lens, stop_radius_mm: float, lam: float,
     obj = aim_object_side(lens, x_O, y_O, _inverse_distance(distance_mm), ap[:, 0], ap[:, 1],
                           lam)
     ap, phi_o = ap[obj.ok], obj.outputs[obj.ok, 3]
+    chief = _chief_ray(lens, field_deg, distance_mm, lam)  # the same for every z_S
 
     def rms(z_s: float) -> float:
-        xc, yc = geometric_image_point(lens, field_deg, distance_mm, lam, z_s)
+        xc, yc = _chief_image(lens, chief, field_deg, lam, z_s)
         sen = aim_sensor_side(lens, xc, yc, z_s, ap[:, 0], ap[:, 1], lam)
         w = (phi_o + sen.outputs[:, 3])[sen.ok]
         a = np.column_stack([np.ones(len(w)), ap[sen.ok]])

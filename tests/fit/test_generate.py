@@ -7,6 +7,7 @@ and on every folder under generated/ that has a fit.json.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import os
 import shutil
@@ -19,6 +20,7 @@ import pytest
 from lensfit import stage
 from lensfit.cli import main
 from lensfit.codegen import call_c, check_compiles, emit_c, load_c, read_table
+from lensfit.codegen.common import check_prefix
 from lensfit.facts import lens_facts
 from lensfit.fitting import FitOptions
 from lensfit.generate import (
@@ -27,6 +29,7 @@ from lensfit.generate import (
     header_comment,
     lens_files,
     lens_folder_name,
+    lens_id,
     lens_prefix,
     read_fit_json,
     scene_files,
@@ -261,6 +264,16 @@ def test_write_folder_failure_leaves_no_temporary_files(tmp_path):
 
 
 # --- the command line ------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("name", ["Zeiss - Biotar 58 mm f/2", "Double Gauss 100 mm f/2 x",
+                                  "Objectif à grand angle", "!!!"])
+def test_lens_without_id_gets_a_valid_symbol_prefix(name):
+    # Without an id the prefix comes from the name; runs of punctuation, a cut after 24
+    # characters and non-ASCII letters must not give '__', a trailing '_' or a non-C name
+    lens = dataclasses.replace(load_lens("0001"), raw=None, name=name)
+    assert check_prefix(lens_prefix(lens)) == lens_prefix(lens)
+    assert len(lens_id(lens)) <= 24
 
 
 def test_cli_fit_unknown_lens(tmp_path, capsys):

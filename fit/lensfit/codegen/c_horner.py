@@ -21,6 +21,7 @@ from __future__ import annotations
 from collections.abc import Callable, Sequence
 
 from lensfit.codegen.common import (
+    REALS,
     ascii_text,
     check_systems,
     comment_block,
@@ -34,8 +35,6 @@ from lensfit.codegen.common import (
 )
 from lensfit.codegen.horner import SystemPlan, plan_system, power_name, render
 from lensfit.poly import Input, System
-
-REALS = {"d": "double", "f": "float"}
 
 
 def file_stem(prefix: str) -> str:

@@ -19,6 +19,9 @@ _IDENT = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")
 _NAME_PART = re.compile(r"[A-Za-z0-9_]+")
 FLT_MAX = float(np.finfo(np.float32).max)
 
+# C / GLSL type of each variant: "d" double, "f" float
+REALS = {"d": "double", "f": "float"}
+
 
 def check_prefix(prefix: str) -> str:
     """The symbol prefix must be a C identifier that C and GLSL do not reserve."""

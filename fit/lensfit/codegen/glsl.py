@@ -28,7 +28,7 @@ import struct
 from collections.abc import Sequence
 
 from lensfit.codegen.c_horner import file_stem, function_body, header_intro, system_summary
-from lensfit.codegen.common import check_systems, comment_block, fmt_double, system_defines
+from lensfit.codegen.common import REALS, check_systems, comment_block, fmt_double, system_defines
 from lensfit.codegen.horner import SystemPlan, plan_system
 from lensfit.poly import System
 
@@ -47,9 +47,6 @@ static double packDouble2x32(uint64_t bits)
     return d;
 }
 """
-
-_TYPE = {"f": "float", "d": "double"}
-
 
 class _DoubleConstants:
     """Literal callback of the double variant: name each distinct value once (k0, k1, ...)
@@ -72,7 +69,7 @@ class _DoubleConstants:
 
 def _function(system: System, plan: SystemPlan, prefix: str, variant: str) -> list[str]:
     sym = prefix + system.name
-    real = _TYPE[variant]
+    real = REALS[variant]
     head = [f"void {sym}_{variant}(in {real} raw[{sym}_N_IN], out {real} res[{sym}_N_OUT])",
             "{"]
     if variant == "f":

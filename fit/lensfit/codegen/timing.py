@@ -32,6 +32,7 @@ from pathlib import Path
 
 import numpy as np
 
+from lensfit.codegen.common import REALS
 from lensfit.poly import System
 
 DEFAULT_FLAGS = ("-O2", "-std=c99")
@@ -194,7 +195,7 @@ def timer(sources: dict[str, str], function: str, system: System, *, variant: st
     driver = _DRIVER.format(
         n_in=len(system.inputs), n_out=n_outputs or len(system.outputs), points=points,
         repeats=repeats, min_seconds=repr(float(min_seconds)),
-        real="double" if variant == "d" else "float", function=function,
+        real=REALS[variant], function=function,
         lo=", ".join(repr(float(i.lo)) for i in system.inputs),
         hi=", ".join(repr(float(i.hi)) for i in system.inputs))
     with tempfile.TemporaryDirectory(prefix="lensfit-time-") as tmp:

@@ -102,22 +102,21 @@ def _converge(aimed: Aimed, residual, final, p0: np.ndarray, scale: float,
     (a miss of at most 10 NEWTON_TOL_MM), and Newton runs only for the rows it does not
     settle."""
     todo = np.arange(len(p0))
-    p = p0.copy()
 
-    def keep(idx, q, tol, r, valid, outputs, vig, pos, dirs):
-        good = valid & (np.hypot(r[:, 0], r[:, 1]) <= tol) & np.all(np.isfinite(outputs), 1)
+    def keep(idx, q, r, valid, outputs, vig, pos, dirs):
+        good = (valid & (np.hypot(r[:, 0], r[:, 1]) <= 10 * NEWTON_TOL_MM)
+                & np.all(np.isfinite(outputs), 1))
         i = idx[good]
         aimed.outputs[i], aimed.vignetting[i], aimed.ok[i] = outputs[good], vig[good], True
         aimed.unknowns[i], aimed.pos[i], aimed.dir[i] = q[good], pos[good], dirs[good]
         return good
 
     if warm:
-        got = final(todo, p)
-        todo = todo[~keep(todo, p, 10 * NEWTON_TOL_MM, *got)]
+        todo = todo[~keep(todo, p0, *final(todo, p0))]
     if todo.size:
         q, ok = _newton(lambda i, x: residual(todo[i], x), p0[todo], scale)
         idx = todo[ok]
-        keep(idx, q[ok], 10 * NEWTON_TOL_MM, *final(idx, q[ok]))
+        keep(idx, q[ok], *final(idx, q[ok]))
     return aimed
 
 
