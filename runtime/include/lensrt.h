@@ -142,7 +142,7 @@ typedef struct lensrt_analytic_lens {
 
 LENSRT_API lensrt_result lensrt_lens_create_analytic(lensrt_context ctx, const lensrt_analytic_lens *desc,
                                           lensrt_lens *out);
-LENSRT_API /* Frees through the context that created the lens (ctx may be NULL). */
+/* Frees through the context that created the lens (ctx may be NULL). */
 LENSRT_API void lensrt_lens_destroy(lensrt_context ctx, lensrt_lens lens);
 
 typedef struct lensrt_lens_info {

@@ -1,6 +1,8 @@
 /* Atomic writes (internal): a unique temporary file next to the target, renamed over it
  * only when complete. Used by the EXR, PNG and phasor-sum writers. */
+#ifndef _POSIX_C_SOURCE
 #define _POSIX_C_SOURCE 200809L /* open, getpid, clock_gettime */
+#endif
 
 #include "image_io.h"
 
@@ -39,4 +41,21 @@ int lensrt_open_temporary(const lensrt_allocator *allocator, const char *path, c
     }
     allocator->free_fn(name, allocator->user_data);
     return -1;
+}
+
+FILE *lensrt_fopen_temporary(const lensrt_allocator *allocator, const char *path, char **out_name, int *out_errno)
+{
+    int fd = lensrt_open_temporary(allocator, path, out_name, out_errno);
+    FILE *file;
+    if (fd < 0)
+        return NULL;
+    file = fdopen(fd, "wb");
+    if (!file) {
+        *out_errno = errno;
+        close(fd);
+        remove(*out_name);
+        allocator->free_fn(*out_name, allocator->user_data);
+        *out_name = NULL;
+    }
+    return file;
 }

@@ -12,6 +12,7 @@
 #include "lensrt.h"
 
 #include <stddef.h>
+#include <stdio.h>
 #include <stdint.h>
 
 /* The context's allocator (never NULL members once set up by context.c). */
@@ -26,6 +27,8 @@ typedef struct lensrt_allocator {
  * failure (ENOMEM when the name cannot be allocated). */
 int lensrt_open_temporary(const lensrt_allocator *allocator, const char *path, char **out_name,
                           int *out_errno);
+/* The same as a stdio stream opened "wb" (NULL, no file left and *out_name NULL on failure). */
+FILE *lensrt_fopen_temporary(const lensrt_allocator *allocator, const char *path, char **out_name, int *out_errno);
 
 /* What a render records in its image files. Strings may be NULL (left out). */
 typedef struct lensrt_image_meta {

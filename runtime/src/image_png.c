@@ -207,25 +207,6 @@ static void png_chunk(png_writer *w, const char type[4], const unsigned char *da
     png_put(w, tail, 4);
 }
 
-/* A unique temporary file next to `path` as a stdio stream; the caller owns it. */
-static FILE *png_open_temporary(const lensrt_allocator *allocator, const char *path, char **out_name,
-                                int *out_errno)
-{
-    int fd = lensrt_open_temporary(allocator, path, out_name, out_errno);
-    FILE *file;
-    if (fd < 0)
-        return NULL;
-    file = fdopen(fd, "wb");
-    if (!file) {
-        *out_errno = errno;
-        close(fd);
-        remove(*out_name);
-        allocator->free_fn(*out_name, allocator->user_data);
-        *out_name = NULL;
-    }
-    return file;
-}
-
 lensrt_result lensrt_write_png(const lensrt_allocator *allocator, const char *path,
                                int width, int height, const float *rgb, double decades,
                                char *err, size_t err_size)
@@ -293,7 +274,7 @@ lensrt_result lensrt_write_png(const lensrt_allocator *allocator, const char *pa
     }
     memset(&w, 0, sizeof w);
     png_crc_init(&w.crc);
-    w.file = png_open_temporary(allocator, path, &tmp_name, &open_errno);
+    w.file = lensrt_fopen_temporary(allocator, path, &tmp_name, &open_errno);
     if (!w.file) {
         png_set_error(err, err_size, "PNG '%s': cannot create a temporary file next to it: %s", path,
                       strerror(open_errno));

@@ -86,8 +86,6 @@ typedef struct lensrt_lens_s {
 
 /* Normalised value of input `in` for raw value v. */
 double lensrt_normalise(const lensrt_input *in, double v);
-/* Evaluate one output at normalised inputs (double, direct sum; for per-sample use). */
-double lensrt_poly_eval(const lensrt_poly *p, int n_inputs, const double *xhat);
 
 /* ------------------------------------------------------------------ samples ----- */
 
@@ -108,7 +106,5 @@ void lensrt_sample_aperture(lensrt_sampler sampler, uint64_t seed, int wavelengt
                             double *xy);
 /* Whether a stop point lies inside the aperture shape of bounding radius radius_mm. */
 int lensrt_aperture_contains(const lensrt_aperture *ap, double radius_mm, double x, double y);
-/* A 64-bit hash of three values (stateless random numbers). */
-uint64_t lensrt_hash3(uint64_t a, uint64_t b, uint64_t c);
 
 #endif /* LENSRT_INTERNAL_H */

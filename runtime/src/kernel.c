@@ -212,7 +212,7 @@ void lensrt_kernel_d(const double *mono, int n_lights, const double *sphase,
 {
     double phase[B], weight[B], x[B], y[B];
     int j, l;
-    dot_d(mono, &px->phase, px->phase0, phase);
+    dot_d(mono, &px->phase, 0.0, phase); /* the constant phase is dropped */
     for (j = 0; j < B; j++) weight[j] = 1.0;
     if (px->clip) {
         dot_d(mono, &px->xi, 0.0, x);

@@ -25,7 +25,7 @@ typedef struct lensrt_terms_d {
 
 /* A pixel for the float kernel. */
 typedef struct lensrt_pixel_f {
-    lensrt_terms_f phase; /* waves; the constant term is phase0 */
+    lensrt_terms_f phase; /* waves; the constant term is phase0 (naive mode only) */
     lensrt_terms_f xi, yi; /* inner pupil position (mm), when clip */
     lensrt_terms_f tau;    /* power transmittance, when n > 0 (else constant, folded in) */
     float phase0;
@@ -34,8 +34,7 @@ typedef struct lensrt_pixel_f {
 } lensrt_pixel_f;
 
 typedef struct lensrt_pixel_d {
-    lensrt_terms_d phase, xi, yi, tau;
-    double phase0;
+    lensrt_terms_d phase, xi, yi, tau; /* phase without its constant term */
     double housing2;
     int clip;
 } lensrt_pixel_d;

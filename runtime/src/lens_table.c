@@ -388,22 +388,3 @@ double lensrt_normalise(const lensrt_input *in, double v)
     double w = in->transform == LENSRT_TRANSFORM_INVERSE_SQUARE ? 1.0 / (v * v) : v;
     return (w - in->c) / in->s;
 }
-
-double lensrt_poly_eval(const lensrt_poly *p, int n_inputs, const double *xhat)
-{
-    double pw[8][LENSRT_MAX_DEGREE + 1];
-    double sum = 0.0;
-    int i, e, t;
-    // Powers of each input once, then one product per term
-    for (i = 0; i < n_inputs; i++) {
-        pw[i][0] = 1.0;
-        for (e = 1; e <= LENSRT_MAX_DEGREE; e++) pw[i][e] = pw[i][e - 1] * xhat[i];
-    }
-    for (t = 0; t < p->n_terms; t++) {
-        const unsigned char *ex = p->exponents + (size_t)t * (size_t)n_inputs;
-        double m = p->coefficients[t];
-        for (i = 0; i < n_inputs; i++) m *= pw[i][ex[i]];
-        sum += m;
-    }
-    return sum;
-}

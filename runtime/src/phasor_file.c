@@ -79,7 +79,7 @@ lensrt_result lensrt_render_save(lensrt_render r, const char *path)
     char *tmp = NULL;
     FILE *f;
     size_t n;
-    int ok, fd, err = 0;
+    int ok, err = 0;
     if (!r || !path) return LENSRT_ERROR_INVALID_ARGUMENT;
     n = n_sums(r);
     memset(&hd, 0, sizeof hd);
@@ -97,15 +97,8 @@ lensrt_result lensrt_render_save(lensrt_render r, const char *path)
     hd.n_lights = r->n_lights;
     hd.has_sumsq = r->sumsq != NULL;
     // Write a temporary file next to the target, then rename it over the target
-    fd = lensrt_open_temporary(&r->ctx->allocator, path, &tmp, &err);
-    f = fd >= 0 ? fdopen(fd, "wb") : NULL;
+    f = lensrt_fopen_temporary(&r->ctx->allocator, path, &tmp, &err);
     if (!f) {
-        if (fd >= 0) {
-            err = errno;
-            close(fd);
-            remove(tmp);
-        }
-        lensrt_free(r->ctx, tmp);
         return lensrt_fail(r->ctx, LENSRT_ERROR_IO, "%s: cannot write phasor sums: %s", path, strerror(err));
     }
     ok = fwrite(&hd, sizeof hd, 1, f) == 1 && fwrite(r->sum, sizeof(double), 2 * n, f) == 2 * n &&

@@ -401,6 +401,13 @@ double lensrt_output_limit(const lensrt_render r, int o, double c0)
     return o < 2 ? 1e-4 * r->lens->housing_last_mm : o == 2 ? 1e-3 * fabs(c0) : r->desc.phase_tolerance_waves;
 }
 
+/* Step (mm) of the central differences of the Huygens amplitude: 1e-3 of the pixel
+ * pitch, at least 1e-6 mm. */
+double lensrt_huygens_step(const lensrt_render r)
+{
+    return 1e-3 * fmax(r->pitch_x, 1e-3);
+}
+
 /* The window's bases per wavelength and output: eigenvectors of sum_p c_p c_p^T over a
  * grid of up to 33 x 33 pixels of the window (c_p: the pixel's non-constant coefficients
  * of the output, the phase in waves). Each pixel later keeps the fewest leading basis
@@ -867,7 +874,7 @@ static void phase_gradient(const lensrt_lens lens, const lensrt_pixel_poly *p, d
 static int setup_pixel(lensrt_render r, int w, double x, double y, pixel_terms *pt, lensrt_pixel_f *pf, lensrt_pixel_d *pdb)
 {
     const lensrt_lens lens = r->lens;
-    const double lambda_mm = r->wavelengths[w] / NM_PER_MM, tol = r->desc.phase_tolerance_waves;
+    const double lambda_mm = r->wavelengths[w] / NM_PER_MM;
     const int dbl = r->desc.precision == LENSRT_PRECISION_DOUBLE;
     const int naive = r->desc.precision == LENSRT_PRECISION_NAIVE_FLOAT;
     const int ns = r->n_slots;
@@ -892,17 +899,14 @@ static int setup_pixel(lensrt_render r, int w, double x, double y, pixel_terms *
     // Prune: drop the smallest terms while the sum of their bounds stays under the
     // output's tolerance (every stop monomial is bounded by 1 on the sampled region)
     {
-        double tols[4];
-        tols[0] = tols[1] = 1e-4 * h;   /* inner pupil position: 0.01% of the housing */
-        tols[2] = 1e-3 * fabs(c[2][0]); /* transmittance: 1e-3 relative (5e-4 in amplitude) */
-        tols[3] = tol;                  /* phase, waves */
         for (o = 0; o < 4; o++) {
+            const double limit = lensrt_output_limit(r, o, c[2][0]);
             int order[136], n = 0, i, j;
             unsigned char kept[136];
             double dropped = 0.0;
             counts[o] = 0;
             if ((o == 0 || o == 1) && !pf->clip) continue;
-            if (o == 2 && bound[2] <= tols[2] && !dbl) continue; /* constant: folded into amp */
+            if (o == 2 && bound[2] <= limit && !dbl) continue; /* constant: folded into amp */
             // Terms by increasing size (insertion sort: at most 135 of them)
             for (k = 1; k < ns; k++) {
                 double a = fabs(c[o][k]);
@@ -913,7 +917,7 @@ static int setup_pixel(lensrt_render r, int w, double x, double y, pixel_terms *
             }
             i = 0;
             if (!dbl)
-                while (i < n && dropped + fabs(c[o][order[i]]) <= tols[o]) dropped += fabs(c[o][order[i++]]);
+                while (i < n && dropped + fabs(c[o][order[i]]) <= limit) dropped += fabs(c[o][order[i++]]);
             // Keep the rest in slot order (the kernel streams monomial rows)
             memset(kept, 0, sizeof kept);
             for (j = i; j < n; j++) kept[order[j]] = 1;
@@ -967,7 +971,7 @@ static int setup_pixel(lensrt_render r, int w, double x, double y, pixel_terms *
     }
     // Huygens amplitude: sqrt|det d2 phi / (d a d s)| / lambda at the stop centre
     // (Rayleigh-Sommerfeld's cos(theta) / (lambda r) in free space), by central differences
-    step = 1e-3 * fmax(r->pitch_x, 1e-3);
+    step = lensrt_huygens_step(r);
     phase_gradient(lens, &r->ps[w * 4 + 3], x + step, y, grad[0]);
     phase_gradient(lens, &r->ps[w * 4 + 3], x - step, y, grad[1]);
     phase_gradient(lens, &r->ps[w * 4 + 3], x, y + step, grad[2]);
@@ -982,7 +986,6 @@ static int setup_pixel(lensrt_render r, int w, double x, double y, pixel_terms *
     if (counts[2] == 0) pt->amp *= sqrt(c[2][0] > 0 ? c[2][0] : 0.0);
     // Point the kernel's views at the terms
     pf->phase0 = naive ? (float)c[3][0] : 0.0f;
-    pdb->phase0 = 0.0;
     pf->housing2 = (float)(h * h);
     pdb->housing2 = h * h;
     {

@@ -60,5 +60,6 @@ struct lensrt_render_s {
 /* The largest l1 norm of the non-constant coefficients output o (x_i, y_i, tau_i, phi_i)
  * may drop at a pixel whose constant term is c0. */
 double lensrt_output_limit(const lensrt_render r, int o, double c0);
+double lensrt_huygens_step(const lensrt_render r);
 
 #endif /* LENSRT_RENDER_H */

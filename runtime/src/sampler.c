@@ -16,7 +16,8 @@ static uint64_t mix64(uint64_t z)
     return z ^ (z >> 31);
 }
 
-uint64_t lensrt_hash3(uint64_t a, uint64_t b, uint64_t c)
+/* A 64-bit hash of three values (stateless random numbers). */
+static uint64_t lensrt_hash3(uint64_t a, uint64_t b, uint64_t c)
 {
     return mix64(mix64(mix64(a + 0x9e3779b97f4a7c15ULL) ^ b) ^ c);
 }

@@ -364,7 +364,6 @@ int main(int argc, char **argv)
 fail_input:
     rc = res == LENSRT_ERROR_NO_DEVICE || res == LENSRT_ERROR_UNSUPPORTED ? 3 : 2;
 fail:
-    if (rc != 2 && rc != 3) rc = 1;
     fprintf(stderr, "lensrt-psf: %s\n", lensrt_context_last_error(ctx)[0] ? lensrt_context_last_error(ctx)
                                                                         : lensrt_result_string(res));
 done:

@@ -363,11 +363,10 @@ lensrt_result lensrt_gl_get(lensrt_context ctx, lensrt_gl **out)
         failed = p == LENSRT_GL_PLATFORM_GLFW ? open_glfw(gl, why, sizeof why) : open_egl(gl, p, why, sizeof why);
         if (!failed) {
             gl->platform = p;
-            snprintf(gl->platform_name, sizeof gl->platform_name, "%s", platform_name(p));
             lensrt_gl_release(gl);
             ctx->gl = gl;
             *out = gl;
-            lensrt_log(ctx, LENSRT_LOG_INFO, "GL: %s, GL_RENDERER %s, GL_VERSION %s", gl->platform_name, gl->renderer,
+            lensrt_log(ctx, LENSRT_LOG_INFO, "GL: %s, GL_RENDERER %s, GL_VERSION %s", platform_name(p), gl->renderer,
                        gl->version);
             return LENSRT_SUCCESS;
         }
@@ -405,7 +404,7 @@ lensrt_result lensrt_context_gl_info(lensrt_context ctx, lensrt_gl_info *out)
     if (!ctx || !out) return LENSRT_ERROR_INVALID_ARGUMENT;
     memset(out, 0, sizeof *out);
     if ((res = lensrt_gl_get(ctx, &gl)) != LENSRT_SUCCESS) return res;
-    out->platform = gl->platform_name;
+    out->platform = platform_name(gl->platform);
     out->renderer = gl->renderer;
     out->version = gl->version;
     out->software = gl->software;

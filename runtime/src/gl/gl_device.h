@@ -49,7 +49,7 @@ typedef void (*lensrt_gl_proc)(void);
 
 typedef struct lensrt_gl_s {
     lensrt_gl_platform platform;
-    char platform_name[32], renderer[256], version[256];
+    char renderer[256], version[256];
     int software;
     int max_groups_x;               /* GL_MAX_COMPUTE_WORK_GROUP_COUNT[0] */
     void *egl_lib, *glfw_lib;       /* dlopen handles */

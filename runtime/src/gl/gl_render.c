@@ -25,7 +25,6 @@ enum {
     B_PSCOEF, B_PSCODE, B_PSOFF, B_RECORDS, B_RANKS, B_SUMS, B_SUMSQ, B_NORM1, B_COUNT
 };
 
-#define BLOCK 256          /* samples summed in float before the double sums */
 #define GROUP 64           /* local_size_x of every shader */
 #define MAX_VARIANTS 64    /* splat programs kept (one per set of term counts) */
 #define RECORD_BYTES (256u << 20) /* per-pixel records of one chunk, at most */
@@ -213,7 +212,7 @@ static void scene_defines(lensrt_render r)
     append_int(d, size, "NL", r->n_lights);
     append_int(d, size, "NW", r->n_wl);
     append_int(d, size, "PASS", LENSRT_PASS);
-    append_int(d, size, "BLOCK", BLOCK);
+    append_int(d, size, "BLOCK", LENSRT_BLOCK); /* samples summed in float before the double sums */
     append_int(d, size, "W", r->width);
     append_int(d, size, "NAIVE", r->desc.precision == LENSRT_PRECISION_NAIVE_FLOAT);
     append_int(d, size, "UNBIASED", r->desc.estimator == LENSRT_ESTIMATOR_UNBIASED);
@@ -245,7 +244,7 @@ static void scene_defines(lensrt_render r)
     append_double(d, size, "LIMIT_TAU_REL", lensrt_output_limit(r, 2, 1.0));
     append_double(d, size, "TOL_PHASE", lensrt_output_limit(r, 3, 0.0));
     // The Huygens amplitude's finite-difference step, as on the CPU
-    append_double(d, size, "STEP_MM", 1e-3 * fmax(r->pitch_x, 1e-3));
+    append_double(d, size, "STEP_MM", lensrt_huygens_step(r));
 }
 
 lensrt_result lensrt_gl_render_create(lensrt_render r)
@@ -253,7 +252,7 @@ lensrt_result lensrt_gl_render_create(lensrt_render r)
     lensrt_gl_render_s *g;
     lensrt_gl *gl;
     lensrt_result res;
-    double *lights;
+    double *lights, *lambda;
     size_t nsum;
     int i;
     // What the GL path does not do, said before any device work
@@ -282,8 +281,10 @@ lensrt_result lensrt_gl_render_create(lensrt_render r)
     g->k = lensrt_calloc(r->ctx, (size_t)r->n_wl * 4, sizeof(int));
     g->inside = lensrt_calloc(r->ctx, LENSRT_PASS, sizeof(float));
     lights = lensrt_calloc(r->ctx, (size_t)r->n_lights * 4, sizeof(double));
-    if (!g->k || !g->inside || !lights) {
+    lambda = lensrt_calloc(r->ctx, (size_t)r->n_wl, sizeof(double));
+    if (!g->k || !g->inside || !lights || !lambda) {
         lensrt_free(r->ctx, lights);
+        lensrt_free(r->ctx, lambda);
         return lensrt_fail(r->ctx, LENSRT_ERROR_OUT_OF_MEMORY, "GL: out of memory");
     }
     for (i = 0; i < r->n_wl * 4; i++) g->k[i] = -1;
@@ -293,9 +294,11 @@ lensrt_result lensrt_gl_render_create(lensrt_render r)
         lights[4 * i + 2] = r->light_x[i];
         lights[4 * i + 3] = r->light_y[i];
     }
+    for (i = 0; i < r->n_wl; i++) lambda[i] = r->wavelengths[i] * 1e-6;
     scene_defines(r);
     if ((res = lensrt_gl_acquire(r->ctx, gl)) != LENSRT_SUCCESS) {
         lensrt_free(r->ctx, lights);
+        lensrt_free(r->ctx, lambda);
         return res;
     }
     // Programs: the sample shader, and the pixel set-up for fitted lenses
@@ -304,14 +307,9 @@ lensrt_result lensrt_gl_render_create(lensrt_render r)
     if (res == LENSRT_SUCCESS) {
         // What stays fixed: lights, wavelengths, pixel centres, polynomials; then space
         // for the pass's samples and rows, the chunk's records and the phasor sums
-        double *lambda = lensrt_calloc(r->ctx, (size_t)r->n_wl, sizeof(double));
         gl->GenBuffers(B_COUNT, g->buffers);
         upload(gl, g->buffers[B_LIGHTS], (size_t)r->n_lights * 4 * sizeof(double), lights);
-        if (lambda) {
-            for (i = 0; i < r->n_wl; i++) lambda[i] = r->wavelengths[i] * 1e-6;
-            upload(gl, g->buffers[B_LAMBDA], (size_t)r->n_wl * sizeof(double), lambda);
-        }
-        lensrt_free(r->ctx, lambda);
+        upload(gl, g->buffers[B_LAMBDA], (size_t)r->n_wl * sizeof(double), lambda);
         upload(gl, g->buffers[B_PIXX], (size_t)r->width * sizeof(double), r->xs);
         upload(gl, g->buffers[B_PIXY], (size_t)r->height * sizeof(double), r->ys);
         upload(gl, g->buffers[B_XY], 2 * LENSRT_PASS * sizeof(double), NULL);
@@ -324,11 +322,12 @@ lensrt_result lensrt_gl_render_create(lensrt_render r)
             upload(gl, g->buffers[B_ROWS], 4 * (size_t)g->nb * LENSRT_PASS * sizeof(float), NULL);
             upload(gl, g->buffers[B_RECORDS], (size_t)g->chunk * (6 + 4 * (size_t)g->nb) * sizeof(float), NULL);
             upload(gl, g->buffers[B_RANKS], ((size_t)r->n_wl * 4 + 3) * sizeof(GLuint), NULL);
-            res = lambda ? upload_polynomials(r) : lensrt_fail(r->ctx, LENSRT_ERROR_OUT_OF_MEMORY, "GL: out of memory");
+            res = upload_polynomials(r);
         }
         if (res == LENSRT_SUCCESS) res = check_gl(r, "allocating the render's buffers");
     }
     lensrt_free(r->ctx, lights);
+    lensrt_free(r->ctx, lambda);
     lensrt_gl_release(gl);
     if (res == LENSRT_SUCCESS)
         lensrt_log(r->ctx, LENSRT_LOG_INFO, "render: device gl (%s, %s), %ld-pixel chunks", gl->renderer, gl->version, g->chunk);
