@@ -12,6 +12,7 @@ Every failing call raises LensrtError with the library's message.
 from __future__ import annotations
 
 import ctypes as C
+import enum
 import os
 from collections.abc import Sequence
 from pathlib import Path
@@ -28,7 +29,24 @@ PRECISIONS = {"default": 0, "double": 1, "naive_float": 2}
 SHAPES = {"circle": 0, "blades": 1, "slit": 2}
 DEVICES = {"cpu": 0, "gl": 1}
 GL_PLATFORMS = {"auto": 0, "egl-device": 1, "egl-surfaceless": 2, "glfw": 3}
-NO_DEVICE = 9  # LENSRT_ERROR_NO_DEVICE
+
+
+class Result(enum.IntEnum):
+    """lensrt_result, in the header's order (LENSRT_SUCCESS, LENSRT_ERROR_...)."""
+    SUCCESS = 0
+    INVALID_ARGUMENT = 1
+    OUT_OF_MEMORY = 2
+    IO = 3
+    PARSE = 4
+    OUT_OF_DOMAIN = 5
+    INCOMPATIBLE = 6
+    UNSUPPORTED = 7
+    CANCELLED = 8
+    NO_DEVICE = 9
+    DEVICE = 10
+
+
+NO_DEVICE = Result.NO_DEVICE
 
 
 class LensrtError(RuntimeError):
@@ -253,7 +271,7 @@ class Lensrt:
     def image_point(self, lens: C.c_void_p, light: Sequence[float], wavelength_nm: float,
                     focus_offset_mm: float = 0.0) -> tuple[float, float]:
         xy = (C.c_double * 2)()
-        lt = Light(*(list(light) + [0.0] * (4 - len(light))))
+        lt = Light(*light)  # fields not given are zero
         self._check(self.lib.lensrt_lens_image_point(self.ctx, lens, C.byref(lt), wavelength_nm,
                                                      focus_offset_mm, xy))
         return xy[0], xy[1]
@@ -275,7 +293,7 @@ class Lensrt:
         desc.aperture = Aperture(SHAPES[shape], radius_mm, f_number, blades, blade_curvature,
                                  rotation_deg, slit_width_mm, slit_separation_mm)
         if lights:
-            arr = (Light * len(lights))(*[Light(*(list(x) + [0.0] * (4 - len(x)))) for x in lights])
+            arr = (Light * len(lights))(*[Light(*x) for x in lights])
             keep.append(arr)
             desc.lights = arr
             desc.n_lights = len(lights)

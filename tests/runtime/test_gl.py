@@ -24,7 +24,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from conftest import LIBRARY
-from lensrt_ctypes import NO_DEVICE, Lensrt, LensrtError
+from lensrt_ctypes import NO_DEVICE, Lensrt, LensrtError, Result
 from test_validation import (
     AIRY_ZERO,
     INVALID_ARGUMENT,
@@ -39,7 +39,7 @@ from test_validation import (
 
 ROOT = Path(__file__).resolve().parents[2]
 PSF = ROOT / "build" / "runtime" / "runtime" / "lensrt-psf"
-UNSUPPORTED = 7
+UNSUPPORTED = Result.UNSUPPORTED
 REQUIRE = bool(os.environ.get("LENSRT_REQUIRE_GL"))
 
 # Float rounding floor of the GL path relative to a double reference: each splat's phase

@@ -17,12 +17,13 @@ form. Lengths in mm, wavelengths in nm.
 
 from __future__ import annotations
 
+import re
 from functools import lru_cache
 from pathlib import Path
 
 import numpy as np
 import pytest
-from lensrt_ctypes import LensrtError
+from lensrt_ctypes import LensrtError, Result
 from scipy.integrate import quad
 from scipy.special import fresnel, j0, j1, roots_legendre
 
@@ -35,8 +36,8 @@ K = 2.0 * np.pi / LAM  # rad / mm
 AIRY_ZERO = 1.2196698912665045  # first zero of J1 / pi: 3.8317059702 / pi
 FLOAT32 = 1e-6  # image() returns float32: relative rounding ~6e-8, with margin
 
-# Error codes of lensrt_result
-INVALID_ARGUMENT, IO, PARSE, OUT_OF_DOMAIN, INCOMPATIBLE = 1, 3, 4, 5, 6
+INVALID_ARGUMENT, IO, PARSE = Result.INVALID_ARGUMENT, Result.IO, Result.PARSE
+OUT_OF_DOMAIN, INCOMPATIBLE = Result.OUT_OF_DOMAIN, Result.INCOMPATIBLE
 
 
 # ----------------------------------------------------------------- helpers -----
@@ -590,8 +591,6 @@ def test_unbiased_estimator_refuses_correlated_samplers(rt):
     low by about s^2 / N (-9% of this window's energy at N = 4096, measured before the
     library refused it): the combination is an error, and the default sampler becomes
     random for the unbiased estimator."""
-    from lensrt_ctypes import LensrtError
-
     energy, expected, *_ = energy_setup(rt)
     for sampler in ("sobol", "stratified"):
         with pytest.raises(LensrtError, match="independent samples"):
@@ -713,6 +712,16 @@ def test_save_load_merge(rt, tmp_path):
 
 
 # ------------------------------------------------------------- 12. bad input -----
+
+
+def test_binding_result_codes_follow_the_header():
+    # The binding's Result mirrors the C enum by value: a code added or moved in lensrt.h
+    # without the binding would make every code check in these tests compare wrongly
+    header = (ROOT / "runtime" / "include" / "lensrt.h").read_text(encoding="utf-8")
+    body = re.search(r"typedef enum lensrt_result \{(.*?)\} lensrt_result;", header, re.S)
+    names = re.findall(r"^\s*LENSRT_(?:ERROR_)?(\w+)", body.group(1), re.M)
+    assert names == [code.name for code in Result]
+    assert body.group(1).split(",")[0].strip() == "LENSRT_SUCCESS = 0"  # then 1, 2, ...
 
 
 def test_bad_input_raises_with_parameter_named(rt, tmp_path):
