@@ -255,8 +255,8 @@ typedef int (*lensrt_progress_fn)(double fraction, double eta_seconds, void *use
 
 /* Add `samples_per_wavelength` aperture samples for every wavelength, continuing the
  * sample sequence where the sums left off: two runs draw the same samples as one longer
- * run, and give the same sums up to rounding (bit for bit when the first run's count is
- * a multiple of the pass size, 16384). */
+ * run, and give the same sums up to rounding (bit for bit, on either device, when the
+ * first run's count is a multiple of 256: samples are summed in blocks of 256). */
 LENSRT_API lensrt_result lensrt_render_run(lensrt_render render, uint64_t samples_per_wavelength,
                                 lensrt_progress_fn progress, void *user_data);
 

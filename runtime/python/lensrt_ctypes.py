@@ -22,6 +22,8 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[2]
 DEFAULT_LIBRARY = ROOT / "build" / "runtime" / "runtime" / "liblensrt.so"
+# The library Lensrt() loads: $LENSRT_LIBRARY (another build), else what `make runtime` builds
+LIBRARY = Path(os.environ.get("LENSRT_LIBRARY") or DEFAULT_LIBRARY)
 
 SAMPLERS = {"default": 0, "random": 1, "stratified": 2, "sobol": 3}
 ESTIMATORS = {"default": 0, "paper": 1, "unbiased": 2}
@@ -178,7 +180,7 @@ class Lensrt:
 
     def __init__(self, library: str | os.PathLike[str] | None = None, threads: int = 0,
                  gl_platform: str = "auto") -> None:
-        path = Path(library or os.environ.get("LENSRT_LIBRARY", DEFAULT_LIBRARY))
+        path = Path(library or LIBRARY)
         if not path.exists():
             raise FileNotFoundError(f"{path}: lensrt is not built (run `make runtime`)")
         lib = C.CDLL(str(path))

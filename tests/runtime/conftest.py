@@ -7,7 +7,6 @@ LENSRT_LIBRARY to test another build of the library.
 
 from __future__ import annotations
 
-import os
 import sys
 from pathlib import Path
 
@@ -16,10 +15,7 @@ import pytest
 ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT / "runtime" / "python"))
 
-from lensrt_ctypes import DEFAULT_LIBRARY  # noqa: E402  (needs the path above)
-
-LIBRARY = Path(os.environ.get("LENSRT_LIBRARY") or DEFAULT_LIBRARY)
-
+from lensrt_ctypes import LIBRARY  # noqa: E402  (needs the path above)
 
 SKIP_MESSAGE = (f"lensrt runtime tests need {LIBRARY}: build it with `make runtime` "
                 "(`make test` builds it first)")

@@ -23,8 +23,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import LIBRARY
-from lensrt_ctypes import NO_DEVICE, Lensrt, LensrtError, Result
+from lensrt_ctypes import LIBRARY, NO_DEVICE, Lensrt, LensrtError, Result
 from test_validation import (
     AIRY_ZERO,
     INVALID_ARGUMENT,
@@ -192,8 +191,8 @@ def test_gl_precision_needed_and_sufficient(gl, lens0001):
     assert rel_l2(default, cpu) < FLOAT_FLOOR
 
     # The same on the fitted lens (light at 2 m, near its best focus): the default GL
-    # path within the CPU test's pruning bound 2 * 2 pi tol (tol = 1e-3 there, 3e-3 here
-    # by default: 0.038) of the CPU's double render; naive far off (28% on the CPU).
+    # path within the pruning bound 2 * 2 pi tol at the default tol, 3e-3 (0.038), of the
+    # CPU's double render; naive far off (28% on the CPU).
     focus, n_px, pitch = 5.0, 15, 0.0015
     cx, cy = gl.image_point(lens0001, (0.0, 0.0, dist), WL_NM, focus)
     kw = dict(width=n_px, height=n_px, width_mm=n_px * pitch, center=(cx, cy),

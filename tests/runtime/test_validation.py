@@ -437,10 +437,11 @@ def test_precision_fitted_lens_default_vs_double(rt):
     # The fitted Angenieux 100 mm at f/8, light at 2 m (focus offset 5 mm: near its best
     # focus, found by a scan), window 22 um around the image point. The default mode
     # reduces the phase in double, then prunes per-pixel phase terms whose bounds sum to
-    # phase_tolerance_waves (default 1e-3) and splats in float. Each phasor's phase moves by
+    # phase_tolerance_waves (default 3e-3) and splats in float. Each phasor's phase moves by
     # at most tol waves, so an intensity near the peak moves by at most ~2 * 2 pi tol
-    # relative (coherent worst case): 1.3e-2 at the default tol (measured 1.1e-5 here,
-    # 1.5e-4 for a light 5 deg off axis). With
+    # relative (coherent worst case): 3.8e-2 at the default tol; asserted below is the
+    # tighter 4 pi 1e-3 = 1.3e-2 (measured 1.1e-5 here, 1.5e-4 for a light 5 deg off
+    # axis). With
     # tol = 1e-5 the pruning bound is 1.3e-4 and float rounding of the kept phase terms
     # (eps 6e-8 times some hundred waves of phase across the stop at f/8, ~3e-5 waves)
     # adds ~4e-4 at worst: bound 1e-3 (measured 1.1e-5; 3e-5 off axis). naive_float keeps
@@ -630,7 +631,7 @@ def test_deterministic_across_threads_and_runs(sampler):
             two = new()
             two.run(4096)
             two.run(4096)
-            # Whole passes (4096 samples) sum in the same order: bit-identical
+            # Whole 256-sample blocks (4096 = 16 of them) sum in the same order: bit-identical
             np.testing.assert_array_equal(one.image(), two.image(), err_msg=f"{name} {sampler}")
             odd = new()
             odd.run(3000)
@@ -660,7 +661,8 @@ def test_save_load_merge(rt, tmp_path):
     a = new(1)
     a.run(n1)
     a.save(tmp_path / "a.phasors")
-    # Resume: load, run N more == one run of 2N (passes of 4096 line up: bit-identical)
+    # Resume: load, run N more == one run of 2N (N a whole number of 256-sample blocks:
+    # bit-identical, as lensrt.h promises)
     resumed = new(1)
     resumed.load(tmp_path / "a.phasors")
     assert resumed.stats().samples_per_wavelength == n1
