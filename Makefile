@@ -6,8 +6,9 @@
 #                spread function at f/2, f/8 and f/32 (EXR and PNG, build/demo/psf/), and
 #                at f/8 on the GL device
 #   make test    lint, the C tests (also under ASan/UBSan) and the Python test suite
-#   make bench   ray-tracer throughput, generated-code speed, fit report, lensrt splat rate
-#                and error against run time (build/bench/)
+#   make bench   ray-tracer throughput, generated-code speed, fit report, lensrt splat rate,
+#                error against run time, and per generated lens the fit time and the worst
+#                PSF cell against exactly traced rays (build/bench/)
 
 PYTHON ?= /usr/bin/python3
 VENV   := .venv
@@ -48,13 +49,19 @@ demo: setup runtime
 	$(VENV)/bin/lensfit report $(DEMO_LENS) -o build/demo/report
 	$(VENV)/bin/lensfit scene $(DEMO_LENS) scenes/demo.toml -o build/demo/scene-demo
 	@mkdir -p build/demo/psf
-	@# The paper's Figure 7: an off-axis light through the default lens, 7 curved blades
-	for fn in 2 8 32; do \
-		size=$$(case $$fn in 2) echo 0.2;; 8) echo 0.1;; 32) echo 0.16;; esac); \
+	@# The paper's Figure 7: an off-axis light through the default lens, 7 curved blades.
+	@# Sample counts that reach 1% Monte Carlo error (measured; --target-error doubles them
+	@# if the printed estimate were above), then the three side by side with scale bars
+	panels=; for fn in 2 8 32; do \
+		case $$fn in 2) size=0.2 n=131072;; 8) size=0.1 n=16384;; 32) size=0.16 n=4096;; esac; \
 		$(PSF) --lens $(DEMO_LENS) --light 6,4 --focus 0.2 --f-number $$fn --blades 7 \
 			--curvature 0.3 --rotation 10 --size $$size --resolution 256x256 \
-			--samples 16384 -o build/demo/psf/f$$fn.exr --png build/demo/psf/f$$fn.png || exit 1; \
-	done
+			--samples $$n --target-error 0.01 \
+			-o build/demo/psf/f$$fn.exr --png build/demo/psf/f$$fn.png || exit 1; \
+		panels="$$panels --panel build/demo/psf/f$$fn.png $$size f/$$fn"; \
+	done; \
+	$(PY) runtime/tools/psf_sheet.py -o build/demo/psf/sheet.png $$panels \
+		--title "lens $(DEMO_LENS), light at (6°, 4°), 7 curved blades, sensor 0.2 mm behind focus, 16 wavelengths"
 	@# The f/8 scene again on the GL device (OpenGL 4.3 compute shaders; llvmpipe on a
 	@# machine without a GPU, so smaller here); exit status 3 means no GL device
 	$(PSF) --lens $(DEMO_LENS) --light 6,4 --focus 0.2 --f-number 8 --blades 7 --curvature 0.3 \
@@ -86,6 +93,7 @@ bench: setup runtime
 	$(PY) -m lensfit.codegen.bench | tee build/bench/codegen.txt
 	$(VENV)/bin/lensfit report $(DEMO_LENS) -o build/bench/fit-$(DEMO_LENS) --json \
 		> build/bench/fit-$(DEMO_LENS).json
+	$(PY) -m lensfit.bench --fits --out build/bench
 
 clean:
 	rm -rf build $(VENV)

@@ -21,6 +21,7 @@ import numpy as np
 from lensfit.prescription import load_lens, make_lens
 from lensfit.prescription.model import Lens
 from lensfit.trace.tracer import Rays, trace
+from lensfit.trust import cell_label
 
 
 def _bundle(lens: Lens, n: int, seed: int = 1) -> Rays:
@@ -99,14 +100,78 @@ def _shape_lens(spec: dict[str, Any]) -> Lens:
     )
 
 
+def bench_fits(outdir: Path, lenses: list[str]) -> int:
+    """Fit time and the worst cell of the PSF table against exactly traced rays
+    (lensfit.trust) for each lens, with the default (tensor) method and, as the baseline
+    measured in the same run, the sparse pursuit of the first fits over the same domain;
+    the committed table's figure beside them. build/bench/fits.json and fits.md."""
+    import tempfile
+
+    from lensfit.fitting import FitOptions
+    from lensfit.generate import GENERATED_DIR, lens_folder_name, read_fit_json
+    from lensfit.sample.domain import default_domain
+    from lensfit.stage import run
+
+    rows = []
+    for lens_id in lenses:
+        lens = load_lens(lens_id)
+        domain = default_domain(lens)
+        row: dict[str, Any] = {"lens": lens.name, "id": lens_id}
+        for method in ("tensor", "pursuit"):
+            with tempfile.TemporaryDirectory() as tmp:
+                t0 = time.perf_counter()
+                _, fig = run(lens, domain=domain, options=FitOptions(method=method),
+                             generated_dir=Path(tmp), timing=False)
+                terms = sum(o["terms"] for o in fig["outputs"])
+            row[method] = {"fit_seconds": fig["fit_seconds"],
+                           "psf_check_seconds": fig["psf_vs_exact"]["seconds"],
+                           "total_seconds": time.perf_counter() - t0, "terms": terms,
+                           "worst_psf_vs_exact": fig["psf_vs_exact"]["worst"]["relative_l2"],
+                           "worst_cell": cell_label(fig["psf_vs_exact"]["worst"])}
+        committed = GENERATED_DIR / lens_folder_name(lens) / "fit.json"
+        if committed.is_file():
+            row["committed_worst_psf_vs_exact"] = read_fit_json(committed)[0].trust[
+                "psf_vs_exact"]
+        rows.append(row)
+    (outdir / "fits.json").write_text(json.dumps(rows, indent=1) + "\n")
+    lines = ["# Fits: time and PSF against exactly traced rays", "",
+             "Default method (tensor least squares) against the baseline measured in the "
+             "same run (the sparse pursuit of the first fits, same domain); worst cell of "
+             "the PSF table (`lensfit.trust`), relative L2.", "",
+             "| lens | fit s (tensor) | fit s (pursuit) | worst cell (tensor) | worst "
+             "(pursuit) | error ratio | terms (tensor / pursuit) | committed table |",
+             "|---|---:|---:|---|---:|---:|---:|---:|"]
+    for r in rows:
+        t, p = r["tensor"], r["pursuit"]
+        lines.append(
+            f"| {r['id']} | {t['fit_seconds']:.0f} | {p['fit_seconds']:.0f} | "
+            f"{t['worst_psf_vs_exact']:.2%} ({t['worst_cell']}) | {p['worst_psf_vs_exact']:.1%}"
+            f" | {p['worst_psf_vs_exact'] / max(t['worst_psf_vs_exact'], 1e-12):.0f}x | "
+            f"{t['terms']} / {p['terms']} | "
+            f"{r.get('committed_worst_psf_vs_exact', float('nan')):.2%} |")
+    text = "\n".join(lines) + "\n"
+    (outdir / "fits.md").write_text(text)
+    print(text)
+    return 0
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--out", default="build/bench")
     ap.add_argument("--rays", type=int, default=400_000)
     ap.add_argument("--scalar-rays", type=int, default=300)
+    ap.add_argument("--fits", nargs="*", metavar="LENS", default=None,
+                    help="instead: fit time and worst PSF cell of these lenses (none "
+                         "named: every lens in generated/)")
     args = ap.parse_args(argv)
     outdir = Path(args.out)
     outdir.mkdir(parents=True, exist_ok=True)
+    if args.fits is not None:
+        from lensfit.generate import GENERATED_DIR
+
+        ids = args.fits or sorted(p.name.split("-")[0] for p in GENERATED_DIR.iterdir()
+                                  if (p / "fit.json").is_file())
+        return bench_fits(outdir, ids)
 
     results: list[dict[str, Any]] = []
     for lens_id in ("0001", "0014", "2004"):

@@ -136,17 +136,49 @@ def cmd_check(args: argparse.Namespace) -> int:
     return 1 if bad else 0
 
 
+def _pair(text: str | None, what: str) -> tuple[float, float] | None:
+    """'LO,HI' -> (lo, hi) with lo < hi, both finite."""
+    if text is None:
+        return None
+    parts = text.split(",")
+    try:
+        lo, hi = (float(v) for v in parts)
+    except ValueError:
+        raise ValueError(f"{what} = {text!r}: expected two numbers LO,HI") from None
+    if not (math.isfinite(lo) and math.isfinite(hi) and lo < hi):
+        raise ValueError(f"{what} = {text!r}: expected finite numbers with LO < HI")
+    return lo, hi
+
+
 def _domain_and_options(args: argparse.Namespace, lens):
     from lensfit.fitting import FitOptions
     from lensfit.sample import default_domain
 
-    domain = default_domain(lens, f_number=args.f_number)
+    close = None if args.close_focus is None else float(args.close_focus)
+    domain = default_domain(lens, f_number=args.f_number, field_deg=args.field,
+                            close_focus_mm=close,
+                            wavelengths_nm=_pair(args.wavelengths, "--wavelengths"),
+                            focus_mm=_pair(args.focus, "--focus"),
+                            image_circle_mm=args.image_circle)
+    extra = {"psf_target": args.psf_target, "method": args.method}
     if args.quick:
         options = FitOptions(max_terms=60, piston_terms=20, max_degree=7, phase_degree=8,
-                             train_groups=600, train_per_group=8, test_groups=100)
+                             train_groups=600, train_per_group=8, test_groups=100,
+                             groups=1000, aperture_points=64, field_degrees=(4, 6),
+                             aperture_degree=8, **extra)
     else:
-        options = FitOptions()
+        options = FitOptions(**extra)
     return domain, options
+
+
+def _print_trust(fig: dict) -> None:
+    from lensfit.trust import cell_label
+
+    worst = fig["psf_vs_exact"]["worst"]
+    rel, target = worst["relative_l2"], fig["psf_target"]
+    verdict = "within" if rel <= target else "ABOVE"
+    print(f"  PSF against exactly traced rays: worst cell {rel:.3%} relative L2 "
+          f"({cell_label(worst)}), {verdict} the target {target:.3%}")
 
 
 def cmd_fit(args: argparse.Namespace) -> int:
@@ -155,17 +187,34 @@ def cmd_fit(args: argparse.Namespace) -> int:
     from lensfit.prescription import load_lens
 
     lens = load_lens(args.lens)
-    domain, options = _domain_and_options(args, lens)
     gen = Path(args.generated) if args.generated else GENERATED_DIR
-    report_dir = Path(args.report) if args.report else Path("build/report") / lens_folder_name(lens)
-    _, fig = stage.run(lens, domain=domain, options=options, generated_dir=gen,
-                       report_dir=report_dir, timing=not args.no_timing)
-    print(f"wrote {gen / lens_folder_name(lens)}/ and {report_dir / 'report.md'} "
-          f"(fit {fig['fit_seconds']:.1f} s)")
+    if args.scene:
+        from lensfit.scene import load_scene, scene_domain
+
+        scene = load_scene(args.scene)
+        domain, options = _domain_and_options(args, lens)
+        domain = scene_domain(lens, scene)
+        folder = gen / lens_folder_name(lens) / "scene-fits" / scene.name
+        report_dir = (Path(args.report) if args.report
+                      else Path("build/report") / lens_folder_name(lens) / scene.name)
+        _, fig = stage.run(lens, domain=domain, options=options, generated_dir=folder,
+                           report_dir=report_dir, timing=not args.no_timing,
+                           flat=True, scene=scene)
+        out = folder
+    else:
+        domain, options = _domain_and_options(args, lens)
+        report_dir = (Path(args.report) if args.report
+                      else Path("build/report") / lens_folder_name(lens))
+        _, fig = stage.run(lens, domain=domain, options=options, generated_dir=gen,
+                           report_dir=report_dir, timing=not args.no_timing)
+        out = gen / lens_folder_name(lens)
+    print(f"wrote {out}/ and {report_dir / 'report.md'} (fit {fig['fit_seconds']:.1f} s, "
+          f"PSF check {fig['psf_vs_exact']['seconds']:.1f} s)")
     for o in fig["outputs"]:
         miss = "" if o["reached"] else f"  (target {o['target']:.3g} not reached)"
-        print(f"  {o['system']} {o['name']:6s} {o['terms']:4d} terms  RMS {o['rms']:.4g} "
+        print(f"  {o['system']} {o['name']:6s} {o['terms']:5d} terms  RMS {o['rms']:.4g} "
               f"{o['unit']}{miss}")
+    _print_trust(fig)
     return 0
 
 
@@ -183,6 +232,7 @@ def cmd_report(args: argparse.Namespace) -> int:
         print(json.dumps(fig, indent=1, allow_nan=False))
     else:
         print(f"wrote {report_dir / 'report.md'}")
+        _print_trust(fig)
     return 0
 
 
@@ -208,7 +258,7 @@ def cmd_scene(args: argparse.Namespace) -> int:
     systems, _ = read_fit_json(fit_file)
     scene = sc.load_scene(args.scene)
     special = sc.specialise(systems, scene)
-    files = scene_files(lens, special, scene.name, args.scene)
+    files = scene_files(lens, special, scene.name, args.scene, systems.trust)
     c_files = {name: text for name, text in files.items() if name.endswith((".c", ".h"))}
     out = Path(args.out) if args.out else gen / "scenes" / scene.name
     write_folder(out, files)
@@ -290,6 +340,25 @@ def build_parser() -> argparse.ArgumentParser:
         p.add_argument("lens")
         p.add_argument("--f-number", type=float, default=None,
                        help="widest aperture fitted (default f/2, or wide open if slower)")
+        p.add_argument("--field", type=float, default=None, metavar="DEG",
+                       help="half field angle in x (default: the field of a 36 x 24 mm "
+                            "frame); the image circle follows")
+        p.add_argument("--image-circle", type=float, default=None, metavar="MM",
+                       help="radius of the sensor disc fitted (default: follows --field)")
+        p.add_argument("--wavelengths", default=None, metavar="LO,HI",
+                       help="wavelength range in nm (default 380,780)")
+        p.add_argument("--close-focus", default=None, metavar="MM",
+                       help="closest scene point from the first vertex in mm, or inf "
+                            "(default: ten focal lengths); the sensor travel follows")
+        p.add_argument("--focus", default=None, metavar="LO,HI",
+                       help="sensor shift range z_S in mm (default: what focuses from "
+                            "infinity to the close focus)")
+        p.add_argument("--psf-target", type=float, default=0.01, metavar="REL",
+                       help="PSF error the fit aims at, relative L2 against exactly "
+                            "traced rays (default 0.01); the phase target follows")
+        p.add_argument("--method", choices=("tensor", "pursuit"), default="tensor",
+                       help="tensor least squares on a ray grid (default) or the sparse "
+                            "pursuit of the first fits")
         p.add_argument("--quick", action="store_true",
                        help="small budgets and samples (for tests and trials)")
         p.add_argument("--no-timing", action="store_true",
@@ -297,6 +366,9 @@ def build_parser() -> argparse.ArgumentParser:
         if name == "fit":
             p.add_argument("--generated", default=None, help="folder for generated code")
             p.add_argument("--report", default=None, help="folder for the report")
+            p.add_argument("--scene", default=None, metavar="SCENE.toml",
+                           help="fit only what this scene needs (its lights, wavelengths, "
+                                "stop and focus): generated/<lens>/scene-fits/<name>/")
         else:
             p.add_argument("--json", action="store_true", help="print the figures as JSON")
             p.add_argument("-o", "--out", default=None, help="folder for the report")

@@ -5,12 +5,15 @@ timings, no dates), so fitting the same lens again on the same machine rewrites 
 bytes.
 
     <stem>.h, <stem>.c            hand-emitted Horner C99, double and float (the fast form)
-    <stem>_casadi.h, _casadi_d.c, _casadi_f.c
-                                  casadi's C for the same values and their Jacobians
     <stem>.glsl                   GLSL 4.30 functions (float and double)
     <stem>.table                  coefficient table for generic evaluators, with the lens's
-                                  first-order facts (lensfit-poly-table 2)
-    fit.json                      systems, domain, options and held-out errors
+                                  first-order facts and the PSF trust figures
+                                  (lensfit-poly-table 3)
+    fit.json                      domain, options, held-out errors and the PSF table
+                                  against exactly traced rays; the systems are the table's
+
+casadi's C (``lensfit.codegen.emit_c(which="casadi")``) is no longer written to lens
+folders: for tensor fits it is ~30 MB a file and measured ~3x slower than Horner.
 
 A scene specialisation (``lensfit scene``) writes the Horner C and the table of its
 folded systems to ``scenes/<name>/``; its table carries the same lens lines.
@@ -29,6 +32,7 @@ from typing import Any
 
 from lensfit.codegen import emit_c, emit_glsl, write_table
 from lensfit.codegen.c_horner import file_stem
+from lensfit.codegen.table import Table, read_table
 from lensfit.facts import LensFacts, lens_facts
 from lensfit.poly import System
 from lensfit.prescription.model import Lens
@@ -56,29 +60,36 @@ def lens_folder_name(lens: Lens) -> str:
 
 
 def sources_for(systems: Sequence[System], prefix: str, comment: str, *,
-                facts: LensFacts | None = None) -> dict[str, str]:
-    """Every generated file's text, by file name (the table carries ``facts``: give them,
-    :func:`lens_facts`, for a lens folder)."""
+                facts: LensFacts | None = None, trust: dict[str, Any] | None = None,
+                casadi: bool = False) -> dict[str, str]:
+    """Every generated file's text, by file name (the table carries ``facts`` and
+    ``trust``: give them for a lens folder). casadi's C only with ``casadi``: for a
+    tensor fit it is ~30 MB per file and ~3x slower than the Horner C."""
     files: dict[str, str] = {}
     files.update(emit_c(systems, prefix, header_comment=comment, which="horner"))
-    files.update(emit_c(systems, prefix, header_comment=comment, which="casadi"))
+    if casadi:
+        files.update(emit_c(systems, prefix, header_comment=comment, which="casadi"))
     files.update(emit_glsl(systems, prefix, header_comment=comment))
-    files.update(table_file(systems, prefix, comment, facts))
+    files.update(table_file(systems, prefix, comment, facts, trust))
     return files
 
 
 def table_file(systems: Sequence[System], prefix: str, comment: str,
-               facts: LensFacts | None) -> dict[str, str]:
+               facts: LensFacts | None, trust: dict[str, Any] | None = None
+               ) -> dict[str, str]:
     """The coefficient table the runtime loads, ``{"<stem>.table": text}``."""
-    return {f"{file_stem(prefix)}.table": write_table(systems, comment=comment, lens=facts)}
+    return {f"{file_stem(prefix)}.table": write_table(systems, comment=comment, lens=facts,
+                                                      trust=trust)}
 
 
-def lens_files(lens: Lens, systems: Sequence[System], meta: dict[str, Any]) -> dict[str, str]:
-    """Every file of the folder ``generated/<lens>/``, by name (``meta``: fit.json's keys
-    besides the systems)."""
-    files = sources_for(systems, lens_prefix(lens), header_comment(lens),
-                        facts=lens_facts(lens))
-    files["fit.json"] = fit_json(systems, meta)
+def lens_files(lens: Lens, systems: Sequence[System], meta: dict[str, Any],
+               trust: dict[str, Any]) -> dict[str, str]:
+    """Every file of the folder ``generated/<lens>/``, by name (``meta``: fit.json's keys;
+    ``trust``: the table's trust figures, :func:`lensfit.trust.trust_figures`)."""
+    prefix = lens_prefix(lens)
+    files = sources_for(systems, prefix, header_comment(lens), facts=lens_facts(lens),
+                        trust=trust)
+    files["fit.json"] = fit_json({**meta, "table": f"{file_stem(prefix)}.table"})
     return files
 
 
@@ -93,6 +104,10 @@ def regenerate(folder: Path) -> tuple[Lens, list[str]]:
     if not fit_file.is_file():
         raise ValueError(f"{fit_file}: no fit.json to regenerate from; run `lensfit fit`")
     systems, meta = read_fit_json(fit_file)
+    trust = getattr(systems, "trust", None)
+    if trust is None:
+        raise ValueError(f"{fit_file}: its table predates the trust figures (version 3); "
+                         "run `lensfit fit` to refit and measure them")
     lens_file = meta.get("lens_file")
     if not isinstance(lens_file, str) or not lens_file:
         raise ValueError(f"{fit_file}: key 'lens_file': expected the lens's file name, "
@@ -101,19 +116,21 @@ def regenerate(folder: Path) -> tuple[Lens, list[str]]:
     if folder.name != lens_folder_name(lens):
         raise ValueError(f"{folder}: the folder of {lens_file} is named "
                          f"{lens_folder_name(lens)!r}, not {folder.name!r}")
-    files = lens_files(lens, systems, meta)
+    meta = {k: v for k, v in meta.items() if k not in ("format", "table")}
+    files = lens_files(lens, list(systems), meta, trust)
     write_folder(folder, files)
     return lens, sorted(files)
 
 
 def scene_files(lens: Lens, special: Sequence[System], scene_name: str,
-                scene_file: str) -> dict[str, str]:
+                scene_file: str, trust: dict[str, Any]) -> dict[str, str]:
     """The files of ``scenes/<name>/`` for the specialised systems ``special``: Horner C
-    and the table, which carries the lens's facts like the lens folder's."""
+    and the table, which carries the lens's facts and ``trust`` like the lens folder's
+    (a specialisation is the same polynomials with inputs folded in)."""
     prefix = f"{lens_prefix(lens)}{scene_name.replace('-', '_')}_"
     comment = header_comment(lens, f"Specialised for scene {Path(scene_file).name}.")
     return emit_c(special, prefix, header_comment=comment) | table_file(
-        special, prefix, comment, lens_facts(lens))
+        special, prefix, comment, lens_facts(lens), trust)
 
 
 def header_comment(lens: Lens, extra: str = "") -> str:
@@ -137,16 +154,28 @@ def write_folder(folder: Path, files: dict[str, str]) -> None:
             raise
 
 
-def fit_json(systems: Sequence[System], meta: dict[str, Any]) -> str:
-    """The machine-readable record of a fit (deterministic: sorted keys, fixed format)."""
-    doc = {"format": "lensfit-fit 1", **meta, "systems": [s.to_dict() for s in systems]}
+def fit_json(meta: dict[str, Any]) -> str:
+    """The machine-readable record of a fit (deterministic: sorted keys, fixed format).
+    The systems themselves are in the table it names (key ``table``), bit for bit."""
+    doc = {"format": "lensfit-fit 2", **meta}
     return json.dumps(doc, indent=1, sort_keys=True, allow_nan=False) + "\n"
 
 
-def read_fit_json(path: Path) -> tuple[list[System], dict[str, Any]]:
-    doc = json.loads(Path(path).read_text(encoding="utf-8"))
-    if doc.get("format") != "lensfit-fit 1":
-        raise ValueError(f"{path}: key 'format': expected 'lensfit-fit 1', "
-                         f"found {doc.get('format')!r}")
-    systems = [System.from_dict(s) for s in doc.pop("systems")]
+def read_fit_json(path: Path) -> tuple[Table, dict[str, Any]]:
+    """(the systems, from the table fit.json names, with its lens facts and trust; the
+    rest of fit.json)."""
+    path = Path(path)
+    doc = json.loads(path.read_text(encoding="utf-8"))
+    if doc.get("format") != "lensfit-fit 2":
+        raise ValueError(f"{path}: key 'format': expected 'lensfit-fit 2', "
+                         f"found {doc.get('format')!r}; run `lensfit fit` to refit")
+    name = doc.get("table")
+    if not isinstance(name, str) or "/" in name or not name.endswith(".table"):
+        raise ValueError(f"{path}: key 'table': expected the table's file name, found "
+                         f"{name!r}")
+    table = path.parent / name
+    try:
+        systems = read_table(table.read_text(encoding="utf-8"))
+    except ValueError as e:
+        raise ValueError(f"{table}: {e}") from None
     return systems, doc

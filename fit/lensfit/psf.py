@@ -215,14 +215,7 @@ def _sensor_guess(lens: Lens, xs: np.ndarray, ys: np.ndarray, z_s: float, ap: np
     tensor-product polynomial through them. Measured on lens 0001 at f/2: the guess is
     within the exact rays' own Newton noise (~2e-11 in slope, ~1e-9 mm on the sensor)
     for windows up to 2 mm, so almost every pair costs one trace and no Newton step."""
-    def nodes(v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        m = min(GUESS_NODES, len(v))  # a line of pixels needs one node across it
-        cheb = np.cos(math.pi * (np.arange(m) + 0.5) / m)[::-1]
-        c, h = 0.5 * (v.max() + v.min()), 0.5 * (v.max() - v.min())
-        t = (v - c) / h if h > 0 else np.zeros_like(v)
-        return c + h * cheb, _lagrange(t, cheb)
-
-    (gx, wx), (gy, wy) = nodes(xs), nodes(ys)
+    (gx, wx), (gy, wy) = _chebyshev(xs, GUESS_NODES), _chebyshev(ys, GUESS_NODES)
     n, my, mx = len(ap), len(gy), len(gx)
     # Rows: point j, node row b (y), node column c (x)
     jj, bb, cc = (g.reshape(-1) for g in np.meshgrid(np.arange(n), np.arange(my),
@@ -247,14 +240,26 @@ def exact_psf(lens: Lens, *, stop_radius_mm: float, aperture_xy_mm: np.ndarray,
               wavelength_nm: float, focus_offset_mm: float = 0.0, width: int, height: int,
               width_mm: float, height_mm: float = 0.0, center_x_mm: float = 0.0,
               center_y_mm: float = 0.0, clip: str = "pupils", workers: int | None = None,
-              batch_pairs: int = BATCH_PAIRS) -> np.ndarray:
+              batch_pairs: int = BATCH_PAIRS, nodes: int = 0) -> np.ndarray:
     """U (height, width), complex: the sum of the module doc over ``aperture_xy_mm``
     (N, 2) stop points, with phi, tau and the pupil positions of exactly traced rays.
 
     ``field_deg`` (θx, θy) and ``distance_mm`` (from the first vertex) place the light;
     ``focus_offset_mm`` is z_S. ``clip``: "pupils" (the first and last surfaces' housing
     radii against x_o, y_o and x_i, y_i) or "housings" (every housing). ``workers``
-    threads (default: the CPUs this process may use) trace batches of ``batch_pairs``."""
+    threads (default: the CPUs this process may use) trace batches of ``batch_pairs``.
+
+    ``nodes`` > 0 traces, per stop point, only the rays to a ``nodes`` x ``nodes``
+    Chebyshev grid over the window and interpolates the sensor-side outputs to the
+    pixels (:func:`exact_psf_nodes`; "pupils" clipping only)."""
+    if nodes:
+        return exact_psf_nodes(lens, stop_radius_mm=stop_radius_mm,
+                               aperture_xy_mm=aperture_xy_mm, field_deg=field_deg,
+                               distance_mm=distance_mm, wavelength_nm=wavelength_nm,
+                               focus_offset_mm=focus_offset_mm, width=width, height=height,
+                               width_mm=width_mm, height_mm=height_mm,
+                               center_x_mm=center_x_mm, center_y_mm=center_y_mm,
+                               nodes=nodes)[0]
     if clip not in CLIPS:
         raise ValueError(f"clip = {clip!r}: expected one of {', '.join(CLIPS)}")
     lam = _wavelength(wavelength_nm)
@@ -292,6 +297,74 @@ def exact_psf(lens: Lens, *, stop_radius_mm: float, aperture_xy_mm: np.ndarray,
     return u.reshape(height, width)
 
 
+def _chebyshev(v: np.ndarray, m: int) -> tuple[np.ndarray, np.ndarray]:
+    """m Chebyshev nodes spanning the pixel centres ``v`` and the Lagrange weights
+    (len(v), m) that interpolate from them to every centre."""
+    m = min(m, len(v))  # a line of pixels needs one node across it
+    cheb = np.cos(math.pi * (np.arange(m) + 0.5) / m)[::-1]
+    c, h = 0.5 * (v.max() + v.min()), 0.5 * (v.max() - v.min())
+    t = (v - c) / h if h > 0 else np.zeros_like(v)
+    if h > 0:
+        cheb = cheb / cheb.max()  # the end nodes on the outermost pixel centres
+    return c + h * cheb, _lagrange(t, cheb)
+
+
+def exact_psf_nodes(lens: Lens, *, stop_radius_mm: float, aperture_xy_mm: np.ndarray,
+                    field_deg: tuple[float, float] = (0.0, 0.0),
+                    distance_mm: float = math.inf, wavelength_nm: float,
+                    focus_offset_mm: float = 0.0, width: int, height: int, width_mm: float,
+                    height_mm: float = 0.0, center_x_mm: float = 0.0,
+                    center_y_mm: float = 0.0, nodes: int = 9
+                    ) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`exact_psf` ("pupils" clipping) with exact rays from each stop point to a
+    ``nodes`` x ``nodes`` grid of Chebyshev nodes spanning the window, and the sensor-side
+    outputs (x_i, y_i, tau_i, phi_i) interpolated to the pixels by the tensor polynomial
+    through them. Across a window of tens of micrometres these are polynomials of low
+    degree in the pixel position (phi_i: a tilt, a curvature of ~1e-2 waves, then
+    higher terms many decades smaller), so 9 nodes interpolate them to rounding
+    (tests/fit/test_psf.py checks it against every pair traced).
+
+    Returns (U (height, width), used (N,)): the stop points that entered the sum are
+    those in the disc whose object-side ray passes and whose every node ray exists; a
+    comparison with :func:`poly_psf` should pass it ``aperture_xy_mm[used]``."""
+    if not (isinstance(nodes, int) and nodes >= 2):
+        raise ValueError(f"nodes = {nodes!r}: expected at least 2 Chebyshev nodes per axis")
+    lam = _wavelength(wavelength_nm)
+    xs, ys = pixel_centres(width, height, width_mm, height_mm, center_x_mm, center_y_mm)
+    ap, inside = _aperture(aperture_xy_mm, stop_radius_mm)
+    x_O, y_O = light_direction(*field_deg)
+    u_O = _inverse_distance(distance_mm)
+    z_s = _check_focus(focus_offset_mm)
+    facts = lens_facts(lens)
+    used = np.zeros(len(ap), dtype=bool)
+    idx = np.nonzero(inside)[0]
+    obj = aim_object_side(lens, x_O, y_O, u_O, ap[idx, 0], ap[idx, 1], lam)
+    pass_o = _passes(obj, facts.housing_first_mm, "pupils")
+    idx, phi_o, tau_o = idx[pass_o], obj.outputs[pass_o, 3], obj.outputs[pass_o, 2]
+    (gx, wx), (gy, wy) = _chebyshev(xs, nodes), _chebyshev(ys, nodes)
+    n, my, mx = len(idx), len(gy), len(gx)
+    jj, bb, cc = (g.reshape(-1) for g in np.meshgrid(np.arange(n), np.arange(my),
+                                                    np.arange(mx), indexing="ij"))
+    sen = aim_sensor_side(lens, gx[cc], gy[bb], z_s, ap[idx[jj], 0], ap[idx[jj], 1], lam,
+                          vignetting=False)
+    good = sen.ok.reshape(n, my, mx).all(axis=(1, 2))
+    out = sen.outputs.reshape(n, my, mx, 4)[good]
+    idx, phi_o, tau_o = idx[good], phi_o[good], tau_o[good]
+    used[idx] = True
+    k_wave = 2.0 * math.pi / (lam * 1e-6)
+    u = np.zeros((height, width), dtype=np.complex128)
+    for a in range(0, len(idx), 256):
+        sl = slice(a, a + 256)
+        # (points, rows, columns, outputs) at the pixel centres
+        full = np.einsum("hb,jbcd,wc->jhwd", wy, out[sl], wx, optimize=True)
+        x_i, y_i, tau_i, phi_i = (full[..., q] for q in range(4))
+        ok = x_i**2 + y_i**2 <= facts.housing_last_mm**2
+        amp = np.sqrt(np.maximum(tau_o[sl, None, None] * tau_i, 0.0))
+        phase = k_wave * (phi_o[sl, None, None] + phi_i)
+        u += np.where(ok, amp * np.exp(1j * phase), 0.0).sum(axis=0)
+    return u, used
+
+
 def _system(systems: Sequence[System], name: str) -> System:
     for s in systems:
         if s.name == name:
@@ -303,6 +376,8 @@ def _system(systems: Sequence[System], name: str) -> System:
 def _check_domain(system: System, values: dict[str, np.ndarray | float]) -> None:
     """Inputs outside the fitted domain are an error: the polynomials are not meant there."""
     for inp in system.inputs:
+        if inp.name not in values:  # checked by the caller (before a specialisation)
+            continue
         v = np.asarray(values[inp.name], dtype=np.float64)
         slack = 1e-12 * max(abs(inp.lo), abs(inp.hi))
         if v.size and (v.min() < inp.lo - slack or v.max() > inp.hi + slack):
@@ -327,13 +402,16 @@ def _separable(system: System, fixed: dict[str, float], rows: dict[str, np.ndarr
                          f"{list(fixed)}, rows {list(rows)} and columns {list(cols)}")
 
     def normalised(group: dict[str, np.ndarray | float]) -> np.ndarray:
+        if not group:
+            return np.zeros((1, 0))
         return np.column_stack([system.inputs[names.index(n)].normalise(np.atleast_1d(v))
                                 for n, v in group.items()])
 
     f_hat, r_hat, c_hat = normalised(fixed), normalised(rows), normalised(cols)
     out = []
     for p in system.outputs:
-        w = p.coefficients * design_matrix(f_hat, p.exponents[:, idx["f"]])[0]
+        w = (p.coefficients * design_matrix(f_hat, p.exponents[:, idx["f"]])[0] if fixed
+             else p.coefficients)
         a = design_matrix(r_hat, p.exponents[:, idx["r"]])
         b = design_matrix(c_hat, p.exponents[:, idx["c"]])
         out.append((a * w) @ b.T)
@@ -369,8 +447,9 @@ def poly_psf(systems: Sequence[System], *, facts: LensFacts | None = None,
 
     # Object side (one light: P_o over the aperture points), then the first-surface test
     pts = ap[inside]
-    o = _evaluate(p_o, {"x_O": x_O, "y_O": y_O, "u_O": u_O, "x_a": pts[:, 0],
-                        "y_a": pts[:, 1], "lambda": lam})
+    light = {"x_O": x_O, "y_O": y_O, "u_O": u_O, "lambda": lam}
+    _check_domain(p_o, light)
+    o = _evaluate(p_o.specialise(light), {"x_a": pts[:, 0], "y_a": pts[:, 1]})
     x_o, y_o, tau_o, phi_o = (o[p_o.output_names.index(n)] for n, _ in OUTPUTS_O)
     pass_o = x_o**2 + y_o**2 <= facts.housing_first_mm**2
     pts, tau_o, phi_o = pts[pass_o], tau_o[pass_o], phi_o[pass_o]
@@ -382,9 +461,12 @@ def poly_psf(systems: Sequence[System], *, facts: LensFacts | None = None,
     k_wave = 2.0 * math.pi / (lam * 1e-6)
     u = np.zeros(width * height, dtype=np.complex128)
     chunk = max(1, _batch(batch_pairs) // (width * height))
+    # Fold z_S and lambda in first: a tensor fit's terms then merge ~15-fold
+    _check_domain(p_s, {"z_S": z_s, "lambda": lam})
+    p_s = p_s.specialise({"z_S": z_s, "lambda": lam})
     for a in range(0, len(pts), chunk):
         sl = slice(a, a + chunk)
-        x_i, y_i, tau_i, phi_i = _separable(p_s, {"z_S": z_s, "lambda": lam}, pix, {
+        x_i, y_i, tau_i, phi_i = _separable(p_s, {}, pix, {
             "x_a": pts[sl, 0], "y_a": pts[sl, 1]})[cols]  # each (pixels, points)
         ok = x_i**2 + y_i**2 <= facts.housing_last_mm**2
         amp = np.sqrt(np.maximum(tau_o[sl] * tau_i, 0.0))  # a fit may dip below 0

@@ -26,9 +26,12 @@ from lensfit.codegen.timing import time_c
 from lensfit.fitting import SystemFit, error_metric
 from lensfit.poly import Polynomial, System
 from lensfit.prescription.model import Lens
+from lensfit.sample.domain import declared_fit
 from lensfit.trace.tracer import Rays, Step, trace
+from lensfit.trust import cell_label, markdown_table
 
 PARETO_TERMS = (5, 10, 20, 40, 80, 120, 160, 200, 240)
+SMALL_SYSTEM_TERMS = 3000  # systems timed output by output, and in casadi's form too
 TIMING_PREFIX = "lensfit_t_"
 
 
@@ -82,25 +85,32 @@ def measure(lens: Lens, fits: Sequence[SystemFit], *, timing: bool = True) -> di
         exact_ns = f.seconds_sampling / requested * 1e9
         sysd["exact_aimed_trace_ns"] = exact_ns
         if timing:
-            for p, o in zip(f.system.outputs, f.outputs, strict=True):
-                alone = f.system.select([p.output])
-                o.ns_per_eval_double = ns_per_eval(alone, "d")
-                o.ns_per_eval_float = ns_per_eval(alone, "f")
+            # A tensor fit's C is megabytes (one compile ~10 s): only the whole system is
+            # timed then, in Horner form; casadi's C would be ~30 MB a file
+            small = sum(p.terms for p in f.system.outputs) <= SMALL_SYSTEM_TERMS
+            if small:
+                for p, o in zip(f.system.outputs, f.outputs, strict=True):
+                    alone = f.system.select([p.output])
+                    o.ns_per_eval_double = ns_per_eval(alone, "d")
+                    o.ns_per_eval_float = ns_per_eval(alone, "f")
             sysd["ns_horner_double"] = ns_per_eval(f.system, "d")
             sysd["ns_horner_float"] = ns_per_eval(f.system, "f")
-            sysd["ns_casadi_double"] = ns_per_eval(f.system, "d", "casadi")
-            sysd["ns_casadi_float"] = ns_per_eval(f.system, "f", "casadi")
-            sysd["faster"] = ("horner" if sysd["ns_horner_double"] <= sysd["ns_casadi_double"]
-                              else "casadi")
+            if small:
+                sysd["ns_casadi_double"] = ns_per_eval(f.system, "d", "casadi")
+                sysd["ns_casadi_float"] = ns_per_eval(f.system, "f", "casadi")
+                sysd["faster"] = ("horner" if sysd["ns_horner_double"]
+                                  <= sysd["ns_casadi_double"] else "casadi")
             sysd["unaimed_trace_ns"] = _unaimed_tracens_per_eval(lens, f)
             sysd["speedup_vs_aimed_trace"] = exact_ns / sysd["ns_horner_double"]
             sysd["speedup_vs_unaimed_trace"] = sysd["unaimed_trace_ns"] / sysd["ns_horner_double"]
             speedups.append(sysd["speedup_vs_aimed_trace"])
-            top = max(p.terms for p in f.system.outputs)
-            ladder = [k for k in PARETO_TERMS if k < top] + [top]
-            sysd["pareto"] = [{"terms_per_output": k,
-                               "ns_per_eval_double": ns_per_eval(_truncate(f.system, k), "d")}
-                              for k in ladder]
+            if small:
+                top = max(p.terms for p in f.system.outputs)
+                ladder = [k for k in PARETO_TERMS if k < top] + [top]
+                sysd["pareto"] = [{"terms_per_output": k,
+                                   "ns_per_eval_double": ns_per_eval(_truncate(f.system, k),
+                                                                     "d")}
+                                  for k in ladder]
         systems[f.system.name] = sysd
     return {
         "lens": lens.name,
@@ -203,6 +213,29 @@ def write_report(lens: Lens, fits: Sequence[SystemFit], figures: dict[str, Any],
     return out_dir / "report.md"
 
 
+def _trust_markdown(fig: dict[str, Any]) -> list[str]:
+    """The PSF table against exactly traced rays (lensfit.trust), the fit's statement of
+    trust."""
+    table = fig.get("psf_vs_exact")
+    if not table:
+        return []
+    worst, target = table["worst"], fig.get("psf_target")
+    verdict = ("" if target is None else
+               f", {'within' if worst['relative_l2'] <= target else 'ABOVE'} the target "
+               f"{target:.2%}")
+    return [
+        "", "## PSF against exactly traced rays", "",
+        "Relative L2 distance of the PSF intensity summed with these polynomials from the "
+        "one summed with exactly traced rays, over the same stop points (so sampling noise "
+        "cancels), light at infinity, sensor at the best focus of the axis at 550 nm for "
+        "each stop; the window holds the geometric spot and at least four Airy radii "
+        "(`lensfit.trust`). This is what a render can be trusted to.", "",
+        *markdown_table(table), "",
+        f"Worst cell: **{worst['relative_l2']:.3%}** ({cell_label(worst)}){verdict}. "
+        f"Computed in {table['seconds']:.0f} s.", "",
+    ]
+
+
 def _fmt(v: float | None, spec: str = ".3g") -> str:
     return "-" if v is None or (isinstance(v, float) and not math.isfinite(v)) else format(v, spec)
 
@@ -222,6 +255,10 @@ def _markdown(lens: Lens, fits: Sequence[SystemFit], fig: dict[str, Any]) -> str
     ]
     lines += [f"| {k} | {_fmt(v, '.6g') if isinstance(v, float) else v} |"
               for k, v in dom.items()]
+    reason = declared_fit(lens).get("reason")
+    if reason:
+        lines += ["", f"The lens file declares this domain instead of the default "
+                      f"(36 x 24 mm frame, f/2 or wide open): {reason}"]
     lines += [
         "",
         "## Held-out error per output",
@@ -258,17 +295,16 @@ def _markdown(lens: Lens, fits: Sequence[SystemFit], fig: dict[str, Any]) -> str
         for o in unreached:
             lines.append(
                 f"* {o['system']} {o['name']}: {_fmt(o['rms'])} {o['unit']} against "
-                f"{_fmt(o['target'])} with {o['terms']} terms (the budget).")
+                f"{_fmt(o['target'])} with {o['terms']} terms (the largest degree tried).")
         lines += [
             "",
-            "Why: the term budget is spent before the target. What is left is mostly the "
-            "wavelength dependence (glasses whose ultraviolet absorption lies near 380 nm "
-            "are not polynomial in any single wavelength variable: with the wavelength "
-            "fixed the same budget does far better) and high-order aperture terms near the "
-            "rim (see phase_error_by_radius.png). A narrower domain (f-number, "
-            "wavelengths, field) or a larger budget reaches it; a scene specialisation "
-            "folds the wavelength away.",
+            "Why: the highest field degree tried does not reach it. Where rays fail "
+            "(they miss a surface) or are far outside a housing, the grid has holes and "
+            "the polynomial must be fitted on part of the stop disc only (see "
+            "phase_error_by_radius.png); a narrower domain (f-number, field, wavelengths: "
+            "`lensfit fit --help`) or a scene fit (`lensfit fit --scene`) reaches it.",
         ]
+    lines += _trust_markdown(fig)
     lines += ["", "## Speed", "",
               "| system | Horner double | Horner float | casadi double | casadi float | "
               "kept | exact aimed trace | plain trace | speedup (aimed) | speedup (plain) |",

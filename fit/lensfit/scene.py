@@ -15,6 +15,7 @@ constant phase). Scene file (TOML)::
     name = "demo"
     wavelengths_nm = [450.0, 550.0, 650.0]
     focus_offset_mm = 0.0            # omit to keep z_S free
+    f_number = 8.0                   # the stop a scene fit covers (lensfit fit --scene)
     clip = true
     transmittance = true
     flares = false
@@ -60,6 +61,9 @@ class Light:
     field_y_deg: float
     distance_mm: float = math.inf  # from the first vertex (the centre of the outer pupil)
 
+    def inputs_xy(self) -> tuple[float, float]:
+        return light_direction(self.field_x_deg, self.field_y_deg)
+
     def inputs(self) -> dict[str, float]:
         """P_o's scene inputs: direction cosines of the light and its inverse distance."""
         x_o, y_o = light_direction(self.field_x_deg, self.field_y_deg)
@@ -77,6 +81,7 @@ class Scene:
     transmittance: bool = True
     flares: bool = False
     source_file: str = field(default="<memory>", compare=False)
+    f_number: float | None = None  # the stop a scene fit covers (default: the lens's)
 
     @classmethod
     def from_dict(cls, d: dict[str, Any], source: str = "<memory>") -> Scene:
@@ -84,7 +89,7 @@ class Scene:
             return SceneError(f"{source}: key '{key}': {want}, found {value!r}")
 
         known = {"name", "wavelengths_nm", "light", "focus_offset_mm", "clip",
-                 "transmittance", "flares"}
+                 "transmittance", "flares", "f_number"}
         for k in d:
             if k not in known:
                 raise fail(k, d[k], f"unknown key (known: {', '.join(sorted(known))})")
@@ -118,6 +123,10 @@ class Scene:
         focus = d.get("focus_offset_mm")
         if focus is not None and not (isinstance(focus, int | float) and math.isfinite(focus)):
             raise fail("focus_offset_mm", focus, "expected a finite number (mm)")
+        f_number = d.get("f_number")
+        if f_number is not None and not (isinstance(f_number, int | float)
+                                         and math.isfinite(f_number) and f_number > 0):
+            raise fail("f_number", f_number, "expected a positive f-number")
         flags = {}
         for k in ("clip", "transmittance", "flares"):
             v = d.get(k, k != "flares")
@@ -125,7 +134,8 @@ class Scene:
                 raise fail(k, v, "expected true or false")
             flags[k] = v
         return cls(name, tuple(float(v) for v in lam), tuple(lights),
-                   None if focus is None else float(focus), source_file=source, **flags)
+                   None if focus is None else float(focus), source_file=source,
+                   f_number=None if f_number is None else float(f_number), **flags)
 
 
 def load_scene(path: str | Path) -> Scene:
@@ -228,3 +238,35 @@ def max_abs_difference(general: System, special: System, fixed: dict[str, float]
     sel = replace(sel, outputs=tuple(_drop_constant_phase(p, sel.input_names)
                                      for p in sel.outputs))
     return float(np.max(np.abs(sel.evaluate(x_full) - special.evaluate(x_free))))
+
+
+# A scene fit's domain: margins around what the scene uses
+SCENE_FIELD_MARGIN = 1.05  # on the largest direction cosine of a light
+SCENE_IMAGE_MARGIN_MM = 0.3  # around the lights' images: room for their PSF windows
+SCENE_FOCUS_MARGIN_MM = 0.02  # either side of a fixed sensor shift
+SCENE_WAVELENGTH_MARGIN_NM = 1.0  # either side of the scene's wavelengths
+
+
+def scene_domain(lens, scene: Scene):
+    """The domain a scene fit covers (``lensfit fit --scene``): the disc of directions
+    that holds its lights, the image circle of their images plus room for a PSF window,
+    their nearest distance, its wavelengths, its stop (``f_number``, default the lens's
+    default) and its focus (with small margins, named above)."""
+    from lensfit.psf import geometric_image_point
+    from lensfit.sample.domain import default_domain
+
+    r = max(math.hypot(*lt.inputs_xy()) for lt in scene.lights)
+    field = max(math.degrees(math.asin(min(SCENE_FIELD_MARGIN * r, 0.99))), 0.5)
+    focus = scene.focus_offset_mm
+    image = max(math.hypot(*geometric_image_point(lens, (lt.field_x_deg, lt.field_y_deg),
+                                                  lt.distance_mm, 550.0, focus or 0.0))
+                for lt in scene.lights)
+    close = min(lt.distance_mm for lt in scene.lights)
+    lam = scene.wavelengths_nm
+    base = default_domain(lens, scene.f_number, close_focus_mm=0.98 * close,
+                          focus_mm=None if focus is None else
+                          (focus - SCENE_FOCUS_MARGIN_MM, focus + SCENE_FOCUS_MARGIN_MM),
+                          wavelengths_nm=(min(lam) - SCENE_WAVELENGTH_MARGIN_NM,
+                                          max(lam) + SCENE_WAVELENGTH_MARGIN_NM))
+    return base.with_(field_deg=field, field_y_deg=None,
+                      sensor_radius_mm=image + SCENE_IMAGE_MARGIN_MM)

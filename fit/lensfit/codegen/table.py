@@ -1,6 +1,6 @@
 """Coefficient tables: polynomial systems as plain text a small C evaluator can parse.
 
-Format ``lensfit-poly-table``, version 2 (the reader also reads version 1). UTF-8 text,
+Format ``lensfit-poly-table``, version 3 (the reader also reads versions 1 and 2). UTF-8 text,
 lines end with '\\n'; fields are separated by one or more spaces or tabs (only those:
 other Unicode blanks belong to a field), and a '\r' before the '\n' is ignored. Lines that
 are empty or start with '#' (after optional blanks) are comments and are skipped anywhere.
@@ -51,6 +51,19 @@ Every value but the name is a finite real number written like the others (``%.17
 radii and squeeze are positive, the focal length is not zero. Version 1 has no lens
 lines; the writer emits version 1 when it is given no lens facts.
 
+Version 3 adds the trust lines after the lens lines: how far the PSF of these polynomials
+is from the exactly traced one (:mod:`lensfit.trust`), so that a runtime can say so when it
+loads the table. Exactly these keys, in this order, one line each:
+
+    trust psf_vs_exact       the worst relative L2 distance of the polynomial PSF from the
+                             exactly traced PSF over the fit's trust table (0.01 is 1%)
+    trust psf_vs_exact_cell  which cell was worst, e.g. f/2%20axis%20450%20nm (a text field)
+    trust psf_target         the PSF error the fit was made for (relative L2)
+
+The two numbers are finite and non-negative. The writer emits version 3 when it is given
+trust figures, version 2 with lens facts only, version 1 with neither; lensrt reads
+version 3 only.
+
 A system's ``info`` (provenance) is not stored. ``read_table(write_table(s))`` gives back
 the names, units, domains, transforms, exponents and coefficients bit for bit, terms in
 their order, and the lens facts exactly (:class:`Table`). Malformed text raises ValueError
@@ -62,6 +75,7 @@ from __future__ import annotations
 import math
 import re
 from collections.abc import Sequence
+from typing import Any
 
 import numpy as np
 
@@ -70,8 +84,9 @@ from lensfit.poly import Input, Polynomial, System
 from lensfit.poly.polynomial import TRANSFORMS
 
 FORMAT = "lensfit-poly-table"
-VERSION = 2  # what the writer emits when given lens facts (else 1)
-READS = (1, 2)  # versions the reader accepts
+VERSION = 3  # what the writer emits when given lens facts and trust figures
+READS = (1, 2, 3)  # versions the reader accepts
+TRUST_KEYS = ("psf_vs_exact", "psf_vs_exact_cell", "psf_target")
 _INT = re.compile(r"[0-9]+")
 _REAL = re.compile(r"[-+]?([0-9]+\.?[0-9]*|\.[0-9]+)([eE][-+]?[0-9]+)?")
 _BLANKS = re.compile(r"[ \t]+")
@@ -117,30 +132,57 @@ def fmt_real(x: float) -> str:
 
 class Table(list[System]):
     """What :func:`read_table` returns: the systems (it is a list of them), plus the
-    table's format ``version`` and its ``lens`` facts (None in a version-1 table)."""
+    table's format ``version``, its ``lens`` facts (None in a version-1 table) and its
+    ``trust`` figures (a dict of TRUST_KEYS; None before version 3)."""
 
     def __init__(self, systems: Sequence[System], lens: LensFacts | None = None,
-                 version: int = VERSION) -> None:
+                 version: int = VERSION, trust: dict[str, Any] | None = None) -> None:
         super().__init__(systems)
         self.lens = lens
         self.version = version
+        self.trust = trust
+
+
+def check_trust(trust: dict[str, Any]) -> dict[str, Any]:
+    """The trust figures as the table stores them, or ValueError naming the key."""
+    if set(trust) != set(TRUST_KEYS):
+        raise ValueError(f"trust: expected the keys {', '.join(TRUST_KEYS)}, found "
+                         f"{sorted(trust)}")
+    for key in ("psf_vs_exact", "psf_target"):
+        v = trust[key]
+        if not (isinstance(v, int | float) and math.isfinite(v) and v >= 0):
+            raise ValueError(f"trust: {key} = {v!r}: expected a finite number >= 0")
+    if not isinstance(trust["psf_vs_exact_cell"], str):
+        raise ValueError("trust: psf_vs_exact_cell: expected text")
+    return {k: trust[k] for k in TRUST_KEYS}
 
 
 def write_table(systems: Sequence[System], comment: str = "",
-                lens: LensFacts | None = None) -> str:
+                lens: LensFacts | None = None, trust: dict[str, Any] | None = None) -> str:
     """The systems as one ``lensfit-poly-table`` text (``comment`` lines become '# ...').
 
-    With ``lens`` (default: ``systems.lens`` when ``systems`` is a :class:`Table`) the
-    text is version 2 with the lens lines; without, version 1."""
+    With ``lens`` and ``trust`` (defaults: ``systems.lens`` and ``systems.trust`` when
+    ``systems`` is a :class:`Table`) the text is version 3 with the lens and trust
+    lines; with ``lens`` only, version 2; without, version 1."""
     if lens is None:
         lens = getattr(systems, "lens", None)
-    lines = [f"{FORMAT} {VERSION if lens is not None else 1}"]
+    if trust is None:
+        trust = getattr(systems, "trust", None)
+    if trust is not None and lens is None:
+        raise ValueError("write_table: trust figures need the lens facts (version 3)")
+    version = 1 if lens is None else 2 if trust is None else 3
+    lines = [f"{FORMAT} {version}"]
     lines += [f"# {line}".rstrip() for line in comment.splitlines()]
     if lens is not None:
         lens.check()
         lines.append(f"lens name {encode_field(lens.name)}")
         for key, value in zip(LensFacts.keys()[1:], lens.values()[1:], strict=True):
             lines.append(f"lens {key} {fmt_real(value)}")
+    if trust is not None:
+        trust = check_trust(trust)
+        lines.append(f"trust psf_vs_exact {fmt_real(trust['psf_vs_exact'])}")
+        lines.append(f"trust psf_vs_exact_cell {encode_field(trust['psf_vs_exact_cell'])}")
+        lines.append(f"trust psf_target {fmt_real(trust['psf_target'])}")
     for s in systems:
         n = len(s.inputs)
         lines.append(f"system {encode_field(s.name)} {n} {len(s.outputs)}")
@@ -273,6 +315,26 @@ def _lens(lines: _Lines) -> LensFacts:
     return LensFacts(*values)
 
 
+def _trust(lines: _Lines) -> dict[str, Any]:
+    """The trust lines of a version-3 table: every key once, in the documented order."""
+    out: dict[str, Any] = {}
+    for i, key in enumerate(TRUST_KEYS):
+        form = f"trust {key} <value>"
+        n, f = lines.next(f"'{form}' (trust line {i + 1} of {len(TRUST_KEYS)})")
+        if len(f) != 3 or f[0] != "trust" or f[1] != key:
+            raise _fail(n, f"expected '{form}' (trust line {i + 1} of {len(TRUST_KEYS)}: "
+                           f"keys come in the order {', '.join(TRUST_KEYS)}), found "
+                           f"{' '.join(f)!r}")
+        if key == "psf_vs_exact_cell":
+            out[key] = decode_field(f[2], f"table line {n}")
+            continue
+        value = _real(f[2], n, f"trust {key}")
+        if value < 0:
+            raise _fail(n, f"trust {key} = {f[2]}: expected a number >= 0")
+        out[key] = value
+    return out
+
+
 def read_table(text: str) -> Table:
     """Parse a ``lensfit-poly-table`` text (see the module doc) into systems (a
     :class:`Table`: a list of the systems, with the lens facts as ``.lens``)."""
@@ -285,6 +347,7 @@ def read_table(text: str) -> Table:
                        f"{', '.join(map(str, READS))})")
     version = int(f[1])
     lens = _lens(lines) if version >= 2 else None
+    trust = _trust(lines) if version >= 3 else None
     systems = []
     while not lines.done():
         n, f = lines.next("'system'")
@@ -301,4 +364,4 @@ def read_table(text: str) -> Table:
         systems.append(System(name, inputs, outputs))
     if not systems:
         raise _fail(lines.last, "no system in the table")
-    return Table(systems, lens, version)
+    return Table(systems, lens, version, trust)

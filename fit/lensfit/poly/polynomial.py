@@ -140,7 +140,13 @@ class Polynomial:
         return int(self.exponents.sum(axis=1).max(initial=0))
 
     def evaluate_normalised(self, xhat: np.ndarray) -> np.ndarray:
-        return design_matrix(xhat, self.exponents) @ self.coefficients
+        xhat = np.asarray(xhat, dtype=np.float64)
+        # In row chunks: a tensor fit has tens of thousands of terms
+        step = max(1, (1 << 22) // max(1, self.terms))
+        if len(xhat) <= step:
+            return design_matrix(xhat, self.exponents) @ self.coefficients
+        return np.concatenate([design_matrix(xhat[s:s + step], self.exponents)
+                               @ self.coefficients for s in range(0, len(xhat), step)])
 
     def to_dict(self) -> dict[str, Any]:
         return {

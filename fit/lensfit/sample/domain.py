@@ -130,10 +130,33 @@ class Domain:
         return replace(self, **changes)
 
 
-def default_domain(lens: Lens, f_number: float | None = None) -> Domain:
+def declared_fit(lens: Lens) -> dict[str, Any]:
+    """The lens file's [fit] table: the domain it declares instead of the default, and
+    its reason ({} when it declares none)."""
+    return dict((lens.raw or {}).get("fit", {}))
+
+
+def default_domain(lens: Lens, f_number: float | None = None, *,
+                   field_deg: float | None = None, close_focus_mm: float | None = None,
+                   wavelengths_nm: tuple[float, float] | None = None,
+                   focus_mm: tuple[float, float] | None = None,
+                   image_circle_mm: float | None = None) -> Domain:
     """A full-frame camera: the image circle of 36 x 24 mm, the field that fills it (at
     most 60 degrees), focus from infinity to ten focal lengths, the stop open to
-    ``f_number`` (default: f/2, or wide open when the lens is slower)."""
+    ``f_number`` (default: f/2, or wide open when the lens is slower), 380-780 nm.
+
+    Each keyword narrows (or widens) one part: ``field_deg`` the half field angle in x
+    (y follows the lens's squeeze) and with it the image circle (the paraxial image of
+    the field plus 10% for distortion, at most the frame's); ``image_circle_mm`` the
+    radius of the sensor disc outright; ``close_focus_mm`` the nearest scene point (inf:
+    infinity only) and with it the sensor travel; ``focus_mm`` the sensor shift range
+    z_S outright; ``wavelengths_nm`` (lo, hi)."""
+    # A lens file may declare a narrower default ([fit] in its TOML, with the reason)
+    declared = declared_fit(lens)
+    if f_number is None:
+        f_number = declared.get("f_number")
+    if field_deg is None:
+        field_deg = declared.get("field_deg")
     efl_x, efl_y = (abs(paraxial(lens, meridian=m).efl_mm) for m in ("x", "y"))
     efl = min(efl_x, efl_y)
     h = FULL_FRAME_HALF_DIAGONAL_MM
@@ -144,7 +167,24 @@ def default_domain(lens: Lens, f_number: float | None = None) -> Domain:
     field = field_for(efl_x)
     # An anamorphic lens squeezes x: its field is wider in x than in y (an ellipse)
     field_y = field_for(efl_y) if lens.anamorphic else None
-    close = float(CLOSE_FOCUS_EFL * efl)
+    if field_deg is not None:
+        if not 0.0 < field_deg < 90.0:
+            raise ValueError(f"field = {field_deg!r} degrees: expected an angle in (0, 90)")
+        if field_y is not None:  # keep the squeeze's ratio of the two fields
+            field_y = math.degrees(math.atan(math.tan(math.radians(field_deg))
+                                             * efl_x / efl_y))
+        field = field_deg
+        h = min(h, 1.1 * max(efl_x * math.tan(math.radians(field)),
+                             efl_y * math.tan(math.radians(field_y or field))))
+    if image_circle_mm is not None:
+        if not (math.isfinite(image_circle_mm) and image_circle_mm > 0):
+            raise ValueError(f"image circle = {image_circle_mm!r} mm: expected a positive "
+                             "radius")
+        h = image_circle_mm
+    close = float(CLOSE_FOCUS_EFL * efl) if close_focus_mm is None else float(close_focus_mm)
+    if not close > 0:
+        raise ValueError(f"close focus = {close_focus_mm!r} mm: expected a positive distance "
+                         "from the first vertex, or inf")
     # Sensor travel from infinity focus to close focus, with a margin both ways
     travel = float(image_distance(lens, close) - image_distance(lens, math.inf))
     margin = 0.01 * efl
@@ -155,12 +195,18 @@ def default_domain(lens: Lens, f_number: float | None = None) -> Domain:
             stop = lens.stop_radius_max_mm
     else:
         stop = stop_radius_for_f_number(lens, f_number)
+    lo, hi = min(0.0, travel) - margin, max(0.0, travel) + margin
+    if focus_mm is not None:
+        lo, hi = focus_mm
+    w_lo, w_hi = (380.0, 780.0) if wavelengths_nm is None else wavelengths_nm
     return Domain(
         field_deg=field,
         close_focus_mm=close,
         stop_radius_mm=stop,
         sensor_radius_mm=h,
-        focus_min_mm=min(0.0, travel) - margin,
-        focus_max_mm=max(0.0, travel) + margin,
+        focus_min_mm=lo,
+        focus_max_mm=hi,
+        wavelength_min_nm=w_lo,
+        wavelength_max_nm=w_hi,
         field_y_deg=field_y,
     )

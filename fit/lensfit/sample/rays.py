@@ -94,7 +94,7 @@ class Aimed:
 
 
 def _converge(aimed: Aimed, residual, final, p0: np.ndarray, scale: float,
-              warm: bool) -> Aimed:
+              warm: bool, features: np.ndarray | None = None) -> Aimed:
     """Newton on every row from ``p0``, then the final trace of the converged rows into
     ``aimed``. ``final(idx, p)`` returns (miss (n, 2), valid, outputs, vignetting, pos,
     dir). With ``warm`` (a first guess that may already be the solution) the final trace
@@ -117,7 +117,26 @@ def _converge(aimed: Aimed, residual, final, p0: np.ndarray, scale: float,
         q, ok = _newton(lambda i, x: residual(todo[i], x), p0[todo], scale)
         idx = todo[ok]
         keep(idx, q[ok], *final(idx, q[ok]))
+    # Rays Newton did not reach from the first guess: again from the solution of the
+    # nearest ray that converged (nearest in ``features``). Measured on the anamorphic
+    # lens 2004 at f/2: 95% of its object-side failures converge so, most of them rays
+    # that pass the lens
+    bad, good = np.nonzero(~aimed.ok)[0], np.nonzero(aimed.ok)[0]
+    if features is not None and bad.size and good.size:
+        from scipy.spatial import cKDTree
+
+        _, near = cKDTree(features[good]).query(features[bad])
+        q, ok = _newton(lambda i, x: residual(bad[i], x), aimed.unknowns[good[near]], scale)
+        idx = bad[ok]
+        keep(idx, q[ok], *final(idx, q[ok]))
     return aimed
+
+
+def _features(aperture: np.ndarray, *others: np.ndarray) -> np.ndarray:
+    """Where rays are near each other, for the retry of :func:`_converge`: the stop point
+    (mm), and the other inputs scaled so far apart that rays of the same scene or
+    sensor point and wavelength are always nearer to each other than to any other."""
+    return np.column_stack([aperture] + [1e6 * np.asarray(o) for o in others])
 
 
 def _disc(rng: np.random.Generator, n: int, radius: float) -> np.ndarray:
@@ -337,7 +356,8 @@ def aim_object_side(lens: Lens, x_O: np.ndarray, y_O: np.ndarray, u_O: np.ndarra
         g = np.asarray(guess, dtype=np.float64).reshape(n, 2)
         p0 = np.where(np.all(np.isfinite(g), axis=1)[:, None], g, p0)
     scale = fd_scale_mm if fd_scale_mm is not None else max(float(np.max(np.abs(ap))), 1.0)
-    return _converge(aimed, lambda i, q: residual(i, q)[:2], final, p0, scale, warm)
+    return _converge(aimed, lambda i, q: residual(i, q)[:2], final, p0, scale, warm,
+                     _features(ap, xo, yo, ug, lam))
 
 
 def _front_bulge(lens: Lens) -> float:
@@ -450,7 +470,8 @@ def aim_sensor_side(lens: Lens, x_S: np.ndarray, y_S: np.ndarray, z_S: np.ndarra
     if warm:
         g = np.asarray(guess, dtype=np.float64).reshape(n, 2)
         q0 = np.where(np.all(np.isfinite(g), axis=1)[:, None], g, q0)
-    return _converge(aimed, lambda i, q: shoot(i, q)[:2], final, q0, fd_scale, warm)
+    return _converge(aimed, lambda i, q: shoot(i, q)[:2], final, q0, fd_scale, warm,
+                     _features(ap, xs, ys, zs, lam))
 
 
 def _finish(system, lens, inputs, outputs, gid, vig, n, dropped) -> Samples:
@@ -460,3 +481,83 @@ def _finish(system, lens, inputs, outputs, gid, vig, n, dropped) -> Samples:
             f"lens over the declared domain ({dropped})"
         )
     return Samples(system, inputs, outputs, gid, vig, n, dropped)
+
+
+@dataclass
+class GridSamples:
+    """Rays on a grid: every field point (the inputs but the stop point, in the system's
+    order without x_a, y_a) with every stop point of one mirror-symmetric set."""
+
+    system: str  # "P_o" or "P_s"
+    field: np.ndarray  # (G, 4) raw field inputs: x_O, y_O, u_O, lambda or x_S, y_S, z_S, lambda
+    aperture: np.ndarray  # (K, 2) stop points (mm)
+    outputs: np.ndarray  # (G, K, 4) exact outputs; NaN where not ok
+    ok: np.ndarray  # (G, K) the ray exists (converged, no miss or TIR)
+    vignetting: np.ndarray  # (G, K) max radius / housing radius along the half path
+
+    def __len__(self) -> int:
+        return int(self.ok.size)
+
+    @property
+    def requested(self) -> int:
+        return int(self.ok.size)
+
+    @property
+    def dropped(self) -> dict[str, int]:
+        return {"not converged or missed": int(self.ok.size - np.count_nonzero(self.ok))}
+
+
+GRID_CHUNK = 1 << 16  # rays aimed at once
+
+
+def sample_grid(lens: Lens, domain: Domain, system: str, groups: int, points: int,
+                seed: int) -> GridSamples:
+    """Grid samples for ``system`` ("P_o" or "P_s"): ``groups`` field points drawn as the
+    random samplers draw them (uniform on the field disc or image circle, focus or
+    inverse distance with a share at infinity), wavelengths uniform in 1/lambda^2 (the
+    fitted variable), and ``points`` stop points (a multiple of 4, mirror-symmetric,
+    uniform on the stop disc)."""
+    from lensfit.poly.tensor import symmetric_disc_points
+
+    rng = np.random.default_rng(seed)
+    if system == "P_o":
+        sin_xy = np.array([math.sin(math.radians(f)) for f in domain.field_xy_deg])
+        dirs = _disc(rng, groups, 1.0) * sin_xy
+        third = rng.uniform(0.0, domain.inverse_distance_max, groups)
+        third[rng.random(groups) < INFINITY_SHARE] = 0.0
+        aim = aim_object_side
+    elif system == "P_s":
+        dirs = _disc(rng, groups, domain.sensor_radius_mm)
+        third = rng.uniform(domain.focus_min_mm, domain.focus_max_mm, groups)
+        aim = aim_sensor_side
+    else:
+        raise ValueError(f"sample_grid: system = {system!r}: expected P_o or P_s")
+    w_lo, w_hi = 1.0 / domain.wavelength_max_nm**2, 1.0 / domain.wavelength_min_nm**2
+    lam = 1.0 / np.sqrt(rng.uniform(w_lo, w_hi, groups))
+    field = np.column_stack([dirs[:, 0], dirs[:, 1], third, lam])
+    ap = symmetric_disc_points(rng, points) * domain.stop_radius_mm
+    gid = np.repeat(np.arange(groups), points)
+    aid = np.tile(np.arange(points), groups)
+    n = groups * points
+    outputs = np.full((n, 4), np.nan)
+    ok = np.zeros(n, dtype=bool)
+    vig = np.full(n, np.nan)
+    unknowns = np.full((n, 2), np.nan)
+    kw = ({"fd_scale_mm": max(domain.stop_radius_mm, 1.0)} if system == "P_o"
+          else {"fd_scale": 1.0})
+
+    def run(rows: np.ndarray, guess: np.ndarray | None) -> None:
+        for a in range(0, len(rows), GRID_CHUNK):
+            r = rows[a:a + GRID_CHUNK]
+            f, k = field[gid[r]], aid[r]
+            res = aim(lens, f[:, 0], f[:, 1], f[:, 2], ap[k, 0], ap[k, 1], f[:, 3], **kw,
+                      guess=None if guess is None else guess[a:a + GRID_CHUNK])
+            outputs[r], ok[r], vig[r], unknowns[r] = (res.outputs, res.ok, res.vignetting,
+                                                      res.unknowns)
+
+    run(np.arange(n), None)
+    if not np.any(ok):
+        raise SamplingError(f"{lens.source_file or lens.name}: {system}: none of {n} rays got "
+                            "through the lens over the declared domain")
+    return GridSamples(system, field, ap, outputs.reshape(groups, points, 4),
+                       ok.reshape(groups, points), vig.reshape(groups, points))

@@ -1,0 +1,176 @@
+"""How far a fit can be trusted, in the user's terms: its PSF against exactly traced rays.
+
+For each cell of a small table (the widest fitted stop, f/8 and f/32; a light on the axis
+and one at 80% of the frame's corner; 450, 550 and 650 nm; the light at infinity and the
+sensor at the best focus of the axis at 550 nm for that stop, as a camera is focused),
+two PSFs are summed over the same stop points (a sunflower set, so Monte Carlo noise
+cancels and only the transport differs):
+
+* the exact one, :func:`lensfit.psf.exact_psf_nodes` (every ray traced in float64; the
+  sensor-side rays of each stop point traced to a Chebyshev grid over the window and
+  interpolated, which agrees with tracing every pair to ~1e-8);
+* the polynomial one, :func:`lensfit.psf.poly_psf` (the fitted P_o and P_s),
+
+and the cell's figure is the relative L2 distance of the intensities,
+||I_poly - I_exact|| / ||I_exact||, over a window that holds the geometric spot and at
+least four Airy radii around the chief ray's image. The worst cell is the fit's
+statement of trust: `lensfit fit` prints it, the table carries it and lensrt logs it.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+
+from lensfit import psf
+from lensfit.facts import lens_facts
+from lensfit.paraxial.paraxial import paraxial, stop_radius_for_f_number
+from lensfit.poly import System
+from lensfit.prescription.model import Lens
+from lensfit.sample.domain import FULL_FRAME_HALF_DIAGONAL_MM, Domain
+from lensfit.scene import light_direction
+from lensfit.trace.tracer import Status
+
+WAVELENGTHS_NM = (450.0, 550.0, 650.0)
+F_NUMBERS = (8.0, 32.0)  # besides the widest fitted stop
+CORNER_SHARE = 0.8  # of the frame's corner
+NODES = 7  # Chebyshev nodes per axis of the window for the exact sensor-side rays
+MIN_PIXELS, MAX_PIXELS = 24, 48
+MIN_POINTS, MAX_POINTS = 512, 2048
+
+
+def corner_field(lens: Lens, domain: Domain, share: float = CORNER_SHARE
+                 ) -> tuple[float, float]:
+    """(θx, θy) in degrees of a light imaged at ``share`` of the 36 x 24 mm frame's corner
+    (paraxially, per meridian), pulled inside the fitted field if it lies beyond it."""
+    corner = np.array([18.0, 12.0]) * share * min(1.0, domain.sensor_radius_mm
+                                                  / FULL_FRAME_HALF_DIAGONAL_MM)
+    efl = [abs(paraxial(lens, meridian=m).efl_mm) for m in ("x", "y")]
+    theta = np.degrees(np.arctan(corner / efl))
+    sx, sy = (math.sin(math.radians(f)) for f in domain.field_xy_deg)
+    for _ in range(60):
+        x_O, y_O = light_direction(*theta)
+        if (x_O / sx) ** 2 + (y_O / sy) ** 2 <= share**2:
+            break
+        theta *= 0.97
+    return float(theta[0]), float(theta[1])
+
+
+def _f_number(lens: Lens, radius: float) -> float:
+    """The f-number of a stop radius (the radius scales as 1/N, paraxially)."""
+    return lens_facts(lens).stop_radius_f1_mm / radius
+
+
+def _window(lens: Lens, radius: float, field: tuple[float, float], distance: float,
+            lam: float, focus: float, f_number: float) -> tuple[float, tuple[float, float]]:
+    """Window width (mm) and centre: the geometric spot (exact rays through 400 stop
+    points) with margin, at least four Airy radii each side of the chief ray's image."""
+    centre = psf.geometric_image_point(lens, field, distance, wavelength_nm=lam,
+                                       focus_offset_mm=focus)
+    pts = psf.sunflower_points(400, radius)
+    x_O, y_O = light_direction(*field)
+    u_O = 0.0 if math.isinf(distance) else 1.0 / distance
+    obj = psf.aim_object_side(lens, x_O, y_O, u_O, pts[:, 0], pts[:, 1], lam)
+    rays = psf._rear_trace(lens, obj, lam, lens.sensor_z + focus)
+    ok = obj.ok & (rays.status == Status.OK)
+    spot = 0.0
+    if np.any(ok):
+        d = np.hypot(rays.pos[ok, 0] - centre[0], rays.pos[ok, 1] - centre[1])
+        spot = float(np.max(d))
+    airy = 1.22 * lam * 1e-6 * f_number
+    return 2.0 * max(1.3 * spot, 4.0 * airy), centre
+
+
+def psf_vs_exact(lens: Lens, systems: Sequence[System], domain: Domain, *,
+                 wavelengths: Sequence[float] = WAVELENGTHS_NM,
+                 f_numbers: Sequence[float] = F_NUMBERS,
+                 fields: Sequence[tuple[str, tuple[float, float], float]] | None = None,
+                 focus_mm: float | None = None) -> dict[str, Any]:
+    """The table of the module doc: {"cells": [...], "worst": cell, "seconds": s}.
+
+    ``fields`` (name, (θx, θy) degrees, distance mm) replace the axis and the corner
+    (a scene's lights); ``focus_mm`` replaces each stop's best focus."""
+    t0 = time.perf_counter()
+    facts = lens_facts(lens)
+    stops: list[tuple[str, float]] = [("widest", domain.stop_radius_mm)]
+    for n in f_numbers:
+        try:
+            r = stop_radius_for_f_number(lens, n)
+        except ValueError:
+            continue
+        if r < domain.stop_radius_mm:
+            stops.append((f"f/{n:g}", r))
+    if fields is None:
+        fields = [("axis", (0.0, 0.0), math.inf),
+                  ("corner80", corner_field(lens, domain), math.inf)]
+    cells = []
+    for label, radius in stops:
+        n_f = _f_number(lens, radius)
+        focus = psf.best_focus_offset(lens, radius, 550.0) if focus_mm is None else focus_mm
+        focus = min(max(focus, domain.focus_min_mm), domain.focus_max_mm)
+        # Wavelengths outside a narrow fitted band are replaced by its nearest edge
+        lams = sorted({min(max(float(lam), domain.wavelength_min_nm),
+                           domain.wavelength_max_nm) for lam in wavelengths})
+        for fname, field, distance in fields:
+            for lam in lams:
+                width, centre = _window(lens, radius, field, distance, lam, focus, n_f)
+                airy = 1.22 * lam * 1e-6 * n_f
+                pixels = int(min(MAX_PIXELS, max(MIN_PIXELS, math.ceil(width / (0.5 * airy)))))
+                # Stop points close enough that the sum does not alias across the window
+                spacing = lam * 1e-6 * facts.focal_length_mm / width
+                n_pts = int(min(MAX_POINTS, max(MIN_POINTS,
+                                                math.ceil(math.pi * radius**2 / spacing**2))))
+                pts = psf.sunflower_points(n_pts, radius)
+                common = dict(stop_radius_mm=radius, field_deg=field, distance_mm=distance,
+                              wavelength_nm=lam,
+                              focus_offset_mm=focus, width=pixels, height=pixels,
+                              width_mm=width, center_x_mm=centre[0], center_y_mm=centre[1])
+                exact, used = psf.exact_psf_nodes(lens, aperture_xy_mm=pts, nodes=NODES,
+                                                  **common)
+                poly = psf.poly_psf(systems, facts=facts, aperture_xy_mm=pts[used], **common)
+                ie, ip = np.abs(exact) ** 2, np.abs(poly) ** 2
+                norm = float(np.linalg.norm(ie))
+                rel = float(np.linalg.norm(ip - ie) / norm) if norm > 0 else math.inf
+                cells.append({
+                    "stop": label, "f_number": round(n_f, 4), "stop_radius_mm": radius,
+                    "field": fname, "field_deg": list(field),
+                    "distance_mm": "inf" if math.isinf(distance) else distance,
+                    "wavelength_nm": lam,
+                    "focus_offset_mm": focus, "window_um": width * 1e3, "pixels": pixels,
+                    "points": int(np.count_nonzero(used)), "relative_l2": rel,
+                })
+    worst = max(cells, key=lambda c: c["relative_l2"])
+    return {"cells": cells, "worst": worst, "seconds": time.perf_counter() - t0}
+
+
+def trust_figures(table: dict[str, Any], psf_target: float) -> dict[str, Any]:
+    """What a coefficient table carries of ``table`` (lensfit.codegen.table, version 3)."""
+    return {"psf_vs_exact": table["worst"]["relative_l2"],
+            "psf_vs_exact_cell": cell_label(table["worst"]), "psf_target": psf_target}
+
+
+def cell_label(cell: dict[str, Any]) -> str:
+    """'f/2.0 corner80 450 nm' for messages and the table."""
+    where = {"axis": "axis", "corner80": "80% corner"}.get(cell["field"], cell["field"])
+    return f"f/{cell['f_number']:.3g} {where} {cell['wavelength_nm']:g} nm"
+
+
+def markdown_table(table: dict[str, Any]) -> list[str]:
+    """The table as Markdown lines: stops and fields as rows, wavelengths as columns."""
+    cells = table["cells"]
+    lams = sorted({c["wavelength_nm"] for c in cells})
+    rows: dict[tuple[str, str], dict[float, dict[str, Any]]] = {}
+    for c in cells:
+        rows.setdefault((f"f/{c['f_number']:.3g}", c["field"]), {})[c["wavelength_nm"]] = c
+    lines = ["| stop | light | " + " | ".join(f"{lam:g} nm" for lam in lams) + " | window |",
+             "|---|---|" + "---:|" * len(lams) + "---:|"]
+    for (stop, field), by in rows.items():
+        light = {"axis": "on axis", "corner80": "80% of the corner"}.get(field, field)
+        vals = " | ".join(f"{by[lam]['relative_l2']:.2%}" if lam in by else "-" for lam in lams)
+        win = max(c["window_um"] for c in by.values())
+        lines.append(f"| {stop} | {light} | {vals} | {win:.0f} µm |")
+    return lines
