@@ -3,7 +3,8 @@
 #   make runtime the C99 runtime lensrt (library, lensrt-psf, C tests) in build/runtime
 #   make demo    the default lens (0001): paraxial table, drawings, its polynomial fit with
 #                the fit-error report, the demo scene's specialised code, and its point
-#                spread function at f/2, f/8 and f/32 (EXR and PNG, build/demo/psf/), and
+#                spread function at f/2, f/8 and f/32 to 1% Monte Carlo error (EXR, PNG and
+#                a sheet of the three with scale bars, build/demo/psf/), and
 #                at f/8 on the GL device
 #   make test    lint, the C tests (also under ASan/UBSan) and the Python test suite
 #   make bench   ray-tracer throughput, generated-code speed, fit report, lensrt splat rate,
@@ -70,7 +71,7 @@ demo: setup runtime
 		|| { rc=$$?; [ $$rc -eq 3 ] && echo "demo: no GL device here, the CPU renders above stand"; [ $$rc -eq 3 ]; }
 
 lint: setup
-	$(VENV)/bin/ruff check --config fit/pyproject.toml fit tests runtime/python runtime/bench
+	$(VENV)/bin/ruff check --config fit/pyproject.toml fit tests runtime/python runtime/bench runtime/tools
 
 test: setup lint runtime
 	ctest --test-dir $(RUNTIME_BUILD) --output-on-failure

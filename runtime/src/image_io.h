@@ -70,8 +70,11 @@ lensrt_result lensrt_write_exr(const lensrt_allocator *allocator, const char *pa
                                const float *rgb, const lensrt_image_meta *meta,
                                char *err, size_t err_size);
 
-/* PNG, 8-bit sRGB: luminance mapped by log10 over `decades` below the image's peak
- * (colour ratios kept), then the sRGB transfer curve. */
+/* PNG, 8-bit sRGB: luminance mapped by log10 over `decades` below the image's peak;
+ * colours outside the sRGB gamut (or with a negative component) are desaturated towards
+ * the grey of the same displayed luminance just enough to fit, never clamped per
+ * channel, and chroma fades to grey in the dimmest part of the range (image_png.c says
+ * exactly how); then the sRGB transfer curve. */
 lensrt_result lensrt_write_png(const lensrt_allocator *allocator, const char *path,
                                int width, int height, const float *rgb, double decades,
                                char *err, size_t err_size);

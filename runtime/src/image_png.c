@@ -9,10 +9,32 @@
  * the writer small enough to check by hand. CRC-32 (PNG chunks) and Adler-32 (zlib)
  * are computed here.
  *
- * Tone map (image_io.h): luminance Y = 0.2126 R + 0.7152 G + 0.0722 B of the linear
- * sRGB input, Y_peak = max Y, v = clamp(1 + log10(Y / Y_peak) / decades, 0, 1); the
- * RGB is scaled by v / Y (colour ratios kept), each channel clamped to [0, 1], encoded
- * with the sRGB transfer curve and rounded to 8 bits.
+ * Tone map (image_io.h), per pixel of the linear sRGB input (R, G, B):
+ *
+ *   1. Luminance Y = 0.2126 R + 0.7152 G + 0.0722 B; pixels with Y not positive and
+ *      finite are black. Y_peak = the largest finite Y of the image.
+ *   2. Displayed luminance v = clamp(1 + log10(Y / Y_peak) / decades, 0, 1): the peak
+ *      is 1, `decades` decades below it 0.
+ *   3. Chroma c = (R, G, B) / Y - (1, 1, 1): the colour's offset from the grey of the
+ *      same luminance (its own luminance is 0, so the hue is the direction of c). The
+ *      displayed colour is v (1 + s c), with s in [0, 1] chosen as
+ *        s = min(s_fade, the largest s with every channel of v (1 + s c) in [0, 1]).
+ *      Mixing with the grey (v, v, v) keeps the luminance v exactly and keeps the hue
+ *      (the point moves on the line from the white point towards the colour), so a
+ *      colour outside the sRGB gamut, or one with a negative component (a spectral
+ *      colour purer than the sRGB primaries), is desaturated only as much as needed,
+ *      never clamped channel by channel (clamping shifts hue and luminance: a dim
+ *      fringe that is slightly negative in G and scaled far up turns saturated magenta).
+ *      Grey (s c = 0) is always in gamut since v is in [0, 1].
+ *   4. s_fade = v: chroma fades with the displayed luminance, from full at the peak to
+ *      grey at the bottom of the range. A log map lifts parts of a PSF thousands of times
+ *      dimmer than its peak to mid-grey, and there Monte Carlo noise and the
+ *      non-overlapping rings of distant wavelengths decide the colour; at full strength
+ *      they read as saturated speckle and candy-coloured rings. Fading by v keeps the
+ *      colour of the bright core and first fringes and lets the faint tails fall back
+ *      towards grey (chosen by eye on the `make demo` PSFs against fading over the
+ *      bottom two decades only, which left the f/2 noise floor purple and green).
+ *   5. The sRGB transfer curve, then rounding to 8 bits.
  *
  * The write is atomic: a temporary file next to the target, renamed over it only when
  * every byte is written and flushed to disk; on failure the temporary file is removed.
@@ -122,16 +144,43 @@ static double png_luminance(const float *px)
     return PNG_LUMA_R * (double)px[0] + PNG_LUMA_G * (double)px[1] + PNG_LUMA_B * (double)px[2];
 }
 
-/* One 8-bit channel from a linear value already scaled by v / Y. */
+/* One 8-bit channel from a linear value in [0, 1] (rounding can leave a few ulps
+ * outside, which are clamped). */
 static unsigned char png_quantise(double linear)
 {
     double e;
-    if (!(linear > 0.0)) /* negative or NaN: black */
+    if (!(linear > 0.0))
         return 0;
     if (linear > 1.0)
         linear = 1.0;
     e = png_srgb_encode(linear) * 255.0 + 0.5;
     return (unsigned char)(e >= 255.0 ? 255 : (int)e);
+}
+
+/* The displayed linear colour of one pixel (steps 1-4 of the header): out in [0, 1]^3. */
+static void png_tone_map_pixel(const float *px, double y_peak, double decades, double out[3])
+{
+    double lum = png_luminance(px), v, s, c[3];
+    int k;
+    out[0] = out[1] = out[2] = 0.0;
+    if (!(y_peak > 0.0 && lum > 0.0 && lum <= y_peak)) /* black, negative, NaN, infinite */
+        return;
+    v = 1.0 + log10(lum / y_peak) / decades;
+    if (v <= 0.0)
+        return;
+    if (v > 1.0)
+        v = 1.0;
+    s = v; /* step 4: the chroma fades with the displayed luminance */
+    for (k = 0; k < 3; ++k) {
+        c[k] = (double)px[k] / lum - 1.0;
+        /* v (1 + s c_k) <= 1 when c_k > 0 and >= 0 when c_k < 0; both bounds are >= 0. */
+        if (c[k] > 0.0 && s * c[k] > 1.0 / v - 1.0)
+            s = (1.0 / v - 1.0) / c[k];
+        else if (c[k] < 0.0 && s * -c[k] > 1.0)
+            s = 1.0 / -c[k];
+    }
+    for (k = 0; k < 3; ++k)
+        out[k] = v * (1.0 + s * c[k]);
 }
 
 /* Tone map row y into `row` (filter byte 0 = None, then R G B per pixel). Pixels whose
@@ -143,24 +192,12 @@ static void png_tone_map_row(const float *rgb, size_t width, size_t y, double y_
     size_t x;
     row[0] = 0;
     for (x = 0; x < width; ++x) {
-        const float *px = rgb + 3 * (y * width + x);
+        double lin[3];
         unsigned char *out = row + 1 + 3 * x;
-        double lum = png_luminance(px);
-        if (y_peak > 0.0 && lum > 0.0 && lum <= y_peak) {
-            /* Log map: the peak goes to 1, `decades` decades below it to 0. */
-            double v = 1.0 + log10(lum / y_peak) / decades;
-            double scale;
-            if (v < 0.0)
-                v = 0.0;
-            if (v > 1.0)
-                v = 1.0;
-            scale = v / lum;
-            out[0] = png_quantise(scale * (double)px[0]);
-            out[1] = png_quantise(scale * (double)px[1]);
-            out[2] = png_quantise(scale * (double)px[2]);
-        } else {
-            out[0] = out[1] = out[2] = 0;
-        }
+        png_tone_map_pixel(rgb + 3 * (y * width + x), y_peak, decades, lin);
+        out[0] = png_quantise(lin[0]);
+        out[1] = png_quantise(lin[1]);
+        out[2] = png_quantise(lin[2]);
     }
 }
 

@@ -693,23 +693,58 @@ static uint32_t be32(const unsigned char *p)
     return ((uint32_t)p[0] << 24) | ((uint32_t)p[1] << 16) | ((uint32_t)p[2] << 8) | p[3];
 }
 
-/* The reference tone map of one pixel (image_io.h), written out again for the test. */
+/* sRGB transfer curve and its inverse (IEC 61966-2-1). */
+static double ref_srgb_encode(double lin)
+{
+    return lin <= 0.0031308 ? 12.92 * lin : 1.055 * pow(lin, 1.0 / 2.4) - 0.055;
+}
+
+static double ref_srgb_decode(unsigned char byte)
+{
+    double e = byte / 255.0;
+    return e <= 0.04045 ? e / 12.92 : pow((e + 0.055) / 1.055, 2.4);
+}
+
+static double ref_luminance3(double r, double g, double b)
+{
+    return 0.2126 * r + 0.7152 * g + 0.0722 * b;
+}
+
+/* The reference tone map of one pixel (image_png.c's header), written out again for the
+ * test: the desaturation factor is found by bisection on "every channel in [0, 1]"
+ * rather than by the writer's closed form, so the two are independent. */
 static void ref_tone_map(const float *px, double y_peak, double decades, unsigned char out[3])
 {
-    double lum = 0.2126 * px[0] + 0.7152 * px[1] + 0.0722 * px[2];
-    int c;
-    for (c = 0; c < 3; ++c) {
-        double v, lin;
-        if (!(lum > 0.0) || !(y_peak > 0.0) || !(lum <= y_peak)) {
-            out[c] = 0;
-            continue;
+    double lum = ref_luminance3(px[0], px[1], px[2]), v, s_fade, lo, hi, lin;
+    int c, it;
+    out[0] = out[1] = out[2] = 0;
+    if (!(lum > 0.0) || !(y_peak > 0.0) || !(lum <= y_peak))
+        return;
+    v = 1.0 + log10(lum / y_peak) / decades;
+    v = v < 0.0 ? 0.0 : v > 1.0 ? 1.0 : v;
+    s_fade = v; /* chroma fades with the displayed luminance */
+    /* Largest s in [0, s_fade] with v (1 + s (px / lum - 1)) in [0, 1] for every channel
+     * (the set of such s is an interval containing 0, so bisection finds its end). */
+    lo = 0.0;
+    hi = s_fade;
+    for (it = 0; it < 200 && hi > lo; ++it) {
+        double mid = it == 0 ? s_fade : 0.5 * (lo + hi);
+        int inside = 1;
+        for (c = 0; c < 3; ++c) {
+            lin = v * (1.0 + mid * (px[c] / lum - 1.0));
+            inside = inside && lin >= 0.0 && lin <= 1.0;
         }
-        v = 1.0 + log10(lum / y_peak) / decades;
-        v = v < 0.0 ? 0.0 : v > 1.0 ? 1.0 : v;
-        lin = px[c] * v / lum;
+        if (inside)
+            lo = mid;
+        else
+            hi = mid;
+        if (it == 0 && inside)
+            break;
+    }
+    for (c = 0; c < 3; ++c) {
+        lin = v * (1.0 + lo * (px[c] / lum - 1.0));
         lin = lin < 0.0 ? 0.0 : lin > 1.0 ? 1.0 : lin;
-        lin = lin <= 0.0031308 ? 12.92 * lin : 1.055 * pow(lin, 1.0 / 2.4) - 0.055;
-        out[c] = (unsigned char)floor(lin * 255.0 + 0.5);
+        out[c] = (unsigned char)floor(ref_srgb_encode(lin) * 255.0 + 0.5);
     }
 }
 
@@ -841,8 +876,8 @@ static void test_png(void)
         PIX(1, 0, 2.0f, 2.0f, 2.0f);          /* the peak, Y = 2: white */
         PIX(2, 0, 0.2f, 0.2f, 0.2f);          /* one decade below: v = 0.8, sRGB(0.8) -> 231 */
         PIX(3, 0, 2e-5f, 2e-5f, 2e-5f);       /* five decades below: black */
-        PIX(0, 1, -1.0f, 0.5f, 0.0f);         /* negative red: 0; green saturates */
-        PIX(1, 1, 1.0f, 0.5f, 0.25f);         /* colour ratios kept */
+        PIX(0, 1, -1.0f, 0.5f, 0.0f);         /* negative red: desaturated until R >= 0 */
+        PIX(1, 1, 1.0f, 0.5f, 0.25f);         /* orange, desaturated until R <= 1 */
         PIX(4, 4, (float)NAN, 1.0f, 1.0f);    /* NaN: black */
         r = lensrt_write_png(&alloc, path, W, H, rgb, 5.0, err, sizeof err);
         CHECK(r == LENSRT_SUCCESS, "lensrt_write_png: result %d, '%s'", (int)r, err);
@@ -860,9 +895,12 @@ static void test_png(void)
             p = png_pixel(raw, W, 3, 0);
             CHECK(p[0] == 0 && p[1] == 0 && p[2] == 0, "five-decade pixel is %d %d %d", p[0], p[1],
                   p[2]);
+            /* Y = 0.145, v = 0.772; (1/v - 1) / c_G = 0.120 < 1 / -c_R = 0.127: G reaches 1
+             * first, R stays just above 0 (0.772 (1 - 0.120 * 7.90) = 0.040 -> sRGB 56),
+             * B = 0.772 (1 - 0.120) = 0.679 -> 216. Per-channel clamping gave 0 255 0. */
             p = png_pixel(raw, W, 0, 1);
-            CHECK(p[0] == 0 && p[1] == 255 && p[2] == 0, "negative-red pixel is %d %d %d", p[0], p[1],
-                  p[2]);
+            CHECK(p[1] == 255 && p[0] > 40 && p[0] < 70 && p[2] > 205 && p[2] < 225,
+                  "negative-red pixel is %d %d %d", p[0], p[1], p[2]);
             p = png_pixel(raw, W, 4, 4);
             CHECK(p[0] == 0 && p[1] == 0 && p[2] == 0, "NaN pixel is %d %d %d", p[0], p[1], p[2]);
             p = png_pixel(raw, W, 1, 1);
@@ -991,6 +1029,168 @@ static void test_png(void)
     }
 }
 
+/* The tone map's colour handling, through the file: saturated colours come out in gamut
+ * with their hue and their displayed luminance, only as desaturated as the gamut needs;
+ * greys stay grey; dim colours fade to grey; luminance order is kept. Per-channel
+ * clamping (the map before this one) fails the luminance, bound and order checks.
+ *
+ * Tolerances: an 8-bit sRGB byte is within half a step of the exact value, which in
+ * linear light is at most 0.5 / 255 * max d(linear)/d(encoded) = 0.5 / 255 * 2.27 =
+ * 0.0045 per channel, so the luminance (weights summing to 1) is within 0.0045 and the
+ * offset from grey (channel minus luminance) within 2 * 0.0045 * sqrt(3) = 0.016. */
+#define GAMUT_LIN_TOL 0.0045
+#define GAMUT_CHROMA_TOL 0.016
+
+static void decode_pixel(const unsigned char *p, double lin[3])
+{
+    int c;
+    for (c = 0; c < 3; ++c)
+        lin[c] = ref_srgb_decode(p[c]);
+}
+
+static void test_png_gamut(void)
+{
+    /* Linear sRGB colours outside the gamut (negative components, as spectral colours
+     * purer than the sRGB primaries give) and inside it. */
+    static const double hues[][3] = {
+        {3.0, -0.5, -0.2}, {-0.3, 1.2, -0.1}, {-0.2, -0.1, 4.0}, {2.0, 1.0, -0.3},
+        {-0.5, 1.0, 1.5},  {1.5, -0.3, 1.5},  {1.0, 0.8, 0.6},   {0.6, 0.7, 1.0}};
+    static const double levels[] = {0.95, 0.8, 0.6, 0.45, 0.3, 0.1};
+    enum { N_HUES = sizeof hues / sizeof hues[0], N_LEVELS = sizeof levels / sizeof levels[0] };
+    enum { N_GREYS = 13, N_ORDER = 49 };
+    enum { W = N_HUES * N_LEVELS + N_GREYS + N_ORDER + 1 };
+    const double decades = 5.0;
+    test_alloc_state state;
+    lensrt_allocator alloc = make_allocator(&state, -1);
+    float rgb[3 * W];
+    char path[4200], err[512];
+    unsigned char *raw;
+    size_t raw_size;
+    int n_blocks, i, k, x = 0, hue_checked = 0, bound_checked = 0;
+    unsigned lcg = 12345u;
+    lensrt_result r;
+
+    /* Pixel 0: the peak, white with Y = 1, so a pixel of luminance Y has v = 1 + log10(Y) / 5. */
+    rgb[0] = rgb[1] = rgb[2] = 1.0f;
+    x = 1;
+    for (i = 0; i < N_HUES; ++i)
+        for (k = 0; k < N_LEVELS; ++k, ++x) {
+            double y_hue = ref_luminance3(hues[i][0], hues[i][1], hues[i][2]);
+            double scale = pow(10.0, (levels[k] - 1.0) * decades) / y_hue;
+            int c;
+            for (c = 0; c < 3; ++c)
+                rgb[3 * x + c] = (float)(hues[i][c] * scale);
+        }
+    for (i = 0; i < N_GREYS; ++i, ++x) /* greys from 1e-6 to 1 */
+        rgb[3 * x] = rgb[3 * x + 1] = rgb[3 * x + 2] = (float)pow(10.0, -6.0 + i * 0.5);
+    for (i = 0; i < N_ORDER; ++i, ++x) {
+        /* Rising luminance (v = 0.02, 0.04, ... 0.98), pseudo-random hues, some outside
+         * the gamut: r, g, b in [-0.3, 1.7) before scaling, luminance kept positive. */
+        double col[3], y_col;
+        int c;
+        do {
+            for (c = 0; c < 3; ++c) {
+                lcg = lcg * 1103515245u + 12345u;
+                col[c] = -0.3 + 2.0 * (double)((lcg >> 8) & 0xFFFFu) / 65536.0;
+            }
+            y_col = ref_luminance3(col[0], col[1], col[2]);
+        } while (y_col < 0.1);
+        for (c = 0; c < 3; ++c)
+            rgb[3 * x + c] = (float)(col[c] * pow(10.0, (0.02 * (i + 1) - 1.0) * decades) / y_col);
+    }
+
+    scratch_path(path, sizeof path, "image_io_gamut.png");
+    r = lensrt_write_png(&alloc, path, W, 1, rgb, decades, err, sizeof err);
+    CHECK(r == LENSRT_SUCCESS, "gamut PNG: result %d, '%s'", (int)r, err);
+    raw = parse_png(path, W, 1, &raw_size, &n_blocks);
+    if (!raw)
+        return;
+
+    /* Saturated and mild colours at six levels. */
+    x = 1;
+    for (i = 0; i < N_HUES; ++i)
+        for (k = 0; k < N_LEVELS; ++k, ++x) {
+            const float *px = rgb + 3 * x;
+            const unsigned char *p = png_pixel(raw, W, x, 0);
+            double lum = ref_luminance3(px[0], px[1], px[2]), v = levels[k], lin[3], y_out;
+            double cvec[3], dvec[3], cn = 0.0, dn = 0.0, dot = 0.0, s_fade, s_gamut = HUGE_VAL;
+            int c;
+            decode_pixel(p, lin);
+            y_out = ref_luminance3(lin[0], lin[1], lin[2]);
+            CHECK(fabs(y_out - v) <= GAMUT_LIN_TOL + 1e-9,
+                  "hue %d at v = %.2f: displayed luminance %.4f (bytes %d %d %d)", i, v, y_out, p[0],
+                  p[1], p[2]);
+            s_fade = v;
+            for (c = 0; c < 3; ++c) {
+                cvec[c] = px[c] / lum - 1.0;
+                dvec[c] = lin[c] - y_out;
+                cn += cvec[c] * cvec[c];
+                dn += dvec[c] * dvec[c];
+                dot += cvec[c] * dvec[c];
+                if (cvec[c] > 0.0)
+                    s_gamut = fmin(s_gamut, (1.0 / v - 1.0) / cvec[c]);
+                else if (cvec[c] < 0.0)
+                    s_gamut = fmin(s_gamut, -1.0 / cvec[c]);
+            }
+            cn = sqrt(cn);
+            dn = sqrt(dn);
+            /* The hue: the offset from grey points the way of the input's, to within the
+             * quantisation (|d| >= 0.1 and an error <= 0.016 turn it by at most 9 deg). */
+            if (dn >= 0.1) {
+                CHECK(dot / (cn * dn) >= 0.98, "hue %d at v = %.2f: hue turned (cos %.4f), bytes %d %d %d",
+                      i, v, dot / (cn * dn), p[0], p[1], p[2]);
+                ++hue_checked;
+            }
+            /* The chroma: exactly v * min(s_fade, s_gamut) * |c| (not less, not more). */
+            CHECK(fabs(dn - v * fmin(s_fade, s_gamut) * cn) <= GAMUT_CHROMA_TOL,
+                  "hue %d at v = %.2f: chroma %.4f, expected %.4f", i, v, dn,
+                  v * fmin(s_fade, s_gamut) * cn);
+            /* Limited by the gamut: one channel sits on its bound. */
+            if (s_gamut < s_fade) {
+                CHECK(p[0] == 0 || p[1] == 0 || p[2] == 0 || p[0] == 255 || p[1] == 255 || p[2] == 255,
+                      "hue %d at v = %.2f: desaturated more than the gamut needs (bytes %d %d %d)", i,
+                      v, p[0], p[1], p[2]);
+                ++bound_checked;
+            }
+        }
+    CHECK(hue_checked >= 20 && bound_checked >= 20, "only %d hue and %d bound checks ran",
+          hue_checked, bound_checked);
+    /* Greys stay grey, brighter greys brighter. */
+    for (i = 0; i < N_GREYS; ++i, ++x) {
+        const unsigned char *p = png_pixel(raw, W, x, 0);
+        CHECK(p[0] == p[1] && p[1] == p[2], "grey %d is %d %d %d", i, p[0], p[1], p[2]);
+        if (i > 0)
+            CHECK(p[0] >= png_pixel(raw, W, x - 1, 0)[0], "grey %d darker than grey %d", i, i - 1);
+    }
+    CHECK(png_pixel(raw, W, x - 1, 0)[0] == 255, "the grey at the peak is not white");
+    /* Luminance order: steps of 0.02 in v against a quantisation error of 2 * 0.0045. */
+    {
+        double previous = -1.0;
+        for (i = 0; i < N_ORDER; ++i, ++x) {
+            double lin[3], y_out;
+            decode_pixel(png_pixel(raw, W, x, 0), lin);
+            y_out = ref_luminance3(lin[0], lin[1], lin[2]);
+            CHECK(y_out > previous, "order pixel %d: luminance %.4f not above %.4f", i, y_out, previous);
+            CHECK(fabs(y_out - 0.02 * (i + 1)) <= GAMUT_LIN_TOL + 1e-9,
+                  "order pixel %d: luminance %.4f, expected %.2f", i, y_out, 0.02 * (i + 1));
+            previous = y_out;
+        }
+    }
+    /* And the file as a whole against the reference map. */
+    {
+        int bad = 0, c;
+        unsigned char ref[3];
+        for (x = 0; x < W; ++x) {
+            ref_tone_map(rgb + 3 * x, 1.0, decades, ref);
+            for (c = 0; c < 3; ++c)
+                bad += png_pixel(raw, W, x, 0)[c] != ref[c];
+        }
+        CHECK(bad == 0, "%d bytes of the gamut PNG differ from the reference tone map", bad);
+    }
+    free(raw);
+    remove(path);
+}
+
 int main(int argc, char **argv)
 {
     if (argc < 2) {
@@ -1005,6 +1205,7 @@ int main(int argc, char **argv)
     test_colour();
     test_exr();
     test_png();
+    test_png_gamut();
     printf("test_image_io: %d checks, %d failed\n", g_checks, g_failures);
     return g_failures == 0 ? 0 : 1;
 }
