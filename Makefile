@@ -47,7 +47,7 @@ demo: setup runtime
 	$(VENV)/bin/lensfit draw $(DEMO_LENS) -o build/demo/$(DEMO_LENS).png
 	$(VENV)/bin/lensfit draw $(DEMO_LENS) --f-number 8 --field 15 -o build/demo/$(DEMO_LENS)-f8.png
 	$(VENV)/bin/lensfit check
-	$(VENV)/bin/lensfit report $(DEMO_LENS) -o build/demo/report
+	$(VENV)/bin/lensfit report $(DEMO_LENS) -o build/demo/report --no-timing
 	$(VENV)/bin/lensfit scene $(DEMO_LENS) scenes/demo.toml -o build/demo/scene-demo
 	@mkdir -p build/demo/psf
 	@# The paper's Figure 7: an off-axis light through the default lens, 7 curved blades.

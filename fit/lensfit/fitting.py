@@ -67,6 +67,7 @@ APERTURE = (3, 4)  # columns of x_a, y_a in both systems
 X_LIKE, Y_LIKE = (0, 3), (1, 4)  # mirror pairs: (x_O|x_S, x_a) and (y_O|y_S, y_a)
 FIELD = (0, 1, 2, 5)  # the inputs a renderer fixes per pixel (or light) and wavelength
 METHODS = ("tensor", "pursuit")
+STAGNATION = 0.7  # a field degree that leaves more than this share of the error stalls
 
 
 @dataclass(frozen=True)
@@ -86,6 +87,7 @@ class FitOptions:
     groups: int = 4000  # field points of the grid
     aperture_points: int = 128  # stop points per field point (a multiple of 4)
     aperture_degree: int = 10  # phi; positions and transmittance use 4 less
+    max_aperture_degree: int = 14  # raised to (by 2, once) when the field degree stalls
     field_degrees: tuple[int, ...] = (4, 6, 8, 10, 12)  # tried in turn against the target
     # pursuit method
     max_degree: int = 9  # positions and transmittance
@@ -112,6 +114,9 @@ class FitOptions:
         if not self.field_degrees or min(self.field_degrees) < 0 or self.aperture_degree < 2:
             raise ValueError("fit options: field_degrees must be non-empty and >= 0, "
                              "aperture_degree >= 2")
+        if not self.aperture_degree <= self.max_aperture_degree <= 15:
+            raise ValueError(f"fit options: max_aperture_degree = {self.max_aperture_degree}: "
+                             "expected aperture_degree..15 (lensrt's limit)")
 
     @property
     def phase_target_waves(self) -> float:
@@ -323,31 +328,48 @@ def fit_system_tensor(name: str, inputs: tuple[Input, ...], outputs, train: Grid
             target, unit_err = options.target_tau, "1"
         else:
             target, unit_err = options.target_position_um, "um"
-        a_exps = aperture_exponents(options.aperture_degree - (0 if phase else 4))
+        da = options.aperture_degree - (0 if phase else 4)
         values = np.where(mask, train.outputs[:, :, j], 0.0)
         hist: list[float] = []
         terms: list[int] = []
         best = None
         fill = None
-        for degree in options.field_degrees:
+        degrees = list(options.field_degrees)
+        raised = just_raised = False  # the stop degree was raised (once at most)
+        while degrees:
+            degree = degrees[0]
             v_exps = field_exponents(len(FIELD), degree)
             try:
-                tf = fit_tensor(a_hat, v_hat, values, mask, a_exps, v_exps, parity=parity,
-                                fill=fill)
+                tf = fit_tensor(a_hat, v_hat, values, mask, aperture_exponents(da), v_exps,
+                                parity=parity, fill=fill)
             except ValueError:  # more terms than the grid can determine
                 break
-            if tf.holes:  # the next degree starts from this one's values in the holes
+            if tf.holes:  # the next rung starts from this one's values in the holes
                 fill = tf.grid(a_hat, v_hat)
             poly = _tensor_polynomial(out, unit, tf, len(inputs))
             err = error_metric(out, poly.evaluate_normalised(xe), te.outputs[:, j], te.group)
             rms = float(np.sqrt(np.mean(err * err)))
             hist.append(rms)
             terms.append(poly.terms)
+            previous = best[0] if best is not None else math.inf
             if best is None or rms < best[0]:
                 best = (rms, poly, err)
             if rms <= target:
-                best = (rms, poly, err)
                 break
+            # A higher field degree that barely helps means the stop degree is the limit
+            # (lens 0009's P_o at f/2: 2.4e-3, 2.3e-3, 2.2e-3 waves for field degrees 6,
+            # 8, 10 at stop degree 10; 2.5e-4 at stop degree 12, field degree 8): raise
+            # the stop degree once and try this field degree again
+            if (not raised and rms > STAGNATION * previous
+                    and da + 2 <= options.max_aperture_degree):
+                da, raised, just_raised = da + 2, True, True
+                continue
+            if just_raised and rms > previous:
+                # Raising made it worse (holes in the grid that higher stop degrees
+                # extrapolate into: lens 0004's P_s): back to the lower stop degree
+                da -= 2
+            just_raised = False
+            degrees.pop(0)
         if best is None:
             raise ValueError(f"{name}: {out}: the grid of {len(train.field)} field points "
                              "cannot determine even the lowest field degree")

@@ -138,7 +138,7 @@ def _clip_agreement(lens: Lens, f: SystemFit) -> dict[str, float]:
 def _output_json(o) -> dict[str, Any]:
     keys = ("system", "name", "terms", "max_degree", "rms", "max", "unit",
             "ns_per_eval_double", "ns_per_eval_float", "target", "reached", "piston_terms",
-            "absolute_rms_um")
+            "absolute_rms_um", "path_terms", "path_rms")
     return {k: getattr(o, k) for k in keys}
 
 
@@ -246,7 +246,8 @@ def _markdown(lens: Lens, fits: Sequence[SystemFit], fig: dict[str, Any]) -> str
         f"# Fit report: {lens.name}",
         "",
         f"Prescription `{Path(lens.source_file).name}`. Fit in {_fmt(fig.get('fit_seconds'))} s "
-        f"(sampling, pursuit and held-out checks of both systems).",
+        f"(sampling, fitting and held-out checks of both systems; method "
+        f"`{fig.get('method', 'tensor')}`, `lensfit.fitting`).",
         "",
         "## Declared domain",
         "",
@@ -282,13 +283,21 @@ def _markdown(lens: Lens, fits: Sequence[SystemFit], fig: dict[str, Any]) -> str
     lines += [
         "",
         f"Phase of the whole path (P_o and P_s errors are independent, so their squares add): "
-        f"**{both:.4f} waves RMS** (λ/{1 / both:.0f}).",
+        f"**{both:.2g} waves RMS** (λ/{1 / both:.0f}).",
         "",
     ]
     for o in phis:
         lines.append(f"* {o['system']} {o['name']}: {o['terms'] - o['piston_terms']} "
                      f"stop-dependent terms plus {o['piston_terms']} piston terms; absolute "
                      f"OPL error (piston included) {_fmt(o['absolute_rms_um'])} µm RMS.")
+    ladder = [o for o in fig["outputs"] if len(o.get("path_rms", [])) > 1]
+    if ladder and fig.get("method", "tensor") == "tensor":
+        lines += ["", "Held-out RMS for each field degree tried (the fit stops at the first "
+                      "that reaches the target):", ""]
+        for o in ladder:
+            steps = ", ".join(f"{t} terms: {_fmt(r)}" for t, r in
+                              zip(o["path_terms"], o["path_rms"], strict=True))
+            lines.append(f"* {o['system']} {o['name']} ({o['unit']}): {steps}")
     unreached = [o for o in fig["outputs"] if not o["reached"]]
     if unreached:
         lines += ["", "### Targets not reached", ""]

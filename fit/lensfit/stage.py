@@ -58,6 +58,7 @@ def run(lens: Lens, *, domain: Domain | None = None, options: FitOptions | None 
     figures["domain"] = domain.to_dict()
     figures["psf_vs_exact"] = table
     figures["psf_target"] = options.psf_target
+    figures["method"] = options.method
     if report_dir is not None:
         write_report(lens, fits, figures, report_dir)
     return fits, figures

@@ -17,7 +17,7 @@ extern "C" {
 #endif
 
 /*
- * P_o: 6 inputs -> 4 outputs, 402 terms, Horner form with 507 multiplications per evaluation (17 for powers)
+ * P_o: 6 inputs -> 4 outputs, 14168 terms, Horner form with 14962 multiplications per evaluation (4 for powers)
  */
 #define lens0004_P_o_N_IN 6 /* number of inputs of lens0004_P_o_* */
 #define lens0004_P_o_N_OUT 4 /* number of outputs of lens0004_P_o_* */
@@ -39,15 +39,15 @@ extern "C" {
 #define lens0004_P_o_IN_lambda 5 /* lambda [nm], domain [380.0, 780.0] nm, inverse_square: xhat = (1/v^2 - c)/s, c = 4.2844316230210116e-06 1/nm^2, s = 2.640776133211675e-06 1/nm^2 */
 #define lens0004_P_o_LO_lambda (380.0) /* [nm] lower bound */
 #define lens0004_P_o_HI_lambda (780.0) /* [nm] upper bound */
-#define lens0004_P_o_OUT_x_o 0 /* x_o [mm]: 46 terms, max degree 8 */
-#define lens0004_P_o_OUT_y_o 1 /* y_o [mm]: 47 terms, max degree 9 */
-#define lens0004_P_o_OUT_tau_o 2 /* tau_o [1]: 69 terms, max degree 9 */
-#define lens0004_P_o_OUT_phi_o 3 /* phi_o [mm]: 240 terms, max degree 9 */
+#define lens0004_P_o_OUT_x_o 0 /* x_o [mm]: 484 terms, max degree 10 */
+#define lens0004_P_o_OUT_y_o 1 /* y_o [mm]: 484 terms, max degree 10 */
+#define lens0004_P_o_OUT_tau_o 2 /* tau_o [1]: 1580 terms, max degree 12 */
+#define lens0004_P_o_OUT_phi_o 3 /* phi_o [mm]: 11620 terms, max degree 20 */
 void lens0004_P_o_d(const double in[lens0004_P_o_N_IN], double out[lens0004_P_o_N_OUT]);
 void lens0004_P_o_f(const float in[lens0004_P_o_N_IN], float out[lens0004_P_o_N_OUT]);
 
 /*
- * P_s: 6 inputs -> 4 outputs, 400 terms, Horner form with 501 multiplications per evaluation (16 for powers)
+ * P_s: 6 inputs -> 4 outputs, 6178 terms, Horner form with 6497 multiplications per evaluation (4 for powers)
  */
 #define lens0004_P_s_N_IN 6 /* number of inputs of lens0004_P_s_* */
 #define lens0004_P_s_N_OUT 4 /* number of outputs of lens0004_P_s_* */
@@ -69,10 +69,10 @@ void lens0004_P_o_f(const float in[lens0004_P_o_N_IN], float out[lens0004_P_o_N_
 #define lens0004_P_s_IN_lambda 5 /* lambda [nm], domain [380.0, 780.0] nm, inverse_square: xhat = (1/v^2 - c)/s, c = 4.2844316230210116e-06 1/nm^2, s = 2.640776133211675e-06 1/nm^2 */
 #define lens0004_P_s_LO_lambda (380.0) /* [nm] lower bound */
 #define lens0004_P_s_HI_lambda (780.0) /* [nm] upper bound */
-#define lens0004_P_s_OUT_x_i 0 /* x_i [mm]: 53 terms, max degree 9 */
-#define lens0004_P_s_OUT_y_i 1 /* y_i [mm]: 53 terms, max degree 9 */
-#define lens0004_P_s_OUT_tau_i 2 /* tau_i [1]: 60 terms, max degree 9 */
-#define lens0004_P_s_OUT_phi_i 3 /* phi_i [mm]: 234 terms, max degree 9 */
+#define lens0004_P_s_OUT_x_i 0 /* x_i [mm]: 484 terms, max degree 10 */
+#define lens0004_P_s_OUT_y_i 1 /* y_i [mm]: 484 terms, max degree 10 */
+#define lens0004_P_s_OUT_tau_i 2 /* tau_i [1]: 1580 terms, max degree 12 */
+#define lens0004_P_s_OUT_phi_i 3 /* phi_i [mm]: 3630 terms, max degree 16 */
 void lens0004_P_s_d(const double in[lens0004_P_s_N_IN], double out[lens0004_P_s_N_OUT]);
 void lens0004_P_s_f(const float in[lens0004_P_s_N_IN], float out[lens0004_P_s_N_OUT]);
 

@@ -17,62 +17,62 @@ extern "C" {
 #endif
 
 /*
- * P_o: 6 inputs -> 4 outputs, 785 terms, Horner form with 1008 multiplications per evaluation (22 for powers)
+ * P_o: 6 inputs -> 4 outputs, 21531 terms, Horner form with 21751 multiplications per evaluation (4 for powers)
  */
 #define lens2004_P_o_N_IN 6 /* number of inputs of lens2004_P_o_* */
 #define lens2004_P_o_N_OUT 4 /* number of outputs of lens2004_P_o_* */
-#define lens2004_P_o_IN_x_O 0 /* x_O [1 (direction cosine)], domain [-0.5662723058670889, 0.5662723058670889] 1 (direction cosine), affine: xhat = (v - c)/s, c = 0.0 1 (direction cosine), s = 0.5662723058670889 1 (direction cosine) */
-#define lens2004_P_o_LO_x_O (-0.56627230586708888) /* [1 (direction cosine)] lower bound */
-#define lens2004_P_o_HI_x_O (0.56627230586708888) /* [1 (direction cosine)] upper bound */
-#define lens2004_P_o_IN_y_O 1 /* y_O [1 (direction cosine)], domain [-0.3364284697743278, 0.3364284697743278] 1 (direction cosine), affine: xhat = (v - c)/s, c = 0.0 1 (direction cosine), s = 0.3364284697743278 1 (direction cosine) */
-#define lens2004_P_o_LO_y_O (-0.33642846977432778) /* [1 (direction cosine)] lower bound */
-#define lens2004_P_o_HI_y_O (0.33642846977432778) /* [1 (direction cosine)] upper bound */
+#define lens2004_P_o_IN_x_O 0 /* x_O [1 (direction cosine)], domain [-0.4067366430758002, 0.4067366430758002] 1 (direction cosine), affine: xhat = (v - c)/s, c = 0.0 1 (direction cosine), s = 0.4067366430758002 1 (direction cosine) */
+#define lens2004_P_o_LO_x_O (-0.40673664307580021) /* [1 (direction cosine)] lower bound */
+#define lens2004_P_o_HI_x_O (0.40673664307580021) /* [1 (direction cosine)] upper bound */
+#define lens2004_P_o_IN_y_O 1 /* y_O [1 (direction cosine)], domain [-0.22554773857205782, 0.22554773857205782] 1 (direction cosine), affine: xhat = (v - c)/s, c = 0.0 1 (direction cosine), s = 0.22554773857205782 1 (direction cosine) */
+#define lens2004_P_o_LO_y_O (-0.22554773857205782) /* [1 (direction cosine)] lower bound */
+#define lens2004_P_o_HI_y_O (0.22554773857205782) /* [1 (direction cosine)] upper bound */
 #define lens2004_P_o_IN_u_O 2 /* u_O [1/mm (inverse distance, 0 = infinity)], domain [0.0, 0.0031758514839598266] 1/mm (inverse distance, 0 = infinity), affine: xhat = (v - c)/s, c = 0.0015879257419799133 1/mm (inverse distance, 0 = infinity), s = 0.0015879257419799133 1/mm (inverse distance, 0 = infinity) */
 #define lens2004_P_o_LO_u_O (0.0) /* [1/mm (inverse distance, 0 = infinity)] lower bound */
 #define lens2004_P_o_HI_u_O (0.0031758514839598266) /* [1/mm (inverse distance, 0 = infinity)] upper bound */
-#define lens2004_P_o_IN_x_a 3 /* x_a [mm (on the stop)], domain [-9.601508897606434, 9.601508897606434] mm (on the stop), affine: xhat = (v - c)/s, c = 0.0 mm (on the stop), s = 9.601508897606434 mm (on the stop) */
-#define lens2004_P_o_LO_x_a (-9.6015088976064344) /* [mm (on the stop)] lower bound */
-#define lens2004_P_o_HI_x_a (9.6015088976064344) /* [mm (on the stop)] upper bound */
-#define lens2004_P_o_IN_y_a 4 /* y_a [mm (on the stop)], domain [-9.601508897606434, 9.601508897606434] mm (on the stop), affine: xhat = (v - c)/s, c = 0.0 mm (on the stop), s = 9.601508897606434 mm (on the stop) */
-#define lens2004_P_o_LO_y_a (-9.6015088976064344) /* [mm (on the stop)] lower bound */
-#define lens2004_P_o_HI_y_a (9.6015088976064344) /* [mm (on the stop)] upper bound */
+#define lens2004_P_o_IN_x_a 3 /* x_a [mm (on the stop)], domain [-4.800754448803217, 4.800754448803217] mm (on the stop), affine: xhat = (v - c)/s, c = 0.0 mm (on the stop), s = 4.800754448803217 mm (on the stop) */
+#define lens2004_P_o_LO_x_a (-4.8007544488032172) /* [mm (on the stop)] lower bound */
+#define lens2004_P_o_HI_x_a (4.8007544488032172) /* [mm (on the stop)] upper bound */
+#define lens2004_P_o_IN_y_a 4 /* y_a [mm (on the stop)], domain [-4.800754448803217, 4.800754448803217] mm (on the stop), affine: xhat = (v - c)/s, c = 0.0 mm (on the stop), s = 4.800754448803217 mm (on the stop) */
+#define lens2004_P_o_LO_y_a (-4.8007544488032172) /* [mm (on the stop)] lower bound */
+#define lens2004_P_o_HI_y_a (4.8007544488032172) /* [mm (on the stop)] upper bound */
 #define lens2004_P_o_IN_lambda 5 /* lambda [nm], domain [380.0, 780.0] nm, inverse_square: xhat = (1/v^2 - c)/s, c = 4.2844316230210116e-06 1/nm^2, s = 2.640776133211675e-06 1/nm^2 */
 #define lens2004_P_o_LO_lambda (380.0) /* [nm] lower bound */
 #define lens2004_P_o_HI_lambda (780.0) /* [nm] upper bound */
-#define lens2004_P_o_OUT_x_o 0 /* x_o [mm]: 145 terms, max degree 9 */
-#define lens2004_P_o_OUT_y_o 1 /* y_o [mm]: 200 terms, max degree 9 */
-#define lens2004_P_o_OUT_tau_o 2 /* tau_o [1]: 200 terms, max degree 9 */
-#define lens2004_P_o_OUT_phi_o 3 /* phi_o [mm]: 240 terms, max degree 9 */
+#define lens2004_P_o_OUT_x_o 0 /* x_o [mm]: 1460 terms, max degree 12 */
+#define lens2004_P_o_OUT_y_o 1 /* y_o [mm]: 1460 terms, max degree 12 */
+#define lens2004_P_o_OUT_tau_o 2 /* tau_o [1]: 1580 terms, max degree 12 */
+#define lens2004_P_o_OUT_phi_o 3 /* phi_o [mm]: 17031 terms, max degree 20 */
 void lens2004_P_o_d(const double in[lens2004_P_o_N_IN], double out[lens2004_P_o_N_OUT]);
 void lens2004_P_o_f(const float in[lens2004_P_o_N_IN], float out[lens2004_P_o_N_OUT]);
 
 /*
- * P_s: 6 inputs -> 4 outputs, 840 terms, Horner form with 1022 multiplications per evaluation (17 for powers)
+ * P_s: 6 inputs -> 4 outputs, 21531 terms, Horner form with 21751 multiplications per evaluation (4 for powers)
  */
 #define lens2004_P_s_N_IN 6 /* number of inputs of lens2004_P_s_* */
 #define lens2004_P_s_N_OUT 4 /* number of outputs of lens2004_P_s_* */
-#define lens2004_P_s_IN_x_S 0 /* x_S [mm (on the sensor)], domain [-21.633307652783937, 21.633307652783937] mm (on the sensor), affine: xhat = (v - c)/s, c = 0.0 mm (on the sensor), s = 21.633307652783937 mm (on the sensor) */
-#define lens2004_P_s_LO_x_S (-21.633307652783937) /* [mm (on the sensor)] lower bound */
-#define lens2004_P_s_HI_x_S (21.633307652783937) /* [mm (on the sensor)] upper bound */
-#define lens2004_P_s_IN_y_S 1 /* y_S [mm (on the sensor)], domain [-21.633307652783937, 21.633307652783937] mm (on the sensor), affine: xhat = (v - c)/s, c = 0.0 mm (on the sensor), s = 21.633307652783937 mm (on the sensor) */
-#define lens2004_P_s_LO_y_S (-21.633307652783937) /* [mm (on the sensor)] lower bound */
-#define lens2004_P_s_HI_y_S (21.633307652783937) /* [mm (on the sensor)] upper bound */
+#define lens2004_P_s_IN_x_S 0 /* x_S [mm (on the sensor)], domain [-15.421110096393447, 15.421110096393447] mm (on the sensor), affine: xhat = (v - c)/s, c = 0.0 mm (on the sensor), s = 15.421110096393447 mm (on the sensor) */
+#define lens2004_P_s_LO_x_S (-15.421110096393447) /* [mm (on the sensor)] lower bound */
+#define lens2004_P_s_HI_x_S (15.421110096393447) /* [mm (on the sensor)] upper bound */
+#define lens2004_P_s_IN_y_S 1 /* y_S [mm (on the sensor)], domain [-15.421110096393447, 15.421110096393447] mm (on the sensor), affine: xhat = (v - c)/s, c = 0.0 mm (on the sensor), s = 15.421110096393447 mm (on the sensor) */
+#define lens2004_P_s_LO_y_S (-15.421110096393447) /* [mm (on the sensor)] lower bound */
+#define lens2004_P_s_HI_y_S (15.421110096393447) /* [mm (on the sensor)] upper bound */
 #define lens2004_P_s_IN_z_S 2 /* z_S [mm (sensor shift, + away from the lens)], domain [-0.31487618519022964, 10.209351395625767] mm (sensor shift, + away from the lens), affine: xhat = (v - c)/s, c = 4.947237605217769 mm (sensor shift, + away from the lens), s = 5.262113790407998 mm (sensor shift, + away from the lens) */
 #define lens2004_P_s_LO_z_S (-0.31487618519022964) /* [mm (sensor shift, + away from the lens)] lower bound */
 #define lens2004_P_s_HI_z_S (10.209351395625767) /* [mm (sensor shift, + away from the lens)] upper bound */
-#define lens2004_P_s_IN_x_a 3 /* x_a [mm (on the stop)], domain [-9.601508897606434, 9.601508897606434] mm (on the stop), affine: xhat = (v - c)/s, c = 0.0 mm (on the stop), s = 9.601508897606434 mm (on the stop) */
-#define lens2004_P_s_LO_x_a (-9.6015088976064344) /* [mm (on the stop)] lower bound */
-#define lens2004_P_s_HI_x_a (9.6015088976064344) /* [mm (on the stop)] upper bound */
-#define lens2004_P_s_IN_y_a 4 /* y_a [mm (on the stop)], domain [-9.601508897606434, 9.601508897606434] mm (on the stop), affine: xhat = (v - c)/s, c = 0.0 mm (on the stop), s = 9.601508897606434 mm (on the stop) */
-#define lens2004_P_s_LO_y_a (-9.6015088976064344) /* [mm (on the stop)] lower bound */
-#define lens2004_P_s_HI_y_a (9.6015088976064344) /* [mm (on the stop)] upper bound */
+#define lens2004_P_s_IN_x_a 3 /* x_a [mm (on the stop)], domain [-4.800754448803217, 4.800754448803217] mm (on the stop), affine: xhat = (v - c)/s, c = 0.0 mm (on the stop), s = 4.800754448803217 mm (on the stop) */
+#define lens2004_P_s_LO_x_a (-4.8007544488032172) /* [mm (on the stop)] lower bound */
+#define lens2004_P_s_HI_x_a (4.8007544488032172) /* [mm (on the stop)] upper bound */
+#define lens2004_P_s_IN_y_a 4 /* y_a [mm (on the stop)], domain [-4.800754448803217, 4.800754448803217] mm (on the stop), affine: xhat = (v - c)/s, c = 0.0 mm (on the stop), s = 4.800754448803217 mm (on the stop) */
+#define lens2004_P_s_LO_y_a (-4.8007544488032172) /* [mm (on the stop)] lower bound */
+#define lens2004_P_s_HI_y_a (4.8007544488032172) /* [mm (on the stop)] upper bound */
 #define lens2004_P_s_IN_lambda 5 /* lambda [nm], domain [380.0, 780.0] nm, inverse_square: xhat = (1/v^2 - c)/s, c = 4.2844316230210116e-06 1/nm^2, s = 2.640776133211675e-06 1/nm^2 */
 #define lens2004_P_s_LO_lambda (380.0) /* [nm] lower bound */
 #define lens2004_P_s_HI_lambda (780.0) /* [nm] upper bound */
-#define lens2004_P_s_OUT_x_i 0 /* x_i [mm]: 200 terms, max degree 9 */
-#define lens2004_P_s_OUT_y_i 1 /* y_i [mm]: 200 terms, max degree 9 */
-#define lens2004_P_s_OUT_tau_i 2 /* tau_i [1]: 200 terms, max degree 9 */
-#define lens2004_P_s_OUT_phi_i 3 /* phi_i [mm]: 240 terms, max degree 9 */
+#define lens2004_P_s_OUT_x_i 0 /* x_i [mm]: 1460 terms, max degree 12 */
+#define lens2004_P_s_OUT_y_i 1 /* y_i [mm]: 1460 terms, max degree 12 */
+#define lens2004_P_s_OUT_tau_i 2 /* tau_i [1]: 1580 terms, max degree 12 */
+#define lens2004_P_s_OUT_phi_i 3 /* phi_i [mm]: 17031 terms, max degree 20 */
 void lens2004_P_s_d(const double in[lens2004_P_s_N_IN], double out[lens2004_P_s_N_OUT]);
 void lens2004_P_s_f(const float in[lens2004_P_s_N_IN], float out[lens2004_P_s_N_OUT]);
 
