@@ -123,7 +123,9 @@ LENSRT_API lensrt_result lensrt_context_gl_info(lensrt_context ctx, lensrt_gl_in
 
 typedef struct lensrt_lens_s *lensrt_lens;
 
-/* Load a fitted lens from its coefficient table (format `lensfit-poly-table`). */
+/* Load a fitted lens from its coefficient table (format `lensfit-poly-table` version 3:
+ * fit/lensfit/codegen/table.py; older versions are refused with a message saying how to
+ * regenerate the table). */
 LENSRT_API lensrt_result lensrt_lens_load(lensrt_context ctx, const char *table_path, lensrt_lens *out);
 /* The same from memory; `name` is used in messages. */
 LENSRT_API lensrt_result lensrt_lens_load_text(lensrt_context ctx, const char *text, size_t size,
@@ -156,6 +158,14 @@ typedef struct lensrt_lens_info {
     double field_x, field_y;     /* largest direction cosines of a light */
     double distance_min_mm;      /* closest light (from the first vertex); 0: any */
     double sensor_radius_mm;     /* image circle the fit covers */
+    /* How far the polynomials' PSF is from the exactly traced one (table version 3's
+     * trust lines): the worst relative L2 distance over the fit's trust table (0.01 is
+     * 1%), the PSF error the fit was made for, and which cell was worst (e.g.
+     * "f/2 axis 450 nm"; valid while the lens lives). Loading logs them (INFO), and a
+     * WARNING when psf_vs_exact > psf_target. Analytic lenses: 0, 0 and "". */
+    double psf_vs_exact;
+    double psf_target;
+    const char *psf_vs_exact_cell;
 } lensrt_lens_info;
 
 LENSRT_API lensrt_result lensrt_lens_get_info(lensrt_lens lens, lensrt_lens_info *out);

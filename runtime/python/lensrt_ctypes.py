@@ -78,7 +78,9 @@ class LensInfo(C.Structure):
                 ("wavelength_min_nm", C.c_double), ("wavelength_max_nm", C.c_double),
                 ("focus_offset_min_mm", C.c_double), ("focus_offset_max_mm", C.c_double),
                 ("field_x", C.c_double), ("field_y", C.c_double),
-                ("distance_min_mm", C.c_double), ("sensor_radius_mm", C.c_double)]
+                ("distance_min_mm", C.c_double), ("sensor_radius_mm", C.c_double),
+                ("psf_vs_exact", C.c_double), ("psf_target", C.c_double),
+                ("psf_vs_exact_cell", C.c_char_p)]
 
 
 class Aperture(C.Structure):
@@ -268,6 +270,7 @@ class Lensrt:
         self._check(self.lib.lensrt_lens_get_info(lens, C.byref(info)))
         d = {name: getattr(info, name) for name, _ in LensInfo._fields_}
         d["name"] = d["name"].decode()
+        d["psf_vs_exact_cell"] = (d["psf_vs_exact_cell"] or b"").decode()
         return d
 
     def image_point(self, lens: C.c_void_p, light: Sequence[float], wavelength_nm: float,

@@ -81,6 +81,9 @@ typedef struct lensrt_lens_s {
     double focal_length_mm, stop_radius_max_mm, stop_radius_f1_mm;
     double housing_first_mm, housing_last_mm;
     double sensor_defocus_mm, front_focal_distance_mm, squeeze;
+    /* trust lines (table version 3): worst PSF error against exact tracing, its cell */
+    double psf_vs_exact, psf_target;
+    char psf_vs_exact_cell[256];
     lensrt_lens_info info;
 } lensrt_lens_s;
 

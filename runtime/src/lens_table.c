@@ -1,9 +1,10 @@
-/* Lenses: the `lensfit-poly-table` reader and the analytic lens. */
+/* Lenses: the `lensfit-poly-table` reader (version 3) and the analytic lens. */
 #include "internal.h"
 
 #include <ctype.h>
 #include <errno.h>
 #include <math.h>
+#include <stdarg.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -23,6 +24,22 @@ static lensrt_result parse_fail(reader *r, const char *fmt, const char *what)
 {
     char msg[512];
     snprintf(msg, sizeof msg, fmt, what);
+    return lensrt_fail(r->ctx, LENSRT_ERROR_PARSE, "%s:%d: %s", r->name, r->line, msg);
+}
+
+/* The same with any printf arguments. */
+static lensrt_result parse_failf(reader *r, const char *fmt, ...)
+#if defined(__GNUC__)
+    __attribute__((format(printf, 2, 3)))
+#endif
+    ;
+static lensrt_result parse_failf(reader *r, const char *fmt, ...)
+{
+    char msg[768];
+    va_list args;
+    va_start(args, fmt);
+    vsnprintf(msg, sizeof msg, fmt, args);
+    va_end(args);
     return lensrt_fail(r->ctx, LENSRT_ERROR_PARSE, "%s:%d: %s", r->name, r->line, msg);
 }
 
@@ -183,7 +200,7 @@ static lensrt_result check_system(lensrt_context ctx, const char *file, const le
     return LENSRT_SUCCESS;
 }
 
-/* `lens KEY VALUE` lines (table version 2). */
+/* `lens KEY VALUE` lines (since table version 2). */
 static lensrt_result read_lens_line(reader *r, lensrt_lens lens, unsigned *seen)
 {
     static const char *const keys[] = {"focal_length_mm", "stop_radius_max_mm",
@@ -217,6 +234,85 @@ static lensrt_result read_lens_line(reader *r, lensrt_lens lens, unsigned *seen)
     return LENSRT_SUCCESS; /* unknown keys are for newer readers */
 }
 
+/* `trust KEY VALUE` lines (table version 3): after the lens lines, before the first
+ * system, each key once in this order. *n_trust counts the lines read so far. */
+#define TRUST_LINES 3
+static const char *const TRUST_KEYS[TRUST_LINES] = {"psf_vs_exact", "psf_vs_exact_cell", "psf_target"};
+static const char *const TRUST_FORMS[TRUST_LINES] = {"trust psf_vs_exact <real>",
+                                                     "trust psf_vs_exact_cell <text>",
+                                                     "trust psf_target <real>"};
+#define TRUST_ORDER "keys come in the order psf_vs_exact, psf_vs_exact_cell, psf_target, " \
+                    "after the lens lines and before the first system"
+
+static lensrt_result read_trust_line(reader *r, lensrt_lens lens, int n_lens, int n_systems, int *n_trust)
+{
+    const char *key = r->n_tok > 1 ? r->tok[1] : "";
+    const char *value = r->n_tok > 2 ? r->tok[2] : "";
+    double v;
+    int i;
+    if (n_systems)
+        return parse_failf(r, "trust %s '%s' after a system: the trust lines come before the first "
+                              "system", key, value);
+    if (!n_lens)
+        return parse_failf(r, "trust %s '%s' before the lens lines: the trust lines follow them",
+                           key, value);
+    for (i = 0; i < *n_trust; i++)
+        if (strcmp(key, TRUST_KEYS[i]) == 0)
+            return parse_failf(r, "trust %s '%s' appears twice (each trust key once: " TRUST_ORDER ")",
+                               key, value);
+    if (*n_trust == TRUST_LINES)
+        return parse_failf(r, "unknown trust key '%s' (value '%s') after the %d trust lines (" TRUST_ORDER ")",
+                           key, value, TRUST_LINES);
+    if (strcmp(key, TRUST_KEYS[*n_trust]) != 0)
+        return parse_failf(r, "expected '%s' (trust line %d of %d: " TRUST_ORDER "), found trust %s '%s'",
+                           TRUST_FORMS[*n_trust], *n_trust + 1, TRUST_LINES, key, value);
+    if (r->n_tok != 3)
+        return parse_failf(r, "expected '%s' (3 fields), found %d fields", TRUST_FORMS[*n_trust], r->n_tok);
+    if (*n_trust == 1) {
+        decode_field(r->tok[2]);
+        snprintf(lens->psf_vs_exact_cell, sizeof lens->psf_vs_exact_cell, "%s", r->tok[2]);
+    } else {
+        if (!parse_real(value, &v) || v < 0)
+            return parse_failf(r, "trust %s '%s' is not a finite number >= 0", key, value);
+        if (*n_trust == 0) lens->psf_vs_exact = v;
+        else lens->psf_target = v;
+    }
+    ++*n_trust;
+    return LENSRT_SUCCESS;
+}
+
+/* What to pass to `lensfit fit` for a table file: the ID of lens<ID>.table, else LENS. */
+static void lens_id_of(const char *file, char *id, size_t size)
+{
+    const char *base = strrchr(file, '/');
+    size_t n;
+    base = base ? base + 1 : file;
+    n = strlen(base);
+    snprintf(id, size, "LENS");
+    if (n > 10 && strncmp(base, "lens", 4) == 0 && strcmp(base + n - 6, ".table") == 0 && n - 10 < size) {
+        size_t i;
+        for (i = 4; i < n - 6; i++)
+            if (!isalnum((unsigned char)base[i]) && base[i] != '-' && base[i] != '_') return;
+        memcpy(id, base + 4, n - 10);
+        id[n - 10] = '\0';
+    }
+}
+
+/* The trust figures on load: INFO always, WARNING when the worst cell misses the target. */
+static void log_trust(lensrt_context ctx, const lensrt_lens lens)
+{
+    char cell[300] = "";
+    if (lens->psf_vs_exact_cell[0]) snprintf(cell, sizeof cell, " (%s)", lens->psf_vs_exact_cell);
+    lensrt_log(ctx, LENSRT_LOG_INFO, "%s: PSF against exactly traced rays: worst %.3g%% relative L2%s, target %.3g%%",
+               lens->file, 100.0 * lens->psf_vs_exact, cell, 100.0 * lens->psf_target);
+    if (lens->psf_vs_exact > lens->psf_target)
+        lensrt_log(ctx, LENSRT_LOG_WARNING,
+                   "%s: PSF against exactly traced rays: worst %.3g%% relative L2%s, target %.3g%%; "
+                   "this exceeds the fit's target: regenerate with a tighter `lensfit fit --psf-target` "
+                   "or a narrower domain",
+                   lens->file, 100.0 * lens->psf_vs_exact, cell, 100.0 * lens->psf_target);
+}
+
 static void fill_info(lensrt_lens lens)
 {
     lensrt_lens_info *info = &lens->info;
@@ -235,6 +331,9 @@ static void fill_info(lensrt_lens lens)
     info->field_y = lens->p_o.inputs[1].hi;
     info->distance_min_mm = lens->p_o.inputs[2].hi > 0 ? 1.0 / lens->p_o.inputs[2].hi : 0.0;
     info->sensor_radius_mm = fmax(lens->p_s.inputs[0].hi, lens->p_s.inputs[1].hi);
+    info->psf_vs_exact = lens->psf_vs_exact;
+    info->psf_target = lens->psf_target;
+    info->psf_vs_exact_cell = lens->psf_vs_exact_cell;
 }
 
 lensrt_result lensrt_lens_load_text(lensrt_context ctx, const char *text, size_t size,
@@ -244,7 +343,8 @@ lensrt_result lensrt_lens_load_text(lensrt_context ctx, const char *text, size_t
     lensrt_lens lens;
     lensrt_result res;
     unsigned seen = 0;
-    int version;
+    int version, n_lens = 0, n_trust = 0, n_systems = 0;
+    char id[64];
     if (!ctx || !text || !out) return lensrt_fail(ctx, LENSRT_ERROR_INVALID_ARGUMENT, "lensrt_lens_load_text: NULL argument");
     *out = NULL;
     memset(&r, 0, sizeof r);
@@ -256,27 +356,45 @@ lensrt_result lensrt_lens_load_text(lensrt_context ctx, const char *text, size_t
     if (!next_line(&r) || r.n_tok != 2 || strcmp(r.tok[0], "lensfit-poly-table") != 0 ||
         !parse_int(r.tok[1], 1, 1000, &version))
         return lensrt_fail(ctx, LENSRT_ERROR_PARSE,
-                           "%s:%d: not a lens table: expected 'lensfit-poly-table 2'", r.name, r.line);
-    if (version < 2)
+                           "%s:%d: not a lens table: expected 'lensfit-poly-table 3'", r.name, r.line);
+    lens_id_of(r.name, id, sizeof id);
+    if (version < 3)
         return lensrt_fail(ctx, LENSRT_ERROR_PARSE,
-                           "%s: table version %d has no lens facts (focal length, housings); "
-                           "regenerate it with `lensfit fit`", r.name, version);
-    if (version > 2)
+                           "%s: table version %d predates the trust figures (the PSF against exactly "
+                           "traced rays) that version 3 carries; regenerate it with `lensfit fit %s`",
+                           r.name, version, id);
+    if (version > 3)
         return lensrt_fail(ctx, LENSRT_ERROR_PARSE,
-                           "%s: table version %d is newer than this lensrt reads (2)", r.name, version);
+                           "%s: table version %d is newer than this lensrt reads (3)", r.name, version);
     lens = lensrt_calloc(ctx, 1, sizeof *lens);
     if (!lens) return lensrt_fail(ctx, LENSRT_ERROR_OUT_OF_MEMORY, "%s: out of memory", r.name);
     lens->ctx = ctx;
     lens->squeeze = 1.0;
     snprintf(lens->file, sizeof lens->file, "%s", r.name);
     snprintf(lens->name, sizeof lens->name, "%s", r.name);
-    // Lens facts, then the two systems
+    // Lens facts, trust figures, then the two systems
     res = LENSRT_SUCCESS;
     while (res == LENSRT_SUCCESS && next_line(&r)) {
         if (strcmp(r.tok[0], "lens") == 0) {
+            if (n_trust || n_systems) {
+                res = parse_failf(&r, "lens %s '%s' after the %s: the lens lines come first",
+                                  r.n_tok > 1 ? r.tok[1] : "", r.n_tok > 2 ? r.tok[2] : "",
+                                  n_systems ? "systems" : "trust lines");
+                break;
+            }
+            n_lens++;
             res = read_lens_line(&r, lens, &seen);
+        } else if (strcmp(r.tok[0], "trust") == 0) {
+            res = read_trust_line(&r, lens, n_lens, n_systems, &n_trust);
         } else if (strcmp(r.tok[0], "system") == 0) {
             lensrt_system *sys;
+            if (n_trust < TRUST_LINES) {
+                res = parse_failf(&r, "missing trust line: expected '%s' (trust line %d of %d: " TRUST_ORDER
+                                      "), found '%s %s'", TRUST_FORMS[n_trust], n_trust + 1, TRUST_LINES,
+                                  r.tok[0], r.n_tok > 1 ? r.tok[1] : "");
+                break;
+            }
+            n_systems++;
             if (r.n_tok > 1 && strcmp(r.tok[1], "P_o") == 0) sys = &lens->p_o;
             else if (r.n_tok > 1 && strcmp(r.tok[1], "P_s") == 0) sys = &lens->p_s;
             else { res = parse_fail(&r, "unknown system '%s' (P_o or P_s)", r.n_tok > 1 ? r.tok[1] : ""); break; }
@@ -287,7 +405,8 @@ lensrt_result lensrt_lens_load_text(lensrt_context ctx, const char *text, size_t
         }
     }
     if (res == LENSRT_SUCCESS && (!lens->p_o.n_inputs || !lens->p_s.n_inputs))
-        res = lensrt_fail(ctx, LENSRT_ERROR_PARSE, "%s: the table needs systems P_o and P_s", r.name);
+        res = lensrt_fail(ctx, LENSRT_ERROR_PARSE, "%s:%d: the table ends without system %s (it needs P_o and P_s)",
+                          r.name, r.line, !lens->p_o.n_inputs ? "P_o" : "P_s");
     if (res == LENSRT_SUCCESS) res = check_system(ctx, r.name, &lens->p_o, P_O_INPUTS, P_O_OUTPUTS);
     if (res == LENSRT_SUCCESS) res = check_system(ctx, r.name, &lens->p_s, P_S_INPUTS, P_S_OUTPUTS);
     if (res == LENSRT_SUCCESS && (seen & 0x1f) != 0x1f)
@@ -304,6 +423,7 @@ lensrt_result lensrt_lens_load_text(lensrt_context ctx, const char *text, size_t
         return res;
     }
     fill_info(lens);
+    log_trust(ctx, lens);
     *out = lens;
     return LENSRT_SUCCESS;
 }
@@ -366,6 +486,7 @@ lensrt_result lensrt_lens_create_analytic(lensrt_context ctx, const lensrt_analy
     lens->focal_length_mm = desc->focal_length_mm;
     lens->info.name = lens->name;
     lens->info.analytic = 1;
+    lens->info.psf_vs_exact_cell = lens->psf_vs_exact_cell; /* "": no trust figures */
     lens->info.focal_length_mm = desc->focal_length_mm;
     lens->info.wavelength_min_nm = 1.0;
     lens->info.wavelength_max_nm = 1e6;

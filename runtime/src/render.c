@@ -202,22 +202,51 @@ static void sensor_powers(const lensrt_lens lens, double x, double y, double px[
 }
 
 /* Specialise output `o` of a system to fixed values of every input except the stop
- * (x_a, y_a at inputs 3, 4) and, when keep_xy, inputs 0, 1 (x_S, y_S). */
+ * (x_a, y_a at inputs 3, 4) and, when keep_xy, inputs 0, 1 (x_S, y_S).
+ *
+ * Without keep_xy every term lands in its stop slot. With keep_xy the result is a
+ * polynomial in (x_S, y_S, stop): terms that differ only in the fixed inputs' exponents
+ * (z_S, lambda) become the same monomial, so they are merged (coefficients summed in
+ * table order; terms kept in order of first appearance, so the result is deterministic).
+ * A tensor-product fit has ~17,000 terms per output and ~1,000 distinct monomials left,
+ * and every pixel's set-up (CPU and GL) walks this list. */
 static lensrt_result specialise(lensrt_render r, const lensrt_system *sys, int o, const double *xhat,
                                 int keep_xy, lensrt_pixel_poly *out, double *slots)
 {
     const lensrt_poly *p = &sys->outputs[o];
     const lensrt_input *xa = &sys->inputs[3];
     double scale = r->mono_radius / xa->s; /* xhat_a = scale * u */
+    /* Merge index per packed (slot, ix, iy) key: 0 unseen, else 1 + the term's place */
+    const size_t n_keys = (size_t)r->n_slots << 8;
+    int *place = NULL, *term_place = NULL;
     int t, n = 0;
     if (keep_xy) {
-        out->ix = lensrt_alloc(r->ctx, (size_t)p->n_terms);
-        out->iy = lensrt_alloc(r->ctx, (size_t)p->n_terms);
-        out->slot = lensrt_alloc(r->ctx, sizeof(int) * (size_t)p->n_terms);
-        out->coef = lensrt_alloc(r->ctx, sizeof(double) * (size_t)p->n_terms);
-        if (!out->ix || !out->iy || !out->slot || !out->coef)
+        place = lensrt_calloc(r->ctx, n_keys, sizeof *place);
+        term_place = lensrt_alloc(r->ctx, sizeof(int) * (size_t)p->n_terms + 1);
+        if (!place || !term_place) {
+            lensrt_free(r->ctx, place);
+            lensrt_free(r->ctx, term_place);
             return lensrt_fail(r->ctx, LENSRT_ERROR_OUT_OF_MEMORY, "render: out of memory");
+        }
+        // Pass 1: the distinct (x_S, y_S, stop) monomials, in order of first appearance
+        for (t = 0; t < p->n_terms; t++) {
+            const unsigned char *e = p->exponents + (size_t)t * 6;
+            size_t key = (size_t)slot_of(e[3], e[4]) << 8 | (size_t)e[0] << 4 | e[1];
+            if (!place[key]) place[key] = ++n;
+            term_place[t] = place[key] - 1;
+        }
+        lensrt_free(r->ctx, place);
+        out->n = n;
+        out->ix = lensrt_alloc(r->ctx, (size_t)n + 1);
+        out->iy = lensrt_alloc(r->ctx, (size_t)n + 1);
+        out->slot = lensrt_alloc(r->ctx, sizeof(int) * (size_t)n + 1);
+        out->coef = lensrt_calloc(r->ctx, (size_t)n + 1, sizeof(double));
+        if (!out->ix || !out->iy || !out->slot || !out->coef) {
+            lensrt_free(r->ctx, term_place);
+            return lensrt_fail(r->ctx, LENSRT_ERROR_OUT_OF_MEMORY, "render: out of memory");
+        }
     }
+    // Pass 2 (the only one without keep_xy): the coefficients with the fixed inputs put in
     for (t = 0; t < p->n_terms; t++) {
         const unsigned char *e = p->exponents + (size_t)t * 6;
         double c = p->coefficients[t] * ipow(scale, e[3] + e[4]);
@@ -225,16 +254,16 @@ static lensrt_result specialise(lensrt_render r, const lensrt_system *sys, int o
         for (i = keep_xy ? 2 : 0; i < 6; i++)
             if (i != 3 && i != 4) c *= ipow(xhat[i], e[i]);
         if (keep_xy) {
-            out->ix[n] = e[0];
-            out->iy[n] = e[1];
-            out->slot[n] = slot_of(e[3], e[4]);
-            out->coef[n] = c;
-            n++;
+            int k = term_place[t];
+            out->ix[k] = e[0];
+            out->iy[k] = e[1];
+            out->slot[k] = slot_of(e[3], e[4]);
+            out->coef[k] += c;
         } else {
             slots[slot_of(e[3], e[4])] += c;
         }
     }
-    if (keep_xy) out->n = n;
+    lensrt_free(r->ctx, term_place);
     return LENSRT_SUCCESS;
 }
 

@@ -8,7 +8,9 @@
  *   test_api LENS_TABLE SCRATCH_DIR
  *
  * LENS_TABLE is generated/0001-angenieux-double-gauss/lens0001.table; SCRATCH_DIR is
- * created if needed and only written inside. The build defines LENSRT_TEST_EXR to 1 when
+ * created if needed and only written inside. A LENS_TABLE of format version 2 (written
+ * before the trust lines existed) is converted to version 3 in SCRATCH_DIR, with made-up
+ * trust figures, and that copy is used (see v3_table). The build defines LENSRT_TEST_EXR to 1 when
  * lensrt writes EXR (LENSRT_WITH_EXR=ON) and to 0 when write_exr must answer
  * LENSRT_ERROR_UNSUPPORTED. Prints every failed check with its line and returns
  * non-zero if any failed.
@@ -119,6 +121,71 @@ static char *read_text(const char *path, size_t *size)
     return text;
 }
 
+/* Lens table text edits (malloc'd results, NULL when out of memory). Lines are found
+ * with memchr: strchr over a table of megabytes per line is quadratic under ASan's
+ * strict_string_checks. */
+
+/* `text` without its `trust ...` lines and with the header's version set to `version`. */
+static char *table_without_trust(const char *text, int version)
+{
+    size_t n = strlen(text);
+    char *out = malloc(n + 32), *o = out;
+    const char *p = text, *end = text + n;
+    int first = 1;
+    if (!out) return NULL;
+    while (p < end) {
+        const char *eol = memchr(p, '\n', (size_t)(end - p));
+        size_t len = eol ? (size_t)(eol - p) + 1 : (size_t)(end - p);
+        if (first && strncmp(p, "lensfit-poly-table ", 19) == 0)
+            o += sprintf(o, "lensfit-poly-table %d\n", version);
+        else if (strncmp(p, "trust ", 6) != 0) {
+            memcpy(o, p, len);
+            o += len;
+        }
+        first = 0;
+        p += len;
+    }
+    *o = '\0';
+    return out;
+}
+
+/* `text` with `block` inserted before its first line starting with `prefix` (at the end
+ * when none does, or when prefix is NULL); *line: the line number of the block's first
+ * line. */
+static char *table_insert(const char *text, const char *prefix, const char *block, int *line)
+{
+    size_t n = strlen(text), nb = strlen(block), at = n;
+    const char *p = text, *end = text + n;
+    char *out;
+    *line = 1;
+    while (p < end) {
+        const char *eol = memchr(p, '\n', (size_t)(end - p));
+        if (prefix && strncmp(p, prefix, strlen(prefix)) == 0) {
+            at = (size_t)(p - text);
+            break;
+        }
+        if (!eol) break;
+        p = eol + 1;
+        ++*line;
+    }
+    out = malloc(n + nb + 1);
+    if (!out) return NULL;
+    memcpy(out, text, at);
+    memcpy(out + at, block, nb);
+    memcpy(out + at + nb, text + at, n - at + 1);
+    return out;
+}
+
+/* `text` as version 3 with the trust lines `block` where the format puts them. */
+static char *table_with_trust(const char *text, const char *block, int *line)
+{
+    char *bare = table_without_trust(text, 3), *out;
+    if (!bare) return NULL;
+    out = table_insert(bare, "system ", block, line);
+    free(bare);
+    return out;
+}
+
 /* Whether `s` contains ":<digits>:" (a file:line: location). */
 static int has_line_location(const char *s)
 {
@@ -144,9 +211,10 @@ typedef struct hooks {
     long bad_frees;   /* free_fn of a pointer that is not a live block of ours */
     long null_frees;
     size_t live_bytes;
-    int n_logs, n_error_logs;
+    int n_logs, n_error_logs, n_warning_logs, n_info_logs;
     lensrt_log_level last_level;
     char last_log[2048];
+    char last_warning[2048], last_info[2048]; /* the last message of each level */
 } hooks;
 
 #define HEADER 32 /* marker, size, quarantine link; keeps malloc's alignment */
@@ -227,6 +295,14 @@ static void hook_log(lensrt_log_level level, const char *message, void *user_dat
     if (level == LENSRT_LOG_ERROR) h->n_error_logs++;
     h->last_level = level;
     snprintf(h->last_log, sizeof h->last_log, "%s", message ? message : "(NULL)");
+    if (level == LENSRT_LOG_WARNING) {
+        h->n_warning_logs++;
+        snprintf(h->last_warning, sizeof h->last_warning, "%s", message ? message : "(NULL)");
+    }
+    if (level == LENSRT_LOG_INFO) {
+        h->n_info_logs++;
+        snprintf(h->last_info, sizeof h->last_info, "%s", message ? message : "(NULL)");
+    }
 }
 
 static lensrt_context hooked_context(hooks *h, int threads)
@@ -439,7 +515,7 @@ static void test_null_arguments(void)
     double xy[2], pts[2] = {0, 0};
     float img[64 * 3];
     char path[4096];
-    const char *text = "lensfit-poly-table 2\n";
+    const char *text = "lensfit-poly-table 3\n";
 
     hooks_reset(&h);
     ctx = hooked_context(&h, 0);
@@ -664,11 +740,12 @@ static void test_lens_tables(void)
     size_t size;
     static const char *const bad_tables[][2] = {
         /* text, what the message must contain besides the name and a line */
-        {"lensfit-poly-table 2\n# a comment\nbogus line here\n", "bad.table:3:"},
-        {"lensfit-poly-table 2\nlens focal_length_mm twelve\n", "bad.table:2:"},
+        {"lensfit-poly-table 3\n# a comment\nbogus line here\n", "bad.table:3:"},
+        {"lensfit-poly-table 3\nlens focal_length_mm twelve\n", "bad.table:2:"},
         {"not a table\n", "bad.table:1:"},
-        {"lensfit-poly-table 2\nlens name x\nsystem P_o 6 4\ninput x_O 1 -1 1 affine 0 1\ninput y_O 1 -1 1 "
-         "cubic 0 1\n", "bad.table:5:"},
+        {"lensfit-poly-table 3\nlens name x\ntrust psf_vs_exact 0\ntrust psf_vs_exact_cell -\n"
+         "trust psf_target 0.01\nsystem P_o 6 4\ninput x_O 1 -1 1 affine 0 1\ninput y_O 1 -1 1 "
+         "cubic 0 1\n", "bad.table:8:"},
     };
     int i;
 
@@ -699,6 +776,7 @@ static void test_lens_tables(void)
         const char *v1 = "lensfit-poly-table 1\n";
         CHECK_RES(ctx, LENSRT_ERROR_PARSE, lensrt_lens_load_text(ctx, v1, strlen(v1), "old.table", &lens));
         CHECK_MSG(ctx, "version 1");
+        CHECK_MSG(ctx, "regenerate");
     }
     CHECK(h.live == base, "failed loads keep %ld blocks", h.live - base);
 
@@ -741,6 +819,199 @@ static void test_lens_tables(void)
     lensrt_lens_destroy(ctx, lens);
     lensrt_context_destroy(ctx);
     CHECK(h.live == 0 && h.bad_frees == 0, "lens tests: %ld blocks left, %ld foreign frees", h.live, h.bad_frees);
+}
+
+/* ---------------------------------------------- 5b. table version 3 trust ----- */
+
+/* load_text of `text` as `name` fails with PARSE naming name:line: and `needle`. */
+static void expect_table_error(int line, lensrt_context ctx, const char *text, const char *name, int want_line,
+                               const char *needle)
+{
+    lensrt_lens lens = NULL;
+    lensrt_result res;
+    char where[512];
+    const char *e;
+    if (!text) {
+        check_at(0, line, "out of memory making a table");
+        return;
+    }
+    res = lensrt_lens_load_text(ctx, text, strlen(text), name, &lens);
+    e = lensrt_context_last_error(ctx);
+    check_at(res == LENSRT_ERROR_PARSE, line, "load_text: got %s, expected parse error; last error '%s'",
+             lensrt_result_string(res), e);
+    check_at(lens == NULL, line, "a failed load_text returned a lens");
+    if (want_line > 0) {
+        snprintf(where, sizeof where, "%s:%d:", name, want_line);
+        check_at(strstr(e, where) != NULL, line, "last error '%s' does not name '%s'", e, where);
+    }
+    check_at(strstr(e, needle) != NULL, line, "last error '%s' does not contain '%s'", e, needle);
+    lensrt_lens_destroy(ctx, lens);
+}
+#define EXPECT_TABLE_ERROR(text, name, want_line, needle) \
+    expect_table_error(__LINE__, ctx, (text), (name), (want_line), (needle))
+
+static void test_table_trust(void)
+{
+    static const char *const good = "trust psf_vs_exact 0.0041\n"
+                                    "trust psf_vs_exact_cell f/2%20axis%20450%20nm\n"
+                                    "trust psf_target 0.01\n";
+    /* Malformed trust blocks, put where the format wants them: the line of the block
+     * the error must name (1: its first line) and what the message must contain */
+    static const struct {
+        const char *block;
+        int line;
+        const char *needle;
+    } bad[] = {
+        {"", 1, "missing trust line: expected 'trust psf_vs_exact <real>'"},
+        {"trust psf_vs_exact 0.0041\ntrust psf_vs_exact_cell x\n", 3, "missing trust line: expected 'trust psf_target <real>' (trust line 3 of 3"},
+        {"trust psf_vs_exact 0.0041\ntrust psf_vs_exact 0.0041\ntrust psf_target 0.01\n", 2, "psf_vs_exact '0.0041' appears twice"},
+        {"trust psf_vs_exact_cell x\ntrust psf_vs_exact 0.0041\ntrust psf_target 0.01\n", 1,
+         "expected 'trust psf_vs_exact <real>' (trust line 1 of 3"},
+        {"trust psf_vs_exact 0.0041\ntrust psf_target 0.01\ntrust psf_vs_exact_cell x\n", 2,
+         "found trust psf_target '0.01'"},
+        {"trust psf_vs_exact lots\ntrust psf_vs_exact_cell x\ntrust psf_target 0.01\n", 1,
+         "trust psf_vs_exact 'lots' is not a finite number >= 0"},
+        {"trust psf_vs_exact 0.0041\ntrust psf_vs_exact_cell x\ntrust psf_target -0.01\n", 3,
+         "trust psf_target '-0.01' is not a finite number >= 0"},
+        {"trust psf_vs_exact inf\ntrust psf_vs_exact_cell x\ntrust psf_target 0.01\n", 1, "'inf'"},
+        {"trust psf_vs_exact nan\ntrust psf_vs_exact_cell x\ntrust psf_target 0.01\n", 1, "'nan'"},
+        {"trust psf_vs_exact 0.0041 0.005\ntrust psf_vs_exact_cell x\ntrust psf_target 0.01\n", 1, "found 4 fields"},
+        {"trust psf_vs_exact\ntrust psf_vs_exact_cell x\ntrust psf_target 0.01\n", 1, "found 2 fields"},
+        {"trust psf_vs_exact 0.0041\ntrust psf_vs_exact_cell x\ntrust psf_target 0.01\ntrust psf_extra 1\n", 4,
+         "unknown trust key 'psf_extra'"},
+        {"trust psf_vs_exact 0.0041\ntrust psf_vs_exact_cell x\ntrust psf_target 0.01\nlens squeeze 1\n", 4,
+         "lens squeeze '1' after the trust lines"},
+    };
+    hooks h;
+    lensrt_context ctx;
+    lensrt_lens lens = NULL, analytic = NULL;
+    lensrt_lens_info info;
+    lensrt_analytic_lens m;
+    char *real, *text, *tmp, name[64];
+    size_t size;
+    int i, line, n_warnings;
+
+    hooks_reset(&h);
+    ctx = hooked_context(&h, 0);
+    real = read_text(g_table, &size);
+    CHECK(real != NULL, "cannot read %s", g_table);
+    if (!ctx || !real) goto done;
+
+    // Older and newer versions are refused with what to do
+    text = table_without_trust(real, 2);
+    EXPECT_TABLE_ERROR(text, "generated/0042-x/lens0042.table", 0, "table version 2 predates the trust figures");
+    CHECK_MSG(ctx, "generated/0042-x/lens0042.table: ");
+    CHECK_MSG(ctx, "regenerate it with `lensfit fit 0042`");
+    EXPECT_TABLE_ERROR(text, "v2.table", 0, "regenerate it with `lensfit fit LENS`");
+    free(text);
+    text = table_without_trust(real, 4);
+    EXPECT_TABLE_ERROR(text, "v4.table", 0, "table version 4 is newer than this lensrt reads (3)");
+    free(text);
+
+    // A version 3 table: the figures arrive in the info, the log says them
+    text = table_with_trust(real, good, &line);
+    CHECK(text != NULL, "out of memory");
+    n_warnings = h.n_warning_logs;
+    if (text) CHECK_RES(ctx, LENSRT_SUCCESS, lensrt_lens_load_text(ctx, text, strlen(text), "lens0001.table", &lens));
+    if (lens) {
+        CHECK_RES(ctx, LENSRT_SUCCESS, lensrt_lens_get_info(lens, &info));
+        CHECK(info.psf_vs_exact == 0.0041 && info.psf_target == 0.01, "trust figures %g, %g: expected 0.0041, 0.01",
+              info.psf_vs_exact, info.psf_target);
+        CHECK(info.psf_vs_exact_cell && strcmp(info.psf_vs_exact_cell, "f/2 axis 450 nm") == 0,
+              "worst cell '%s', expected 'f/2 axis 450 nm'", info.psf_vs_exact_cell ? info.psf_vs_exact_cell : "(NULL)");
+        CHECK(strcmp(h.last_info, "lens0001.table: PSF against exactly traced rays: worst 0.41% relative L2 "
+                                  "(f/2 axis 450 nm), target 1%") == 0,
+              "INFO log on load: '%s'", h.last_info);
+        CHECK(h.n_warning_logs == n_warnings, "a table within its target logged a warning: '%s'", h.last_warning);
+    }
+    lensrt_lens_destroy(ctx, lens);
+    lens = NULL;
+    free(text);
+
+    // Worse than its target: a WARNING too, with the same figures and what to do
+    text = table_with_trust(real, "trust psf_vs_exact 0.023\ntrust psf_vs_exact_cell f/2%20edge\ntrust psf_target 0.01\n", &line);
+    n_warnings = h.n_warning_logs;
+    if (text) CHECK_RES(ctx, LENSRT_SUCCESS, lensrt_lens_load_text(ctx, text, strlen(text), "worse.table", &lens));
+    CHECK(h.n_warning_logs == n_warnings + 1, "%d warnings on loading a table worse than its target", h.n_warning_logs - n_warnings);
+    CHECK(strstr(h.last_warning, "worse.table: PSF against exactly traced rays: worst 2.3% relative L2 (f/2 edge), target 1%") &&
+              strstr(h.last_warning, "exceeds the fit's target: regenerate with a tighter `lensfit fit --psf-target` "
+                                     "or a narrower domain"),
+          "WARNING log on load: '%s'", h.last_warning);
+    CHECK(strstr(h.last_info, "worst 2.3% relative L2 (f/2 edge), target 1%") != NULL, "INFO log on load: '%s'", h.last_info);
+    if (lens) {
+        CHECK_RES(ctx, LENSRT_SUCCESS, lensrt_lens_get_info(lens, &info));
+        CHECK(info.psf_vs_exact == 0.023 && strcmp(info.psf_vs_exact_cell, "f/2 edge") == 0, "trust figures %g, '%s'",
+              info.psf_vs_exact, info.psf_vs_exact_cell);
+    }
+    lensrt_lens_destroy(ctx, lens);
+    lens = NULL;
+    free(text);
+
+    // Malformed trust lines: file:line, key and value
+    for (i = 0; i < (int)(sizeof bad / sizeof bad[0]); i++) {
+        snprintf(name, sizeof name, "bad-trust-%d.table", i);
+        text = table_with_trust(real, bad[i].block, &line);
+        EXPECT_TABLE_ERROR(text, name, line + bad[i].line - 1, bad[i].needle);
+        free(text);
+    }
+    // Trust lines before the lens lines, or after a system
+    tmp = table_without_trust(real, 3);
+    text = tmp ? table_insert(tmp, "lens ", good, &line) : NULL;
+    EXPECT_TABLE_ERROR(text, "early.table", line, "trust psf_vs_exact '0.0041' before the lens lines");
+    free(text);
+    free(tmp);
+    tmp = table_with_trust(real, good, &line);
+    text = tmp ? table_insert(tmp, NULL, "trust psf_target 0.01\n", &line) : NULL;
+    EXPECT_TABLE_ERROR(text, "late.table", line, "trust psf_target '0.01' after a system");
+    free(text);
+    free(tmp);
+
+    // Analytic lenses: no figures
+    memset(&m, 0, sizeof m);
+    m.sensor_distance_mm = 50.0;
+    CHECK_RES(ctx, LENSRT_SUCCESS, lensrt_lens_create_analytic(ctx, &m, &analytic));
+    if (analytic) {
+        CHECK_RES(ctx, LENSRT_SUCCESS, lensrt_lens_get_info(analytic, &info));
+        CHECK(info.psf_vs_exact == 0 && info.psf_target == 0 && info.psf_vs_exact_cell &&
+                  info.psf_vs_exact_cell[0] == '\0',
+              "analytic lens trust figures %g, %g, '%s'", info.psf_vs_exact, info.psf_target,
+              info.psf_vs_exact_cell ? info.psf_vs_exact_cell : "(NULL)");
+    }
+done:
+    free(real);
+    lensrt_lens_destroy(ctx, analytic);
+    lensrt_context_destroy(ctx);
+    CHECK(h.live == 0 && h.bad_frees == 0, "trust tests: %ld blocks left, %ld foreign frees", h.live, h.bad_frees);
+}
+
+/* The committed tables are version 2 until they are regenerated: test with a version 3
+ * copy in the scratch folder (made-up trust figures within their target) meanwhile. */
+static char g_table_v3[4096];
+
+static const char *v3_table(const char *path)
+{
+    size_t size;
+    char *text = read_text(path, &size), *v3;
+    const char *base = strrchr(path, '/');
+    FILE *f;
+    int line;
+    if (!text || strncmp(text, "lensfit-poly-table 2\n", 21) != 0) {
+        free(text);
+        return path;
+    }
+    v3 = table_with_trust(text, "trust psf_vs_exact 0.004\ntrust psf_vs_exact_cell f/2%20axis%20550%20nm\n"
+                                "trust psf_target 0.01\n", &line);
+    free(text);
+    snprintf(g_table_v3, sizeof g_table_v3, "%s/%s", g_scratch, base ? base + 1 : path);
+    f = v3 ? fopen(g_table_v3, "wb") : NULL;
+    if (!f || fputs(v3, f) < 0 || fclose(f) != 0) {
+        fprintf(stderr, "test_api: cannot write %s\n", g_table_v3);
+        free(v3);
+        return path;
+    }
+    free(v3);
+    printf("test_api: %s is a version 2 table; testing with the version 3 copy %s\n", path, g_table_v3);
+    return g_table_v3;
 }
 
 /* ------------------------------------------------- 6. failing allocators ----- */
@@ -1282,12 +1553,12 @@ int main(int argc, char **argv)
         fprintf(stderr, "usage: %s LENS_TABLE SCRATCH_DIR\n", argv[0]);
         return 2;
     }
-    g_table = argv[1];
     snprintf(g_scratch, sizeof g_scratch, "%s", argv[2]);
     if (mkdir(g_scratch, 0777) != 0 && errno != EEXIST) {
         fprintf(stderr, "test_api: cannot create %s: %s\n", g_scratch, strerror(errno));
         return 2;
     }
+    g_table = v3_table(argv[1]);
     printf("test_api: lensrt %d.%d.%d, EXR %s, table %s\n", LENSRT_VERSION_MAJOR, LENSRT_VERSION_MINOR,
            LENSRT_VERSION_PATCH, LENSRT_TEST_EXR ? "on" : "off", g_table);
 
@@ -1296,6 +1567,7 @@ int main(int argc, char **argv)
     test_null_arguments();
     test_messages();
     test_lens_tables();
+    test_table_trust();
     test_failing_allocator();
     test_threads_and_files();
     test_image_files();

@@ -779,8 +779,20 @@ def test_bad_input_raises_with_parameter_named(rt, tmp_path):
         rt.load(missing)
     assert info.value.code == IO
     bad = tmp_path / "bad.table"
-    bad.write_text("lensfit-poly-table 2\nlens focal_length_mm fifty\n")
+    bad.write_text("lensfit-poly-table 3\nlens focal_length_mm fifty\n")
     with pytest.raises(LensrtError, match=r"bad\.table:2:.*fifty") as info:
+        rt.load(bad)
+    assert info.value.code == PARSE
+    # A version 2 table (no trust figures) is refused with how to regenerate it
+    old = tmp_path / "lens0042.table"
+    old.write_text("lensfit-poly-table 2\nlens focal_length_mm 50\n")
+    with pytest.raises(LensrtError, match=r"lens0042\.table: table version 2 .*regenerate it "
+                                          r"with `lensfit fit 0042`") as info:
+        rt.load(old)
+    assert info.value.code == PARSE
+    bad.write_text("lensfit-poly-table 3\nlens focal_length_mm 50\ntrust psf_vs_exact 0.01\n"
+                   "trust psf_target 0.01\n")
+    with pytest.raises(LensrtError, match=r"bad\.table:4:.*trust psf_vs_exact_cell") as info:
         rt.load(bad)
     assert info.value.code == PARSE
     bad.write_text("not a table\n")
