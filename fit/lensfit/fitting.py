@@ -312,6 +312,10 @@ def fit_system_tensor(name: str, inputs: tuple[Input, ...], outputs, train: Grid
     ap_full[:, list(APERTURE)] = train.aperture
     a_hat = scaffold.normalise(ap_full)[:, list(APERTURE)]
     xe = scaffold.normalise(te.inputs)
+    # A field input the domain holds fixed (a scene fit at infinity: u_O = 0 throughout)
+    # gets no powers: its columns would all be equal
+    caps = tuple(0 if np.ptp(v_hat[:, i]) < 1e-9 else options.field_degrees[-1]
+                 for i in range(len(FIELD)))
     # Cells fitted: rays that exist and pass within 10% of every housing
     with np.errstate(invalid="ignore"):
         mask = train.ok & (train.vignetting <= TRAIN_VIGNETTING)
@@ -338,7 +342,7 @@ def fit_system_tensor(name: str, inputs: tuple[Input, ...], outputs, train: Grid
         raised = just_raised = False  # the stop degree was raised (once at most)
         while degrees:
             degree = degrees[0]
-            v_exps = field_exponents(len(FIELD), degree)
+            v_exps = field_exponents(len(FIELD), degree, caps)
             try:
                 tf = fit_tensor(a_hat, v_hat, values, mask, aperture_exponents(da), v_exps,
                                 parity=parity, fill=fill)
