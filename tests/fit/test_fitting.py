@@ -1,5 +1,8 @@
 """Fitting P_o and P_s: a quick real fit, held-out errors recomputed by hand, symmetry,
-the group-centred phase, exact recovery of synthetic systems, hard cases, determinism."""
+the group-centred phase, exact recovery of synthetic systems, hard cases, determinism.
+
+Most of the file tests the sparse pursuit (``method="pursuit"``, the method of the first
+fits); the last section tests the tensor method (the default) and the options."""
 
 from __future__ import annotations
 
@@ -15,14 +18,18 @@ from lensfit.fitting import (
     SystemFit,
     fit_lens,
     fit_system,
+    fit_system_tensor,
 )
 from lensfit.poly import Polynomial, System, design_matrix, monomials
 from lensfit.poly.omp import omp
+from lensfit.poly.tensor import symmetric_disc_points
 from lensfit.prescription import load_lens
 from lensfit.sample import OUTPUTS_O, Domain, Samples, default_domain
+from lensfit.sample.rays import GridSamples
 
-QUICK = FitOptions(max_degree=5, phase_degree=6, max_terms=40, piston_terms=20,
-                   train_groups=300, train_per_group=8, test_groups=60, test_per_group=8)
+QUICK = FitOptions(method="pursuit", max_degree=5, phase_degree=6, max_terms=40,
+                   piston_terms=20, train_groups=300, train_per_group=8, test_groups=60,
+                   test_per_group=8)
 NAMES = {"P_o": (["x_O", "y_O", "u_O", "x_a", "y_a", "lambda"], ["x_o", "y_o", "tau_o", "phi_o"]),
          "P_s": (["x_S", "y_S", "z_S", "x_a", "y_a", "lambda"], ["x_i", "y_i", "tau_i", "phi_i"])}
 
@@ -128,12 +135,16 @@ def test_fitted_terms_are_the_prefix_of_an_independent_ols_path(quick):
                                atol=1e-12)
 
 
-@pytest.mark.parametrize("which", [0, 1])
-def test_fitted_systems_are_mirror_symmetric(quick, which):
+BOTH_METHODS = pytest.mark.parametrize(("method", "which"), [
+    ("quick", 0), ("quick", 1), ("tensor", 0), ("tensor", 1)])
+
+
+@BOTH_METHODS
+def test_fitted_systems_are_mirror_symmetric(request, method, which):
     """(x_O|x_S, x_a) -> minus itself flips x_o|x_i and keeps the rest; the same for y.
     The domains are symmetric (xhat = v / s exactly) and every monomial has its output's
-    parity, so this holds to rounding: 1e-12 of each output's scale."""
-    f = quick[which]
+    parity, so this holds to rounding: 1e-12 of each output's scale. Both methods."""
+    f = request.getfixturevalue(method)[which]
     x = f.test.inputs
     base = f.system.evaluate(x)
     scale = np.abs(base).max(axis=0)
@@ -147,12 +158,12 @@ def test_fitted_systems_are_mirror_symmetric(quick, which):
             assert np.max(np.abs(mirrored[:, j] - sign[j] * base[:, j])) <= 1e-12 * scale[j]
 
 
-@pytest.mark.parametrize("which", [0, 1])
-def test_held_out_errors_recomputed_independently(quick, which):
+@BOTH_METHODS
+def test_held_out_errors_recomputed_independently(request, method, which):
     """OutputFit.rms/max from System.evaluate on the test rays that pass the lens: um for
     positions, relative for tau, waves at 550 nm after removing each group's mean for
-    phi. Same formulae in another order of operations: 1e-9 relative."""
-    f = quick[which]
+    phi. Same formulae in another order of operations: 1e-9 relative. Both methods."""
+    f = request.getfixturevalue(method)[which]
     passing = f.test.vignetting <= 1.0  # at f/2 this lens vignettes none of them
     assert passing.sum() > 0.9 * len(f.test)
     x, y, g = f.test.inputs[passing], f.test.outputs[passing], f.test.group[passing]
@@ -163,7 +174,8 @@ def test_held_out_errors_recomputed_independently(quick, which):
             absolute = rms(pred[:, j] - y[:, j]) * 1e3
             assert o.absolute_rms_um == pytest.approx(absolute, rel=1e-9)
             # The piston is fitted too: with it, the absolute error stays within a few
-            # times the piston-free error (quick fit: ~0.01 um against ~1.5 um)
+            # times the piston-free error (pursuit: ~0.01 um against ~1.5 um; the small
+            # tensor grid fits the piston with its field terms: measured 4-8 times)
             assert o.absolute_rms_um < 10 * o.rms * WAVE_MM * 1e3
         elif o.name.startswith("tau"):
             err = (pred[:, j] - y[:, j]) / y[:, j]
@@ -244,8 +256,9 @@ def synthetic_samples(system: System, groups: int, per_group: int, seed: int,
     return Samples("P_o", x, y, gid, np.zeros(len(x)), len(x))
 
 
-SYNTH_OPTIONS = FitOptions(max_degree=4, phase_degree=4, max_terms=25, piston_terms=10,
-                           target_waves=1e-6, target_position_um=1e-6, target_tau=1e-10)
+SYNTH_OPTIONS = FitOptions(method="pursuit", max_degree=4, phase_degree=4, max_terms=25,
+                           piston_terms=10, target_waves=1e-6, target_position_um=1e-6,
+                           target_tau=1e-10)
 
 
 def test_synthetic_sparse_system_is_recovered_exactly():
@@ -381,8 +394,9 @@ def test_tiny_aperture_at_infinity_with_high_degree_stays_finite(lens):
     rays for ~4600 candidate columns: the pursuit must skip the dependent columns and give
     finite systems and errors (~2 s)."""
     domain = default_domain(lens).with_(stop_radius_mm=0.05, close_focus_mm=math.inf)
-    options = FitOptions(max_degree=12, phase_degree=12, max_terms=30, piston_terms=10,
-                         train_groups=40, train_per_group=8, test_groups=10, test_per_group=8)
+    options = FitOptions(method="pursuit", max_degree=12, phase_degree=12, max_terms=30,
+                         piston_terms=10, train_groups=40, train_per_group=8, test_groups=10,
+                         test_per_group=8)
     fits = fit_lens(lens, domain, options)
     for f in fits:
         assert np.all(f.test.inputs[:, 3:5] ** 2 <= 0.05**2 * (1 + 1e-12))
@@ -401,3 +415,212 @@ def test_tiny_aperture_at_infinity_with_high_degree_stays_finite(lens):
         e = p.exponents.copy()
         e[:, 2] = 0
         assert len(np.unique(e, axis=0)) == len(e), p.output
+
+
+# --- the tensor method (the default) and the options ------------------------------------------
+
+# A small grid: 150 field points x 64 stop points; stop degree 6 for phi (2 for positions
+# and tau, 4 less), field degrees 2 then 4. 64 mirror-symmetric points are 16 distinct
+# points per parity class: enough for the 10 monomials of a class at stop degree 6 and
+# the 15 at 8 (the stop degree may be raised once by 2)
+TENSOR = FitOptions(groups=150, aperture_points=64, aperture_degree=6, field_degrees=(2, 4),
+                    test_groups=40, test_per_group=8)
+FIELD_COLUMNS, STOP_COLUMNS = [0, 1, 2, 5], [3, 4]
+
+
+@pytest.fixture(scope="module")
+def tensor(lens) -> list[SystemFit]:
+    """0001 at f/2 by the tensor method on the small grid (~1 s)."""
+    return fit_lens(lens, default_domain(lens), TENSOR)
+
+
+def test_tensor_fit_samples_a_grid_and_reports_each_field_degree(tensor, lens):
+    domain = default_domain(lens)
+    for f in tensor:
+        assert f.system.input_names == NAMES[f.system.name][0]
+        assert f.system.output_names == NAMES[f.system.name][1]
+        # The training rays: every field point with the same mirror-symmetric stop points
+        tr = f.train
+        assert isinstance(tr, GridSamples) and tr.system == f.system.name
+        assert tr.field.shape == (TENSOR.groups, 4)
+        assert tr.aperture.shape == (TENSOR.aperture_points, 2)
+        assert tr.ok.shape == tr.vignetting.shape == (TENSOR.groups, TENSOR.aperture_points)
+        assert tr.outputs.shape == (TENSOR.groups, TENSOR.aperture_points, 4)
+        assert np.all(np.hypot(*tr.aperture.T) <= domain.stop_radius_mm * (1 + 1e-12))
+        mirrored = {tuple(p) for p in np.round(tr.aperture * [-1, 1], 12)}
+        assert mirrored == {tuple(p) for p in np.round(tr.aperture, 12)}
+        assert tr.ok.mean() > 0.95  # at f/2 nearly every ray of this lens exists
+        for o, p in zip(f.outputs, f.system.outputs, strict=True):
+            phase = o.name.startswith("phi")
+            assert o.target == (TENSOR.phase_target_waves if phase else
+                                TENSOR.target_tau if o.name.startswith("tau") else
+                                TENSOR.target_position_um)
+            # One held-out RMS per rung tried: each field degree, and at most one retry
+            # of a field degree with the stop degree raised by 2
+            assert 1 <= len(o.path_terms) == len(o.path_rms) <= len(TENSOR.field_degrees) + 1
+            # The fit kept is the best rung, which is the first to reach the target
+            assert o.rms == min(o.path_rms) and o.terms == p.terms
+            assert o.terms == o.path_terms[o.path_rms.index(o.rms)]
+            assert o.reached == (o.rms <= o.target)
+            if o.reached:
+                assert o.path_rms[-1] == o.rms and all(r > o.target for r in o.path_rms[:-1])
+            stop = p.exponents[:, STOP_COLUMNS].sum(axis=1)
+            field = p.exponents[:, FIELD_COLUMNS].sum(axis=1)
+            assert field.max() <= max(TENSOR.field_degrees)
+            assert stop.max() <= TENSOR.aperture_degree - (0 if phase else 4) + 2
+            assert o.max_degree == p.max_degree == int((stop + field).max())
+            if phase:  # its piston: the terms without the stop point
+                assert o.piston_terms == int(np.sum(stop == 0)) > 0
+
+
+def test_tensor_fit_is_roughly_right(tensor):
+    """The small grid at f/2: measured x/y ~20-95 um (positions at stop degree 2), tau
+    ~4e-4, phi 0.1-0.3 waves. The bounds are 3-5 x looser, far below a broken fit (mm,
+    percent, thousands of waves). Field degree 4 is what phi needs: measured 4-6 waves
+    at field degree 2, 12-50 times less at 4 (bound 4 times)."""
+    for f in tensor:
+        by = {o.name[:1]: o for o in f.outputs}
+        assert by["x"].rms < 300 and by["y"].rms < 300
+        assert by["t"].rms < 2e-3
+        assert by["p"].rms < 1.5
+        assert by["p"].rms < 0.25 * by["p"].path_rms[0]
+
+
+def test_tensor_fit_is_deterministic(tensor, lens):
+    again = fit_lens(lens, default_domain(lens), TENSOR)
+    for a, b in zip(tensor, again, strict=True):
+        for pa, pb in zip(a.system.outputs, b.system.outputs, strict=True):
+            np.testing.assert_array_equal(pa.exponents, pb.exponents)
+            assert pa.coefficients.tobytes() == pb.coefficients.tobytes()  # bitwise
+        assert [o.path_rms for o in a.outputs] == [o.path_rms for o in b.outputs]
+
+
+def grid_samples(system: System, groups: int, points: int, seed: int,
+                 extra_phase=None) -> GridSamples:
+    """The synthetic data of ``synthetic_samples`` on a grid: ``groups`` scene points and
+    wavelengths times one mirror-symmetric set of ``points`` stop points."""
+    rng = np.random.default_rng(seed)
+    s = math.sin(math.radians(DOMAIN.field_deg))
+    r, a = np.sqrt(rng.random(groups)) * s, rng.uniform(0, 2 * math.pi, groups)
+    field = np.column_stack([r * np.cos(a), r * np.sin(a),
+                             rng.uniform(0, DOMAIN.inverse_distance_max, groups),
+                             rng.uniform(DOMAIN.wavelength_min_nm, DOMAIN.wavelength_max_nm,
+                                         groups)])
+    ap = symmetric_disc_points(rng, points) * DOMAIN.stop_radius_mm
+    g, k = np.repeat(np.arange(groups), points), np.tile(np.arange(points), groups)
+    x = np.column_stack([field[g, :3], ap[k], field[g, 3]])
+    y = system.evaluate(x)
+    if extra_phase is not None:
+        y[:, 3] += extra_phase(x)
+    return GridSamples("P_o", field, ap, y.reshape(groups, points, 4),
+                       np.ones((groups, points), dtype=bool), np.zeros((groups, points)))
+
+
+# Stop degree 6 for phi and 2 for the rest, field degree 4: every term of TRUTH fits
+TENSOR_SYNTH = FitOptions(aperture_degree=6, field_degrees=(4,), target_waves=1e-6,
+                          target_position_um=1e-6, target_tau=1e-10)
+
+
+def test_tensor_recovers_a_synthetic_system_exactly():
+    """Noise-free data from TRUTH on a complete grid: the tensor fit holds every allowed
+    monomial, so the true terms come back with their coefficients and all others as
+    rounding. Two small QRs per parity class on a well-conditioned grid (100 x 64):
+    measured ~1e-14 of the largest coefficient; bound 1e-9. Every fitted term has its
+    output's parity."""
+    truth = truth_system()
+    train = grid_samples(truth, 100, 64, seed=1)
+    test = synthetic_samples(truth, 40, 8, seed=2)
+    fitted, fits = fit_system_tensor("P_o", DOMAIN.inputs_o(), OUTPUTS_O, train, test,
+                                     TENSOR_SYNTH)
+    for p_true, p_fit, o in zip(truth.outputs, fitted.outputs, fits, strict=True):
+        assert o.reached and len(o.path_rms) == 1, (o.name, o.path_rms)
+        px = (p_fit.exponents[:, X_O] + p_fit.exponents[:, X_A]) % 2
+        py = (p_fit.exponents[:, Y_O] + p_fit.exponents[:, Y_A]) % 2
+        assert np.all(px == (o.name == "x_o")) and np.all(py == (o.name == "y_o"))
+        got = dict(zip(map(tuple, p_fit.exponents.tolist()), p_fit.coefficients, strict=True))
+        want = dict(zip(map(tuple, p_true.exponents.tolist()), p_true.coefficients,
+                        strict=True))
+        tol = 1e-9 * max(map(abs, want.values()))
+        assert set(want) <= set(got), o.name
+        for e, c in got.items():
+            assert c == pytest.approx(want.get(e, 0.0), abs=tol), (o.name, e)
+    x_o, y_o, tau, phi = fits
+    assert x_o.rms < 1e-6 and y_o.rms < 1e-6 and tau.rms < 1e-10 and phi.rms < 1e-6
+    np.testing.assert_allclose(fitted.evaluate(test.inputs), truth.evaluate(test.inputs),
+                               rtol=0, atol=1e-9)
+
+
+def test_tensor_piston_does_not_change_the_stop_dependent_phase():
+    """A function of the field inputs alone added to phi is a constant per field point;
+    the constant is one of the stop monomials, so on a complete grid only the stop-free
+    terms (the piston) move: R_B^-1 Q_B^T maps the constant column to its own coordinate.
+    Rounding of |wild| ~ 1e3 mm: 1e-13 mm, bound 1e-9 mm."""
+    truth = truth_system()
+
+    def wild(x):
+        return 50.0 * np.sin(9.0 * x[:, X_O]) + np.exp(300.0 * x[:, U_O]) + 1e3 / x[:, LAM]
+
+    test = synthetic_samples(truth, 40, 8, seed=2)
+    phis = []
+    for extra in (None, wild):
+        fitted, _ = fit_system_tensor("P_o", DOMAIN.inputs_o(), OUTPUTS_O,
+                                      grid_samples(truth, 100, 64, seed=1, extra_phase=extra),
+                                      test, TENSOR_SYNTH)
+        p = fitted.output("phi_o")
+        keep = p.exponents[:, X_A] + p.exponents[:, Y_A] > 0
+        phis.append((p.exponents[keep], p.coefficients[keep]))
+    (e0, c0), (e1, c1) = phis
+    np.testing.assert_array_equal(e0, e1)
+    np.testing.assert_allclose(c1, c0, rtol=0, atol=1e-9)
+
+
+def test_tensor_fit_of_an_infinity_only_domain_is_sane(lens):
+    """u_O = 0 for every field point (`lensfit fit --close-focus inf`, a scene fit of
+    lights at infinity): its powers would repeat the other field monomials and make the
+    solve singular (P_o errors ~1e13 um, coefficients ~1e27 before the fit dropped
+    them). It must come out as good as with finite distances (this grid: x_o ~20 um,
+    phi_o ~0.1 waves; bounds 5-10 x looser), without any power of u_O."""
+    domain = default_domain(lens).with_(close_focus_mm=math.inf)
+    fits = fit_lens(lens, domain, TENSOR)
+    by = {o.name: o for o in fits[0].outputs}
+    assert by["x_o"].rms < 200 and by["y_o"].rms < 200 and by["phi_o"].rms < 1.0
+    for p in fits[0].system.outputs:
+        assert np.abs(p.coefficients).max() < 1e6
+        assert np.all(p.exponents[:, U_O] == 0)
+
+
+def test_fit_options_defaults_and_targets():
+    """The phase target follows the PSF target: psf_target / (4 pi sqrt 2) waves (the
+    module doc: a PSF moves by ~4 pi x the RMS phase error, P_o and P_s in quadrature),
+    5.6e-4 waves for 1%; an explicit target_waves wins. to_dict gives JSON-ready values
+    that load back."""
+    o = FitOptions()
+    assert (o.method, o.psf_target, o.target_waves) == ("tensor", 0.01, None)
+    assert o.phase_target_waves == pytest.approx(0.01 / (4 * math.pi * math.sqrt(2)),
+                                                 rel=1e-15)
+    assert 5.6e-4 < o.phase_target_waves < 5.7e-4
+    assert FitOptions(psf_target=0.05).phase_target_waves == pytest.approx(
+        5 * o.phase_target_waves, rel=1e-15)
+    assert FitOptions(target_waves=0.02, psf_target=0.05).phase_target_waves == 0.02
+    d = FitOptions(field_degrees=[4, 6]).to_dict()
+    assert d["field_degrees"] == [4, 6] and d["target_waves"] is None
+    assert FitOptions(**d) == FitOptions(field_degrees=(4, 6))
+    assert FitOptions(**d).field_degrees == (4, 6)
+
+
+@pytest.mark.parametrize(("change", "message"), [
+    ({"method": "omp"}, "method = 'omp': expected one of tensor, pursuit"),
+    ({"psf_target": 0.0}, "psf_target = 0.0"),
+    ({"psf_target": 1.5}, "psf_target = 1.5"),
+    ({"psf_target": math.nan}, "psf_target = nan"),
+    ({"target_waves": 0.0}, "target_waves = 0.0"),
+    ({"target_waves": -0.01}, "target_waves = -0.01"),
+    ({"aperture_points": 30}, "aperture_points = 30: expected a positive multiple of 4"),
+    ({"aperture_points": 0}, "aperture_points = 0"),
+    ({"field_degrees": ()}, "field_degrees"),
+    ({"field_degrees": (4, -2)}, "field_degrees"),
+    ({"aperture_degree": 1}, "aperture_degree"),
+])
+def test_fit_options_refuse_bad_values_naming_the_option(change, message):
+    with pytest.raises(ValueError, match=f"^fit options: .*{message}"):
+        FitOptions(**change)

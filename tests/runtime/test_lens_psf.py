@@ -5,13 +5,17 @@ cancels and only the transport differs):
 
 * C against ``lensfit.psf.poly_psf`` (the same polynomials evaluated in float64 numpy):
   checks the runtime's per-pixel specialisation, phase basis, pruning, float kernel and
-  clipping, for the committed fit of the default lens at f/2, f/8 and f/32;
+  clipping, for the committed fit of the default lens (its version-3 table) at f/2, f/8
+  and f/32;
 * C against ``lensfit.psf.exact_psf`` (exactly traced rays, no polynomials): checks the
-  whole chain prescription -> fit -> table -> runtime. The committed fit covers 380-780 nm,
-  a 12 deg field and f/2 with phi errors of 0.05-0.09 waves RMS, which alone moves an f/8
-  PSF by about 20% relative L2 (lensfit.psf's docstring; 2 pi sigma for sigma = 0.03
-  waves locally). So this test fits the scene's own domain (f/8, 530-570 nm, 4 deg field,
-  focus 0.1-0.35 mm) to 5e-4 waves, as a user wanting a 2% PSF would, and asserts 2%.
+  whole chain prescription -> fit -> table -> runtime. This test fits the scene's own
+  domain (f/8, 530-570 nm, 4 deg field, focus 0.1-0.35 mm) with the sparse pursuit (the
+  method of the first fits, ``method="pursuit"``) to 5e-4 waves, as a user wanting a 2%
+  PSF would, and asserts 2%. The fitting stage also measures the fit's PSF against
+  exact rays (lensfit.trust) and writes it into the table the runtime loads; the test
+  checks the runtime's PSF against that figure too. (The committed fit, by the tensor
+  method over the whole f/2 domain, is tested against exact rays in
+  tests/fit/test_trust.py.)
 
 Intensities are compared normalised to unit sum over the window: lensfit.psf applies no
 Huygens amplitude factor, and the runtime's (constant across a window of a few Airy
@@ -92,13 +96,17 @@ def test_runtime_matches_python_polynomials(rt, lens, f_number):
 
 @pytest.fixture(scope="module")
 def scene_fit(tmp_path_factory, lens):
-    """Fit the scene's own domain (about 20 s): f/8, 530-570 nm, a 4 deg field."""
+    """Fit the scene's own domain by the pursuit: f/8, 530-570 nm, a 4 deg field (about
+    10 s on 1000 x 8 training rays per system, which reach every target; and ~10 s for
+    the stage's PSF table: two stops, two lights, three wavelengths)."""
     domain = dataclasses.replace(default_domain(lens, f_number=8.0), field_deg=4.0,
                                  sensor_radius_mm=7.5, wavelength_min_nm=530.0,
                                  wavelength_max_nm=570.0, focus_min_mm=0.1, focus_max_mm=0.35)
-    options = FitOptions(target_waves=5e-4, target_position_um=0.02, target_tau=1e-5)
+    options = FitOptions(method="pursuit", target_waves=5e-4, target_position_um=0.02,
+                         target_tau=1e-5, train_groups=1000, test_groups=200)
     out = tmp_path_factory.mktemp("scene-fit")
-    run(lens, domain=domain, options=options, generated_dir=out, timing=False)
+    fits, _ = run(lens, domain=domain, options=options, generated_dir=out, timing=False)
+    assert all(o.reached for f in fits for o in f.outputs)  # the premise of the 2% below
     return next(out.glob("*/lens0001.table"))
 
 
@@ -106,6 +114,15 @@ def test_runtime_matches_exact_trace(rt, lens, scene_fit):
     lens_c = rt.load(scene_fit)
     points, python, c = scene(rt, lens_c, lens, 8.0)
     exact = normalised(psf.exact_psf(lens, **python))
+    got = rel_l2(normalised(render_points(rt, lens_c, points, "default", **c)), exact)
     # The fit reaches 5e-4 waves and 0.02 um; 2 pi 5e-4 bounds the field error at 0.3%,
-    # well inside the issue's 2% (measured 0.21%)
-    assert rel_l2(normalised(render_points(rt, lens_c, points, "default", **c)), exact) < 0.02
+    # well inside the issue's 2% (measured 0.24%; the table claims 0.59%)
+    assert got < 0.02
+    # The table the runtime loaded says how far its PSF is from exact rays (the worst of
+    # lensfit.trust's cells over this domain). This light, window and point set are not
+    # one of its cells, and the runtime adds its float kernel and pruning (< 4e-2 of the
+    # polynomial PSF at worst, measured 3e-5 - 2e-4 above): within twice the claim plus
+    # the pruning's measured share (5e-4)
+    claimed = read_table(scene_fit.read_text(encoding="utf-8")).trust["psf_vs_exact"]
+    print(f"runtime against exact rays {got:.3g}, the table claims {claimed:.3g}")
+    assert got <= 2 * claimed + 5e-4

@@ -1,5 +1,6 @@
 """Coefficient tables: exact round trip, the documented layout, errors with line numbers,
-the lens lines of version 2, and version-1 tables still read."""
+the lens lines of version 2, the trust lines of version 3, and versions 1 and 2 still
+read."""
 
 from __future__ import annotations
 
@@ -83,7 +84,7 @@ GOOD = ("lensfit-poly-table 1\n"          # 1
 
 
 @pytest.mark.parametrize(("old", "new", "line", "message"), [
-    ("lensfit-poly-table 1", "lensfit-poly-table 3", 1, "version '3' is not supported"),
+    ("lensfit-poly-table 1", "lensfit-poly-table 4", 1, "version '4' is not supported"),
     ("lensfit-poly-table 1", "poly 1", 1, "expected the header"),
     ("system S 2 1", "system S two 1", 2, "n_inputs: expected a non-negative integer"),
     ("system S 2 1", "sys S 2 1", 2, "expected 'system"),
@@ -206,6 +207,97 @@ def test_malformed_lens_lines_name_the_line(old, new, line, message):
         read_table(bad)
 
 
+def test_version_2_tables_still_read():
+    table = read_table(GOOD2)
+    assert (table.version, table.lens.name, table.trust) == (2, "My lens", None)
+    assert write_table(table).startswith("lensfit-poly-table 2\n")  # no trust: version 2
+
+
 def test_version_2_without_lens_lines_is_an_error():
     with pytest.raises(ValueError, match="^table line 2: expected 'lens name <value>'"):
         read_table(GOOD.replace("lensfit-poly-table 1", "lensfit-poly-table 2"))
+
+
+# --- version 3: the trust lines -----------------------------------------------------------
+
+TRUST = {"psf_vs_exact": 0.0017753640198416778, "psf_vs_exact_cell": "f/2 80% corner 450 nm",
+         "psf_target": 0.01}
+
+
+def test_trust_lines_round_trip(systems):
+    text = write_table(systems, comment="lens 0001", lens=FACTS, trust=TRUST)
+    table = read_table(text)
+    assert (table.version, table.lens, table.trust) == (3, FACTS, TRUST)  # exactly
+    assert_same(table, systems)
+    assert write_table(table, comment="lens 0001") == text  # a Table keeps its trust
+    # Without trust figures the same systems and facts are version 2, without both 1
+    assert read_table(write_table(systems, lens=FACTS)).version == 2
+    assert read_table(write_table(systems)).version == 1
+
+
+def test_trust_lines_layout():
+    """After the lens lines, in the documented order; the cell is an escaped text field."""
+    s = System("S", (Input("x", "mm", -2.0, 2.0),), (Polynomial("y", "mm", [[1]], [0.5]),))
+    text = write_table([s], comment="c", lens=FACTS, trust=TRUST)
+    lines = text.split("\n")
+    assert lines[0] == "lensfit-poly-table 3"
+    assert lines[2].startswith("lens name ") and lines[10].startswith("lens squeeze ")
+    assert lines[11:15] == ["trust psf_vs_exact 0.0017753640198416778",
+                            "trust psf_vs_exact_cell f/2%2080%25%20corner%20450%20nm",
+                            "trust psf_target 0.01",
+                            "system S 1 1"]
+
+
+@pytest.mark.parametrize(("change", "message"), [
+    ({"psf_vs_exact": float("nan")}, "trust: psf_vs_exact = nan: expected a finite number"),
+    ({"psf_vs_exact": -1e-3}, "trust: psf_vs_exact = -0.001"),
+    ({"psf_target": float("inf")}, "trust: psf_target = inf"),
+    ({"psf_target": "1%"}, "trust: psf_target = '1%'"),
+    ({"psf_vs_exact_cell": 3}, "trust: psf_vs_exact_cell: expected text"),
+    ({"seconds": 20.0}, "trust: expected the keys psf_vs_exact, psf_vs_exact_cell, "
+                        "psf_target, found"),
+])
+def test_writer_refuses_trust_it_cannot_write(systems, change, message):
+    with pytest.raises(ValueError, match=message):
+        write_table(systems, lens=FACTS, trust={**TRUST, **change})
+
+
+def test_writer_refuses_trust_without_lens_facts(systems):
+    with pytest.raises(ValueError, match="trust figures need the lens facts"):
+        write_table(systems, trust=TRUST)
+
+
+GOOD3 = (GOOD2.replace("lensfit-poly-table 2", "lensfit-poly-table 3")
+         .replace("lens squeeze 1\n",
+                  "lens squeeze 1\n"                              # 11
+                  "trust psf_vs_exact 0.002\n"                    # 12
+                  "trust psf_vs_exact_cell f/8%20axis%20550%20nm\n"  # 13
+                  "trust psf_target 0.01\n"))                     # 14, then system S 2 1
+
+
+@pytest.mark.parametrize(("old", "new", "line", "message"), [
+    ("trust psf_vs_exact 0.002", "trust psf_vs_exact -0.002", 12,
+     "trust psf_vs_exact = -0.002: expected a number >= 0"),
+    ("trust psf_vs_exact 0.002", "trust psf_vs_exact 0,2%", 12,
+     "trust psf_vs_exact: expected a real number"),
+    ("trust psf_target 0.01", "trust psf_target inf", 14, "expected a real number"),
+    ("trust psf_vs_exact 0.002", "trust psf_vs_exact 0.002 waves", 12,
+     "expected 'trust psf_vs_exact <value>'"),
+    ("trust psf_vs_exact_cell f/8%20axis", "trust psf_vs_exact_cell f/8%zzaxis", 13,
+     "bad escape"),
+    ("trust psf_vs_exact 0.002\ntrust psf_vs_exact_cell f/8%20axis%20550%20nm",
+     "trust psf_vs_exact_cell f/8%20axis%20550%20nm\ntrust psf_vs_exact 0.002", 12,
+     "keys come in the order psf_vs_exact, psf_vs_exact_cell, psf_target"),
+    ("trust psf_target 0.01\n", "", 14,
+     "expected 'trust psf_target <value>' .*found 'system S 2 1'"),
+    ("trust psf_vs_exact 0.002\ntrust psf_vs_exact_cell f/8%20axis%20550%20nm\n"
+     "trust psf_target 0.01\n", "", 12, "expected 'trust psf_vs_exact <value>'"),
+])
+def test_malformed_trust_lines_name_the_line(old, new, line, message):
+    table = read_table(GOOD3)  # the unmodified text is fine
+    assert table.trust == {"psf_vs_exact": 0.002, "psf_vs_exact_cell": "f/8 axis 550 nm",
+                           "psf_target": 0.01}
+    bad = GOOD3.replace(old, new)
+    assert bad != GOOD3
+    with pytest.raises(ValueError, match=f"^table line {line}: .*{message}"):
+        read_table(bad)
