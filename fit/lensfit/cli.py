@@ -154,7 +154,7 @@ def _domain_and_options(args: argparse.Namespace, lens):
     from lensfit.fitting import FitOptions
     from lensfit.sample import default_domain
 
-    close = None if args.close_focus is None else float(args.close_focus)
+    close = args.close_focus
     domain = default_domain(lens, f_number=args.f_number, field_deg=args.field,
                             close_focus_mm=close,
                             wavelengths_nm=_pair(args.wavelengths, "--wavelengths"),
@@ -191,6 +191,12 @@ def cmd_fit(args: argparse.Namespace) -> int:
     if args.scene:
         from lensfit.scene import load_scene, scene_domain
 
+        given = [f"--{k.replace('_', '-')}" for k in ("f_number", "field", "image_circle",
+                                                       "wavelengths", "close_focus", "focus")
+                 if getattr(args, k) is not None]
+        if given:
+            raise ValueError(f"--scene {args.scene}: the scene sets the domain (its lights, "
+                             f"wavelengths, f_number and focus); drop {', '.join(given)}")
         scene = load_scene(args.scene)
         domain, options = _domain_and_options(args, lens)
         domain = scene_domain(lens, scene)
@@ -347,7 +353,7 @@ def build_parser() -> argparse.ArgumentParser:
                        help="radius of the sensor disc fitted (default: follows --field)")
         p.add_argument("--wavelengths", default=None, metavar="LO,HI",
                        help="wavelength range in nm (default 380,780)")
-        p.add_argument("--close-focus", default=None, metavar="MM",
+        p.add_argument("--close-focus", type=float, default=None, metavar="MM",
                        help="closest scene point from the first vertex in mm, or inf "
                             "(default: ten focal lengths); the sensor travel follows")
         p.add_argument("--focus", default=None, metavar="LO,HI",

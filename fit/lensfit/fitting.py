@@ -314,7 +314,7 @@ def fit_system_tensor(name: str, inputs: tuple[Input, ...], outputs, train: Grid
     xe = scaffold.normalise(te.inputs)
     # A field input the domain holds fixed (a scene fit at infinity: u_O = 0 throughout)
     # gets no powers: its columns would all be equal
-    caps = tuple(0 if np.ptp(v_hat[:, i]) < 1e-9 else options.field_degrees[-1]
+    caps = tuple(0 if np.ptp(v_hat[:, i]) < 1e-9 else max(options.field_degrees)
                  for i in range(len(FIELD)))
     # Cells fitted: rays that exist and pass within 10% of every housing
     with np.errstate(invalid="ignore"):

@@ -121,11 +121,13 @@ class Scene:
                                "expected an angle in (-90, 90) degrees, in front of the lens")
             lights.append(light)
         focus = d.get("focus_offset_mm")
-        if focus is not None and not (isinstance(focus, int | float) and math.isfinite(focus)):
+        if focus is not None and (isinstance(focus, bool) or not (
+                isinstance(focus, int | float) and math.isfinite(focus))):
             raise fail("focus_offset_mm", focus, "expected a finite number (mm)")
         f_number = d.get("f_number")
-        if f_number is not None and not (isinstance(f_number, int | float)
-                                         and math.isfinite(f_number) and f_number > 0):
+        if f_number is not None and (isinstance(f_number, bool)
+                                     or not (isinstance(f_number, int | float)
+                                             and math.isfinite(f_number) and f_number > 0)):
             raise fail("f_number", f_number, "expected a positive f-number")
         flags = {}
         for k in ("clip", "transmittance", "flares"):

@@ -148,12 +148,6 @@ def test_fit_tensor_refuses_what_it_cannot_fit():
         fit_tensor(a_hat, v_hat[:10], values[:10], full[:10], A_EXPS, F_EXPS, parity=(0, 0))
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "bug reported to the lead: fit_tensor checks n_a <= K per parity class, but a "
-    "mirror-symmetric set of K points has only K/4 distinct points per class, so R_B is "
-    "singular and W garbage (~1e17 waves) instead of an error; hit by small grids "
-    "(aperture_points=32 at stop degree 6) and by `--quick` (64 points) if the stop "
-    "degree is raised from 8 to 10"))
 def test_dependent_stop_monomials_are_refused():
     """32 points are 8 distinct points per parity class; the even-even class of stop
     degree 6 has 10 monomials: the problem is singular and must be refused."""
