@@ -150,6 +150,19 @@ def _workers(workers: int | None) -> int:
     return workers
 
 
+def _checked_inputs(stop_radius_mm, aperture_xy_mm, field_deg, distance_mm, wavelength_nm,
+                    focus_offset_mm, width, height, width_mm, height_mm, center_x_mm,
+                    center_y_mm):
+    """The arguments every PSF sum shares, checked: (lambda, pixel xs, ys, aperture
+    points, which lie in the stop disc, x_O, y_O, u_O, z_S)."""
+    lam = _wavelength(wavelength_nm)
+    xs, ys = pixel_centres(width, height, width_mm, height_mm, center_x_mm, center_y_mm)
+    ap, inside = _aperture(aperture_xy_mm, stop_radius_mm)
+    x_O, y_O = light_direction(*field_deg)
+    return (lam, xs, ys, ap, inside, x_O, y_O, _inverse_distance(distance_mm),
+            _check_focus(focus_offset_mm))
+
+
 def sunflower_points(n: int, radius_mm: float) -> np.ndarray:
     """n points (n, 2) spread evenly over the disc of ``radius_mm`` (Vogel's spiral): a
     deterministic aperture sampling with far less noise than random points."""
@@ -262,12 +275,9 @@ def exact_psf(lens: Lens, *, stop_radius_mm: float, aperture_xy_mm: np.ndarray,
                                nodes=nodes)[0]
     if clip not in CLIPS:
         raise ValueError(f"clip = {clip!r}: expected one of {', '.join(CLIPS)}")
-    lam = _wavelength(wavelength_nm)
-    xs, ys = pixel_centres(width, height, width_mm, height_mm, center_x_mm, center_y_mm)
-    ap, inside = _aperture(aperture_xy_mm, stop_radius_mm)
-    x_O, y_O = light_direction(*field_deg)
-    u_O = _inverse_distance(distance_mm)
-    z_s = _check_focus(focus_offset_mm)
+    lam, xs, ys, ap, inside, x_O, y_O, u_O, z_s = _checked_inputs(
+        stop_radius_mm, aperture_xy_mm, field_deg, distance_mm, wavelength_nm,
+        focus_offset_mm, width, height, width_mm, height_mm, center_x_mm, center_y_mm)
     facts = lens_facts(lens)
     workers = _workers(workers)
 
@@ -329,12 +339,9 @@ def exact_psf_nodes(lens: Lens, *, stop_radius_mm: float, aperture_xy_mm: np.nda
     comparison with :func:`poly_psf` should pass it ``aperture_xy_mm[used]``."""
     if not (isinstance(nodes, int) and nodes >= 2):
         raise ValueError(f"nodes = {nodes!r}: expected at least 2 Chebyshev nodes per axis")
-    lam = _wavelength(wavelength_nm)
-    xs, ys = pixel_centres(width, height, width_mm, height_mm, center_x_mm, center_y_mm)
-    ap, inside = _aperture(aperture_xy_mm, stop_radius_mm)
-    x_O, y_O = light_direction(*field_deg)
-    u_O = _inverse_distance(distance_mm)
-    z_s = _check_focus(focus_offset_mm)
+    lam, xs, ys, ap, inside, x_O, y_O, u_O, z_s = _checked_inputs(
+        stop_radius_mm, aperture_xy_mm, field_deg, distance_mm, wavelength_nm,
+        focus_offset_mm, width, height, width_mm, height_mm, center_x_mm, center_y_mm)
     facts = lens_facts(lens)
     used = np.zeros(len(ap), dtype=bool)
     idx = np.nonzero(inside)[0]
@@ -438,12 +445,9 @@ def poly_psf(systems: Sequence[System], *, facts: LensFacts | None = None,
             raise ValueError("facts: expected the lens facts (lensfit.facts.lens_facts, or "
                              "read_table(...).lens of a version-2 table), found None")
     p_o, p_s = _system(systems, "P_o"), _system(systems, "P_s")
-    lam = _wavelength(wavelength_nm)
-    xs, ys = pixel_centres(width, height, width_mm, height_mm, center_x_mm, center_y_mm)
-    ap, inside = _aperture(aperture_xy_mm, stop_radius_mm)
-    x_O, y_O = light_direction(*field_deg)
-    u_O = _inverse_distance(distance_mm)
-    z_s = _check_focus(focus_offset_mm)
+    lam, xs, ys, ap, inside, x_O, y_O, u_O, z_s = _checked_inputs(
+        stop_radius_mm, aperture_xy_mm, field_deg, distance_mm, wavelength_nm,
+        focus_offset_mm, width, height, width_mm, height_mm, center_x_mm, center_y_mm)
 
     # Object side (one light: P_o over the aperture points), then the first-surface test
     pts = ap[inside]
