@@ -205,14 +205,14 @@ def cmd_fit(args: argparse.Namespace) -> int:
                       else Path("build/report") / lens_folder_name(lens) / scene.name)
         _, fig = stage.run(lens, domain=domain, options=options, generated_dir=folder,
                            report_dir=report_dir, timing=not args.no_timing,
-                           flat=True, scene=scene)
+                           flat=True, scene=scene, glsl=args.glsl)
         out = folder
     else:
         domain, options = _domain_and_options(args, lens)
         report_dir = (Path(args.report) if args.report
                       else Path("build/report") / lens_folder_name(lens))
         _, fig = stage.run(lens, domain=domain, options=options, generated_dir=gen,
-                           report_dir=report_dir, timing=not args.no_timing)
+                           report_dir=report_dir, timing=not args.no_timing, glsl=args.glsl)
         out = gen / lens_folder_name(lens)
     print(f"wrote {out}/ and {report_dir / 'report.md'} (fit {fig['fit_seconds']:.1f} s, "
           f"PSF check {fig['psf_vs_exact']['seconds']:.1f} s)")
@@ -372,6 +372,9 @@ def build_parser() -> argparse.ArgumentParser:
         if name == "fit":
             p.add_argument("--generated", default=None, help="folder for generated code")
             p.add_argument("--report", default=None, help="folder for the report")
+            p.add_argument("--glsl", action="store_true",
+                           help="also write the GLSL source (megabytes for a full fit; "
+                                "lensrt's GL path loads the table)")
             p.add_argument("--scene", default=None, metavar="SCENE.toml",
                            help="fit only what this scene needs (its lights, wavelengths, "
                                 "stop and focus): generated/<lens>/scene-fits/<name>/")

@@ -5,7 +5,7 @@ timings, no dates), so fitting the same lens again on the same machine rewrites 
 bytes.
 
     <stem>.h, <stem>.c            hand-emitted Horner C99, double and float (the fast form)
-    <stem>.glsl                   GLSL 4.30 functions (float and double)
+    <stem>.glsl                   GLSL 4.30 functions (float and double), with --glsl only
     <stem>.table                  coefficient table for generic evaluators, with the lens's
                                   first-order facts and the PSF trust figures
                                   (lensfit-poly-table 3)
@@ -61,15 +61,17 @@ def lens_folder_name(lens: Lens) -> str:
 
 def sources_for(systems: Sequence[System], prefix: str, comment: str, *,
                 facts: LensFacts | None = None, trust: dict[str, Any] | None = None,
-                casadi: bool = False) -> dict[str, str]:
+                casadi: bool = False, glsl: bool = False) -> dict[str, str]:
     """Every generated file's text, by file name (the table carries ``facts`` and
-    ``trust``: give them for a lens folder). casadi's C only with ``casadi``: for a
-    tensor fit it is ~30 MB per file and ~3x slower than the Horner C."""
+    ``trust``: give them for a lens folder). casadi's C only with ``casadi`` (for a
+    tensor fit ~30 MB a file and ~3x slower than the Horner C); GLSL only with ``glsl``
+    (~6 MB for a tensor fit; lensrt's GL path uploads the table instead)."""
     files: dict[str, str] = {}
     files.update(emit_c(systems, prefix, header_comment=comment, which="horner"))
     if casadi:
         files.update(emit_c(systems, prefix, header_comment=comment, which="casadi"))
-    files.update(emit_glsl(systems, prefix, header_comment=comment))
+    if glsl:
+        files.update(emit_glsl(systems, prefix, header_comment=comment))
     files.update(table_file(systems, prefix, comment, facts, trust))
     return files
 
@@ -85,10 +87,11 @@ def table_file(systems: Sequence[System], prefix: str, comment: str,
 def lens_files(lens: Lens, systems: Sequence[System], meta: dict[str, Any],
                trust: dict[str, Any]) -> dict[str, str]:
     """Every file of the folder ``generated/<lens>/``, by name (``meta``: fit.json's keys;
-    ``trust``: the table's trust figures, :func:`lensfit.trust.trust_figures`)."""
+    ``trust``: the table's trust figures, :func:`lensfit.trust.trust_figures`; GLSL
+    when ``meta["glsl"]`` is true, as `lensfit fit --glsl` records it)."""
     prefix = lens_prefix(lens)
     files = sources_for(systems, prefix, header_comment(lens), facts=lens_facts(lens),
-                        trust=trust)
+                        trust=trust, glsl=bool(meta.get("glsl", False)))
     files["fit.json"] = fit_json({**meta, "table": f"{file_stem(prefix)}.table"})
     return files
 

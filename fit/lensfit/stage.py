@@ -21,12 +21,12 @@ from lensfit.trust import psf_vs_exact, trust_figures
 
 def run(lens: Lens, *, domain: Domain | None = None, options: FitOptions | None = None,
         generated_dir: Path | None = None, report_dir: Path | None = None,
-        timing: bool = True, flat: bool = False, scene: Scene | None = None
-        ) -> tuple[list[SystemFit], dict[str, Any]]:
+        timing: bool = True, flat: bool = False, scene: Scene | None = None,
+        glsl: bool = False) -> tuple[list[SystemFit], dict[str, Any]]:
     """Fit ``lens``; measure its PSF against exactly traced rays (:mod:`lensfit.trust`);
     write ``generated_dir/<lens>/`` (``generated_dir`` itself with ``flat``) and
     ``report_dir`` when given. With ``scene`` (a scene fit) the PSF check uses the
-    scene's lights, wavelengths and focus."""
+    scene's lights, wavelengths and focus. ``glsl`` adds the GLSL source to the folder."""
     domain = domain or default_domain(lens)
     options = options or FitOptions()
     t0 = time.perf_counter()
@@ -51,6 +51,8 @@ def run(lens: Lens, *, domain: Domain | None = None, options: FitOptions | None 
                               if k not in ("ns_per_eval_double", "ns_per_eval_float")}
                              for f in fits for o in f.outputs],
                 "psf_vs_exact": {k: v for k, v in table.items() if k != "seconds"}}
+        if glsl:
+            meta["glsl"] = True
         folder = generated_dir if flat else generated_dir / lens_folder_name(lens)
         write_folder(folder, lens_files(lens, systems, meta, trust))
     figures = measure(lens, fits, timing=timing)

@@ -126,6 +126,20 @@ def test_regenerating_from_fit_json_is_byte_identical(folder):
         assert (folder / name).read_bytes() == text.encode("utf-8"), name
 
 
+def test_glsl_is_written_only_when_asked(quick_dir):
+    """`lensfit fit --glsl` records "glsl" in fit.json, and the folder (and so its
+    regeneration) then holds the GLSL source too; by default it does not (megabytes)."""
+    lens = load_lens("0001")
+    systems, meta = read_fit_json(quick_dir / lens_folder_name(lens) / "fit.json")
+    rest = {k: v for k, v in meta.items() if k not in ("format", "table")}
+    plain = lens_files(lens, list(systems), rest, systems.trust)
+    with_glsl = lens_files(lens, list(systems), {**rest, "glsl": True}, systems.trust)
+    stem = file_stem(lens_prefix(lens))
+    assert f"{stem}.glsl" not in plain and f"{stem}.glsl" in with_glsl
+    assert set(with_glsl) - set(plain) == {f"{stem}.glsl"}
+    assert '"glsl": true' in with_glsl["fit.json"]
+
+
 def test_fit_json_records_domain_options_and_errors(folder):
     systems, meta = read_fit_json(folder / "fit.json")
     assert [s.name for s in systems] == ["P_o", "P_s"]
@@ -251,7 +265,7 @@ def test_cli_regenerate_rewrites_a_folder_from_fit_json(quick_dir, tmp_path, cap
     shutil.copytree(quick_dir / lens_folder_name(lens), gen / lens_folder_name(lens))
     folder = gen / lens_folder_name(lens)
     before = {p.name: p.read_bytes() for p in folder.iterdir() if p.is_file()}
-    (folder / "lens0001.glsl").write_text("// edited\n", encoding="utf-8")
+    (folder / "lens0001.h").write_text("// edited\n", encoding="utf-8")
     (folder / "lens0001.c").unlink()
     assert main(["regenerate", "0001", "--generated", str(gen)]) == 0
     assert "from its fit.json" in capsys.readouterr().out
