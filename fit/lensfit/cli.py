@@ -151,7 +151,6 @@ def _pair(text: str | None, what: str) -> tuple[float, float] | None:
 
 
 def _domain_and_options(args: argparse.Namespace, lens):
-    from lensfit.fitting import FitOptions
     from lensfit.sample import default_domain
 
     close = args.close_focus
@@ -160,15 +159,19 @@ def _domain_and_options(args: argparse.Namespace, lens):
                             wavelengths_nm=_pair(args.wavelengths, "--wavelengths"),
                             focus_mm=_pair(args.focus, "--focus"),
                             image_circle_mm=args.image_circle)
+    return domain, _options(args)
+
+
+def _options(args: argparse.Namespace):
+    from lensfit.fitting import FitOptions
+
     extra = {"psf_target": args.psf_target, "method": args.method}
     if args.quick:
-        options = FitOptions(max_terms=60, piston_terms=20, max_degree=7, phase_degree=8,
-                             train_groups=600, train_per_group=8, test_groups=100,
-                             groups=1000, aperture_points=64, field_degrees=(4, 6),
-                             aperture_degree=8, **extra)
-    else:
-        options = FitOptions(**extra)
-    return domain, options
+        return FitOptions(max_terms=60, piston_terms=20, max_degree=7, phase_degree=8,
+                          train_groups=600, train_per_group=8, test_groups=100,
+                          groups=1000, aperture_points=64, field_degrees=(4, 6),
+                          aperture_degree=8, **extra)
+    return FitOptions(**extra)
 
 
 def _print_trust(fig: dict) -> None:
@@ -198,8 +201,7 @@ def cmd_fit(args: argparse.Namespace) -> int:
             raise ValueError(f"--scene {args.scene}: the scene sets the domain (its lights, "
                              f"wavelengths, f_number and focus); drop {', '.join(given)}")
         scene = load_scene(args.scene)
-        domain, options = _domain_and_options(args, lens)
-        domain = scene_domain(lens, scene)
+        domain, options = scene_domain(lens, scene), _options(args)
         folder = gen / lens_folder_name(lens) / "scene-fits" / scene.name
         report_dir = (Path(args.report) if args.report
                       else Path("build/report") / lens_folder_name(lens) / scene.name)

@@ -30,7 +30,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from lensfit.poly.polynomial import design_matrix
+from lensfit.poly.polynomial import design_matrix, monomials
 
 CG_TOL = 1e-12  # relative residual of the normal equations at which CG stops
 CG_MAX_ITER = 300
@@ -50,8 +50,6 @@ def field_exponents(n_vars: int, degree: int, caps: tuple[int, ...] | None = Non
                     ) -> np.ndarray:
     """Exponent rows of the field variables with total degree <= degree and each
     variable's exponent <= its cap: (n, n_vars) int32, ordered by total degree."""
-    from lensfit.poly.polynomial import monomials
-
     e = monomials(n_vars, degree)
     if caps is not None:
         e = e[np.all(e <= np.asarray(caps), axis=1)]
