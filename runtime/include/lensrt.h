@@ -177,6 +177,95 @@ typedef struct lensrt_light lensrt_light;
 LENSRT_API lensrt_result lensrt_lens_image_point(lensrt_context ctx, lensrt_lens lens, const lensrt_light *light,
                                       double wavelength_nm, double focus_offset_mm, double xy_mm[2]);
 
+/* ------------------------------------------------------- per-ray evaluation ----- */
+
+/* The fitted systems of a lens, for a renderer's own rays (camera rays through the
+ * polynomials, as a path tracer does):
+ *   P_o (object side): (x_O, y_O, u_O, x_a, y_a, lambda) -> (x_o, y_o, tau_o, phi_o)
+ *     x_O, y_O direction cosines of the light, u_O = 1 / distance (1/mm, 0: infinity),
+ *     x_a, y_a the point on the stop (mm), lambda (nm) -> outer pupil point (mm),
+ *     power transmittance, optical path length from the light's reference to the stop
+ *     (mm).
+ *   P_s (sensor side): (x_S, y_S, z_S, x_a, y_a, lambda) -> (x_i, y_i, tau_i, phi_i)
+ *     sensor point (mm), sensor shift (mm), stop point (mm), lambda (nm) -> inner pupil
+ *     point (mm), transmittance, optical path length from the stop to the sensor point
+ *     (mm). The direction of the ray arriving at (x_S, y_S) is the gradient of phi_i
+ *     over (x_S, y_S) (the Jacobian gives it).
+ * lensrt_lens_system_info names the inputs and outputs and the domain each input was
+ * fitted over; outside it the polynomials extrapolate (nothing is clamped). */
+typedef enum lensrt_system_id {
+    LENSRT_SYSTEM_OBJECT = 0,   /* P_o */
+    LENSRT_SYSTEM_SENSOR = 1    /* P_s */
+} lensrt_system_id;
+
+typedef enum lensrt_number_type {
+    LENSRT_TYPE_DOUBLE = 0,
+    LENSRT_TYPE_FLOAT = 1
+} lensrt_number_type;
+
+#define LENSRT_MAX_SYSTEM_INPUTS 8
+#define LENSRT_MAX_SYSTEM_OUTPUTS 8
+
+typedef struct lensrt_system_info {
+    size_t struct_size;         /* sizeof(lensrt_system_info): LENSRT_SYSTEM_INFO_INIT */
+    int32_t n_inputs, n_outputs;
+    /* Names as in the table ("x_S", ..., "phi_i"), valid while the lens lives. */
+    const char *input_names[LENSRT_MAX_SYSTEM_INPUTS];
+    const char *output_names[LENSRT_MAX_SYSTEM_OUTPUTS];
+    double input_min[LENSRT_MAX_SYSTEM_INPUTS], input_max[LENSRT_MAX_SYSTEM_INPUTS];
+    int32_t n_terms[LENSRT_MAX_SYSTEM_OUTPUTS];
+} lensrt_system_info;
+#define LENSRT_SYSTEM_INFO_INIT {sizeof(lensrt_system_info), 0, 0, {0}, {0}, {0}, {0}, {0}}
+
+LENSRT_API lensrt_result lensrt_lens_system_info(lensrt_lens lens, int32_t system, lensrt_system_info *out);
+
+typedef struct lensrt_eval_desc {
+    size_t struct_size;         /* sizeof(lensrt_eval_desc): LENSRT_EVAL_DESC_INIT */
+    int32_t system;             /* lensrt_system_id */
+    int32_t type;               /* lensrt_number_type of inputs, outputs and jacobians */
+    size_t n_rays;
+    /* Raw inputs in the units above, ray-major: inputs[k * n_inputs + i]. */
+    const void *inputs;
+    /* outputs[k * n_outputs + o] */
+    void *outputs;
+    /* NULL, or d output / d raw input: jacobians[(k * n_outputs + o) * n_inputs + i] */
+    void *jacobians;
+} lensrt_eval_desc;
+#define LENSRT_EVAL_DESC_INIT {sizeof(lensrt_eval_desc), 0, 0, 0, NULL, NULL, NULL}
+
+/* Evaluate a fitted system for a batch of rays on the calling thread (no OpenMP, no
+ * allocation through the context for batches of any size). A lens may be evaluated
+ * from any number of threads at once. `ctx` receives the error message (NULL: none is
+ * recorded; use one context per thread if messages matter). Analytic lenses have no
+ * fitted systems: LENSRT_ERROR_UNSUPPORTED. Compiled-in lenses evaluate values through
+ * their generated Horner code (lensrt_lens_load_compiled); Jacobians always come from
+ * the coefficient table. */
+LENSRT_API lensrt_result lensrt_lens_eval(lensrt_context ctx, lensrt_lens lens, const lensrt_eval_desc *desc);
+
+/* ------------------------------------------------------- compiled-in lenses ----- */
+
+/* A lens linked into the program: what `lensrt_add_lens(<target> <lens folder>)` (CMake,
+ * cmake/lensrt_add_lens.cmake) generates and compiles into the caller's target from
+ * generated/<lens>/: the coefficient table embedded as text, and the generated Horner
+ * evaluators of both systems in double and float (raw inputs, as lensrt_lens_eval). */
+typedef void (*lensrt_horner_d)(const double *in, double *out);
+typedef void (*lensrt_horner_f)(const float *in, float *out);
+
+typedef struct lensrt_compiled_lens {
+    size_t struct_size;         /* sizeof(lensrt_compiled_lens) */
+    const char *name;           /* "0001-angenieux-double-gauss" */
+    const char *table_text;     /* the lens's coefficient table (format version 3) */
+    size_t table_size;          /* bytes of table_text */
+    lensrt_horner_d object_d, sensor_d; /* P_o and P_s, double */
+    lensrt_horner_f object_f, sensor_f; /* the same in float */
+} lensrt_compiled_lens;
+
+/* Make a lens from a compiled-in one (nothing is read from files). Renders from it equal
+ * renders from lensrt_lens_load of the same table bit for bit. `compiled` must outlive
+ * the lens. */
+LENSRT_API lensrt_result lensrt_lens_load_compiled(lensrt_context ctx, const lensrt_compiled_lens *compiled,
+                                        lensrt_lens *out);
+
 /* ----------------------------------------------------------------- renders ----- */
 
 typedef enum lensrt_sampler {

@@ -85,6 +85,9 @@ typedef struct lensrt_lens_s {
     double psf_vs_exact, psf_target;
     char psf_vs_exact_cell[256];
     lensrt_lens_info info;
+    /* compiled-in lenses (lensrt_lens_load_compiled): the generated Horner evaluators;
+     * NULL for lenses read from a table */
+    const lensrt_compiled_lens *compiled;
 } lensrt_lens_s;
 
 /* Normalised value of input `in` for raw value v. */
