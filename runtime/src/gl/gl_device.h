@@ -6,6 +6,7 @@
 #ifndef LENSRT_GL_DEVICE_H
 #define LENSRT_GL_DEVICE_H
 
+#include "../c_numbers.h"
 #include "../internal.h"
 
 #include <EGL/egl.h>

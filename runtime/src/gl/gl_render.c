@@ -51,12 +51,14 @@ struct lensrt_gl_render_s {
 
 /* ------------------------------------------------------------ programs ----- */
 
-/* A double constant as a GLSL literal (always with a point or an exponent). */
+/* A double constant as a GLSL literal (always with a point or an exponent): 17
+ * significant digits round-trip every double; the "C" locale, so that a host's
+ * LC_NUMERIC (de_DE writes 1,5) neither breaks the shader nor changes its numbers. */
 static void append_double(char *buf, size_t size, const char *name, double v)
 {
     char num[64];
     size_t used = strlen(buf);
-    snprintf(num, sizeof num, "%.17g", v);
+    lensrt_snprintf_c(num, sizeof num, "%.17g", v);
     if (!strpbrk(num, ".e")) strcat(num, ".0");
     snprintf(buf + used, size - used, "#define %s %sLF\n", name, num);
 }
