@@ -23,11 +23,11 @@ static int fail(lensrt_context ctx, const char *what, lensrt_result res)
 
 int main(void)
 {
-    lensrt_context_init init;
+    lensrt_context_init init = LENSRT_CONTEXT_INIT; /* malloc/free, no log, OpenMP default threads */
     lensrt_context ctx = NULL;
-    lensrt_analytic_lens model;
+    lensrt_analytic_lens model = LENSRT_ANALYTIC_LENS_INIT;
     lensrt_lens lens = NULL;
-    lensrt_render_desc desc;
+    lensrt_render_desc desc = LENSRT_RENDER_DESC_INIT; /* one light on the axis at infinity, circular stop */
     lensrt_render render = NULL;
     const double wavelength_nm = 550.0;
     float image[WIDTH];
@@ -35,10 +35,14 @@ int main(void)
     int i, status = 1;
     lensrt_result res;
 
-    memset(&init, 0, sizeof init); /* zero: malloc/free, no log, OpenMP default threads */
+    // A library of another major version has other structs: refuse it
+    if (lensrt_version() / 1000000u != LENSRT_VERSION_MAJOR) {
+        fprintf(stderr, "lensrt-example: built for lensrt %d.x, running with %s\n", LENSRT_VERSION_MAJOR,
+                lensrt_version_string());
+        return 1;
+    }
     if ((res = lensrt_context_create(&init, &ctx)) != LENSRT_SUCCESS) return fail(NULL, "context", res);
 
-    memset(&model, 0, sizeof model);
     model.focal_length_mm = 50.0;
     model.sensor_distance_mm = 50.0; /* in focus for a light at infinity */
     if ((res = lensrt_lens_create_analytic(ctx, &model, &lens)) != LENSRT_SUCCESS) {
@@ -46,7 +50,6 @@ int main(void)
         goto done;
     }
 
-    memset(&desc, 0, sizeof desc); /* one light on the axis at infinity, circular stop */
     desc.lens = lens;
     desc.aperture.f_number = 8.0;
     desc.sensor.width = WIDTH;
@@ -69,8 +72,7 @@ int main(void)
     }
     for (i = 0; i < WIDTH; i++)
         if (!(image[i] <= peak)) peak = image[i]; /* NaN becomes the peak and fails below */
-    printf("lensrt %d.%d.%d: perfect lens f/8, 550 nm, 1024 samples: peak %g\n", LENSRT_VERSION_MAJOR,
-           LENSRT_VERSION_MINOR, LENSRT_VERSION_PATCH, (double)peak);
+    printf("lensrt %s: perfect lens f/8, 550 nm, 1024 samples: peak %g\n", lensrt_version_string(), (double)peak);
     if (isfinite(peak) && peak > 0.0f) {
         status = 0;
     } else {

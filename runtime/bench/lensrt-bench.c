@@ -12,7 +12,7 @@
  *
  * lensrt side: lensrt_render_run() with the default precision and sampler, one pass of
  * 16384 samples per wavelength; clipping at both pupils and the transmittance are
- * evaluated inside; splats per second from lensrt_render_get_stats(). By default it
+ * evaluated inside; splats per second from bench_stats(). By default it
  * renders one pixel per 12 x 12 block of the frame (120 x 90 pixels over the same
  * window): lensrt's per-pixel work (the window's phase basis, the pruned terms) depends
  * on the window and not on the pixel pitch; `--stride 1` renders every pixel (about
@@ -392,6 +392,13 @@ typedef struct f_result {
     double sps_med, baseN_med, ratio_med;
 } f_result;
 
+/* The render's stats into a struct that may have been zeroed with its holder. */
+static lensrt_result bench_stats(lensrt_render render, lensrt_render_stats *st)
+{
+    st->struct_size = sizeof *st;
+    return lensrt_render_get_stats(render, st);
+}
+
 static int fail(lensrt_context ctx, const char *what, lensrt_result r)
 {
     fprintf(stderr, "lensrt-bench: %s: %s: %s\n", what, lensrt_result_string(r), ctx ? lensrt_context_last_error(ctx) : "");
@@ -418,13 +425,14 @@ static lensrt_result run_gl(lensrt_context ctx, const lensrt_render_desc *desc, 
     lensrt_result r;
     double t0 = now_seconds();
     memset(&s0, 0, sizeof s0);
+    s0.struct_size = sizeof s0;
     if ((r = lensrt_render_create(ctx, desc, &render)) != LENSRT_SUCCESS) return r;
     if (warmup > 0 && (r = lensrt_render_run(render, (uint64_t)warmup, NULL, NULL)) == LENSRT_SUCCESS)
-        lensrt_render_get_stats(render, &s0);
+        bench_stats(render, &s0);
     gr->setup_seconds = now_seconds() - t0;
     if (r == LENSRT_SUCCESS) r = lensrt_render_run(render, (uint64_t)samples, NULL, NULL);
     if (r == LENSRT_SUCCESS) {
-        lensrt_render_get_stats(render, &gr->stats);
+        bench_stats(render, &gr->stats);
         gr->splats = (double)(gr->stats.splats - s0.splats);
         gr->seconds = gr->stats.seconds - s0.seconds;
         gr->sps = gr->splats / gr->seconds;
@@ -603,15 +611,20 @@ int main(int argc, char **argv)
         return 1;
     }
 
-    memset(&init, 0, sizeof init);
+    {
+        const lensrt_context_init zero_init = LENSRT_CONTEXT_INIT;
+        init = zero_init;
+    }
     init.gl_platform = gl_platform;
     if ((r = lensrt_context_create(&init, &ctx)) != LENSRT_SUCCESS) return fail(NULL, "context", r);
     if ((r = lensrt_lens_load(ctx, table, &lens)) != LENSRT_SUCCESS) {
         status = fail(ctx, table, r);
         goto done;
     }
+    info.struct_size = sizeof info;
     lensrt_lens_get_info(lens, &info);
     memset(&light, 0, sizeof light);
+    light.struct_size = sizeof light;
     light.field_x_deg = field_x;
     light.field_y_deg = field_y;
     if ((r = lensrt_lens_image_point(ctx, lens, &light, 0.5 * (info.wavelength_min_nm + info.wavelength_max_nm), focus,
@@ -623,6 +636,7 @@ int main(int argc, char **argv)
         wl[i] = info.wavelength_min_nm + (info.wavelength_max_nm - info.wavelength_min_nm) * (i + 0.5) / (double)n_wl;
     // The GL device first: without one, `both` measures the CPU only and says why
     memset(&gl_info, 0, sizeof gl_info);
+    gl_info.struct_size = sizeof gl_info;
     if (do_gl) {
         r = lensrt_context_gl_info(ctx, &gl_info);
         if (r == LENSRT_SUCCESS) {
@@ -698,6 +712,7 @@ int main(int argc, char **argv)
         f_result *fr = &res[i];
         memset(fr, 0, sizeof *fr);
         memset(&desc, 0, sizeof desc);
+        desc.struct_size = sizeof desc;
         desc.lens = lens;
         desc.sensor.width = (int)rw;
         desc.sensor.height = (int)rh;
@@ -747,7 +762,7 @@ int main(int argc, char **argv)
                 lensrt_render_destroy(render);
                 goto done;
             }
-            lensrt_render_get_stats(render, &fr->stats);
+            bench_stats(render, &fr->stats);
             lensrt_render_destroy(render);
             post = run_baseline(&sc, threads, 256, 0.5 * base_seconds, (uint64_t)seed + 2 * (uint64_t)k + 1, center_pixel);
             if (pre.seconds < 0 || post.seconds < 0) {

@@ -34,20 +34,67 @@
 extern "C" {
 #endif
 
-#define LENSRT_VERSION_MAJOR 0
-#define LENSRT_VERSION_MINOR 1
-#define LENSRT_VERSION_PATCH 0
+/* ------------------------------------------------------- version and ABI ----- */
 
-/* Symbols of the shared library (everything else is hidden). */
-#if defined(LENSRT_BUILDING) && defined(__GNUC__)
+/* The version of this header (CMake's project version is read from these lines).
+ * lensrt_version() is the version of the library actually loaded: the two may differ
+ * when a program built against one header runs with a newer shared library, which the
+ * versioned structs below allow within one major version. */
+#define LENSRT_VERSION_MAJOR 0
+#define LENSRT_VERSION_MINOR 2
+#define LENSRT_VERSION_PATCH 0
+#define LENSRT_VERSION \
+    ((uint32_t)LENSRT_VERSION_MAJOR * 1000000u + (uint32_t)LENSRT_VERSION_MINOR * 1000u + \
+     (uint32_t)LENSRT_VERSION_PATCH)
+
+/* Symbols of the library. Build or link the static library with LENSRT_STATIC defined;
+ * LENSRT_BUILDING is defined while lensrt itself is compiled. */
+#if defined(LENSRT_STATIC)
+#define LENSRT_API
+#elif defined(_WIN32) || defined(__CYGWIN__)
+#if defined(LENSRT_BUILDING)
+#define LENSRT_API __declspec(dllexport)
+#else
+#define LENSRT_API __declspec(dllimport)
+#endif
+#elif defined(LENSRT_BUILDING) && defined(__GNUC__)
 #define LENSRT_API __attribute__((visibility("default")))
 #else
 #define LENSRT_API
 #endif
 
+/* LENSRT_VERSION of the loaded library, and the same as "MAJOR.MINOR.PATCH". */
+LENSRT_API uint32_t lensrt_version(void);
+LENSRT_API const char *lensrt_version_string(void);
+
+/* ABI rules. Every struct the caller fills or the library fills starts with
+ * `size_t struct_size`, which the caller sets to sizeof the struct it was compiled with
+ * (the LENSRT_*_INIT macros do, and zero every other field, which means the documented
+ * defaults). The library reads and writes only the bytes struct_size covers: fields a
+ * caller built against an older header does not have take their defaults on input and
+ * are not written on output. A struct from a newer header (struct_size larger than this
+ * library knows) is accepted when the bytes this library does not know are all zero,
+ * and refused otherwise. struct_size 0 (a struct zeroed without its INIT macro) is
+ * refused with a message. Structs embedded in others (lensrt_sensor,
+ * lensrt_aperture) are fixed: new fields go at the end of the outer struct. Enumerated
+ * values travel in int32_t fields, so their size does not depend on the compiler.
+ * Arrays of versioned structs (lights) are read with the first element's struct_size as
+ * the stride, and every element must carry the same size. */
+
+/* Limits of this version. */
+#define LENSRT_MAX_LIGHTS 64            /* lights per render */
+#define LENSRT_MAX_WAVELENGTHS 4096     /* wavelengths per render */
+#define LENSRT_MAX_RESOLUTION 65536     /* pixels per side of the window */
+#define LENSRT_MAX_BLADES 64            /* aperture blades */
+#define LENSRT_MAX_DEGREE 15            /* highest exponent of one input in a lens table,
+                                           and highest total degree of the stop monomials */
+#define LENSRT_MAX_TERMS 1000000        /* terms of one output of a lens table */
+
 /* ---------------------------------------------------------------- results ----- */
 
-typedef enum lensrt_result {
+/* A fixed-width result code; the named values follow (new ones may be added). */
+typedef int32_t lensrt_result;
+enum lensrt_result_code {
     LENSRT_SUCCESS = 0,
     LENSRT_ERROR_INVALID_ARGUMENT, /* a NULL pointer, a count or size out of range */
     LENSRT_ERROR_OUT_OF_MEMORY,
@@ -59,7 +106,7 @@ typedef enum lensrt_result {
     LENSRT_ERROR_CANCELLED,        /* the progress callback asked to stop */
     LENSRT_ERROR_NO_DEVICE,        /* no OpenGL 4.3 context could be made (the CPU still works) */
     LENSRT_ERROR_DEVICE            /* the GL device failed (a shader, a buffer) */
-} lensrt_result;
+};
 
 /* A static string naming the result ("success", "invalid argument", ...). */
 LENSRT_API const char *lensrt_result_string(lensrt_result result);
@@ -87,6 +134,7 @@ typedef enum lensrt_gl_platform {
 } lensrt_gl_platform;
 
 typedef struct lensrt_context_init {
+    size_t struct_size;        /* sizeof(lensrt_context_init): LENSRT_CONTEXT_INIT */
     /* Allocator hooks: both or neither (NULL: malloc and free). */
     void *(*alloc_fn)(size_t size, void *user_data);
     void (*free_fn)(void *ptr, void *user_data);
@@ -94,10 +142,13 @@ typedef struct lensrt_context_init {
     void (*log_fn)(lensrt_log_level level, const char *message, void *user_data);
     void *user_data;
     /* OpenMP threads for run() (0: the OpenMP default). */
-    int threads;
-    /* Where a GL device comes from, for renders with LENSRT_DEVICE_GL. */
-    lensrt_gl_platform gl_platform;
+    int32_t threads;
+    /* Where a GL device comes from (lensrt_gl_platform), for renders with LENSRT_DEVICE_GL. */
+    int32_t gl_platform;
 } lensrt_context_init;
+/* Keep every *_INIT list in step with its struct's fields (tests/runtime/test_abi.c
+ * builds with -Wmissing-field-initializers and compares each with a zeroed struct). */
+#define LENSRT_CONTEXT_INIT {sizeof(lensrt_context_init), NULL, NULL, NULL, NULL, 0, 0}
 
 LENSRT_API lensrt_result lensrt_context_create(const lensrt_context_init *init, lensrt_context *out);
 /* Destroy every render and lens made with ctx first: their destruction uses the context
@@ -111,11 +162,13 @@ LENSRT_API const char *lensrt_context_last_error(lensrt_context ctx);
  * made, LENSRT_ERROR_UNSUPPORTED when the build has no GL path. Strings stay valid
  * while the context lives. */
 typedef struct lensrt_gl_info {
+    size_t struct_size;     /* sizeof(lensrt_gl_info): LENSRT_GL_INFO_INIT */
     const char *platform;   /* "egl-device", "egl-surfaceless" or "glfw" */
     const char *renderer;   /* GL_RENDERER, e.g. "llvmpipe (LLVM 15.0.6, 256 bits)" */
     const char *version;    /* GL_VERSION */
-    int software;           /* 1 for a CPU rasteriser (llvmpipe, softpipe, swrast) */
+    int32_t software;       /* 1 for a CPU rasteriser (llvmpipe, softpipe, swrast) */
 } lensrt_gl_info;
+#define LENSRT_GL_INFO_INIT {sizeof(lensrt_gl_info), NULL, NULL, NULL, 0}
 
 LENSRT_API lensrt_result lensrt_context_gl_info(lensrt_context ctx, lensrt_gl_info *out);
 
@@ -137,10 +190,12 @@ LENSRT_API lensrt_result lensrt_lens_load_text(lensrt_context ctx, const char *t
  * has the same optical path length). With `one_dimensional` the aperture is a line (x)
  * and waves are cylindrical, as in the paper's Algorithm 1; the sensor is then one row. */
 typedef struct lensrt_analytic_lens {
+    size_t struct_size;        /* sizeof(lensrt_analytic_lens): LENSRT_ANALYTIC_LENS_INIT */
     double focal_length_mm;    /* 0: no lens, free space */
     double sensor_distance_mm; /* aperture plane to sensor plane, > 0 */
-    int one_dimensional;
+    int32_t one_dimensional;
 } lensrt_analytic_lens;
+#define LENSRT_ANALYTIC_LENS_INIT {sizeof(lensrt_analytic_lens), 0.0, 0.0, 0}
 
 LENSRT_API lensrt_result lensrt_lens_create_analytic(lensrt_context ctx, const lensrt_analytic_lens *desc,
                                           lensrt_lens *out);
@@ -148,8 +203,9 @@ LENSRT_API lensrt_result lensrt_lens_create_analytic(lensrt_context ctx, const l
 LENSRT_API void lensrt_lens_destroy(lensrt_context ctx, lensrt_lens lens);
 
 typedef struct lensrt_lens_info {
+    size_t struct_size;          /* sizeof(lensrt_lens_info): LENSRT_LENS_INFO_INIT */
     const char *name;            /* valid while the lens lives */
-    int analytic;                /* 1 for lensrt_lens_create_analytic lenses */
+    int32_t analytic;            /* 1 for lensrt_lens_create_analytic lenses */
     double focal_length_mm;      /* paraxial EFL (y meridian) */
     double f_number_min;         /* widest f-number the fit covers */
     double stop_radius_max_mm;   /* stop radius the fit covers */
@@ -167,6 +223,7 @@ typedef struct lensrt_lens_info {
     double psf_target;
     const char *psf_vs_exact_cell;
 } lensrt_lens_info;
+#define LENSRT_LENS_INFO_INIT {sizeof(lensrt_lens_info), NULL, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, NULL}
 
 LENSRT_API lensrt_result lensrt_lens_get_info(lensrt_lens lens, lensrt_lens_info *out);
 
@@ -299,45 +356,52 @@ typedef enum lensrt_aperture_shape {
     LENSRT_APERTURE_SLIT          /* one slit, or two with a separation (x only) */
 } lensrt_aperture_shape;
 
+/* Embedded in lensrt_render_desc: fixed layout (see the ABI rules). */
 typedef struct lensrt_aperture {
-    lensrt_aperture_shape shape;
+    int32_t shape;           /* lensrt_aperture_shape */
     double radius_mm;        /* stop radius; 0: from f_number */
     double f_number;         /* used when radius_mm is 0; 0: the lens's widest */
-    int blades;              /* LENSRT_APERTURE_BLADES: 3 or more */
+    int32_t blades;          /* LENSRT_APERTURE_BLADES: 3 .. LENSRT_MAX_BLADES */
     double blade_curvature;  /* 0 straight blades, 1 blades on the circle */
     double rotation_deg;     /* polygon rotation */
     double slit_width_mm;    /* LENSRT_APERTURE_SLIT: width in x */
     double slit_separation_mm; /* centre-to-centre of a double slit; 0: one slit */
 } lensrt_aperture;
 
+/* Embedded in lensrt_render_desc: fixed layout (see the ABI rules). */
 typedef struct lensrt_sensor {
-    int width, height;          /* pixels, > 0 (height 1 for one-dimensional lenses) */
+    int32_t width, height;      /* pixels, 1 .. LENSRT_MAX_RESOLUTION (height 1 for one-dimensional lenses) */
     double width_mm, height_mm; /* size of the pixel grid; height 0: square pixels */
     double center_x_mm, center_y_mm; /* centre of the window on the sensor */
     double focus_offset_mm;     /* z_S: sensor shift, + away from the lens */
 } lensrt_sensor;
 
 struct lensrt_light {
+    size_t struct_size;              /* sizeof(lensrt_light): LENSRT_LIGHT_INIT */
     double field_x_deg, field_y_deg; /* direction of the light seen from the lens */
     double distance_mm;              /* from the first vertex; 0: infinity */
     double intensity;                /* 0: 1 */
 };
+#define LENSRT_LIGHT_INIT {sizeof(lensrt_light), 0.0, 0.0, 0.0, 0.0}
 
 typedef struct lensrt_render_desc {
+    size_t struct_size;           /* sizeof(lensrt_render_desc): LENSRT_RENDER_DESC_INIT */
     lensrt_lens lens;
     lensrt_sensor sensor;
     lensrt_aperture aperture;
     const lensrt_light *lights;  /* copied; NULL with n_lights 0: one light on the axis at infinity */
-    int n_lights;
+    int32_t n_lights;            /* 0 .. LENSRT_MAX_LIGHTS */
     const double *wavelengths_nm; /* copied; NULL: n_wavelengths uniform over the lens's range */
-    int n_wavelengths;            /* 0: 16 */
-    lensrt_sampler sampler;
-    lensrt_estimator estimator;
-    lensrt_precision precision;
+    int32_t n_wavelengths;        /* 0: 16; at most LENSRT_MAX_WAVELENGTHS */
+    int32_t sampler;              /* lensrt_sampler */
+    int32_t estimator;            /* lensrt_estimator */
+    int32_t precision;            /* lensrt_precision */
     uint64_t seed;
     double phase_tolerance_waves; /* largest phase the pruned per-pixel terms may drop; 0: 3e-3 */
-    lensrt_device device;         /* where run() splats; GL takes precision DEFAULT or NAIVE_FLOAT */
+    int32_t device;               /* lensrt_device: where run() splats; GL takes precision DEFAULT or NAIVE_FLOAT */
 } lensrt_render_desc;
+#define LENSRT_RENDER_DESC_INIT {sizeof(lensrt_render_desc), NULL, {0, 0, 0, 0, 0, 0, 0}, \
+                                 {0, 0, 0, 0, 0, 0, 0, 0}, NULL, 0, NULL, 0, 0, 0, 0, 0, 0, 0}
 
 typedef struct lensrt_render_s *lensrt_render;
 
@@ -366,7 +430,8 @@ LENSRT_API lensrt_result lensrt_render_splat_points(lensrt_render render, int wa
                                          const double *xy_mm, size_t n_points);
 
 typedef struct lensrt_render_stats {
-    int width, height, n_wavelengths, n_lights;
+    size_t struct_size;               /* sizeof(lensrt_render_stats): LENSRT_RENDER_STATS_INIT */
+    int32_t width, height, n_wavelengths, n_lights;
     uint64_t samples_per_wavelength;  /* the sample count N of every wavelength */
     uint64_t splats;                  /* aperture samples x pixels, over all passes */
     double seconds;                   /* wall time spent in run() and splat_points() */
@@ -377,6 +442,7 @@ typedef struct lensrt_render_stats {
      * needed the inner-pupil clip, a varying transmittance, or were fully clipped. */
     double phase_terms, clip_fraction, tau_fraction, dark_fraction;
 } lensrt_render_stats;
+#define LENSRT_RENDER_STATS_INIT {sizeof(lensrt_render_stats), 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0}
 
 LENSRT_API lensrt_result lensrt_render_get_stats(lensrt_render render, lensrt_render_stats *out);
 /* The wavelengths in use (n_wavelengths of them). */

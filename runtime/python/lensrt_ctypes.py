@@ -57,23 +57,32 @@ class LensrtError(RuntimeError):
         self.code = code
 
 
-class ContextInit(C.Structure):
-    _fields_ = [("alloc_fn", C.c_void_p), ("free_fn", C.c_void_p), ("log_fn", C.c_void_p),
-                ("user_data", C.c_void_p), ("threads", C.c_int), ("gl_platform", C.c_int)]
+class Versioned(C.Structure):
+    """A struct of lensrt.h's ABI rules: struct_size first, set here to this layout's size
+    (what the LENSRT_*_INIT macros do in C)."""
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        # Positional arguments are the fields after struct_size
+        super().__init__(C.sizeof(type(self)), *args, **kwargs)
 
 
-class GlInfo(C.Structure):
-    _fields_ = [("platform", C.c_char_p), ("renderer", C.c_char_p), ("version", C.c_char_p),
-                ("software", C.c_int)]
+class ContextInit(Versioned):
+    _fields_ = [("struct_size", C.c_size_t), ("alloc_fn", C.c_void_p), ("free_fn", C.c_void_p), ("log_fn", C.c_void_p),
+                ("user_data", C.c_void_p), ("threads", C.c_int32), ("gl_platform", C.c_int32)]
 
 
-class AnalyticLens(C.Structure):
-    _fields_ = [("focal_length_mm", C.c_double), ("sensor_distance_mm", C.c_double),
-                ("one_dimensional", C.c_int)]
+class GlInfo(Versioned):
+    _fields_ = [("struct_size", C.c_size_t), ("platform", C.c_char_p), ("renderer", C.c_char_p), ("version", C.c_char_p),
+                ("software", C.c_int32)]
 
 
-class LensInfo(C.Structure):
-    _fields_ = [("name", C.c_char_p), ("analytic", C.c_int), ("focal_length_mm", C.c_double),
+class AnalyticLens(Versioned):
+    _fields_ = [("struct_size", C.c_size_t), ("focal_length_mm", C.c_double), ("sensor_distance_mm", C.c_double),
+                ("one_dimensional", C.c_int32)]
+
+
+class LensInfo(Versioned):
+    _fields_ = [("struct_size", C.c_size_t), ("name", C.c_char_p), ("analytic", C.c_int32), ("focal_length_mm", C.c_double),
                 ("f_number_min", C.c_double), ("stop_radius_max_mm", C.c_double),
                 ("wavelength_min_nm", C.c_double), ("wavelength_max_nm", C.c_double),
                 ("focus_offset_min_mm", C.c_double), ("focus_offset_max_mm", C.c_double),
@@ -84,35 +93,35 @@ class LensInfo(C.Structure):
 
 
 class Aperture(C.Structure):
-    _fields_ = [("shape", C.c_int), ("radius_mm", C.c_double), ("f_number", C.c_double),
-                ("blades", C.c_int), ("blade_curvature", C.c_double),
+    _fields_ = [("shape", C.c_int32), ("radius_mm", C.c_double), ("f_number", C.c_double),
+                ("blades", C.c_int32), ("blade_curvature", C.c_double),
                 ("rotation_deg", C.c_double), ("slit_width_mm", C.c_double),
                 ("slit_separation_mm", C.c_double)]
 
 
 class Sensor(C.Structure):
-    _fields_ = [("width", C.c_int), ("height", C.c_int), ("width_mm", C.c_double),
+    _fields_ = [("width", C.c_int32), ("height", C.c_int32), ("width_mm", C.c_double),
                 ("height_mm", C.c_double), ("center_x_mm", C.c_double),
                 ("center_y_mm", C.c_double), ("focus_offset_mm", C.c_double)]
 
 
-class Light(C.Structure):
-    _fields_ = [("field_x_deg", C.c_double), ("field_y_deg", C.c_double),
+class Light(Versioned):
+    _fields_ = [("struct_size", C.c_size_t), ("field_x_deg", C.c_double), ("field_y_deg", C.c_double),
                 ("distance_mm", C.c_double), ("intensity", C.c_double)]
 
 
-class RenderDesc(C.Structure):
-    _fields_ = [("lens", C.c_void_p), ("sensor", Sensor), ("aperture", Aperture),
-                ("lights", C.POINTER(Light)), ("n_lights", C.c_int),
-                ("wavelengths_nm", C.POINTER(C.c_double)), ("n_wavelengths", C.c_int),
-                ("sampler", C.c_int), ("estimator", C.c_int), ("precision", C.c_int),
+class RenderDesc(Versioned):
+    _fields_ = [("struct_size", C.c_size_t), ("lens", C.c_void_p), ("sensor", Sensor),
+                ("aperture", Aperture), ("lights", C.POINTER(Light)), ("n_lights", C.c_int32),
+                ("wavelengths_nm", C.POINTER(C.c_double)), ("n_wavelengths", C.c_int32),
+                ("sampler", C.c_int32), ("estimator", C.c_int32), ("precision", C.c_int32),
                 ("seed", C.c_uint64), ("phase_tolerance_waves", C.c_double),
-                ("device", C.c_int)]
+                ("device", C.c_int32)]
 
 
-class Stats(C.Structure):
-    _fields_ = [("width", C.c_int), ("height", C.c_int), ("n_wavelengths", C.c_int),
-                ("n_lights", C.c_int), ("samples_per_wavelength", C.c_uint64),
+class Stats(Versioned):
+    _fields_ = [("struct_size", C.c_size_t), ("width", C.c_int32), ("height", C.c_int32),
+                ("n_wavelengths", C.c_int32), ("n_lights", C.c_int32), ("samples_per_wavelength", C.c_uint64),
                 ("splats", C.c_uint64), ("seconds", C.c_double),
                 ("splats_per_second", C.c_double), ("stop_radius_mm", C.c_double),
                 ("f_number", C.c_double), ("phase_terms", C.c_double),

@@ -38,12 +38,20 @@ const char *lensrt_result_string(lensrt_result result)
 
 lensrt_result lensrt_context_create(const lensrt_context_init *init, lensrt_context *out)
 {
-    lensrt_context_init zero;
+    lensrt_context_init full;
+    const lensrt_context_init *init_in = init;
     lensrt_context ctx;
     if (!out) return LENSRT_ERROR_INVALID_ARGUMENT;
     *out = NULL;
-    memset(&zero, 0, sizeof zero);
-    if (!init) init = &zero;
+    // NULL means every default; a struct is read as far as its struct_size (there is no
+    // context yet to hold a message: a bad struct_size is LENSRT_ERROR_INVALID_ARGUMENT)
+    if (!init_in) {
+        memset(&full, 0, sizeof full);
+    } else {
+        lensrt_result res = lensrt_struct_in(NULL, "lensrt_context_init", init_in, &full, sizeof full);
+        if (res != LENSRT_SUCCESS) return res;
+    }
+    init = &full;
     // Allocator hooks come as a pair or not at all
     if ((init->alloc_fn == NULL) != (init->free_fn == NULL)) return LENSRT_ERROR_INVALID_ARGUMENT;
     if (init->threads < 0 || (unsigned)init->gl_platform > LENSRT_GL_PLATFORM_GLFW) return LENSRT_ERROR_INVALID_ARGUMENT;
@@ -73,7 +81,10 @@ void lensrt_context_destroy(lensrt_context ctx)
 #ifndef LENSRT_GL
 lensrt_result lensrt_context_gl_info(lensrt_context ctx, lensrt_gl_info *out)
 {
-    if (!ctx || !out) return LENSRT_ERROR_INVALID_ARGUMENT;
+    lensrt_gl_info info;
+    lensrt_result res;
+    if (!ctx || !out) return lensrt_fail(ctx, LENSRT_ERROR_INVALID_ARGUMENT, "lensrt_context_gl_info: NULL argument");
+    if ((res = lensrt_struct_in(ctx, "lensrt_gl_info", out, &info, sizeof info)) != LENSRT_SUCCESS) return res;
     return lensrt_fail(ctx, LENSRT_ERROR_UNSUPPORTED,
                        "GL: this build of lensrt has no GL path (configure with EGL and GL headers, LENSRT_WITH_GL=ON)");
 }

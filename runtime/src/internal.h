@@ -10,7 +10,6 @@
 #include <stdint.h>
 
 #define LENSRT_ERROR_SIZE 1024
-#define LENSRT_MAX_DEGREE 15 /* highest exponent of one variable in a table */
 
 struct lensrt_context_s {
     lensrt_allocator allocator;
@@ -89,6 +88,21 @@ typedef struct lensrt_lens_s {
      * NULL for lenses read from a table */
     const lensrt_compiled_lens *compiled;
 } lensrt_lens_s;
+
+/* --------------------------------------------------------------------- ABI ----- */
+
+/* Read a caller's versioned struct (see the ABI rules in lensrt.h) into `full`, a
+ * struct of this library's size: zeroed, then the bytes the caller's struct_size
+ * covers. `what` names the argument in messages. */
+lensrt_result lensrt_struct_in(lensrt_context ctx, const char *what, const void *src, void *full,
+                               size_t full_size);
+/* The same for an array of `count` versioned structs whose stride is the first
+ * element's struct_size, into an array of this library's structs. */
+lensrt_result lensrt_array_in(lensrt_context ctx, const char *what, const void *src, size_t count, void *full,
+                              size_t full_size);
+/* Write `full` into the caller's versioned struct, only as far as its struct_size. */
+lensrt_result lensrt_struct_out(lensrt_context ctx, const char *what, void *dst, const void *full,
+                                size_t full_size);
 
 /* Normalised value of input `in` for raw value v. */
 double lensrt_normalise(const lensrt_input *in, double v);

@@ -1,7 +1,13 @@
-/* Lenses: the `lensfit-poly-table` reader (version 3) and the analytic lens. */
+/* Lenses: the `lensfit-poly-table` reader (version 3) and the analytic lens.
+ *
+ * Reentrant and independent of the host's locale: lines are split by split_fields (not
+ * strtok, whose hidden state a host's own strtok loop or another thread would share),
+ * numbers are read by lensrt_strtod_c (the "C" locale on this thread for the call: under
+ * de_DE's LC_NUMERIC strtod stops at the '.' of "1.5"), and characters are classified
+ * as ASCII, not by the locale's <ctype.h> tables. */
+#include "c_numbers.h"
 #include "internal.h"
 
-#include <ctype.h>
 #include <errno.h>
 #include <math.h>
 #include <stdarg.h>
@@ -43,13 +49,39 @@ static lensrt_result parse_failf(reader *r, const char *fmt, ...)
     return lensrt_fail(r->ctx, LENSRT_ERROR_PARSE, "%s:%d: %s", r->name, r->line, msg);
 }
 
+/* Split s in place at runs of spaces and tabs into at most max fields; the count. */
+static int split_fields(char *s, char **fields, int max)
+{
+    int n = 0;
+    while (n < max) {
+        // Skip the separators, then mark the field's start and end it at the next one
+        while (*s == ' ' || *s == '\t') s++;
+        if (*s == '\0') break;
+        fields[n++] = s;
+        while (*s != '\0' && *s != ' ' && *s != '\t') s++;
+        if (*s == '\0') break;
+        *s++ = '\0';
+    }
+    return n;
+}
+
+/* ASCII classes (the locale's <ctype.h> may count other bytes as letters or digits). */
+static int hex_digit(char c)
+{
+    return c >= '0' && c <= '9' ? c - '0' : c >= 'a' && c <= 'f' ? c - 'a' + 10 : c >= 'A' && c <= 'F' ? c - 'A' + 10 : -1;
+}
+
+static int ascii_alnum(char c)
+{
+    return (c >= '0' && c <= '9') || (c >= 'a' && c <= 'z') || (c >= 'A' && c <= 'Z');
+}
+
 /* Read the next line that is not blank or a comment and split it at spaces. */
 static int next_line(reader *r)
 {
     while (r->p < r->end) {
         const char *eol = memchr(r->p, '\n', (size_t)(r->end - r->p));
         size_t len = eol ? (size_t)(eol - r->p) : (size_t)(r->end - r->p);
-        char *s;
         r->line++;
         if (len >= sizeof r->buf) len = sizeof r->buf - 1;
         memcpy(r->buf, r->p, len);
@@ -57,9 +89,7 @@ static int next_line(reader *r)
         r->p = eol ? eol + 1 : r->end;
         if (len && r->buf[len - 1] == '\r') r->buf[len - 1] = '\0';
         if (r->buf[0] == '#' || r->buf[0] == '\0') continue;
-        r->n_tok = 0;
-        for (s = strtok(r->buf, " \t"); s && r->n_tok < 24; s = strtok(NULL, " \t"))
-            r->tok[r->n_tok++] = s;
+        r->n_tok = split_fields(r->buf, r->tok, 24);
         if (r->n_tok) return 1;
     }
     return 0;
@@ -70,9 +100,8 @@ static void decode_field(char *s)
 {
     char *o = s;
     for (; *s; s++) {
-        if (s[0] == '%' && isxdigit((unsigned char)s[1]) && isxdigit((unsigned char)s[2])) {
-            char hex[3] = {s[1], s[2], 0};
-            *o++ = (char)strtol(hex, NULL, 16);
+        if (s[0] == '%' && hex_digit(s[1]) >= 0 && hex_digit(s[2]) >= 0) {
+            *o++ = (char)(16 * hex_digit(s[1]) + hex_digit(s[2]));
             s += 2;
         } else {
             *o++ = *s;
@@ -85,17 +114,24 @@ static int parse_real(const char *s, double *v)
 {
     char *end;
     errno = 0;
-    *v = strtod(s, &end);
+    *v = lensrt_strtod_c(s, &end);
     return end != s && *end == '\0' && errno == 0 && isfinite(*v);
 }
 
+/* A decimal integer in [lo, hi] (optional sign, ASCII digits only, nothing after). */
 static int parse_int(const char *s, int lo, int hi, int *v)
 {
-    char *end;
-    long x;
-    errno = 0;
-    x = strtol(s, &end, 10);
-    if (end == s || *end != '\0' || errno || x < lo || x > hi) return 0;
+    long x = 0;
+    int negative = *s == '-';
+    if (*s == '-' || *s == '+') s++;
+    if (*s == '\0') return 0;
+    for (; *s; s++) {
+        if (*s < '0' || *s > '9') return 0;
+        x = 10 * x + (*s - '0');
+        if (x > 2147483647L) return 0; /* beyond any int bound: stop before overflow */
+    }
+    if (negative) x = -x;
+    if (x < lo || x > hi) return 0;
     *v = (int)x;
     return 1;
 }
@@ -292,7 +328,7 @@ static void lens_id_of(const char *file, char *id, size_t size)
     if (n > 10 && strncmp(base, "lens", 4) == 0 && strcmp(base + n - 6, ".table") == 0 && n - 10 < size) {
         size_t i;
         for (i = 4; i < n - 6; i++)
-            if (!isalnum((unsigned char)base[i]) && base[i] != '-' && base[i] != '_') return;
+            if (!ascii_alnum(base[i]) && base[i] != '-' && base[i] != '_') return;
         memcpy(id, base + 4, n - 10);
         id[n - 10] = '\0';
     }
@@ -319,6 +355,7 @@ static void fill_info(lensrt_lens lens)
     const lensrt_input *xa = &lens->p_o.inputs[3];
     double stop = fmin(xa->hi, lens->stop_radius_max_mm);
     memset(info, 0, sizeof *info);
+    info->struct_size = sizeof *info;
     info->name = lens->name;
     info->focal_length_mm = lens->focal_length_mm;
     info->stop_radius_max_mm = stop;
@@ -465,8 +502,13 @@ lensrt_result lensrt_lens_create_analytic(lensrt_context ctx, const lensrt_analy
                                           lensrt_lens *out)
 {
     lensrt_lens lens;
+    lensrt_analytic_lens full;
+    lensrt_result res;
     if (!ctx || !desc || !out) return lensrt_fail(ctx, LENSRT_ERROR_INVALID_ARGUMENT, "lensrt_lens_create_analytic: NULL argument");
     *out = NULL;
+    // Read the caller's struct as far as its struct_size (the ABI rules of lensrt.h)
+    if ((res = lensrt_struct_in(ctx, "lensrt_analytic_lens", desc, &full, sizeof full)) != LENSRT_SUCCESS) return res;
+    desc = &full;
     if (!(desc->sensor_distance_mm > 0 && isfinite(desc->sensor_distance_mm)))
         return lensrt_fail(ctx, LENSRT_ERROR_INVALID_ARGUMENT,
                            "analytic lens: sensor_distance_mm must be positive and finite, got %g",
@@ -480,10 +522,12 @@ lensrt_result lensrt_lens_create_analytic(lensrt_context ctx, const lensrt_analy
     lens->ctx = ctx;
     lens->analytic = 1;
     lens->model = *desc;
-    snprintf(lens->name, sizeof lens->name, "%s%s, sensor at %g mm",
+    // The name goes into EXR metadata and the phasor files' scene hash: the "C" locale
+    lensrt_snprintf_c(lens->name, sizeof lens->name, "%s%s, sensor at %g mm",
              desc->one_dimensional ? "one-dimensional " : "",
              desc->focal_length_mm > 0 ? "perfect thin lens" : "free space", desc->sensor_distance_mm);
     lens->focal_length_mm = desc->focal_length_mm;
+    lens->info.struct_size = sizeof lens->info;
     lens->info.name = lens->name;
     lens->info.analytic = 1;
     lens->info.psf_vs_exact_cell = lens->psf_vs_exact_cell; /* "": no trust figures */
@@ -499,9 +543,9 @@ lensrt_result lensrt_lens_create_analytic(lensrt_context ctx, const lensrt_analy
 
 lensrt_result lensrt_lens_get_info(lensrt_lens lens, lensrt_lens_info *out)
 {
+    // A lens is shared between threads: no message is recorded in its context
     if (!lens || !out) return LENSRT_ERROR_INVALID_ARGUMENT;
-    *out = lens->info;
-    return LENSRT_SUCCESS;
+    return lensrt_struct_out(NULL, "lensrt_lens_info", out, &lens->info, sizeof lens->info);
 }
 
 double lensrt_normalise(const lensrt_input *in, double v)

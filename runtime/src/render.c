@@ -544,8 +544,13 @@ lensrt_result lensrt_lens_image_point(lensrt_context ctx, lensrt_lens lens, cons
                                       double wavelength_nm, double focus_offset_mm, double xy_mm[2])
 {
     double lx, ly, xo[6], xs[6], g0[2], x = 0.0, y = 0.0;
+    lensrt_light full;
+    lensrt_result res;
     int it;
     if (!ctx || !lens || !light || !xy_mm) return lensrt_fail(ctx, LENSRT_ERROR_INVALID_ARGUMENT, "image_point: NULL argument");
+    if ((res = lensrt_struct_in(ctx, "image_point: lensrt_light", light, &full, sizeof full)) != LENSRT_SUCCESS)
+        return res;
+    light = &full;
     if (!(wavelength_nm > 0) || !isfinite(focus_offset_mm) || fabs(light->field_x_deg) >= 90 || fabs(light->field_y_deg) >= 90)
         return lensrt_fail(ctx, LENSRT_ERROR_INVALID_ARGUMENT, "image_point: wavelength %g nm, focus %g mm, field (%g, %g) deg",
                            wavelength_nm, focus_offset_mm, light->field_x_deg, light->field_y_deg);
@@ -632,12 +637,16 @@ void lensrt_render_destroy(lensrt_render render)
 lensrt_result lensrt_render_create(lensrt_context ctx, const lensrt_render_desc *desc, lensrt_render *out)
 {
     lensrt_render r;
-    lensrt_lens_info info;
+    lensrt_render_desc full;
+    lensrt_lens_info info = LENSRT_LENS_INFO_INIT;
     lensrt_result res;
     size_t npix, nsum;
     int i;
     if (!ctx || !desc || !out) return lensrt_fail(ctx, LENSRT_ERROR_INVALID_ARGUMENT, "lensrt_render_create: NULL argument");
     *out = NULL;
+    // Read the caller's struct as far as its struct_size (the ABI rules of lensrt.h)
+    if ((res = lensrt_struct_in(ctx, "lensrt_render_desc", desc, &full, sizeof full)) != LENSRT_SUCCESS) return res;
+    desc = &full;
     if (!desc->lens) return lensrt_fail(ctx, LENSRT_ERROR_INVALID_ARGUMENT, "render: no lens");
     lensrt_lens_get_info(desc->lens, &info);
     if ((res = check_desc(ctx, desc, &info)) != LENSRT_SUCCESS) return res;
@@ -668,7 +677,10 @@ lensrt_result lensrt_render_create(lensrt_context ctx, const lensrt_render_desc 
         res = lensrt_fail(ctx, LENSRT_ERROR_OUT_OF_MEMORY, "render: out of memory");
         goto fail;
     }
-    for (i = 0; i < desc->n_lights; i++) r->lights[i] = desc->lights[i];
+    if (desc->n_lights > 0 &&
+        (res = lensrt_array_in(ctx, "lights", desc->lights, (size_t)desc->n_lights, r->lights, sizeof *r->lights)) !=
+            LENSRT_SUCCESS)
+        goto fail;
     for (i = 0; i < r->n_lights; i++)
         if (r->lights[i].intensity == 0) r->lights[i].intensity = 1.0;
     for (i = 0; i < r->n_wl; i++) {
@@ -1281,10 +1293,14 @@ lensrt_result lensrt_render_splat_points(lensrt_render r, int wavelength, const 
 
 /* ------------------------------------------------------------- results ----- */
 
-lensrt_result lensrt_render_get_stats(lensrt_render r, lensrt_render_stats *out)
+lensrt_result lensrt_render_get_stats(lensrt_render r, lensrt_render_stats *caller)
 {
+    lensrt_render_stats *out = caller;
+    lensrt_render_stats st;
     if (!r || !out) return LENSRT_ERROR_INVALID_ARGUMENT;
-    memset(out, 0, sizeof *out);
+    memset(&st, 0, sizeof st);
+    st.struct_size = sizeof st;
+    out = &st; /* written to the caller's struct at the end, as far as its struct_size */
     out->width = r->width;
     out->height = r->height;
     out->n_wavelengths = r->n_wl;
@@ -1302,7 +1318,7 @@ lensrt_result lensrt_render_get_stats(lensrt_render r, lensrt_render_stats *out)
         out->tau_fraction = r->stat_tau / r->stat_count;
         out->dark_fraction = r->stat_dark / r->stat_count;
     }
-    return LENSRT_SUCCESS;
+    return lensrt_struct_out(r->ctx, "lensrt_render_stats", caller, &st, sizeof st);
 }
 
 const double *lensrt_render_wavelengths(lensrt_render r) { return r ? r->wavelengths : NULL; }

@@ -253,7 +253,7 @@ int main(int argc, char **argv)
     double mc_error = -1.0;
     uint64_t mc_samples = 0;
     lensrt_render_desc desc;
-    lensrt_render_stats st;
+    lensrt_render_stats st = LENSRT_RENDER_STATS_INIT;
     lensrt_result res;
     progress_state ps = {0};
     char table[4096];
@@ -305,7 +305,7 @@ int main(int argc, char **argv)
         } else if (strcmp(a, "--light") == 0) {
             k = parse_list(v, ',', t, 4);
             if (k < 2 || n_lights >= MAX_LIGHTS) return bad(a, v, "expected X,Y[,DISTANCE[,INTENSITY]] (at most 64 lights)");
-            memset(&lights[n_lights], 0, sizeof lights[0]);
+            { const lensrt_light zero_light = LENSRT_LIGHT_INIT; lights[n_lights] = zero_light; }
             lights[n_lights].field_x_deg = t[0];
             lights[n_lights].field_y_deg = t[1];
             lights[n_lights].distance_mm = k > 2 ? t[2] : 0.0;
@@ -371,7 +371,7 @@ int main(int argc, char **argv)
     }
 
     // Context and lens: an id names generated/<id>-*/lens<id>.table
-    memset(&init, 0, sizeof init);
+    { const lensrt_context_init zero_init = LENSRT_CONTEXT_INIT; init = zero_init; }
     init.log_fn = on_log;
     init.user_data = &ps;
     init.threads = (int)threads;
@@ -390,7 +390,7 @@ int main(int argc, char **argv)
     if ((res = lensrt_lens_load(ctx, table, &lens)) != LENSRT_SUCCESS) goto fail_input;
 
     // Scene
-    memset(&desc, 0, sizeof desc);
+    { const lensrt_render_desc zero_desc = LENSRT_RENDER_DESC_INIT; desc = zero_desc; }
     desc.lens = lens;
     desc.sensor.width = width;
     desc.sensor.height = height;
@@ -418,14 +418,13 @@ int main(int argc, char **argv)
     desc.device = device;
     if (device == LENSRT_DEVICE_GL) {
         // The device first: a machine without GL says so before any other work
-        lensrt_gl_info gi;
+        lensrt_gl_info gi = LENSRT_GL_INFO_INIT;
         if ((res = lensrt_context_gl_info(ctx, &gi)) != LENSRT_SUCCESS) goto fail_input;
         if (!quiet) fprintf(stderr, "lensrt-psf: device gl: %s, GL_RENDERER %s, GL_VERSION %s\n", gi.platform, gi.renderer, gi.version);
     }
     if (!have_center) {
-        lensrt_light axis;
-        lensrt_lens_info info;
-        memset(&axis, 0, sizeof axis);
+        lensrt_light axis = LENSRT_LIGHT_INIT;
+        lensrt_lens_info info = LENSRT_LENS_INFO_INIT;
         lensrt_lens_get_info(lens, &info);
         res = lensrt_lens_image_point(ctx, lens, n_lights ? &lights[0] : &axis,
                                       0.5 * (info.wavelength_min_nm + info.wavelength_max_nm), focus, center);

@@ -25,6 +25,9 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+
+/* Zero a versioned struct and set its struct_size (what the LENSRT_*_INIT macros do). */
+#define RESET(x) (memset(&(x), 0, sizeof(x)), (x).struct_size = sizeof(x))
 #include <sys/stat.h>
 #include <sys/types.h>
 #include <unistd.h>
@@ -310,7 +313,7 @@ static lensrt_context hooked_context(hooks *h, int threads)
     lensrt_context_init init;
     lensrt_context ctx = NULL;
     lensrt_result res;
-    memset(&init, 0, sizeof init);
+    RESET(init);
     init.alloc_fn = hook_alloc;
     init.free_fn = hook_free;
     init.log_fn = hook_log;
@@ -332,7 +335,8 @@ static int fitted_desc(lensrt_context ctx, lensrt_lens lens, lensrt_render_desc 
 {
     double xy[2] = {0, 0};
     lensrt_result res;
-    memset(g_two_lights, 0, sizeof g_two_lights);
+    RESET(g_two_lights[0]);
+    RESET(g_two_lights[1]);
     g_two_lights[0].field_x_deg = 2.0;
     g_two_lights[0].field_y_deg = 1.0;
     g_two_lights[1].field_x_deg = 2.004;
@@ -342,7 +346,7 @@ static int fitted_desc(lensrt_context ctx, lensrt_lens lens, lensrt_render_desc 
     CHECK(res == LENSRT_SUCCESS && isfinite(xy[0]) && isfinite(xy[1]) && fabs(xy[0]) < 10 && fabs(xy[1]) < 10,
           "image point of lens 0001 for (2, 1) deg: %s, (%g, %g) mm; %s", lensrt_result_string(res), xy[0], xy[1],
           lensrt_context_last_error(ctx));
-    memset(d, 0, sizeof *d);
+    RESET(*d);
     d->lens = lens;
     d->sensor.width = 16;
     d->sensor.height = 16;
@@ -364,7 +368,7 @@ static lensrt_lens perfect_lens(lensrt_context ctx)
     lensrt_analytic_lens m;
     lensrt_lens lens = NULL;
     lensrt_result res;
-    memset(&m, 0, sizeof m);
+    RESET(m);
     m.focal_length_mm = 50.0;
     m.sensor_distance_mm = 50.0;
     res = lensrt_lens_create_analytic(ctx, &m, &lens);
@@ -376,7 +380,7 @@ static const double ONE_WAVELENGTH[1] = {550.0};
 
 static void perfect_desc(lensrt_lens lens, lensrt_render_desc *d)
 {
-    memset(d, 0, sizeof *d);
+    RESET(*d);
     d->lens = lens;
     d->sensor.width = 8;
     d->sensor.height = 8;
@@ -389,7 +393,7 @@ static void perfect_desc(lensrt_lens lens, lensrt_render_desc *d)
 
 static size_t image_count(lensrt_render r)
 {
-    lensrt_render_stats s;
+    lensrt_render_stats s = LENSRT_RENDER_STATS_INIT;
     if (lensrt_render_get_stats(r, &s) != LENSRT_SUCCESS) return 0;
     return (size_t)s.width * (size_t)s.height * (size_t)s.n_wavelengths;
 }
@@ -448,7 +452,7 @@ static void test_context(void)
     const char *e;
 
     // A zero-initialised init means the defaults
-    memset(&init, 0, sizeof init);
+    RESET(init);
     CHECK_RES(NULL, LENSRT_SUCCESS, lensrt_context_create(&init, &ctx));
     CHECK(ctx != NULL, "zero init: no context");
     if (ctx) {
@@ -475,7 +479,7 @@ static void test_context(void)
     CHECK_RES(NULL, LENSRT_ERROR_INVALID_ARGUMENT, lensrt_context_create(&init, &ctx));
     init.gl_platform = LENSRT_GL_PLATFORM_AUTO;
     {
-        lensrt_gl_info gi;
+        lensrt_gl_info gi = LENSRT_GL_INFO_INIT;
         CHECK_RES(NULL, LENSRT_ERROR_INVALID_ARGUMENT, lensrt_context_gl_info(NULL, &gi));
     }
 
@@ -490,7 +494,7 @@ static void test_context(void)
     // An allocator that fails at once: out of memory, nothing kept
     hooks_reset(&h);
     h.fail_from = 0;
-    memset(&init, 0, sizeof init);
+    RESET(init);
     init.alloc_fn = hook_alloc;
     init.free_fn = hook_free;
     init.user_data = &h;
@@ -507,10 +511,10 @@ static void test_null_arguments(void)
     lensrt_context ctx;
     lensrt_lens lens, fitted = NULL, out_lens = NULL;
     lensrt_analytic_lens m;
-    lensrt_lens_info info;
+    lensrt_lens_info info = LENSRT_LENS_INFO_INIT;
     lensrt_render_desc d;
     lensrt_render r = NULL, out_r = NULL;
-    lensrt_render_stats stats;
+    lensrt_render_stats stats = LENSRT_RENDER_STATS_INIT;
     lensrt_light light;
     double xy[2], pts[2] = {0, 0};
     float img[64 * 3];
@@ -528,9 +532,9 @@ static void test_null_arguments(void)
         goto done;
     }
     CHECK_RES(ctx, LENSRT_SUCCESS, lensrt_render_run(r, 64, NULL, NULL));
-    memset(&m, 0, sizeof m);
+    RESET(m);
     m.sensor_distance_mm = 10;
-    memset(&light, 0, sizeof light);
+    RESET(light);
     scratch_path(path, sizeof path, "null-args.out");
 
     CHECK_RES(ctx, LENSRT_ERROR_INVALID_ARGUMENT, lensrt_lens_load(NULL, g_table, &out_lens));
@@ -635,7 +639,7 @@ static void test_messages(void)
     CHECK(h.n_error_logs == 0, "the log hook got an error before any failure: '%s'", h.last_log);
 
     // Analytic lens descriptions
-    memset(&m, 0, sizeof m);
+    RESET(m);
     logs = h.n_error_logs;
     CHECK_RES(ctx, LENSRT_ERROR_INVALID_ARGUMENT, lensrt_lens_create_analytic(ctx, &m, &out));
     CHECK_MSG(ctx, "sensor_distance_mm");
@@ -678,7 +682,7 @@ static void test_messages(void)
     {
         lensrt_analytic_lens free_space;
         lensrt_lens fs = NULL;
-        memset(&free_space, 0, sizeof free_space);
+        RESET(free_space);
         free_space.sensor_distance_mm = 100;
         CHECK_RES(ctx, LENSRT_SUCCESS, lensrt_lens_create_analytic(ctx, &free_space, &fs));
         d.lens = fs;
@@ -734,7 +738,7 @@ static void test_lens_tables(void)
     hooks h;
     lensrt_context ctx;
     lensrt_lens lens = NULL, again = NULL;
-    lensrt_lens_info info, info2;
+    lensrt_lens_info info = LENSRT_LENS_INFO_INIT, info2 = LENSRT_LENS_INFO_INIT;
     char missing[4096];
     char *text;
     size_t size;
@@ -885,7 +889,7 @@ static void test_table_trust(void)
     hooks h;
     lensrt_context ctx;
     lensrt_lens lens = NULL, analytic = NULL;
-    lensrt_lens_info info;
+    lensrt_lens_info info = LENSRT_LENS_INFO_INIT;
     lensrt_analytic_lens m;
     char *real, *text, *tmp, name[64];
     size_t size;
@@ -967,7 +971,7 @@ static void test_table_trust(void)
     free(tmp);
 
     // Analytic lenses: no figures
-    memset(&m, 0, sizeof m);
+    RESET(m);
     m.sensor_distance_mm = 50.0;
     CHECK_RES(ctx, LENSRT_SUCCESS, lensrt_lens_create_analytic(ctx, &m, &analytic));
     if (analytic) {
@@ -1160,7 +1164,7 @@ static void test_failing_allocator(void)
     // run, rgb, write_png and load on a live render
     CHECK_RES(ctx, LENSRT_SUCCESS, lensrt_render_create(ctx, &a.desc, &a.render));
     if (a.render) {
-        lensrt_render_stats s;
+        lensrt_render_stats s = LENSRT_RENDER_STATS_INIT;
         oom_sweep("render_run", &h, ctx, step_run, NULL, &a);
         CHECK_RES(ctx, LENSRT_SUCCESS, lensrt_render_get_stats(a.render, &s));
         CHECK(s.samples_per_wavelength == 16, "runs that failed for memory added samples: %llu, expected 16",
@@ -1205,7 +1209,7 @@ static void test_threads_and_files(void)
     lensrt_render r1 = NULL, r2 = NULL, r3 = NULL, r4 = NULL;
     float *i1 = NULL, *i2 = NULL, *i3 = NULL, *i4 = NULL;
     size_t n1 = 0, n2 = 0, n3 = 0, n4 = 0, k;
-    lensrt_render_stats s1, s3;
+    lensrt_render_stats s1 = LENSRT_RENDER_STATS_INIT, s3 = LENSRT_RENDER_STATS_INIT;
     char path[4096], other[4096];
     double sum = 0, peak = 0;
 
@@ -1433,7 +1437,7 @@ static int on_progress(double fraction, double eta_seconds, void *user_data)
 
 static uint64_t samples_of(lensrt_context ctx, lensrt_render r)
 {
-    lensrt_render_stats s;
+    lensrt_render_stats s = LENSRT_RENDER_STATS_INIT;
     CHECK_RES(ctx, LENSRT_SUCCESS, lensrt_render_get_stats(r, &s));
     return s.samples_per_wavelength;
 }

@@ -720,7 +720,8 @@ def test_binding_result_codes_follow_the_header():
     # The binding's Result mirrors the C enum by value: a code added or moved in lensrt.h
     # without the binding would make every code check in these tests compare wrongly
     header = (ROOT / "runtime" / "include" / "lensrt.h").read_text(encoding="utf-8")
-    body = re.search(r"typedef enum lensrt_result \{(.*?)\} lensrt_result;", header, re.S)
+    assert "typedef int32_t lensrt_result;" in header  # fixed width (the ABI rules)
+    body = re.search(r"enum lensrt_result_code \{(.*?)\};", header, re.S)
     names = re.findall(r"^\s*LENSRT_(?:ERROR_)?(\w+)", body.group(1), re.M)
     assert names == [code.name for code in Result]
     assert body.group(1).split(",")[0].strip() == "LENSRT_SUCCESS = 0"  # then 1, 2, ...

@@ -400,13 +400,14 @@ void lensrt_gl_close(lensrt_context ctx)
 lensrt_result lensrt_context_gl_info(lensrt_context ctx, lensrt_gl_info *out)
 {
     lensrt_gl *gl;
+    lensrt_gl_info info;
     lensrt_result res;
-    if (!ctx || !out) return LENSRT_ERROR_INVALID_ARGUMENT;
-    memset(out, 0, sizeof *out);
+    if (!ctx || !out) return lensrt_fail(ctx, LENSRT_ERROR_INVALID_ARGUMENT, "lensrt_context_gl_info: NULL argument");
+    if ((res = lensrt_struct_in(ctx, "lensrt_gl_info", out, &info, sizeof info)) != LENSRT_SUCCESS) return res;
     if ((res = lensrt_gl_get(ctx, &gl)) != LENSRT_SUCCESS) return res;
-    out->platform = platform_name(gl->platform);
-    out->renderer = gl->renderer;
-    out->version = gl->version;
-    out->software = gl->software;
-    return LENSRT_SUCCESS;
+    info.platform = platform_name(gl->platform);
+    info.renderer = gl->renderer;
+    info.version = gl->version;
+    info.software = gl->software;
+    return lensrt_struct_out(ctx, "lensrt_gl_info", out, &info, sizeof info);
 }
