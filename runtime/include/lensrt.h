@@ -16,11 +16,22 @@
  * are zero-initialised to mean the documented defaults. Memory passed in is owned by
  * the caller; memory the library allocates goes through the context's hooks.
  *
- * Threads: a context and the renders made from it are used by one thread at a time
- * (a render uses OpenMP threads inside run()). The GL device belongs to the context: it
- * is made current around each call that uses it and the caller's EGL context is
- * restored after. Lenses are immutable once loaded. Renders
- * are deterministic for a seed whatever the number of threads.
+ * Thread model (what may be shared between threads):
+ *   lensrt_lens     immutable once made: any number of threads may use one lens at once
+ *                   (renders, lensrt_lens_eval, the info calls). Destroy it last.
+ *   lensrt_context  one thread at a time: it holds the last error message and the GL
+ *                   device. Separate contexts may be used on separate threads at once.
+ *                   Calls that accept a NULL context record no message.
+ *   lensrt_render   one thread at a time, except lensrt_render_tile, which any number of
+ *                   threads may call at once for disjoint rectangles between
+ *                   lensrt_render_tiles_begin and lensrt_render_tiles_end. run() uses
+ *                   OpenMP threads inside (lensrt_context_init.threads).
+ * The library keeps no global or static mutable state and changes nothing process-wide:
+ * numbers are read and written in the "C" locale on the calling thread only (whatever
+ * the host's setlocale), tables are tokenised reentrantly, the GL device is made current
+ * around each call that uses it and the caller's current EGL context is restored after,
+ * and an EGL display or GLFW that the host initialised is never terminated. Renders are
+ * deterministic for a seed whatever the number of threads or tiles.
  *
  * Units: millimetres for lengths, nanometres for wavelengths, degrees for angles.
  */
