@@ -1,0 +1,283 @@
+/* Per-ray evaluation of a lens's fitted systems (lensrt_lens_eval) and their description
+ * (lensrt_lens_system_info), for a renderer's own rays.
+ *
+ * A system's output o is sum_t c_t prod_i xhat_i^e_ti over its terms, with xhat_i the
+ * normalised input i (lens_table.c, lensrt_normalise). Rays are evaluated in blocks of
+ * BLOCK: per block, the powers xhat^0 .. xhat^LENSRT_MAX_DEGREE of every input (and,
+ * for Jacobians, their derivatives e xhat^(e-1)) are tabulated once, ray index
+ * innermost; then each term is one pass over the block's rays, which the compiler
+ * vectorises (every ray of a block shares the term's exponents). A ray's arithmetic does
+ * not depend on the block it falls in, nor on whether Jacobians are asked for: values are
+ * the same bit for bit either way.
+ *
+ * Numbers: inputs, outputs and Jacobians are double or float in the caller's memory; the
+ * sums are always done in double. A float sum of the 17031 phase terms would lose about
+ * sqrt(17031) float ulps of phi (~100 mm), a few nanometres, while double costs the
+ * same per term on the CPU and gives outputs correctly rounded to float (but for the
+ * double sum's own error, ~1e-13 relative). The float type is about the caller's memory
+ * layout, not speed. Compiled-in lenses (lensrt_lens_load_compiled) evaluate values
+ * through their generated Horner code instead, float in float.
+ *
+ * No allocation, no writes to the lens: a lens may be evaluated from any number of
+ * threads at once. */
+#include "../internal.h"
+
+#include <math.h>
+#include <stddef.h>
+#include <string.h>
+
+#define BLOCK 8                          /* rays per block */
+#define POWERS (LENSRT_MAX_DEGREE + 1)   /* xhat^0 .. xhat^LENSRT_MAX_DEGREE */
+#define N_IN 6                           /* inputs of every system lensrt loads */
+
+/* The oldest struct layouts that have these functions (lensrt 0.2): a smaller
+ * struct_size is not a struct of this API. */
+#define EVAL_DESC_MIN_SIZE (offsetof(lensrt_eval_desc, jacobians) + sizeof(void *))
+#define SYSTEM_INFO_MIN_SIZE (offsetof(lensrt_system_info, n_terms) + \
+                              sizeof(int32_t) * LENSRT_MAX_SYSTEM_OUTPUTS)
+
+/* One block of rays: the power tables of its normalised inputs. */
+typedef struct block {
+    double pw[N_IN][POWERS][BLOCK];   /* xhat_i^e */
+    double dpw[N_IN][POWERS][BLOCK];  /* e xhat_i^(e-1) (d xhat_i^e / d xhat_i) */
+    double dxdv[N_IN][BLOCK];         /* d xhat_i / d raw input i */
+} block;
+
+static const lensrt_system *system_of(lensrt_lens lens, int32_t system)
+{
+    return system == LENSRT_SYSTEM_OBJECT ? &lens->p_o : system == LENSRT_SYSTEM_SENSOR ? &lens->p_s : NULL;
+}
+
+/* ------------------------------------------------------------ system info ----- */
+
+lensrt_result lensrt_lens_system_info(lensrt_lens lens, int32_t system, lensrt_system_info *out)
+{
+    lensrt_system_info info;
+    const lensrt_system *sys;
+    size_t size;
+    int i;
+    if (!lens || !out) return LENSRT_ERROR_INVALID_ARGUMENT;
+    memcpy(&size, out, sizeof size);
+    if (size < SYSTEM_INFO_MIN_SIZE) return LENSRT_ERROR_INVALID_ARGUMENT;
+    if (system != LENSRT_SYSTEM_OBJECT && system != LENSRT_SYSTEM_SENSOR) return LENSRT_ERROR_INVALID_ARGUMENT;
+    if (lens->analytic) return LENSRT_ERROR_UNSUPPORTED;
+    sys = system_of(lens, system);
+    // Build the whole struct here, then copy what the caller's struct_size covers
+    memset(&info, 0, sizeof info);
+    info.struct_size = sizeof info;
+    info.n_inputs = sys->n_inputs;
+    info.n_outputs = sys->n_outputs;
+    for (i = 0; i < sys->n_inputs && i < LENSRT_MAX_SYSTEM_INPUTS; i++) {
+        info.input_names[i] = sys->inputs[i].name;
+        info.input_min[i] = sys->inputs[i].lo;
+        info.input_max[i] = sys->inputs[i].hi;
+    }
+    for (i = 0; i < sys->n_outputs && i < LENSRT_MAX_SYSTEM_OUTPUTS; i++) {
+        info.output_names[i] = sys->outputs[i].name;
+        info.n_terms[i] = sys->outputs[i].n_terms;
+    }
+    return lensrt_struct_out(NULL, "lensrt_system_info", out, &info, sizeof info);
+}
+
+/* ------------------------------------------------------------ power tables ----- */
+
+/* Raw input i of ray k (of the caller's type) as a double. */
+static double raw_input(const void *inputs, int is_float, size_t k, int i)
+{
+    size_t at = k * N_IN + (size_t)i;
+    return is_float ? (double)((const float *)inputs)[at] : ((const double *)inputs)[at];
+}
+
+/* Fill the power tables of rays first .. first + n - 1 (n <= BLOCK); lanes n .. BLOCK - 1
+ * get xhat = 0 so that every lane holds finite numbers (they are never stored). */
+static void fill_block(block *b, const lensrt_system *sys, const void *inputs, int is_float, size_t first,
+                       int n, int derivatives)
+{
+    int i, r, e;
+    for (i = 0; i < N_IN; i++) {
+        const lensrt_input *in = &sys->inputs[i];
+        for (r = 0; r < BLOCK; r++) {
+            double v = r < n ? raw_input(inputs, is_float, first + (size_t)r, i) : 0.0;
+            double x = 0.0, d = 0.0;
+            // xhat = (w - c) / s with w = v (affine) or 1/v^2 (inverse_square), and its
+            // derivative 1/s or d/dv (1/v^2 - c)/s = -2/(s v^3)
+            if (r < n) {
+                x = lensrt_normalise(in, v);
+                d = in->transform == LENSRT_TRANSFORM_INVERSE_SQUARE ? -2.0 / (in->s * v * v * v) : 1.0 / in->s;
+            }
+            b->pw[i][0][r] = 1.0;
+            for (e = 1; e < POWERS; e++) b->pw[i][e][r] = b->pw[i][e - 1][r] * x;
+            b->dxdv[i][r] = d;
+        }
+        if (!derivatives) continue;
+        for (r = 0; r < BLOCK; r++) {
+            b->dpw[i][0][r] = 0.0;
+            for (e = 1; e < POWERS; e++) b->dpw[i][e][r] = (double)e * b->pw[i][e - 1][r];
+        }
+    }
+}
+
+/* ------------------------------------------------------------------- sums ----- */
+
+/* Values of output p for the block: v[r] = sum_t c_t prod_i xhat_i^e_ti, the product
+ * taken as ((((c x0^e0) x1^e1) ...) x5^e5). */
+static void sum_values(const block *b, const lensrt_poly *p, double v[BLOCK])
+{
+    int t, r;
+    for (r = 0; r < BLOCK; r++) v[r] = 0.0;
+    for (t = 0; t < p->n_terms; t++) {
+        const unsigned char *e = p->exponents + (size_t)t * N_IN;
+        const double c = p->coefficients[t];
+        const double *a0 = b->pw[0][e[0]], *a1 = b->pw[1][e[1]], *a2 = b->pw[2][e[2]];
+        const double *a3 = b->pw[3][e[3]], *a4 = b->pw[4][e[4]], *a5 = b->pw[5][e[5]];
+        for (r = 0; r < BLOCK; r++) v[r] += c * a0[r] * a1[r] * a2[r] * a3[r] * a4[r] * a5[r];
+    }
+}
+
+/* Values and gradients over the normalised inputs: g[i][r] = sum_t c_t e_ti xhat_i^(e_ti - 1)
+ * prod_(j != i) xhat_j^e_tj, from the prefix products (which are also the value's, in
+ * the same order as sum_values) and suffix products of each term. */
+static void sum_gradients(const block *b, const lensrt_poly *p, double v[BLOCK], double g[N_IN][BLOCK])
+{
+    int t, r, i;
+    for (r = 0; r < BLOCK; r++) {
+        v[r] = 0.0;
+        for (i = 0; i < N_IN; i++) g[i][r] = 0.0;
+    }
+    for (t = 0; t < p->n_terms; t++) {
+        const unsigned char *e = p->exponents + (size_t)t * N_IN;
+        const double c = p->coefficients[t];
+        const double *a0 = b->pw[0][e[0]], *a1 = b->pw[1][e[1]], *a2 = b->pw[2][e[2]];
+        const double *a3 = b->pw[3][e[3]], *a4 = b->pw[4][e[4]], *a5 = b->pw[5][e[5]];
+        const double *d0 = b->dpw[0][e[0]], *d1 = b->dpw[1][e[1]], *d2 = b->dpw[2][e[2]];
+        const double *d3 = b->dpw[3][e[3]], *d4 = b->dpw[4][e[4]], *d5 = b->dpw[5][e[5]];
+        for (r = 0; r < BLOCK; r++) {
+            double p1 = c * a0[r], p2 = p1 * a1[r], p3 = p2 * a2[r], p4 = p3 * a3[r], p5 = p4 * a4[r];
+            double s4 = a5[r], s3 = a4[r] * s4, s2 = a3[r] * s3, s1 = a2[r] * s2, s0 = a1[r] * s1;
+            v[r] += p5 * a5[r];
+            g[0][r] += c * d0[r] * s0;
+            g[1][r] += p1 * d1[r] * s1;
+            g[2][r] += p2 * d2[r] * s2;
+            g[3][r] += p3 * d3[r] * s3;
+            g[4][r] += p4 * d4[r] * s4;
+            g[5][r] += p5 * d5[r];
+        }
+    }
+}
+
+static void store(void *dst, int is_float, size_t at, double v)
+{
+    if (is_float) ((float *)dst)[at] = (float)v;
+    else ((double *)dst)[at] = v;
+}
+
+/* ----------------------------------------------------------------- checks ----- */
+
+static lensrt_result check_inputs(lensrt_context ctx, const lensrt_system *sys, const void *inputs, int is_float,
+                                  size_t n_rays)
+{
+    size_t k;
+    int i;
+    for (k = 0; k < n_rays; k++)
+        for (i = 0; i < N_IN; i++) {
+            double v = raw_input(inputs, is_float, k, i);
+            if (!isfinite(v))
+                return lensrt_fail(ctx, LENSRT_ERROR_INVALID_ARGUMENT,
+                                   "lensrt_lens_eval: %s ray %zu: input %s is %g (not a finite number); "
+                                   "nothing was written", sys->name, k, sys->inputs[i].name, v);
+            if (sys->inputs[i].transform == LENSRT_TRANSFORM_INVERSE_SQUARE && !(v > 0))
+                return lensrt_fail(ctx, LENSRT_ERROR_INVALID_ARGUMENT,
+                                   "lensrt_lens_eval: %s ray %zu: input %s is %g; it must be > 0 (fitted over "
+                                   "[%g, %g]); nothing was written", sys->name, k, sys->inputs[i].name, v,
+                                   sys->inputs[i].lo, sys->inputs[i].hi);
+        }
+    return LENSRT_SUCCESS;
+}
+
+/* ------------------------------------------------------------- evaluation ----- */
+
+lensrt_result lensrt_lens_eval(lensrt_context ctx, lensrt_lens lens, const lensrt_eval_desc *desc_in)
+{
+    lensrt_eval_desc d;
+    const lensrt_system *sys;
+    lensrt_horner_d horner_d = NULL;
+    lensrt_horner_f horner_f = NULL;
+    lensrt_result res;
+    size_t size, k, n_out, per_ray;
+    int is_float;
+    // The descriptor: at least the 0.2 layout, newer fields this library does not know zero
+    if (!lens || !desc_in)
+        return lensrt_fail(ctx, LENSRT_ERROR_INVALID_ARGUMENT, "lensrt_lens_eval: %s is NULL", lens ? "desc" : "lens");
+    memcpy(&size, desc_in, sizeof size);
+    if (size < EVAL_DESC_MIN_SIZE)
+        return lensrt_fail(ctx, LENSRT_ERROR_INVALID_ARGUMENT,
+                           "lensrt_eval_desc: struct_size is %zu, expected at least %zu (use LENSRT_EVAL_DESC_INIT)",
+                           size, (size_t)EVAL_DESC_MIN_SIZE);
+    if ((res = lensrt_struct_in(ctx, "lensrt_eval_desc", desc_in, &d, sizeof d)) != LENSRT_SUCCESS) return res;
+    if (d.system != LENSRT_SYSTEM_OBJECT && d.system != LENSRT_SYSTEM_SENSOR)
+        return lensrt_fail(ctx, LENSRT_ERROR_INVALID_ARGUMENT,
+                           "lensrt_eval_desc: system is %d, expected LENSRT_SYSTEM_OBJECT (0) or LENSRT_SYSTEM_SENSOR (1)",
+                           (int)d.system);
+    if (d.type != LENSRT_TYPE_DOUBLE && d.type != LENSRT_TYPE_FLOAT)
+        return lensrt_fail(ctx, LENSRT_ERROR_INVALID_ARGUMENT,
+                           "lensrt_eval_desc: type is %d, expected LENSRT_TYPE_DOUBLE (0) or LENSRT_TYPE_FLOAT (1)",
+                           (int)d.type);
+    if (lens->analytic)
+        return lensrt_fail(ctx, LENSRT_ERROR_UNSUPPORTED,
+                           "lensrt_lens_eval: %s is an analytic lens; it has no fitted systems", lens->name);
+    sys = system_of(lens, d.system);
+    if (sys->n_inputs != N_IN || sys->n_outputs > LENSRT_MAX_SYSTEM_OUTPUTS)
+        return lensrt_fail(ctx, LENSRT_ERROR_UNSUPPORTED, "lensrt_lens_eval: %s of %s has %d inputs (expected %d)",
+                           sys->name, lens->name, sys->n_inputs, N_IN);
+    n_out = (size_t)sys->n_outputs;
+    per_ray = n_out * (N_IN + 1) * sizeof(double);
+    if (d.n_rays > (size_t)-1 / per_ray)
+        return lensrt_fail(ctx, LENSRT_ERROR_INVALID_ARGUMENT, "lensrt_eval_desc: n_rays %zu is too large", d.n_rays);
+    if (d.n_rays == 0) return LENSRT_SUCCESS;
+    if (!d.inputs || !d.outputs)
+        return lensrt_fail(ctx, LENSRT_ERROR_INVALID_ARGUMENT, "lensrt_eval_desc: %s is NULL with n_rays %zu",
+                           d.inputs ? "outputs" : "inputs", d.n_rays);
+    is_float = d.type == LENSRT_TYPE_FLOAT;
+    // Every input is checked before anything is written
+    if ((res = check_inputs(ctx, sys, d.inputs, is_float, d.n_rays)) != LENSRT_SUCCESS) return res;
+
+    // Values only, of a compiled-in lens: its generated Horner code, one ray at a time
+    if (lens->compiled && !d.jacobians) {
+        const lensrt_compiled_lens *c = lens->compiled;
+        horner_d = d.system == LENSRT_SYSTEM_OBJECT ? c->object_d : c->sensor_d;
+        horner_f = d.system == LENSRT_SYSTEM_OBJECT ? c->object_f : c->sensor_f;
+        if (!is_float && horner_d) {
+            for (k = 0; k < d.n_rays; k++)
+                horner_d((const double *)d.inputs + k * N_IN, (double *)d.outputs + k * n_out);
+            return LENSRT_SUCCESS;
+        }
+        if (is_float && horner_f) {
+            for (k = 0; k < d.n_rays; k++)
+                horner_f((const float *)d.inputs + k * N_IN, (float *)d.outputs + k * n_out);
+            return LENSRT_SUCCESS;
+        }
+    }
+
+    // The table, block by block
+    for (k = 0; k < d.n_rays; k += BLOCK) {
+        block b;
+        double v[BLOCK], g[N_IN][BLOCK];
+        int n = d.n_rays - k < BLOCK ? (int)(d.n_rays - k) : BLOCK, o, r, i;
+        fill_block(&b, sys, d.inputs, is_float, k, n, d.jacobians != NULL);
+        for (o = 0; o < sys->n_outputs; o++) {
+            const lensrt_poly *p = &sys->outputs[o];
+            if (!d.jacobians) {
+                sum_values(&b, p, v);
+            } else {
+                sum_gradients(&b, p, v, g);
+                // Chain rule through the normalisation: d out / d raw = d out / d xhat * d xhat / d raw
+                for (r = 0; r < n; r++)
+                    for (i = 0; i < N_IN; i++)
+                        store(d.jacobians, is_float, ((k + (size_t)r) * n_out + (size_t)o) * N_IN + (size_t)i,
+                              g[i][r] * b.dxdv[i][r]);
+            }
+            for (r = 0; r < n; r++) store(d.outputs, is_float, (k + (size_t)r) * n_out + (size_t)o, v[r]);
+        }
+    }
+    return LENSRT_SUCCESS;
+}
