@@ -136,12 +136,31 @@ typedef struct lensrt_context_s *lensrt_context;
  * in order: the EGL device platform (non-software devices first, as NVIDIA's driver
  * offers), Mesa's surfaceless EGL platform, then GLFW 3.3 with a hidden window (needs an
  * X server, e.g. xvfb-run). Libraries are loaded at run time: a machine without them
- * still runs the CPU path. */
+ * still runs the CPU path. The context lensrt makes is current only during its calls
+ * (the thread's previous EGL or GLFW context is restored after), and lensrt tears down
+ * nothing process-wide: EGL displays are never terminated (a display is shared by
+ * everyone in the process who asks for the same one; with EGL_KHR_display_reference
+ * lensrt takes a counted reference and releases it), GLFW is never terminated, and
+ * lensrt's GLFW error callback is installed only while it makes its window (the host's
+ * is put back).
+ *
+ * CALLER uses the caller's own context instead: the EGL context current on the calling
+ * thread when the GL device is first used (lensrt_context_gl_info or the first render
+ * with LENSRT_DEVICE_GL). It must be desktop OpenGL 4.3 or later (compute shaders; core
+ * or compatibility profile), else LENSRT_ERROR_NO_DEVICE says why. The caller keeps that
+ * same context current on the calling thread during every call that uses the GL device
+ * (lensrt_render_create, _run, _splat_points and _destroy of GL renders); otherwise the
+ * call fails with LENSRT_ERROR_DEVICE (and _destroy leaves the render's GL objects in
+ * the context). lensrt then never makes a context current, and creates or destroys no
+ * display or context; the renders' buffers and programs live in the caller's context,
+ * and the GL state a call changes (the current program, the shader storage buffer
+ * bindings) is restored before it returns. */
 typedef enum lensrt_gl_platform {
     LENSRT_GL_PLATFORM_AUTO = 0,
     LENSRT_GL_PLATFORM_EGL_DEVICE,
     LENSRT_GL_PLATFORM_EGL_SURFACELESS,
-    LENSRT_GL_PLATFORM_GLFW
+    LENSRT_GL_PLATFORM_GLFW,
+    LENSRT_GL_PLATFORM_CALLER
 } lensrt_gl_platform;
 
 typedef struct lensrt_context_init {
@@ -174,7 +193,7 @@ LENSRT_API const char *lensrt_context_last_error(lensrt_context ctx);
  * while the context lives. */
 typedef struct lensrt_gl_info {
     size_t struct_size;     /* sizeof(lensrt_gl_info): LENSRT_GL_INFO_INIT */
-    const char *platform;   /* "egl-device", "egl-surfaceless" or "glfw" */
+    const char *platform;   /* "egl-device", "egl-surfaceless", "glfw" or "caller" */
     const char *renderer;   /* GL_RENDERER, e.g. "llvmpipe (LLVM 15.0.6, 256 bits)" */
     const char *version;    /* GL_VERSION */
     int32_t software;       /* 1 for a CPU rasteriser (llvmpipe, softpipe, swrast) */

@@ -30,7 +30,7 @@ ESTIMATORS = {"default": 0, "paper": 1, "unbiased": 2}
 PRECISIONS = {"default": 0, "double": 1, "naive_float": 2}
 SHAPES = {"circle": 0, "blades": 1, "slit": 2}
 DEVICES = {"cpu": 0, "gl": 1}
-GL_PLATFORMS = {"auto": 0, "egl-device": 1, "egl-surfaceless": 2, "glfw": 3}
+GL_PLATFORMS = {"auto": 0, "egl-device": 1, "egl-surfaceless": 2, "glfw": 3, "caller": 4}
 
 
 class Result(enum.IntEnum):

@@ -1,4 +1,6 @@
-/* Context: allocator and log hooks, error messages, result strings. */
+/* Context: allocator and log hooks, error messages, result strings. Messages are
+ * formatted in the "C" locale (c_numbers.h), whatever the host's LC_NUMERIC. */
+#include "c_numbers.h"
 #include "internal.h"
 
 #include <stdio.h>
@@ -54,7 +56,7 @@ lensrt_result lensrt_context_create(const lensrt_context_init *init, lensrt_cont
     init = &full;
     // Allocator hooks come as a pair or not at all
     if ((init->alloc_fn == NULL) != (init->free_fn == NULL)) return LENSRT_ERROR_INVALID_ARGUMENT;
-    if (init->threads < 0 || (unsigned)init->gl_platform > LENSRT_GL_PLATFORM_GLFW) return LENSRT_ERROR_INVALID_ARGUMENT;
+    if (init->threads < 0 || (unsigned)init->gl_platform > LENSRT_GL_PLATFORM_CALLER) return LENSRT_ERROR_INVALID_ARGUMENT;
     ctx = init->alloc_fn ? init->alloc_fn(sizeof *ctx, init->user_data) : malloc(sizeof *ctx);
     if (!ctx) return LENSRT_ERROR_OUT_OF_MEMORY;
     memset(ctx, 0, sizeof *ctx);
@@ -72,9 +74,10 @@ lensrt_result lensrt_context_create(const lensrt_context_init *init, lensrt_cont
 void lensrt_context_destroy(lensrt_context ctx)
 {
     if (!ctx) return;
-#ifdef LENSRT_GL
-    lensrt_gl_close(ctx);
-#endif
+    // The device goes first (its teardown uses the allocator and the log)
+    if (ctx->device_destroy) ctx->device_destroy(ctx, ctx->device);
+    ctx->device = NULL;
+    ctx->device_destroy = NULL;
     ctx->allocator.free_fn(ctx, ctx->allocator.user_data);
 }
 
@@ -119,7 +122,7 @@ lensrt_result lensrt_fail(lensrt_context ctx, lensrt_result result, const char *
     va_list args;
     if (!ctx) return result;
     va_start(args, fmt);
-    vsnprintf(ctx->error, sizeof ctx->error, fmt, args);
+    lensrt_vsnprintf_c(ctx->error, sizeof ctx->error, fmt, args);
     va_end(args);
     if (ctx->log_fn) ctx->log_fn(LENSRT_LOG_ERROR, ctx->error, ctx->user_data);
     return result;
@@ -131,7 +134,7 @@ void lensrt_log(lensrt_context ctx, lensrt_log_level level, const char *fmt, ...
     va_list args;
     if (!ctx || !ctx->log_fn) return;
     va_start(args, fmt);
-    vsnprintf(message, sizeof message, fmt, args);
+    lensrt_vsnprintf_c(message, sizeof message, fmt, args);
     va_end(args);
     ctx->log_fn(level, message, ctx->user_data);
 }

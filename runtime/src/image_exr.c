@@ -46,6 +46,7 @@
 #define _POSIX_C_SOURCE 200809L /* open, pwrite, fsync, getpid, clock_gettime */
 #endif
 
+#include "c_numbers.h"
 #include "image_io.h"
 
 #include <math.h>
@@ -59,7 +60,7 @@ static void exr_set_error(char *err, size_t err_size, const char *fmt, ...)
     if (!err || err_size == 0)
         return;
     va_start(args, fmt);
-    vsnprintf(err, err_size, fmt, args);
+    lensrt_vsnprintf_c(err, err_size, fmt, args); /* numbers with a point, any locale */
     va_end(args);
 }
 
@@ -179,7 +180,8 @@ static lensrt_result exr_map_result(exr_result_t rv)
 }
 
 /* The lights as readable text: "2 lights: (field 0, 0 deg, distance inf, intensity 1);
- * ...". Returns NULL when out of memory. */
+ * ...", numbers in the "C" locale whatever the host's (c_numbers.h). Returns NULL when
+ * out of memory. */
 static char *exr_lights_text(const lensrt_allocator *allocator, const lensrt_image_meta *meta)
 {
     int n = meta->lights ? meta->n_lights : 0;
@@ -193,13 +195,13 @@ static char *exr_lights_text(const lensrt_allocator *allocator, const lensrt_ima
         const lensrt_light *l = &meta->lights[i];
         char distance[48];
         if (l->distance_mm > 0.0)
-            snprintf(distance, sizeof distance, "%.17g mm", l->distance_mm);
+            lensrt_snprintf_c(distance, sizeof distance, "%.17g mm", l->distance_mm);
         else
             snprintf(distance, sizeof distance, "infinity");
-        used += (size_t)snprintf(text + used, size - used,
-                                 "%s (field %.9g, %.9g deg; distance %s; intensity %.9g)",
-                                 i == 0 ? ":" : ";", l->field_x_deg, l->field_y_deg, distance,
-                                 l->intensity > 0.0 ? l->intensity : 1.0);
+        used += (size_t)lensrt_snprintf_c(text + used, size - used,
+                                          "%s (field %.9g, %.9g deg; distance %s; intensity %.9g)",
+                                          i == 0 ? ":" : ";", l->field_x_deg, l->field_y_deg, distance,
+                                          l->intensity > 0.0 ? l->intensity : 1.0);
     }
     return text;
 }
@@ -371,7 +373,7 @@ lensrt_result lensrt_write_exr(const lensrt_allocator *allocator, const char *pa
                 lo = wavelengths_nm[i] < lo ? wavelengths_nm[i] : lo;
                 hi = wavelengths_nm[i] > hi ? wavelengths_nm[i] : hi;
             }
-            snprintf(text, sizeof text,
+            lensrt_snprintf_c(text, sizeof text,
                      "lensrt spectral PSF: %s, f/%.3g, %d wavelengths %.6g-%.6g nm, %llu samples "
                      "per wavelength",
                      meta->lens_name ? meta->lens_name : "unnamed lens", meta->f_number,

@@ -17,14 +17,13 @@ struct lensrt_context_s {
     void *user_data;
     int threads;
     lensrt_gl_platform gl_platform;
-    struct lensrt_gl_s *gl;   /* the GL device, made on first use (gl/gl_device.c) */
+    /* The context's device (the GL device of gl/gl_device.c, made on first use) and
+     * how to tear it down: both set by the device when it is made, and the hook called
+     * once by lensrt_context_destroy. The context knows nothing of what a device is. */
+    void *device;
+    void (*device_destroy)(lensrt_context ctx, void *device);
     char error[LENSRT_ERROR_SIZE];
 };
-
-#ifdef LENSRT_GL
-/* Close the context's GL device, if one was made. */
-void lensrt_gl_close(lensrt_context ctx);
-#endif
 
 /* Allocation through the context's hooks (zeroed by lensrt_calloc). */
 void *lensrt_alloc(lensrt_context ctx, size_t size);

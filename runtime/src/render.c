@@ -10,6 +10,7 @@
  *   3. splat each block of samples to the pixel (kernel.c) and add the phasor sums.
  * Pixels never share sums and samples are pure functions of their index, so the result
  * does not depend on the number of threads. */
+#include "c_numbers.h"
 #include "render.h"
 #ifdef LENSRT_GL
 #include "gl/gl_render.h"
@@ -1382,10 +1383,12 @@ lensrt_result lensrt_render_rgb(lensrt_render r, float *out, size_t count)
 static void describe_aperture(const lensrt_render r, char *buf, size_t size)
 {
     const lensrt_aperture *a = &r->desc.aperture;
+    // EXR metadata: numbers in the "C" locale whatever the host's (c_numbers.h)
     if (a->shape == LENSRT_APERTURE_BLADES)
-        snprintf(buf, size, "%d blades, curvature %g, rotation %g deg", a->blades, a->blade_curvature, a->rotation_deg);
+        lensrt_snprintf_c(buf, size, "%d blades, curvature %g, rotation %g deg", a->blades, a->blade_curvature,
+                          a->rotation_deg);
     else if (a->shape == LENSRT_APERTURE_SLIT)
-        snprintf(buf, size, "slit %g mm wide, separation %g mm", a->slit_width_mm, a->slit_separation_mm);
+        lensrt_snprintf_c(buf, size, "slit %g mm wide, separation %g mm", a->slit_width_mm, a->slit_separation_mm);
     else
         snprintf(buf, size, "circle");
 }

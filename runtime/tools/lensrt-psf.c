@@ -12,6 +12,7 @@
 
 #include <dirent.h>
 #include <errno.h>
+#include <locale.h>
 #include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -80,13 +81,27 @@ static int bad(const char *option, const char *value, const char *expected)
     return 2;
 }
 
+/* A number as written on a command line anywhere: "1.5", whatever LANG or LC_NUMERIC
+ * say. The command never calls setlocale, so it runs in the "C" locale already; strtod
+ * is nevertheless run in an explicit "C" locale (this thread only, POSIX 2008 uselocale,
+ * the previous locale restored after), so that options keep their meaning if the
+ * command ever adopts the environment's locale (de_DE would read "1.5" as 1). */
 static int parse_double(const char *s, double *v)
 {
     char *end;
+    int err;
+    locale_t c_locale, saved = (locale_t)0;
     if (!s) return 0;
+    c_locale = newlocale(LC_ALL_MASK, "C", (locale_t)0);
+    if (c_locale) saved = uselocale(c_locale);
     errno = 0;
     *v = strtod(s, &end);
-    return end != s && *end == '\0' && errno == 0 && isfinite(*v);
+    err = errno;
+    if (c_locale) {
+        uselocale(saved);
+        freelocale(c_locale);
+    }
+    return end != s && *end == '\0' && err == 0 && isfinite(*v);
 }
 
 static int parse_long(const char *s, long long lo, long long hi, long long *v)
