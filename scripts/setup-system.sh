@@ -28,18 +28,28 @@ done
 for pkg in libegl-dev libgl-dev libegl1 libegl-mesa0 libgl1-mesa-dri libglfw3 xvfb xauth; do
   have "$pkg" || need+=("$pkg")
 done
+# A comma-decimal locale for tests/runtime/test_locale.c (lensrt must read and write
+# numbers the same under de_DE's LC_NUMERIC): the locale sources, compiled below
+for pkg in locales; do
+  have "$pkg" || need+=("$pkg")
+done
 
-if [ ${#need[@]} -eq 0 ]; then
-  exit 0
-fi
-if ! command -v apt-get >/dev/null 2>&1; then
-  echo "setup: missing packages ${need[*]} and no apt-get: install them by hand" >&2
-  exit 1
-fi
 SUDO=""
 if [ "$(id -u)" -ne 0 ]; then
   SUDO="sudo"
 fi
-echo "setup: installing ${need[*]}" >&2
-$SUDO apt-get update -qq
-DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq --no-install-recommends "${need[@]}"
+if [ ${#need[@]} -gt 0 ]; then
+  if ! command -v apt-get >/dev/null 2>&1; then
+    echo "setup: missing packages ${need[*]} and no apt-get: install them by hand" >&2
+    exit 1
+  fi
+  echo "setup: installing ${need[*]}" >&2
+  $SUDO apt-get update -qq
+  DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq --no-install-recommends "${need[@]}"
+fi
+
+# de_DE.UTF-8, only when missing (`locale -a` lists it as de_DE.utf8)
+if ! locale -a 2>/dev/null | grep -qix 'de_DE\.utf-\?8'; then
+  echo "setup: generating the locale de_DE.UTF-8" >&2
+  $SUDO localedef -i de_DE -f UTF-8 de_DE.UTF-8
+fi
