@@ -1,32 +1,36 @@
 /* Per-ray evaluation of a lens's fitted systems (lensrt_lens_eval) and their description
  * (lensrt_lens_system_info), for a renderer's own rays.
  *
- * A system's output o is sum_t c_t prod_i xhat_i^e_ti over its terms, with xhat_i the
- * normalised input i (lens_table.c, lensrt_normalise). Rays are evaluated in blocks of
- * BLOCK: per block, the powers xhat^0 .. xhat^LENSRT_MAX_DEGREE of every input (and,
- * for Jacobians, their derivatives e xhat^(e-1)) are tabulated once, ray index
- * innermost; then each term is one pass over the block's rays, which the compiler
- * vectorises (every ray of a block shares the term's exponents). A ray's arithmetic does
- * not depend on the block it falls in, nor on whether Jacobians are asked for: values are
- * the same bit for bit either way.
+ * A system's output is sum_t c_t prod_i xhat_i^e_ti over its terms, xhat_i the normalised
+ * input i (lens_table.c, lensrt_normalise). Rays are evaluated in blocks of BLOCK: per
+ * block, the powers xhat^0 .. xhat^LENSRT_MAX_DEGREE of every input are tabulated once,
+ * ray index innermost, and each term is then one pass over the block's rays, which the
+ * compiler vectorises (the rays of a block share the term's exponents). The fits write
+ * terms in runs that share the exponents of the field inputs (a field monomial F, then its
+ * stop monomials), so a run is summed as F (sum_t c_t x_a^e y_a^f): two multiplications and
+ * an addition per term and ray. Jacobians come from the same tables, e xhat^(e-1) being
+ * e times the power below. A block's last rays (a batch that is not a multiple of BLOCK)
+ * go LANES at a time. A ray's arithmetic does not depend on the block or lane it falls in,
+ * nor on whether Jacobians are asked for: values are the same bits either way.
  *
  * Numbers: inputs, outputs and Jacobians are double or float in the caller's memory; the
  * sums are always done in double. A float sum of the 17031 phase terms would lose about
- * sqrt(17031) float ulps of phi (~100 mm), a few nanometres, while double costs the
- * same per term on the CPU and gives outputs correctly rounded to float (but for the
- * double sum's own error, ~1e-13 relative). The float type is about the caller's memory
- * layout, not speed. Compiled-in lenses (lensrt_lens_load_compiled) evaluate values
- * through their generated Horner code instead, float in float.
+ * sqrt(17031) float ulps of phi (~100 mm), a few nanometres, while double costs the same
+ * per term here and gives float outputs correctly rounded but for the double sum's own
+ * error (~1e-14 relative). The float type is about the caller's memory layout, not speed.
+ * Compiled-in lenses (lensrt_lens_load_compiled) evaluate values through their generated
+ * Horner code instead, float in float.
  *
- * No allocation, no writes to the lens: a lens may be evaluated from any number of
- * threads at once. */
+ * No allocation (about 25 KB of stack), no writes to the lens: a lens may be evaluated
+ * from any number of threads at once. */
 #include "../internal.h"
 
 #include <math.h>
 #include <stddef.h>
 #include <string.h>
 
-#define BLOCK 8                          /* rays per block */
+#define BLOCK 32                         /* rays per block */
+#define LANES 4                          /* a short block is summed in multiples of this */
 #define POWERS (LENSRT_MAX_DEGREE + 1)   /* xhat^0 .. xhat^LENSRT_MAX_DEGREE */
 #define N_IN 6                           /* inputs of every system lensrt loads */
 
@@ -36,10 +40,12 @@
 #define SYSTEM_INFO_MIN_SIZE (offsetof(lensrt_system_info, n_terms) + \
                               sizeof(int32_t) * LENSRT_MAX_SYSTEM_OUTPUTS)
 
+#define STOP_X 3                         /* x_a, y_a: the inputs of the stop monomials */
+#define STOP_Y 4
+
 /* One block of rays: the power tables of its normalised inputs. */
 typedef struct block {
     double pw[N_IN][POWERS][BLOCK];   /* xhat_i^e */
-    double dpw[N_IN][POWERS][BLOCK];  /* e xhat_i^(e-1) (d xhat_i^e / d xhat_i) */
     double dxdv[N_IN][BLOCK];         /* d xhat_i / d raw input i */
 } block;
 
@@ -88,10 +94,10 @@ static double raw_input(const void *inputs, int is_float, size_t k, int i)
     return is_float ? (double)((const float *)inputs)[at] : ((const double *)inputs)[at];
 }
 
-/* Fill the power tables of rays first .. first + n - 1 (n <= BLOCK); lanes n .. BLOCK - 1
- * get xhat = 0 so that every lane holds finite numbers (they are never stored). */
+/* Fill the tables of rays first .. first + n - 1 (n <= BLOCK); lanes n .. BLOCK - 1 get
+ * xhat = 0 so that every lane holds finite numbers (they are never stored). */
 static void fill_block(block *b, const lensrt_system *sys, const void *inputs, int is_float, size_t first,
-                       int n, int derivatives)
+                       int n)
 {
     int i, r, e;
     for (i = 0; i < N_IN; i++) {
@@ -109,61 +115,35 @@ static void fill_block(block *b, const lensrt_system *sys, const void *inputs, i
             for (e = 1; e < POWERS; e++) b->pw[i][e][r] = b->pw[i][e - 1][r] * x;
             b->dxdv[i][r] = d;
         }
-        if (!derivatives) continue;
-        for (r = 0; r < BLOCK; r++) {
-            b->dpw[i][0][r] = 0.0;
-            for (e = 1; e < POWERS; e++) b->dpw[i][e][r] = (double)e * b->pw[i][e - 1][r];
-        }
     }
 }
 
 /* ------------------------------------------------------------------- sums ----- */
 
-/* Values of output p for the block: v[r] = sum_t c_t prod_i xhat_i^e_ti, the product
- * taken as ((((c x0^e0) x1^e1) ...) x5^e5). */
-static void sum_values(const block *b, const lensrt_poly *p, double v[BLOCK])
+/* A run is a stretch of consecutive terms with the same exponents of the field inputs
+ * (x_S, y_S, z_S, lambda or x_O, y_O, u_O, lambda): the fits write each field monomial's
+ * stop monomials together, about 17 terms per run for the phase. Whether term exponents
+ * e have the same field exponents as r. */
+static int same_field(const unsigned char *e, const unsigned char *r)
 {
-    int t, r;
-    for (r = 0; r < BLOCK; r++) v[r] = 0.0;
-    for (t = 0; t < p->n_terms; t++) {
-        const unsigned char *e = p->exponents + (size_t)t * N_IN;
-        const double c = p->coefficients[t];
-        const double *a0 = b->pw[0][e[0]], *a1 = b->pw[1][e[1]], *a2 = b->pw[2][e[2]];
-        const double *a3 = b->pw[3][e[3]], *a4 = b->pw[4][e[4]], *a5 = b->pw[5][e[5]];
-        for (r = 0; r < BLOCK; r++) v[r] += c * a0[r] * a1[r] * a2[r] * a3[r] * a4[r] * a5[r];
-    }
+    return e[0] == r[0] && e[1] == r[1] && e[2] == r[2] && e[5] == r[5];
 }
 
-/* Values and gradients over the normalised inputs: g[i][r] = sum_t c_t e_ti xhat_i^(e_ti - 1)
- * prod_(j != i) xhat_j^e_tj, from the prefix products (which are also the value's, in
- * the same order as sum_values) and suffix products of each term. */
-static void sum_gradients(const block *b, const lensrt_poly *p, double v[BLOCK], double g[N_IN][BLOCK])
-{
-    int t, r, i;
-    for (r = 0; r < BLOCK; r++) {
-        v[r] = 0.0;
-        for (i = 0; i < N_IN; i++) g[i][r] = 0.0;
-    }
-    for (t = 0; t < p->n_terms; t++) {
-        const unsigned char *e = p->exponents + (size_t)t * N_IN;
-        const double c = p->coefficients[t];
-        const double *a0 = b->pw[0][e[0]], *a1 = b->pw[1][e[1]], *a2 = b->pw[2][e[2]];
-        const double *a3 = b->pw[3][e[3]], *a4 = b->pw[4][e[4]], *a5 = b->pw[5][e[5]];
-        const double *d0 = b->dpw[0][e[0]], *d1 = b->dpw[1][e[1]], *d2 = b->dpw[2][e[2]];
-        const double *d3 = b->dpw[3][e[3]], *d4 = b->dpw[4][e[4]], *d5 = b->dpw[5][e[5]];
-        for (r = 0; r < BLOCK; r++) {
-            double p1 = c * a0[r], p2 = p1 * a1[r], p3 = p2 * a2[r], p4 = p3 * a3[r], p5 = p4 * a4[r];
-            double s4 = a5[r], s3 = a4[r] * s4, s2 = a3[r] * s3, s1 = a2[r] * s2, s0 = a1[r] * s1;
-            v[r] += p5 * a5[r];
-            g[0][r] += c * d0[r] * s0;
-            g[1][r] += p1 * d1[r] * s1;
-            g[2][r] += p2 * d2[r] * s2;
-            g[3][r] += p3 * d3[r] * s3;
-            g[4][r] += p4 * d4[r] * s4;
-            g[5][r] += p5 * d5[r];
-        }
-    }
-}
+/* The sums for a whole block, and for LANES rays at a time (the end of a batch). */
+#define W BLOCK
+#define SUM_VALUES sum_values_block
+#define SUM_GRADIENTS sum_gradients_block
+#include "eval_sums.h"
+#undef W
+#undef SUM_VALUES
+#undef SUM_GRADIENTS
+#define W LANES
+#define SUM_VALUES sum_values_lanes
+#define SUM_GRADIENTS sum_gradients_lanes
+#include "eval_sums.h"
+#undef W
+#undef SUM_VALUES
+#undef SUM_GRADIENTS
 
 static void store(void *dst, int is_float, size_t at, double v)
 {
@@ -258,24 +238,29 @@ lensrt_result lensrt_lens_eval(lensrt_context ctx, lensrt_lens lens, const lensr
         }
     }
 
-    // The table, block by block
+    // The table, block by block; a block's last rays LANES at a time
     for (k = 0; k < d.n_rays; k += BLOCK) {
         block b;
         double v[BLOCK], g[N_IN][BLOCK];
-        int n = d.n_rays - k < BLOCK ? (int)(d.n_rays - k) : BLOCK, o, r, i;
-        fill_block(&b, sys, d.inputs, is_float, k, n, d.jacobians != NULL);
+        int n = d.n_rays - k < BLOCK ? (int)(d.n_rays - k) : BLOCK, o, r, i, l;
+        fill_block(&b, sys, d.inputs, is_float, k, n);
         for (o = 0; o < sys->n_outputs; o++) {
             const lensrt_poly *p = &sys->outputs[o];
-            if (!d.jacobians) {
-                sum_values(&b, p, v);
+            if (n == BLOCK) {
+                if (d.jacobians) sum_gradients_block(&b, 0, p, v, g);
+                else sum_values_block(&b, 0, p, v);
             } else {
-                sum_gradients(&b, p, v, g);
-                // Chain rule through the normalisation: d out / d raw = d out / d xhat * d xhat / d raw
+                for (l = 0; l < n; l += LANES) {
+                    if (d.jacobians) sum_gradients_lanes(&b, l, p, v + l, g);
+                    else sum_values_lanes(&b, l, p, v + l);
+                }
+            }
+            // Chain rule through the normalisation: d out / d raw = d out / d xhat * d xhat / d raw
+            if (d.jacobians)
                 for (r = 0; r < n; r++)
                     for (i = 0; i < N_IN; i++)
                         store(d.jacobians, is_float, ((k + (size_t)r) * n_out + (size_t)o) * N_IN + (size_t)i,
                               g[i][r] * b.dxdv[i][r]);
-            }
             for (r = 0; r < n; r++) store(d.outputs, is_float, (k + (size_t)r) * n_out + (size_t)o, v[r]);
         }
     }
