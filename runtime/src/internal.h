@@ -2,7 +2,7 @@
 #ifndef LENSRT_INTERNAL_H
 #define LENSRT_INTERNAL_H
 
-#include "image_io.h"
+#include "io/image_io.h"
 #include "lensrt.h"
 
 #include <stdarg.h>

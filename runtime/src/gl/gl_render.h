@@ -6,7 +6,7 @@
 #ifndef LENSRT_GL_RENDER_H
 #define LENSRT_GL_RENDER_H
 
-#include "../render.h"
+#include "../core/render.h"
 
 /* Check the scene for the GL path, make the device, compile, upload what is fixed. */
 lensrt_result lensrt_gl_render_create(lensrt_render r);

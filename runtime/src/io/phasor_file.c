@@ -6,7 +6,7 @@
  *   u64 scene hash, u64 seed, u64 samples per wavelength, u64 splats, f64 seconds,
  *   i32 width, height, wavelengths, lights, has_sum_of_squares, pad,
  *   f64 sums[2 * lights * wavelengths * pixels], f64 sums of squares[...] (if present). */
-#include "render.h"
+#include "../core/render.h"
 
 #include <errno.h>
 #include <stdio.h>

@@ -46,7 +46,7 @@
 #define _POSIX_C_SOURCE 200809L /* open, pwrite, fsync, getpid, clock_gettime */
 #endif
 
-#include "c_numbers.h"
+#include "../c_numbers.h"
 #include "image_io.h"
 
 #include <math.h>

@@ -10,10 +10,10 @@
  *   3. splat each block of samples to the pixel (kernel.c) and add the phasor sums.
  * Pixels never share sums and samples are pure functions of their index, so the result
  * does not depend on the number of threads. */
-#include "c_numbers.h"
+#include "../c_numbers.h"
 #include "render.h"
 #ifdef LENSRT_GL
-#include "gl/gl_render.h"
+#include "../gl/gl_render.h"
 #endif
 
 #include <math.h>

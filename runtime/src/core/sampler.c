@@ -2,7 +2,7 @@
  *
  * Every point is a pure function of (seed, wavelength, index): no generator state, so a
  * render is the same whatever the thread count and however run() calls are split. */
-#include "internal.h"
+#include "../internal.h"
 
 #include <math.h>
 

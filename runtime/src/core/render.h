@@ -2,8 +2,8 @@
 #ifndef LENSRT_RENDER_H
 #define LENSRT_RENDER_H
 
-#include "internal.h"
-#include "kernel.h"
+#include "../cpu/kernel.h"
+#include "../internal.h"
 
 #define LENSRT_PASS 16384 /* samples per wavelength and pass (a multiple of LENSRT_BLOCK) */
 
