@@ -333,3 +333,74 @@ class Lensrt:
         r = self.create(lens, **kwargs)
         r.run(samples)
         return r.image()
+
+    # ------------------------------------------------- per-ray evaluation -----
+
+    def _eval_functions(self) -> None:
+        lib = self.lib
+        if getattr(self, "_eval_ready", False):
+            return
+        lib.lensrt_lens_system_info.argtypes = [C.c_void_p, C.c_int32, C.POINTER(SystemInfo)]
+        lib.lensrt_lens_eval.argtypes = [C.c_void_p, C.c_void_p, C.POINTER(EvalDesc)]
+        self._eval_ready = True
+
+    def system_info(self, lens: C.c_void_p, system: str | int) -> dict[str, Any]:
+        """Names, fitted domain and term counts of a lens's P_o or P_s."""
+        self._eval_functions()
+        info = SystemInfo()
+        code = self.lib.lensrt_lens_system_info(lens, SYSTEMS.get(system, system), C.byref(info))
+        if code != 0:
+            raise LensrtError(code, self.lib.lensrt_result_string(code).decode())
+        n_in, n_out = info.n_inputs, info.n_outputs
+        return {"inputs": [info.input_names[i].decode() for i in range(n_in)],
+                "outputs": [info.output_names[o].decode() for o in range(n_out)],
+                "min": [info.input_min[i] for i in range(n_in)],
+                "max": [info.input_max[i] for i in range(n_in)],
+                "terms": [info.n_terms[o] for o in range(n_out)]}
+
+    def eval(self, lens: C.c_void_p, system: str | int, inputs: np.ndarray, jacobians: bool = False,
+             dtype: Any = np.float64, context: bool = True
+             ) -> np.ndarray | tuple[np.ndarray, np.ndarray]:
+        """lensrt_lens_eval on raw inputs (n_rays, 6): outputs (n_rays, 4), and with
+        ``jacobians`` also d output / d input (n_rays, 4, 6), all of ``dtype`` (float64 or
+        float32). Without ``context`` no message is recorded (ctx NULL). The GIL is
+        released during the call (ctypes), so threads evaluate in parallel."""
+        self._eval_functions()
+        dt = np.dtype(dtype)
+        if dt not in (np.dtype(np.float64), np.dtype(np.float32)):
+            raise TypeError(f"eval: dtype must be float64 or float32, got {dt}")
+        sys_id = SYSTEMS.get(system, system)
+        info = self.system_info(lens, sys_id)
+        n_in, n_out = len(info["inputs"]), len(info["outputs"])
+        x = np.ascontiguousarray(inputs, dtype=dt).reshape(-1, n_in)
+        out = np.empty((len(x), n_out), dtype=dt)
+        jac = np.empty((len(x), n_out, n_in), dtype=dt) if jacobians else None
+        desc = EvalDesc(sys_id, NUMBER_TYPES[dt.name], len(x), x.ctypes.data, out.ctypes.data,
+                        jac.ctypes.data if jac is not None else None)
+        code = self.lib.lensrt_lens_eval(self.ctx if context else None, lens, C.byref(desc))
+        if code != 0:
+            message = self.lib.lensrt_context_last_error(self.ctx).decode() if context else ""
+            raise LensrtError(code, message or self.lib.lensrt_result_string(code).decode())
+        return (out, jac) if jac is not None else out
+
+
+# Per-ray evaluation (lensrt.h "per-ray evaluation")
+SYSTEMS = {"P_o": 0, "object": 0, "P_s": 1, "sensor": 1}
+NUMBER_TYPES = {"float64": 0, "float32": 1}
+MAX_SYSTEM_INPUTS = 8
+MAX_SYSTEM_OUTPUTS = 8
+
+
+class SystemInfo(Versioned):
+    _fields_ = [("struct_size", C.c_size_t), ("n_inputs", C.c_int32), ("n_outputs", C.c_int32),
+                ("input_names", C.c_char_p * MAX_SYSTEM_INPUTS),
+                ("output_names", C.c_char_p * MAX_SYSTEM_OUTPUTS),
+                ("input_min", C.c_double * MAX_SYSTEM_INPUTS),
+                ("input_max", C.c_double * MAX_SYSTEM_INPUTS),
+                ("n_terms", C.c_int32 * MAX_SYSTEM_OUTPUTS)]
+
+
+class EvalDesc(Versioned):
+    _fields_ = [("struct_size", C.c_size_t), ("system", C.c_int32), ("type", C.c_int32),
+                ("n_rays", C.c_size_t), ("inputs", C.c_void_p), ("outputs", C.c_void_p),
+                ("jacobians", C.c_void_p)]
