@@ -8,7 +8,7 @@
 #                at f/8 on the GL device
 #   make test    lint, the C tests (also under ASan/UBSan) and the Python test suite
 #   make bench   ray-tracer throughput, generated-code speed, fit report, lensrt splat rate,
-#                error against run time, and per generated lens the fit time and the worst
+#                per-ray evaluation against the exact tracer, error against run time, and per generated lens the fit time and the worst
 #                PSF cell against exactly traced rays (build/bench/)
 
 PYTHON ?= /usr/bin/python3
@@ -89,6 +89,7 @@ test: setup lint runtime
 bench: setup runtime
 	@mkdir -p build/bench
 	$(RUNTIME_BUILD)/runtime/lensrt-bench --json build/bench/lensrt.json
+	$(PY) runtime/bench/eval_bench.py --library $(RUNTIME_BUILD)/runtime/liblensrt.so --out build/bench
 	$(PY) runtime/bench/error_vs_time.py --out build/bench --lensrt-json build/bench/lensrt.json
 	$(PY) -m lensfit.bench --out build/bench
 	$(PY) -m lensfit.codegen.bench | tee build/bench/codegen.txt
