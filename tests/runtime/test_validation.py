@@ -1,6 +1,6 @@
 """Validation of the lensrt renderer against closed forms and direct quadrature.
 
-Conventions of the library (runtime/src/render.c prepare_samples, kernel.c
+Conventions of the library (runtime/src/lens/analytic.c sample_wave, cpu/kernel.c
 lensrt_kernel_free_space): an analytic lens is the aperture plane, then free space to a
 sensor at sensor_distance_mm + focus_offset_mm; with focal_length_mm > 0 the aperture
 holds a perfect thin lens (incoming phase -sqrt(|x - image|^2 + v^2) in mm of path).

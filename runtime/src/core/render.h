@@ -1,11 +1,22 @@
-/* The render object (internal): scene, prepared polynomials and phasor sums. */
+/* The render object (internal): the scene, what was prepared from it, the phasor sums.
+ *
+ * Every part of a render reads it: core/ (create, run, results), lens/ (the lens kinds),
+ * the devices (cpu/, gl/) and io/. What differs by lens kind goes through the render's
+ * lens ops (lens/lens.h), what differs by device through its device ops (core/device.h). */
 #ifndef LENSRT_RENDER_H
 #define LENSRT_RENDER_H
 
-#include "../cpu/kernel.h"
 #include "../internal.h"
 
 #define LENSRT_PASS 16384 /* samples per wavelength and pass (a multiple of LENSRT_BLOCK) */
+/* Samples summed together before they reach the double sums, on every device (the CPU
+ * kernel's block, the GL path's float partial sums): runs split at multiples of it give
+ * the same sums bit for bit (lensrt_render_run). */
+#define LENSRT_BLOCK 256
+#define LENSRT_NM_PER_MM 1e6
+
+struct lensrt_lens_ops;   /* lens/lens.h */
+struct lensrt_device_ops; /* core/device.h */
 
 /* A polynomial in (x_S, y_S) and the stop monomials, for one output and wavelength:
  * sum_t coef[t] * xS^ix[t] * yS^iy[t] * mono[slot[t]] (normalised x_S, y_S). */
@@ -19,6 +30,9 @@ typedef struct lensrt_pixel_poly {
 struct lensrt_render_s {
     lensrt_context ctx;
     lensrt_lens lens;
+    const struct lensrt_lens_ops *lens_ops;     /* the lens kind's behaviour */
+    const struct lensrt_device_ops *device;     /* where passes run */
+    void *device_data;                          /* the device's state for this render */
     lensrt_render_desc desc;      /* lights and wavelengths point at the copies below */
     lensrt_light *lights;
     double *wavelengths;
@@ -31,11 +45,13 @@ struct lensrt_render_s {
     double mono_radius;           /* stop monomials use u = x_a / mono_radius */
     /* stop monomials: slot k is u^m v^n, m = slot_m[k], n = slot_n[k] */
     int degree, n_slots;
-    /* Rows of a sample block: the stop monomials, then (use_basis) the phase basis:
-     * g_j = sum_k V[k][j] u^m_k v^n_k over the non-constant slots, where V holds the
-     * eigenvectors of the window's phase-coefficient Gram matrix, so that a few g_j
-     * carry the phase of every pixel of a small window. */
-    int n_rows, use_basis;
+    /* Rows of a sample block (set by the lens kind's prepare): fitted lenses, the stop
+     * monomials, then (use_basis) the phase basis: g_j = sum_k V[k][j] u^m_k v^n_k over
+     * the non-constant slots, where V holds the eigenvectors of the window's
+     * phase-coefficient Gram matrix, so that a few g_j carry the phase of every pixel of
+     * a small window; analytic lenses, the sample's x and y. double_rows: rows, phases
+     * and amplitudes are kept in double (precision DOUBLE; free space always). */
+    int n_rows, use_basis, double_rows;
     int n_bases, basis_output[4]; /* bases per wavelength and the output of each */
     double *basis;                /* [w][b][(n_slots - 1)^2], V[(k - 1) * (n_slots - 1) + j];
                                      CPU: b = 0 phase (waves), 1 transmittance; GL: b = output */
@@ -52,14 +68,11 @@ struct lensrt_render_s {
     uint64_t samples;             /* N per wavelength */
     uint64_t splats;
     double seconds;
-    struct lensrt_gl_render_s *gl; /* the GL device's buffers and programs (device GL) */
     /* pruning statistics of the last pass: sums over (pixel, wavelength) */
     double stat_terms, stat_clip, stat_tau, stat_dark, stat_count;
 };
 
-/* The largest l1 norm of the non-constant coefficients output o (x_i, y_i, tau_i, phi_i)
- * may drop at a pixel whose constant term is c0. */
-double lensrt_output_limit(const lensrt_render r, int o, double c0);
-double lensrt_huygens_step(const lensrt_render r);
+/* "sobol", "random" or "stratified" (core/sampler.c). */
+const char *lensrt_sampler_name(lensrt_sampler s);
 
 #endif /* LENSRT_RENDER_H */

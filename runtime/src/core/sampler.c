@@ -2,7 +2,7 @@
  *
  * Every point is a pure function of (seed, wavelength, index): no generator state, so a
  * render is the same whatever the thread count and however run() calls are split. */
-#include "../internal.h"
+#include "render.h"
 
 #include <math.h>
 
@@ -168,4 +168,9 @@ int lensrt_aperture_contains(const lensrt_aperture *ap, double radius_mm, double
     default:
         return x * x + y * y <= radius_mm * radius_mm;
     }
+}
+
+const char *lensrt_sampler_name(lensrt_sampler s)
+{
+    return s == LENSRT_SAMPLER_RANDOM ? "random" : s == LENSRT_SAMPLER_STRATIFIED ? "stratified" : "sobol";
 }

@@ -1,7 +1,7 @@
 /* The splat kernel (internal): one pixel against one block of aperture samples.
  *
  * Per pixel, the transport after the stop, P_s, is a polynomial in the stop coordinates
- * whose coefficients depend only on the pixel and the wavelength. render.c computes them
+ * whose coefficients depend only on the pixel and the wavelength. cpu/pixel.c computes them
  * once per pixel and pass, in double, drops the constant phase (it cannot change the
  * pixel's intensity), converts the phase to waves and prunes terms too small to matter.
  * Each splat is then a short dot product with the sample's stop monomials, a sine and a
@@ -9,7 +9,7 @@
 #ifndef LENSRT_KERNEL_H
 #define LENSRT_KERNEL_H
 
-#define LENSRT_BLOCK 256 /* samples per block (padded with zero amplitude) */
+#include "../core/render.h" /* LENSRT_BLOCK: samples per block (padded with zero amplitude) */
 
 typedef struct lensrt_terms_f {
     int n;

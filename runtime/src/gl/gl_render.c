@@ -11,6 +11,8 @@
  * as constants, so its inner loops unroll with the coefficients in registers. */
 #include "gl_render.h"
 
+#include "../core/basis.h"
+#include "../lens/lens.h"
 #include "gl_device.h"
 
 #include <math.h>
@@ -49,6 +51,12 @@ struct lensrt_gl_render_s {
     float *inside;         /* [LENSRT_PASS] aperture-shape mask of the pass */
 };
 
+/* The render's GL state (r->device_data). */
+#define GLR(r) ((lensrt_gl_render_s *)(r)->device_data)
+
+/* Free space after the stop (analytic lenses): no P_s, no pixel set-up, no basis. */
+static int free_space(const lensrt_render r) { return r->lens_ops->transport == LENSRT_TRANSPORT_FREE_SPACE; }
+
 /* ------------------------------------------------------------ programs ----- */
 
 /* A double constant as a GLSL literal (always with a point or an exponent): 17
@@ -71,13 +79,13 @@ static void append_int(char *buf, size_t size, const char *name, long v)
 
 static lensrt_result compile(lensrt_render r, const char *name, const char *body, const char *extra, GLuint *out)
 {
-    lensrt_gl *gl = r->gl->gl;
+    lensrt_gl *gl = GLR(r)->gl;
     const char *parts[4];
     GLuint shader, program;
     GLint ok = 0;
     char log[1024] = "";
     parts[0] = "#version 430 core\n";
-    parts[1] = r->gl->defines;
+    parts[1] = GLR(r)->defines;
     parts[2] = extra;
     parts[3] = body;
     shader = gl->CreateShader(GL_COMPUTE_SHADER);
@@ -118,7 +126,7 @@ static void set_ivec4(lensrt_gl *gl, GLuint program, const char *name, const int
 /* The splat program for basis term counts k (per output), compiled on first use. */
 static lensrt_result splat_program(lensrt_render r, const int k[4], GLuint *out)
 {
-    lensrt_gl_render_s *g = r->gl;
+    lensrt_gl_render_s *g = GLR(r);
     char extra[256];
     lensrt_result res;
     int i;
@@ -147,16 +155,16 @@ static void upload(lensrt_gl *gl, GLuint buffer, size_t bytes, const void *data)
 
 static lensrt_result check_gl(lensrt_render r, const char *what)
 {
-    GLenum e = r->gl->gl->GetError();
+    GLenum e = GLR(r)->gl->GetError();
     if (e == GL_NO_ERROR) return LENSRT_SUCCESS;
-    return lensrt_fail(r->ctx, LENSRT_ERROR_DEVICE, "GL: %s failed on %s (%s)", what, r->gl->gl->renderer,
+    return lensrt_fail(r->ctx, LENSRT_ERROR_DEVICE, "GL: %s failed on %s (%s)", what, GLR(r)->gl->renderer,
                        e == GL_OUT_OF_MEMORY ? "out of device memory" : "GL error");
 }
 
 /* The fitted lens's P_s terms per (wavelength, output) and P_o coefficients. */
 static lensrt_result upload_polynomials(lensrt_render r)
 {
-    lensrt_gl *gl = r->gl->gl;
+    lensrt_gl *gl = GLR(r)->gl;
     size_t n = 0, i, at = 0;
     double *coef;
     GLuint *code, *off;
@@ -180,23 +188,23 @@ static lensrt_result upload_polynomials(lensrt_render r)
         }
     }
     off[(size_t)r->n_wl * 4] = (GLuint)at;
-    upload(gl, r->gl->buffers[B_PSCOEF], n * sizeof *coef, coef);
-    upload(gl, r->gl->buffers[B_PSCODE], n * sizeof *code, code);
-    upload(gl, r->gl->buffers[B_PSOFF], ((size_t)r->n_wl * 4 + 1) * sizeof *off, off);
+    upload(gl, GLR(r)->buffers[B_PSCOEF], n * sizeof *coef, coef);
+    upload(gl, GLR(r)->buffers[B_PSCODE], n * sizeof *code, code);
+    upload(gl, GLR(r)->buffers[B_PSOFF], ((size_t)r->n_wl * 4 + 1) * sizeof *off, off);
     lensrt_free(r->ctx, coef);
     lensrt_free(r->ctx, code);
     lensrt_free(r->ctx, off);
-    upload(gl, r->gl->buffers[B_PO], (size_t)r->n_lights * (size_t)r->n_wl * 4 * (size_t)r->n_slots * sizeof(double), r->po);
-    upload(gl, r->gl->buffers[B_BASIS], (size_t)r->n_wl * 4 * (size_t)r->gl->nb * (size_t)r->gl->nb * sizeof(double), r->basis);
+    upload(gl, GLR(r)->buffers[B_PO], (size_t)r->n_lights * (size_t)r->n_wl * 4 * (size_t)r->n_slots * sizeof(double), r->po);
+    upload(gl, GLR(r)->buffers[B_BASIS], (size_t)r->n_wl * 4 * (size_t)GLR(r)->nb * (size_t)GLR(r)->nb * sizeof(double), r->basis);
     // l1 norms of the basis vectors: |V_j|_1 bounds how much a dropped u_j can change
     {
-        const size_t nb = (size_t)r->gl->nb, nv = (size_t)r->n_wl * 4 * nb;
+        const size_t nb = (size_t)GLR(r)->nb, nv = (size_t)r->n_wl * 4 * nb;
         double *norm1 = lensrt_calloc(r->ctx, nv, sizeof(double));
         size_t v, k;
         if (!norm1) return lensrt_fail(r->ctx, LENSRT_ERROR_OUT_OF_MEMORY, "GL: out of memory");
         for (v = 0; v < nv; v++)
             for (k = 0; k < nb; k++) norm1[v] += fabs(r->basis[(v / nb) * nb * nb + k * nb + v % nb]);
-        upload(gl, r->gl->buffers[B_NORM1], nv * sizeof(double), norm1);
+        upload(gl, GLR(r)->buffers[B_NORM1], nv * sizeof(double), norm1);
         lensrt_free(r->ctx, norm1);
     }
     return LENSRT_SUCCESS;
@@ -206,7 +214,7 @@ static lensrt_result upload_polynomials(lensrt_render r)
 
 static void scene_defines(lensrt_render r)
 {
-    lensrt_gl_render_s *g = r->gl;
+    lensrt_gl_render_s *g = GLR(r);
     char *d = g->defines;
     const size_t size = sizeof g->defines;
     const lensrt_lens lens = r->lens;
@@ -218,8 +226,8 @@ static void scene_defines(lensrt_render r)
     append_int(d, size, "W", r->width);
     append_int(d, size, "NAIVE", r->desc.precision == LENSRT_PRECISION_NAIVE_FLOAT);
     append_int(d, size, "UNBIASED", r->desc.estimator == LENSRT_ESTIMATOR_UNBIASED);
-    append_int(d, size, "ANALYTIC", lens->analytic);
-    if (lens->analytic) {
+    append_int(d, size, "ANALYTIC", free_space(r));
+    if (free_space(r)) {
         // Placeholders keep the fitted-lens declarations valid
         append_int(d, size, "NS", 2);
         append_int(d, size, "NB", 1);
@@ -249,7 +257,7 @@ static void scene_defines(lensrt_render r)
     append_double(d, size, "STEP_MM", lensrt_huygens_step(r));
 }
 
-lensrt_result lensrt_gl_render_create(lensrt_render r)
+static lensrt_result gl_create(lensrt_render r)
 {
     lensrt_gl_render_s *g;
     lensrt_gl *gl;
@@ -262,7 +270,7 @@ lensrt_result lensrt_gl_render_create(lensrt_render r)
         return lensrt_fail(r->ctx, LENSRT_ERROR_INVALID_ARGUMENT,
                            "device gl: precision double is CPU-only (GLSL has no double sine or cosine; the GL path "
                            "reduces the phase in double and evaluates the trigonometry in float)");
-    if (!r->lens->analytic) {
+    if (!free_space(r)) {
         if (r->n_slots < 2)
             return lensrt_fail(r->ctx, LENSRT_ERROR_UNSUPPORTED, "device gl: %s has no stop dependence", r->lens->file);
         if (r->lens->p_s.inputs[0].transform != LENSRT_TRANSFORM_AFFINE ||
@@ -272,9 +280,9 @@ lensrt_result lensrt_gl_render_create(lensrt_render r)
     if ((res = lensrt_gl_get(r->ctx, &gl)) != LENSRT_SUCCESS) return res;
     g = lensrt_calloc(r->ctx, 1, sizeof *g);
     if (!g) return lensrt_fail(r->ctx, LENSRT_ERROR_OUT_OF_MEMORY, "GL: out of memory");
-    r->gl = g;
+    r->device_data = g;
     g->gl = gl;
-    g->nb = r->lens->analytic ? 1 : r->n_slots - 1;
+    g->nb = free_space(r) ? 1 : r->n_slots - 1;
     g->npix = (long)r->width * r->height;
     // Chunks: records of at most RECORD_BYTES, and a dispatch within the group limit
     g->chunk = (long)(RECORD_BYTES / ((6u + 4u * (unsigned)g->nb) * sizeof(float)));
@@ -305,7 +313,7 @@ lensrt_result lensrt_gl_render_create(lensrt_render r)
     }
     // Programs: the sample shader, and the pixel set-up for fitted lenses
     res = compile(r, "samples.comp", lensrt_samples_comp, "", &g->samples);
-    if (res == LENSRT_SUCCESS && !r->lens->analytic) res = compile(r, "pixels.comp", lensrt_pixels_comp, "", &g->pixels);
+    if (res == LENSRT_SUCCESS && !free_space(r)) res = compile(r, "pixels.comp", lensrt_pixels_comp, "", &g->pixels);
     if (res == LENSRT_SUCCESS) {
         // What stays fixed: lights, wavelengths, pixel centres, polynomials; then space
         // for the pass's samples and rows, the chunk's records and the phasor sums
@@ -320,7 +328,7 @@ lensrt_result lensrt_gl_render_create(lensrt_render r)
         nsum = (size_t)r->n_lights * (size_t)r->n_wl * (size_t)g->npix;
         upload(gl, g->buffers[B_SUMS], nsum * 2 * sizeof(double), NULL);
         upload(gl, g->buffers[B_SUMSQ], r->sumsq ? nsum * sizeof(double) : 0, NULL);
-        if (!r->lens->analytic) {
+        if (!free_space(r)) {
             upload(gl, g->buffers[B_ROWS], 4 * (size_t)g->nb * LENSRT_PASS * sizeof(float), NULL);
             upload(gl, g->buffers[B_RECORDS], (size_t)g->chunk * (6 + 4 * (size_t)g->nb) * sizeof(float), NULL);
             upload(gl, g->buffers[B_RANKS], ((size_t)r->n_wl * 4 + 3) * sizeof(GLuint), NULL);
@@ -336,9 +344,9 @@ lensrt_result lensrt_gl_render_create(lensrt_render r)
     return res;
 }
 
-void lensrt_gl_render_destroy(lensrt_render r)
+static void gl_destroy(lensrt_render r)
 {
-    lensrt_gl_render_s *g = r->gl;
+    lensrt_gl_render_s *g = GLR(r);
     int i;
     if (!g) return;
     if (g->gl && lensrt_gl_acquire(r->ctx, g->gl) == LENSRT_SUCCESS) {
@@ -352,7 +360,7 @@ void lensrt_gl_render_destroy(lensrt_render r)
     lensrt_free(r->ctx, g->k);
     lensrt_free(r->ctx, g->inside);
     lensrt_free(r->ctx, g);
-    r->gl = NULL;
+    r->device_data = NULL;
 }
 
 /* -------------------------------------------------------------- passes ----- */
@@ -360,7 +368,7 @@ void lensrt_gl_render_destroy(lensrt_render r)
 /* pixels.comp over every chunk for wavelength w, writing k[] coefficients per output. */
 static void dispatch_pixels(lensrt_render r, int w, long first, long count, const int *k)
 {
-    lensrt_gl_render_s *g = r->gl;
+    lensrt_gl_render_s *g = GLR(r);
     lensrt_gl *gl = g->gl;
     gl->UseProgram(g->pixels);
     set_uint(gl, g->pixels, "u_w", (unsigned)w);
@@ -376,24 +384,24 @@ static void dispatch_pixels(lensrt_render r, int w, long first, long count, cons
 /* Zero the ranks and the per-pass counters. */
 static void clear_ranks(lensrt_render r)
 {
-    lensrt_gl *gl = r->gl->gl;
+    lensrt_gl *gl = GLR(r)->gl;
     size_t n = (size_t)r->n_wl * 4 + 3;
     GLuint zero[4096 * 4 + 3];
     memset(zero, 0, n * sizeof(GLuint));
-    gl->BindBuffer(GL_SHADER_STORAGE_BUFFER, r->gl->buffers[B_RANKS]);
+    gl->BindBuffer(GL_SHADER_STORAGE_BUFFER, GLR(r)->buffers[B_RANKS]);
     gl->BufferSubData(GL_SHADER_STORAGE_BUFFER, 0, (GLsizeiptr)(n * sizeof(GLuint)), zero);
 }
 
 /* The basis terms each output needs, per wavelength: the largest need of any pixel. */
 static lensrt_result find_ranks(lensrt_render r)
 {
-    lensrt_gl_render_s *g = r->gl;
+    lensrt_gl_render_s *g = GLR(r);
     lensrt_gl *gl = g->gl;
     static const int none[4] = {0, 0, 0, 0};
     GLuint ranks[4096 * 4 + 3];
     long first;
     int w, o;
-    if (r->lens->analytic || g->k[0] >= 0) return LENSRT_SUCCESS;
+    if (free_space(r) || g->k[0] >= 0) return LENSRT_SUCCESS;
     clear_ranks(r);
     for (w = 0; w < r->n_wl; w++)
         for (first = 0; first < g->npix; first += g->chunk)
@@ -407,9 +415,9 @@ static lensrt_result find_ranks(lensrt_render r)
     return check_gl(r, "the pixel set-up");
 }
 
-lensrt_result lensrt_gl_begin(lensrt_render r)
+static lensrt_result gl_begin(lensrt_render r)
 {
-    lensrt_gl_render_s *g = r->gl;
+    lensrt_gl_render_s *g = GLR(r);
     lensrt_gl *gl = g->gl;
     size_t nsum = (size_t)r->n_lights * (size_t)r->n_wl * (size_t)g->npix;
     lensrt_result res;
@@ -428,12 +436,12 @@ lensrt_result lensrt_gl_begin(lensrt_render r)
     return res;
 }
 
-lensrt_result lensrt_gl_pass(lensrt_render r, int w, const double *xy, int n)
+static lensrt_result gl_pass(lensrt_render r, int w, const double *xy, int n)
 {
-    lensrt_gl_render_s *g = r->gl;
+    lensrt_gl_render_s *g = GLR(r);
     lensrt_gl *gl = g->gl;
     static const int zero4[4] = {0, 0, 0, 0};
-    const int *k = r->lens->analytic ? zero4 : g->k + 4 * w;
+    const int *k = free_space(r) ? zero4 : g->k + 4 * w;
     GLuint splat;
     lensrt_result res;
     long first;
@@ -456,7 +464,7 @@ lensrt_result lensrt_gl_pass(lensrt_render r, int w, const double *xy, int n)
     // Per chunk of pixels: set-up, then shader 2
     for (first = 0; first < g->npix; first += g->chunk) {
         long count = g->npix - first < g->chunk ? g->npix - first : g->chunk;
-        if (!r->lens->analytic) dispatch_pixels(r, w, first, count, k);
+        if (!free_space(r)) dispatch_pixels(r, w, first, count, k);
         gl->UseProgram(splat);
         set_uint(gl, splat, "u_w", (unsigned)w);
         set_uint(gl, splat, "u_n", (unsigned)n);
@@ -468,7 +476,7 @@ lensrt_result lensrt_gl_pass(lensrt_render r, int w, const double *xy, int n)
         gl->MemoryBarrier(GL_SHADER_STORAGE_BARRIER_BIT);
     }
     // Statistics of the pass, once every wavelength is done
-    if (!r->lens->analytic && w == r->n_wl - 1) {
+    if (!free_space(r) && w == r->n_wl - 1) {
         GLuint counts[3];
         double terms = 0.0;
         gl->MemoryBarrier(GL_BUFFER_UPDATE_BARRIER_BIT);
@@ -487,9 +495,9 @@ lensrt_result lensrt_gl_pass(lensrt_render r, int w, const double *xy, int n)
     return check_gl(r, "a pass");
 }
 
-lensrt_result lensrt_gl_end(lensrt_render r, lensrt_result status)
+static lensrt_result gl_end(lensrt_render r, lensrt_result status)
 {
-    lensrt_gl_render_s *g = r->gl;
+    lensrt_gl_render_s *g = GLR(r);
     lensrt_gl *gl = g->gl;
     size_t nsum = (size_t)r->n_lights * (size_t)r->n_wl * (size_t)g->npix;
     lensrt_result res;
@@ -505,3 +513,5 @@ lensrt_result lensrt_gl_end(lensrt_render r, lensrt_result status)
     lensrt_gl_release(gl);
     return status != LENSRT_SUCCESS ? status : res;
 }
+
+const lensrt_device_ops lensrt_device_gl = {"gl", gl_create, gl_begin, gl_pass, gl_end, gl_destroy};

@@ -1,0 +1,23 @@
+/* The window's bases and the pruning limits (internal, core/basis.c), shared by the CPU
+ * and GL devices so that both drop the same amount per pixel. */
+#ifndef LENSRT_BASIS_H
+#define LENSRT_BASIS_H
+
+#include "render.h"
+
+/* The largest l1 norm of the non-constant coefficients output o (x_i, y_i, tau_i, phi_i)
+ * may drop at a pixel whose constant term is c0. */
+double lensrt_output_limit(const lensrt_render r, int o, double c0);
+/* Step (mm) of the central differences of the Huygens amplitude. */
+double lensrt_huygens_step(const lensrt_render r);
+
+/* The window's bases per wavelength (r->basis, r->basis_rank, r->n_rows; nothing when
+ * the precision does not use them). */
+lensrt_result lensrt_prepare_basis(lensrt_render r);
+
+/* Coordinates u[0 .. R) of the non-constant coefficients c[1 .. n] in the leading R
+ * vectors of the orthonormal basis V, and the fewest of them whose dropped tail (the
+ * residual) has an l1 norm <= limit; R + 1 when even R vectors are not enough. */
+int lensrt_basis_keep(const double *V, int n, int R, const double *c, double limit, double *u);
+
+#endif /* LENSRT_BASIS_H */

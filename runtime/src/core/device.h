@@ -1,0 +1,35 @@
+/* Devices (internal): where the passes of a render run.
+ *
+ * core/render.c draws the samples on the host (pure functions of seed, wavelength and
+ * index, the same for every device) and hands each wavelength's pass to the render's
+ * device through this table. A device is one folder with one table (cpu/: OpenMP and
+ * the SIMD kernel; gl/: OpenGL 4.3 compute shaders); core/device.c lists them, and is the
+ * only core file that includes a device's header. A new device (CUDA, Vulkan) is a new
+ * folder, its table, and one line there. */
+#ifndef LENSRT_DEVICE_H
+#define LENSRT_DEVICE_H
+
+#include "render.h"
+
+typedef struct lensrt_device_ops {
+    const char *name; /* "cpu", "gl": as lensrt-psf --device spells it */
+    /* Check the scene for the device and make its state (r->device_data), once, from
+     * lensrt_render_create after the host's sums are allocated. A failure leaves the
+     * render to be destroyed, so destroy must accept a half-made state. */
+    lensrt_result (*create)(lensrt_render r);
+    /* Around the passes of one run() or splat_points() call: begin makes what passes need
+     * (the GL device uploads the host's sums, which load and merge may have changed);
+     * end is called once begin succeeded, whatever the passes returned, and must leave
+     * the completed passes' sums on the host; it returns `status` or its own failure. */
+    lensrt_result (*begin)(lensrt_render r);
+    /* Splat wavelength w's samples xy[0 .. 2 n) (zeros follow up to 2 LENSRT_PASS) into
+     * the sums of every light and pixel. */
+    lensrt_result (*pass)(lensrt_render r, int w, const double *xy, int n);
+    lensrt_result (*end)(lensrt_render r, lensrt_result status);
+    void (*destroy)(lensrt_render r);
+} lensrt_device_ops;
+
+/* The device table: NULL when this build has no such device. */
+const lensrt_device_ops *lensrt_device_find(int device);
+
+#endif /* LENSRT_DEVICE_H */

@@ -1,0 +1,54 @@
+/* The CPU device's passes (internal): one wavelength's samples laid out in blocks for the
+ * kernel (cpu/samples.c), then splatted to pixel groups (cpu/splat.c, cpu/pixel.c).
+ *
+ * Pixels never share sums and samples are pure functions of their index, so a pixel's
+ * sums do not depend on which group, thread or call splats it. */
+#ifndef LENSRT_CPU_PASS_H
+#define LENSRT_CPU_PASS_H
+
+#include "../core/render.h"
+#include "kernel.h"
+
+#define LENSRT_CPU_GROUP 16 /* pixels set up together, then streamed past each sample block */
+
+/* The samples of one pass for one wavelength, laid out for the kernel. */
+typedef struct lensrt_cpu_pass {
+    int n, n_blocks;          /* samples, blocks of LENSRT_BLOCK */
+    float *mono_f;            /* [block][row][j] */
+    double *mono_d;
+    float *phase_f, *amp_f;   /* [block][light][j] */
+    double *phase_d, *amp_d;
+} lensrt_cpu_pass;
+
+/* Statistics of the per-pixel set-up, summed over (pixel, wavelength). */
+typedef struct lensrt_cpu_stats {
+    double terms, clip, tau, dark;
+} lensrt_cpu_stats;
+
+/* Buffers for LENSRT_PASS samples (rows in float or double as the render keeps them). */
+lensrt_result lensrt_cpu_alloc_pass(lensrt_render r, lensrt_cpu_pass *pd);
+void lensrt_cpu_free_pass(lensrt_context ctx, lensrt_cpu_pass *pd);
+
+/* The rows, phases and amplitudes of samples xy[0 .. 2 n) of wavelength w (blocks padded
+ * with zero amplitude), in OpenMP threads (threaded) or on the calling thread alone. */
+void lensrt_cpu_prepare_samples(lensrt_render r, int w, const double *xy, int n, lensrt_cpu_pass *pd, int threaded);
+
+/* Splat every sample of pd to pixels p0 .. p1 - 1 (row-major indices) for wavelength w,
+ * adding to their sums, on the calling thread; the set-up's statistics add to *st. */
+void lensrt_cpu_splat_pixels(lensrt_render r, int w, const lensrt_cpu_pass *pd, long p0, long p1, lensrt_cpu_stats *st);
+
+/* A pixel of polynomial transport (cpu/pixel.c): P_s's terms at the pixel, pruned, and
+ * the kernel's float and double views of them. Returns 0 when every path through the
+ * pixel is clipped. */
+typedef struct lensrt_cpu_pixel {
+    int slot[4][136];
+    float coef_f[4][136];
+    double coef_d[4][136];
+    double amp;                 /* Huygens amplitude factor times constant transmittance */
+    lensrt_pixel_f f;
+    lensrt_pixel_d d;
+} lensrt_cpu_pixel;
+
+int lensrt_cpu_setup_pixel(const lensrt_render r, int w, double x, double y, lensrt_cpu_pixel *px);
+
+#endif /* LENSRT_CPU_PASS_H */

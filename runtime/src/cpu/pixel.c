@@ -1,0 +1,147 @@
+/* The CPU device's pixel set-up for polynomial transport: P_s specialised to the pixel
+ * (stop-monomial coefficients in double), the inner-pupil clip decided from bounds, the
+ * phase in waves with its constant dropped (it cannot change the pixel's intensity),
+ * negligible terms pruned, phase and transmittance moved into the window's bases where
+ * that needs fewer terms, and the Huygens amplitude. */
+#include "pass.h"
+
+#include "../core/basis.h"
+#include "../core/specialise.h"
+
+#include <math.h>
+#include <string.h>
+
+/* Build the kernel's view of pixel (x, y) for wavelength w; returns 0 when every path
+ * through the pixel is clipped. */
+int lensrt_cpu_setup_pixel(const lensrt_render r, int w, double x, double y, lensrt_cpu_pixel *pt)
+{
+    lensrt_pixel_f *pf = &pt->f;
+    lensrt_pixel_d *pdb = &pt->d;
+    const lensrt_lens lens = r->lens;
+    const double lambda_mm = r->wavelengths[w] / LENSRT_NM_PER_MM;
+    const int dbl = r->desc.precision == LENSRT_PRECISION_DOUBLE;
+    const int naive = r->desc.precision == LENSRT_PRECISION_NAIVE_FLOAT;
+    const int ns = r->n_slots;
+    double px[16], py[16], c[4][136], bound[4], h = lens->housing_last_mm;
+    int o, k, counts[4];
+    lensrt_sensor_powers(lens, x, y, px, py);
+    // Coefficients of the stop monomials at this pixel, and bounds of the varying parts
+    for (o = 0; o < 4; o++) {
+        lensrt_slot_coefficients(&r->ps[w * 4 + o], px, py, c[o], ns);
+        bound[o] = 0.0;
+        for (k = 1; k < ns; k++) bound[o] += fabs(c[o][k]);
+    }
+    // Inner pupil: skip the clip when every path passes, the pixel when none does
+    {
+        double hi = hypot(fabs(c[0][0]) + bound[0], fabs(c[1][0]) + bound[1]);
+        double lo_x = fabs(c[0][0]) - bound[0], lo_y = fabs(c[1][0]) - bound[1];
+        if (lo_x > h || lo_y > h || (lo_x > 0 && lo_y > 0 && hypot(lo_x, lo_y) > h)) return 0;
+        pf->clip = pdb->clip = hi > h;
+    }
+    // Phase in waves; the constant part is kept only by the naive mode
+    for (k = 0; k < ns; k++) c[3][k] *= 1.0 / lambda_mm;
+    // Prune: drop the smallest terms while the sum of their bounds stays under the
+    // output's tolerance (every stop monomial is bounded by 1 on the sampled region)
+    {
+        for (o = 0; o < 4; o++) {
+            const double limit = lensrt_output_limit(r, o, c[2][0]);
+            int order[136], n = 0, i, j;
+            unsigned char kept[136];
+            double dropped = 0.0;
+            counts[o] = 0;
+            if ((o == 0 || o == 1) && !pf->clip) continue;
+            if (o == 2 && bound[2] <= limit && !dbl) continue; /* constant: folded into amp */
+            // Terms by increasing size (insertion sort: at most 135 of them)
+            for (k = 1; k < ns; k++) {
+                double a = fabs(c[o][k]);
+                if (a == 0.0) continue;
+                for (j = n; j > 0 && fabs(c[o][order[j - 1]]) > a; j--) order[j] = order[j - 1];
+                order[j] = k;
+                n++;
+            }
+            i = 0;
+            if (!dbl)
+                while (i < n && dropped + fabs(c[o][order[i]]) <= limit) dropped += fabs(c[o][order[i++]]);
+            // Keep the rest in slot order (the kernel streams monomial rows)
+            memset(kept, 0, sizeof kept);
+            for (j = i; j < n; j++) kept[order[j]] = 1;
+            for (j = 0, k = 0; k < ns; k++) {
+                if (!kept[k]) continue;
+                pt->slot[o][j] = k;
+                pt->coef_f[o][j] = (float)c[o][k];
+                pt->coef_d[o][j] = c[o][k];
+                j++;
+            }
+            counts[o] = j;
+            if (o == 2 && counts[2] > 0) {
+                // A varying transmittance keeps its constant term in the polynomial
+                pt->slot[2][counts[2]] = 0;
+                pt->coef_f[2][counts[2]] = (float)c[2][0];
+                pt->coef_d[2][counts[2]] = c[2][0];
+                counts[2]++;
+            }
+        }
+    }
+    // Phase and transmittance in the window's bases: keep the leading vectors whose
+    // dropped tail stays under the tolerance (its l1 norm bounds the error, every
+    // monomial being at most 1 on the sampled region)
+    if (r->use_basis) {
+        const int n = ns - 1;
+        int bb;
+        for (bb = 0; bb < 2; bb++) {
+            const int oo = bb ? 2 : 3;
+            const double *V = r->basis + (size_t)(2 * w + bb) * (size_t)n * (size_t)n;
+            const double limit = lensrt_output_limit(r, oo, c[2][0]);
+            double u[135];
+            int j, keep, have = counts[oo] - (oo == 2 && counts[2] > 0);
+            if (oo == 2 && counts[2] == 0) continue; /* constant transmittance */
+            keep = lensrt_basis_keep(V, n, r->basis_rank[2 * w + bb], c[oo], limit, u);
+            if (keep > r->basis_rank[2 * w + bb]) continue; /* beyond the rows computed */
+            if (keep >= have) continue;
+            for (j = 0; j < keep; j++) {
+                pt->slot[oo][j] = ns + bb * n + j;
+                pt->coef_f[oo][j] = (float)u[j];
+                pt->coef_d[oo][j] = u[j];
+            }
+            counts[oo] = keep;
+            if (oo == 2) {
+                // The transmittance keeps its constant term (row 0 is the monomial 1)
+                pt->slot[2][keep] = 0;
+                pt->coef_f[2][keep] = (float)c[2][0];
+                pt->coef_d[2][keep] = c[2][0];
+                counts[2] = keep + 1;
+            }
+        }
+    }
+    // Huygens amplitude (core/specialise.c)
+    pt->amp = lensrt_huygens_amplitude(r, w, x, y);
+    if (counts[2] == 0) pt->amp *= sqrt(c[2][0] > 0 ? c[2][0] : 0.0);
+    // Point the kernel's views at the terms
+    pf->phase0 = naive ? (float)c[3][0] : 0.0f;
+    pf->housing2 = (float)(h * h);
+    pdb->housing2 = h * h;
+    {
+        lensrt_terms_f *tf[4];
+        lensrt_terms_d *td[4];
+        tf[0] = &pf->xi; tf[1] = &pf->yi; tf[2] = &pf->tau; tf[3] = &pf->phase;
+        td[0] = &pdb->xi; td[1] = &pdb->yi; td[2] = &pdb->tau; td[3] = &pdb->phase;
+        for (o = 0; o < 4; o++) {
+            tf[o]->n = td[o]->n = counts[o];
+            tf[o]->slot = td[o]->slot = pt->slot[o];
+            tf[o]->coef = pt->coef_f[o];
+            td[o]->coef = pt->coef_d[o];
+        }
+    }
+    if (pf->clip) {
+        // The clip needs the constant position too
+        for (o = 0; o < 2; o++) {
+            pt->slot[o][counts[o]] = 0;
+            pt->coef_f[o][counts[o]] = (float)c[o][0];
+            pt->coef_d[o][counts[o]] = c[o][0];
+            counts[o]++;
+        }
+        pf->xi.n = pdb->xi.n = counts[0];
+        pf->yi.n = pdb->yi.n = counts[1];
+    }
+    return 1;
+}

@@ -1,0 +1,144 @@
+/* Fitted lenses: the polynomials P_o (light to stop) and P_s (stop to sensor) of a
+ * coefficient table, valid over the domain they were fitted on.
+ *
+ * Per render, P_o is specialised to each light and wavelength and P_s to each wavelength
+ * (core/specialise.c), and the window's bases are found (core/basis.c). Per sample, the
+ * stop monomials (and the basis functions) are the rows of the sample block, and P_o
+ * gives the outer-pupil clip, the front group's transmittance and the phase. Devices
+ * then specialise P_s per pixel (LENSRT_TRANSPORT_POLYNOMIAL). */
+#include "lens.h"
+
+#include "../core/basis.h"
+#include "../core/image_point.h"
+#include "../core/specialise.h"
+
+#include <math.h>
+
+#define PI 3.14159265358979323846
+
+static int one_dimensional(lensrt_lens lens)
+{
+    (void)lens;
+    return 0;
+}
+
+static void wavelength_range(lensrt_lens lens, double *lo_nm, double *hi_nm)
+{
+    *lo_nm = lens->info.wavelength_min_nm;
+    *hi_nm = lens->info.wavelength_max_nm;
+}
+
+static lensrt_result check_light(lensrt_render r, const lensrt_lens_info *info, int i, double x, double y)
+{
+    const lensrt_light *l = &r->lights[i];
+    // The fitted field is an ellipse with these semi-axes (direction cosines)
+    if ((x / info->field_x) * (x / info->field_x) + (y / info->field_y) * (y / info->field_y) > 1.0 + 1e-9)
+        return lensrt_fail(r->ctx, LENSRT_ERROR_OUT_OF_DOMAIN,
+                           "light %d: field (%g, %g) deg is outside the fitted field of %s (%.3g x %.3g deg)",
+                           i, l->field_x_deg, l->field_y_deg, info->name,
+                           asin(info->field_x) * 180.0 / PI, asin(info->field_y) * 180.0 / PI);
+    if (l->distance_mm > 0 && l->distance_mm < info->distance_min_mm * (1 - 1e-9))
+        return lensrt_fail(r->ctx, LENSRT_ERROR_OUT_OF_DOMAIN,
+                           "light %d: distance %g mm is closer than the fitted %g mm of %s",
+                           i, l->distance_mm, info->distance_min_mm, info->name);
+    return LENSRT_SUCCESS;
+}
+
+static lensrt_result choose_stop(lensrt_render r, const lensrt_lens_info *info)
+{
+    const lensrt_aperture *a = &r->desc.aperture;
+    lensrt_lens lens = r->lens;
+    if (a->radius_mm > 0) r->stop_radius = a->radius_mm;
+    else if (a->f_number > 0) r->stop_radius = lens->stop_radius_f1_mm / a->f_number;
+    else r->stop_radius = info->stop_radius_max_mm;
+    if (r->stop_radius > info->stop_radius_max_mm * (1 + 1e-9))
+        return lensrt_fail(r->ctx, LENSRT_ERROR_OUT_OF_DOMAIN,
+                           "aperture: f/%.3g (stop radius %g mm) is wider than %s was fitted for: f/%.3g (stop radius %g mm)",
+                           lens->stop_radius_f1_mm / r->stop_radius, r->stop_radius, info->name,
+                           info->f_number_min, info->stop_radius_max_mm);
+    r->f_number = lens->stop_radius_f1_mm / r->stop_radius;
+    return LENSRT_SUCCESS;
+}
+
+static lensrt_result check_window(lensrt_render r, const lensrt_lens_info *info)
+{
+    // The window must lie inside the fitted sensor square
+    const lensrt_input *xs = &r->lens->p_s.inputs[0], *ys = &r->lens->p_s.inputs[1];
+    double x0 = r->xs[0], x1 = r->xs[r->width - 1], y0 = r->ys[r->height - 1], y1 = r->ys[0];
+    if (x0 < xs->lo - 1e-9 || x1 > xs->hi + 1e-9 || y0 < ys->lo - 1e-9 || y1 > ys->hi + 1e-9)
+        return lensrt_fail(r->ctx, LENSRT_ERROR_OUT_OF_DOMAIN,
+                           "sensor: pixel centres span x [%g, %g] mm, y [%g, %g] mm, beyond the fitted "
+                           "[%g, %g] x [%g, %g] mm of %s", x0, x1, y0, y1, xs->lo, xs->hi, ys->lo, ys->hi, info->name);
+    return LENSRT_SUCCESS;
+}
+
+static lensrt_result prepare(lensrt_render r)
+{
+    lensrt_result res;
+    r->double_rows = r->desc.precision == LENSRT_PRECISION_DOUBLE;
+    if ((res = lensrt_specialise_scene(r)) != LENSRT_SUCCESS) return res;
+    return lensrt_prepare_basis(r);
+}
+
+/* Stop monomials u^m v^n with u = x / R, v = y / R, then the window's basis functions
+ * of this wavelength (as many as its pixels use). */
+static void sample_rows(const lensrt_render r, int w, double x, double y, double *mono, const lensrt_rows *rows)
+{
+    const int ns = r->n_slots;
+    const size_t st = rows->stride;
+    double u = x / r->mono_radius, v = y / r->mono_radius, pu[16], pv[16];
+    int k;
+    pu[0] = pv[0] = 1.0;
+    for (k = 1; k <= r->degree; k++) {
+        pu[k] = pu[k - 1] * u;
+        pv[k] = pv[k - 1] * v;
+    }
+    for (k = 0; k < ns; k++) {
+        mono[k] = pu[r->slot_m[k]] * pv[r->slot_n[k]];
+        if (r->double_rows) rows->d[(size_t)k * st] = mono[k];
+        else rows->f[(size_t)k * st] = (float)mono[k];
+    }
+    if (r->use_basis) {
+        int q, bb;
+        for (bb = 0; bb < 2; bb++) {
+            const double *V = r->basis + (size_t)(2 * w + bb) * (size_t)(ns - 1) * (size_t)(ns - 1);
+            for (q = 0; q < r->basis_rank[2 * w + bb]; q++) {
+                double gq = 0.0;
+                for (k = 1; k < ns; k++) gq += V[(k - 1) * (ns - 1) + q] * mono[k];
+                rows->f[(size_t)(ns + bb * (ns - 1) + q) * st] = (float)gq;
+            }
+        }
+    }
+}
+
+/* P_o: outer-pupil clip, transmittance, OPL from the light minus its distance. */
+static void sample_wave(const lensrt_render r, int w, int l, double x, double y, const double *mono, double *amp,
+                        double *opl_out)
+{
+    const lensrt_lens lens = r->lens;
+    const int ns = r->n_slots;
+    const double *cx = lensrt_po_slots(r, l, w, 0), *cy = lensrt_po_slots(r, l, w, 1);
+    const double *ct = lensrt_po_slots(r, l, w, 2), *cp = lensrt_po_slots(r, l, w, 3);
+    double xo = 0, yo = 0, tau = 0, opl = 0.0;
+    int k;
+    (void)x;
+    (void)y;
+    for (k = 0; k < ns; k++) {
+        xo += cx[k] * mono[k];
+        yo += cy[k] * mono[k];
+        tau += ct[k] * mono[k];
+        opl += cp[k] * mono[k];
+    }
+    if (xo * xo + yo * yo > lens->housing_first_mm * lens->housing_first_mm) *amp = 0.0;
+    *amp *= sqrt(tau > 0 ? tau : 0.0);
+    if (r->desc.precision == LENSRT_PRECISION_NAIVE_FLOAT) opl += r->light_d[l];
+    *opl_out = opl;
+}
+
+static const char *table_file(lensrt_lens lens) { return lens->file; }
+
+const lensrt_lens_ops lensrt_lens_fitted = {
+    "fitted", LENSRT_TRANSPORT_POLYNOMIAL, 1,
+    one_dimensional, wavelength_range, check_light, choose_stop, check_window, prepare,
+    sample_rows, sample_wave, lensrt_polynomial_image_point, table_file,
+};
