@@ -67,22 +67,26 @@ class Versioned(C.Structure):
 
 
 class ContextInit(Versioned):
-    _fields_ = [("struct_size", C.c_size_t), ("alloc_fn", C.c_void_p), ("free_fn", C.c_void_p), ("log_fn", C.c_void_p),
+    _fields_ = [("struct_size", C.c_size_t), ("alloc_fn", C.c_void_p), ("free_fn", C.c_void_p),
+                ("log_fn", C.c_void_p),
                 ("user_data", C.c_void_p), ("threads", C.c_int32), ("gl_platform", C.c_int32)]
 
 
 class GlInfo(Versioned):
-    _fields_ = [("struct_size", C.c_size_t), ("platform", C.c_char_p), ("renderer", C.c_char_p), ("version", C.c_char_p),
+    _fields_ = [("struct_size", C.c_size_t), ("platform", C.c_char_p), ("renderer", C.c_char_p),
+                ("version", C.c_char_p),
                 ("software", C.c_int32)]
 
 
 class AnalyticLens(Versioned):
-    _fields_ = [("struct_size", C.c_size_t), ("focal_length_mm", C.c_double), ("sensor_distance_mm", C.c_double),
+    _fields_ = [("struct_size", C.c_size_t), ("focal_length_mm", C.c_double),
+                ("sensor_distance_mm", C.c_double),
                 ("one_dimensional", C.c_int32)]
 
 
 class LensInfo(Versioned):
-    _fields_ = [("struct_size", C.c_size_t), ("name", C.c_char_p), ("analytic", C.c_int32), ("focal_length_mm", C.c_double),
+    _fields_ = [("struct_size", C.c_size_t), ("name", C.c_char_p), ("analytic", C.c_int32),
+                ("focal_length_mm", C.c_double),
                 ("f_number_min", C.c_double), ("stop_radius_max_mm", C.c_double),
                 ("wavelength_min_nm", C.c_double), ("wavelength_max_nm", C.c_double),
                 ("focus_offset_min_mm", C.c_double), ("focus_offset_max_mm", C.c_double),
@@ -106,7 +110,8 @@ class Sensor(C.Structure):
 
 
 class Light(Versioned):
-    _fields_ = [("struct_size", C.c_size_t), ("field_x_deg", C.c_double), ("field_y_deg", C.c_double),
+    _fields_ = [("struct_size", C.c_size_t), ("field_x_deg", C.c_double),
+                ("field_y_deg", C.c_double),
                 ("distance_mm", C.c_double), ("intensity", C.c_double)]
 
 
@@ -121,7 +126,8 @@ class RenderDesc(Versioned):
 
 class Stats(Versioned):
     _fields_ = [("struct_size", C.c_size_t), ("width", C.c_int32), ("height", C.c_int32),
-                ("n_wavelengths", C.c_int32), ("n_lights", C.c_int32), ("samples_per_wavelength", C.c_uint64),
+                ("n_wavelengths", C.c_int32), ("n_lights", C.c_int32),
+                ("samples_per_wavelength", C.c_uint64),
                 ("splats", C.c_uint64), ("seconds", C.c_double),
                 ("splats_per_second", C.c_double), ("stop_radius_mm", C.c_double),
                 ("f_number", C.c_double), ("phase_terms", C.c_double),
