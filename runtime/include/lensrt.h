@@ -326,7 +326,10 @@ typedef struct lensrt_eval_desc {
  * recorded; use one context per thread if messages matter). Analytic lenses have no
  * fitted systems: LENSRT_ERROR_UNSUPPORTED. Compiled-in lenses evaluate values through
  * their generated Horner code (lensrt_lens_load_compiled); Jacobians always come from
- * the coefficient table. */
+ * the coefficient table. Float batches are summed in double (float only in memory). An
+ * input that is not finite, or a wavelength <= 0, refuses the whole batch before anything
+ * is written (LENSRT_ERROR_INVALID_ARGUMENT, the message naming the ray and the input).
+ * Batches of 32 rays or more run at full speed; about 25 KB of stack. */
 LENSRT_API lensrt_result lensrt_lens_eval(lensrt_context ctx, lensrt_lens lens, const lensrt_eval_desc *desc);
 
 /* ------------------------------------------------------- compiled-in lenses ----- */
