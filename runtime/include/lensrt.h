@@ -277,7 +277,12 @@ LENSRT_API lensrt_result lensrt_lens_image_point(lensrt_context ctx, lensrt_lens
  *     sensor point (mm), sensor shift (mm), stop point (mm), lambda (nm) -> inner pupil
  *     point (mm), transmittance, optical path length from the stop to the sensor point
  *     (mm). The direction of the ray arriving at (x_S, y_S) is the gradient of phi_i
- *     over (x_S, y_S) (the Jacobian gives it).
+ *     over (x_S, y_S) (the Jacobian gives it; d phi_i / d z_S is its z cosine, and
+ *     minus the gradient over (x_a, y_a) is the direction leaving the stop). Likewise
+ *     the gradient of phi_o over (x_a, y_a) is the direction arriving at the stop, and
+ *     at u_O = 0 minus its gradient over (x_O, y_O) is where the incoming ray crosses
+ *     the plane of the first vertex (mm). tests/runtime/test_lens_eval.py checks these
+ *     against exactly traced rays.
  * lensrt_lens_system_info names the inputs and outputs and the domain each input was
  * fitted over; outside it the polynomials extrapolate (nothing is clamped). */
 typedef enum lensrt_system_id {
@@ -329,7 +334,7 @@ typedef struct lensrt_eval_desc {
  * the coefficient table. Float batches are summed in double (float only in memory). An
  * input that is not finite, or a wavelength <= 0, refuses the whole batch before anything
  * is written (LENSRT_ERROR_INVALID_ARGUMENT, the message naming the ray and the input).
- * Batches of 32 rays or more run at full speed; about 25 KB of stack. */
+ * Batches of 32 rays or more run at full speed; about 30 KB of stack. */
 LENSRT_API lensrt_result lensrt_lens_eval(lensrt_context ctx, lensrt_lens lens, const lensrt_eval_desc *desc);
 
 /* ------------------------------------------------------- compiled-in lenses ----- */

@@ -21,7 +21,7 @@
  * Compiled-in lenses (lensrt_lens_load_compiled) evaluate values through their generated
  * Horner code instead, float in float.
  *
- * No allocation (about 25 KB of stack), no writes to the lens: a lens may be evaluated
+ * No allocation (about 30 KB of stack), no writes to the lens: a lens may be evaluated
  * from any number of threads at once. */
 #include "../internal.h"
 
