@@ -6,7 +6,9 @@
 #
 #   1. cmake --install BUILD_DIR --prefix SCRATCH/prefix
 #   2. examples/find_package through find_package(lensrt CONFIG) into SCRATCH/example-cmake,
-#      run it (CMake's build RPATH finds liblensrt.so in the prefix)
+#      run it (CMake's build RPATH finds liblensrt.so in the prefix); with it
+#      lensrt-example-compiled, the demo scene fit of lens 0001 compiled in by the
+#      package's lensrt_add_lens (0.5 MB of generated C, a few seconds)
 #   3. examples/find_package/main.c compiled with `pkg-config --cflags --libs lensrt`
 #      into SCRATCH/example-pkgconfig, run it with LD_LIBRARY_PATH=PREFIX/LIBDIR
 #   4. the installed lensrt-psf --help (its install RPATH finds the library)
@@ -69,7 +71,8 @@ for f in "$INCLUDEDIR/lensrt.h" "$BINDIR/lensrt-psf"; do
     [ -f "$PREFIX/$f" ] || die "install: $PREFIX/$f is missing"
 done
 for f in liblensrt.so pkgconfig/lensrt.pc cmake/lensrt/lensrtConfig.cmake \
-    cmake/lensrt/lensrtConfigVersion.cmake cmake/lensrt/lensrtTargets.cmake; do
+    cmake/lensrt/lensrtConfigVersion.cmake cmake/lensrt/lensrtTargets.cmake \
+    cmake/lensrt/lensrt_add_lens.cmake cmake/lensrt/embed_text.cmake; do
     [ -e "$LIB/$f" ] || die "install: $LIB/$f is missing (is the libdir really '$LIBDIR'?)"
 done
 # (the prefix may itself lie inside the build folder, as it does under ctest)
@@ -90,6 +93,7 @@ expect_prefix_lib() { # NAME PROGRAM [VAR=VALUE...]
 # ------------------------------------------------- 2. find_package(lensrt CONFIG) -----
 step "find_package: configure and build $EXAMPLE into $SCRATCH/example-cmake"
 cmake -S "$EXAMPLE" -B "$SCRATCH/example-cmake" -DCMAKE_PREFIX_PATH="$PREFIX" \
+    -DLENSRT_EXAMPLE_LENS="$SOURCE_DIR/generated/0001-angenieux-double-gauss/scene-fits/demo" \
     -DCMAKE_C_COMPILER="$CC_BIN" -DCMAKE_BUILD_TYPE=Release \
     -DCMAKE_FIND_USE_PACKAGE_REGISTRY=OFF > "$SCRATCH/example-cmake.log" 2>&1 ||
     { cat "$SCRATCH/example-cmake.log" >&2; die "find_package example: configure"; }
@@ -101,6 +105,9 @@ cmake --build "$SCRATCH/example-cmake" >> "$SCRATCH/example-cmake.log" 2>&1 ||
 expect_prefix_lib "the find_package example" "$SCRATCH/example-cmake/lensrt-example"
 step "run $SCRATCH/example-cmake/lensrt-example"
 "$SCRATCH/example-cmake/lensrt-example" || die "find_package example: run (exit status $?)"
+step "run $SCRATCH/example-cmake/lensrt-example-compiled (lensrt_add_lens from the package)"
+expect_prefix_lib "the compiled-lens example" "$SCRATCH/example-cmake/lensrt-example-compiled"
+"$SCRATCH/example-cmake/lensrt-example-compiled" || die "compiled-lens example: run (exit status $?)"
 
 # ------------------------------------------------------------- 3. pkg-config -----
 step "pkg-config: compile main.c with PKG_CONFIG_PATH=$LIB/pkgconfig"
