@@ -90,6 +90,8 @@ bench: setup runtime
 	@mkdir -p build/bench
 	$(RUNTIME_BUILD)/runtime/lensrt-bench --json build/bench/lensrt.json
 	$(PY) runtime/bench/eval_bench.py --library $(RUNTIME_BUILD)/runtime/liblensrt.so --out build/bench
+	cmake --build $(RUNTIME_BUILD) -j 2 --target lensrt-compiled-bench
+	$(RUNTIME_BUILD)/runtime/lensrt-compiled-bench | tee build/bench/compiled.txt
 	$(PY) runtime/bench/error_vs_time.py --out build/bench --lensrt-json build/bench/lensrt.json
 	$(PY) -m lensfit.bench --out build/bench
 	$(PY) -m lensfit.codegen.bench | tee build/bench/codegen.txt
