@@ -469,6 +469,49 @@ LENSRT_API lensrt_result lensrt_render_run(lensrt_render render, uint64_t sample
 LENSRT_API lensrt_result lensrt_render_splat_points(lensrt_render render, int wavelength,
                                          const double *xy_mm, size_t n_points);
 
+/* Host-scheduled tiles: the same samples as lensrt_render_run(render, samples_per_wavelength,
+ * NULL, NULL), rendered one rectangle of the window at a time on threads the caller
+ * schedules (TBB, its own pool). The sums after tiles_end equal those of that run() bit
+ * for bit, whatever the rectangles, their order and the threads. CPU device only.
+ *
+ *   lensrt_render_tiles_begin(render, N);             caller's thread
+ *   lensrt_render_tile(render, x0, y0, w, h);  ...    any threads, disjoint rectangles
+ *   lensrt_render_tiles_end(render);                  caller's thread, after every tile returned
+ *
+ * tiles_begin fixes the next sample range [S, S + N) per wavelength, S being the samples
+ * already in the sums (as run() would draw it). It keeps a copy of the sums, so that a
+ * failed session leaves them as they were. LENSRT_ERROR_UNSUPPORTED (with a message) on
+ * the GL device; LENSRT_ERROR_INVALID_ARGUMENT when N is not 1..2^40 or a session is
+ * already open. Until tiles_end, run(), splat_points(), image(), rgb(), the image writers
+ * and save/load/merge refuse with LENSRT_ERROR_INVALID_ARGUMENT. */
+LENSRT_API lensrt_result lensrt_render_tiles_begin(lensrt_render render, uint64_t samples_per_wavelength);
+
+/* Render pixels x0 .. x0 + width - 1 of rows y0 .. y0 + height - 1 (row 0 at the top) for
+ * every light and wavelength and the session's whole sample range, on the calling thread
+ * alone (no OpenMP), adding to those pixels' sums. Any number of threads may call it at
+ * once, for disjoint rectangles; every pixel must be covered exactly once before
+ * tiles_end. A rectangle outside the window or one that touches an already covered pixel
+ * renders nothing and fails (LENSRT_ERROR_INVALID_ARGUMENT), as do calls outside a session.
+ *
+ * Thread model: a tile reads the render's prepared scene and writes only its own pixels'
+ * sums; coverage counts, statistics and the first failure are kept with atomic
+ * operations. It never writes the context's last error (other tiles may be running): the
+ * result code says what failed, and tiles_end reports the first failure with its message.
+ * Each call draws and prepares the samples of the range itself (per-sample work is
+ * repeated per tile: use tiles of a few thousand pixels or more; runtime/README.md gives
+ * the measured cost), allocating one pass's sample buffers (up to 16384 samples per
+ * wavelength at a time) through the context's allocator hooks, which must therefore be
+ * thread-safe (malloc is), and uses about 170 KB of the calling thread's stack. */
+LENSRT_API lensrt_result lensrt_render_tile(lensrt_render render, int x0, int y0, int width, int height);
+
+/* End the session on the caller's thread once every tile call has returned: checks that
+ * every pixel was covered exactly once (else LENSRT_ERROR_INVALID_ARGUMENT naming the
+ * first pixel, in row-major order, that was not covered or was covered more than once)
+ * and that no tile failed (else that failure's result and message); on failure the sums
+ * are put back as they were before tiles_begin. On success the session's samples, splats,
+ * statistics and wall time (tiles_begin to tiles_end) are added as run() would. */
+LENSRT_API lensrt_result lensrt_render_tiles_end(lensrt_render render);
+
 typedef struct lensrt_render_stats {
     size_t struct_size;               /* sizeof(lensrt_render_stats): LENSRT_RENDER_STATS_INIT */
     int32_t width, height, n_wavelengths, n_lights;

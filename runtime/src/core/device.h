@@ -27,6 +27,12 @@ typedef struct lensrt_device_ops {
     lensrt_result (*pass)(lensrt_render r, int w, const double *xy, int n);
     lensrt_result (*end)(lensrt_render r, lensrt_result status);
     void (*destroy)(lensrt_render r);
+    /* Host-scheduled tiles (core/tiles.c), NULL when the device renders whole passes only:
+     * render pixels x0 .. x0 + width - 1 of rows y0 .. y0 + height - 1 for the session's
+     * sample range on the calling thread (no OpenMP), adding to their sums, while other
+     * threads do the same for other pixels. Failures go to lensrt_tiles_fail, the
+     * set-up's statistics to lensrt_tiles_add_stats (never to the context). */
+    lensrt_result (*tile)(lensrt_render r, int x0, int y0, int width, int height);
 } lensrt_device_ops;
 
 /* The device table: NULL when this build has no such device. */

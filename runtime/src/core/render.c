@@ -15,6 +15,7 @@
 #include "../lens/lens.h"
 #include "device.h"
 #include "scene.h"
+#include "tiles.h"
 
 #include <math.h>
 #include <string.h>
@@ -28,6 +29,7 @@ static void free_render(lensrt_render r)
 {
     lensrt_context ctx = r->ctx;
     int i;
+    lensrt_tiles_free(r);
     if (r->device) r->device->destroy(r);
     if (r->ps)
         for (i = 0; i < r->n_wl * 4; i++) {
@@ -180,7 +182,7 @@ lensrt_result lensrt_render_run(lensrt_render r, uint64_t samples_per_wavelength
     if (samples_per_wavelength == 0 || samples_per_wavelength > ((uint64_t)1 << 40))
         return lensrt_fail(r->ctx, LENSRT_ERROR_INVALID_ARGUMENT,
                            "run: samples per wavelength must be 1..2^40, got %llu", (unsigned long long)samples_per_wavelength);
-    if ((res = begin_passes(r, &xy)) != LENSRT_SUCCESS) return res;
+    if ((res = lensrt_tiles_idle(r, "run")) != LENSRT_SUCCESS || (res = begin_passes(r, &xy)) != LENSRT_SUCCESS) return res;
     while (done < samples_per_wavelength && res == LENSRT_SUCCESS) {
         uint64_t n = samples_per_wavelength - done < PASS ? samples_per_wavelength - done : PASS;
         int w, cancelled = 0;
@@ -226,7 +228,8 @@ lensrt_result lensrt_render_splat_points(lensrt_render r, int wavelength, const 
     if (r->n_wl != 1)
         return lensrt_fail(r->ctx, LENSRT_ERROR_INVALID_ARGUMENT,
                            "splat_points: needs a render with one wavelength (sample counts are shared), it has %d", r->n_wl);
-    if ((res = begin_passes(r, &xy)) != LENSRT_SUCCESS) return res;
+    if ((res = lensrt_tiles_idle(r, "splat_points")) != LENSRT_SUCCESS || (res = begin_passes(r, &xy)) != LENSRT_SUCCESS)
+        return res;
     while (done < n_points && res == LENSRT_SUCCESS) {
         size_t n = n_points - done < PASS ? n_points - done : PASS;
         memset(xy, 0, sizeof(double) * PASS * 2);
@@ -281,7 +284,9 @@ lensrt_result lensrt_render_image(lensrt_render r, float *out, size_t count)
     const double n = r ? (double)r->samples : 0.0;
     size_t p;
     int w, l;
+    lensrt_result res;
     if (!r || !out) return LENSRT_ERROR_INVALID_ARGUMENT;
+    if ((res = lensrt_tiles_idle(r, "image")) != LENSRT_SUCCESS) return res;
     if (count != npix * (size_t)r->n_wl)
         return lensrt_fail(r->ctx, LENSRT_ERROR_INVALID_ARGUMENT, "image: count must be %zu (wavelengths x pixels), got %zu",
                            npix * (size_t)r->n_wl, count);

@@ -17,6 +17,7 @@
 
 struct lensrt_lens_ops;   /* lens/lens.h */
 struct lensrt_device_ops; /* core/device.h */
+struct lensrt_tiles;      /* core/tiles.h */
 
 /* A polynomial in (x_S, y_S) and the stop monomials, for one output and wavelength:
  * sum_t coef[t] * xS^ix[t] * yS^iy[t] * mono[slot[t]] (normalised x_S, y_S). */
@@ -68,6 +69,7 @@ struct lensrt_render_s {
     uint64_t samples;             /* N per wavelength */
     uint64_t splats;
     double seconds;
+    struct lensrt_tiles *tiles;   /* the open tile session, or NULL */
     /* pruning statistics of the last pass: sums over (pixel, wavelength) */
     double stat_terms, stat_clip, stat_tau, stat_dark, stat_count;
 };

@@ -21,9 +21,9 @@ void lensrt_cpu_free_pass(lensrt_context ctx, lensrt_cpu_pass *pd)
     memset(pd, 0, sizeof *pd);
 }
 
-lensrt_result lensrt_cpu_alloc_pass(lensrt_render r, lensrt_cpu_pass *pd)
+int lensrt_cpu_alloc_pass(lensrt_render r, lensrt_cpu_pass *pd, int n_samples)
 {
-    const size_t nb = (LENSRT_PASS + LENSRT_BLOCK - 1) / LENSRT_BLOCK;
+    const size_t nb = ((size_t)n_samples + LENSRT_BLOCK - 1) / LENSRT_BLOCK;
     const size_t rows = (size_t)r->n_rows, lanes = nb * (size_t)r->n_lights * LENSRT_BLOCK;
     memset(pd, 0, sizeof *pd);
     if (r->double_rows) {
@@ -37,9 +37,9 @@ lensrt_result lensrt_cpu_alloc_pass(lensrt_render r, lensrt_cpu_pass *pd)
     }
     if (r->double_rows ? !pd->mono_d || !pd->phase_d || !pd->amp_d : !pd->mono_f || !pd->phase_f || !pd->amp_f) {
         lensrt_cpu_free_pass(r->ctx, pd);
-        return lensrt_fail(r->ctx, LENSRT_ERROR_OUT_OF_MEMORY, "render: out of memory for a pass of %d samples", LENSRT_PASS);
+        return 0;
     }
-    return LENSRT_SUCCESS;
+    return 1;
 }
 
 static lensrt_result cpu_create(lensrt_render r)
@@ -51,11 +51,10 @@ static lensrt_result cpu_create(lensrt_render r)
 static lensrt_result cpu_begin(lensrt_render r)
 {
     lensrt_cpu_pass *pd = lensrt_calloc(r->ctx, 1, sizeof *pd);
-    lensrt_result res;
     if (!pd) return lensrt_fail(r->ctx, LENSRT_ERROR_OUT_OF_MEMORY, "render: out of memory");
-    if ((res = lensrt_cpu_alloc_pass(r, pd)) != LENSRT_SUCCESS) {
+    if (!lensrt_cpu_alloc_pass(r, pd, LENSRT_PASS)) {
         lensrt_free(r->ctx, pd);
-        return res;
+        return lensrt_fail(r->ctx, LENSRT_ERROR_OUT_OF_MEMORY, "render: out of memory for a pass of %d samples", LENSRT_PASS);
     }
     r->device_data = pd;
     return LENSRT_SUCCESS;
@@ -105,4 +104,4 @@ static lensrt_result cpu_end(lensrt_render r, lensrt_result status)
 
 static void cpu_destroy(lensrt_render r) { cpu_end(r, LENSRT_SUCCESS); }
 
-const lensrt_device_ops lensrt_device_cpu = {"cpu", cpu_create, cpu_begin, cpu_pass, cpu_end, cpu_destroy};
+const lensrt_device_ops lensrt_device_cpu = {"cpu", cpu_create, cpu_begin, cpu_pass, cpu_end, cpu_destroy, lensrt_cpu_tile};

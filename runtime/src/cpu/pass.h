@@ -25,8 +25,10 @@ typedef struct lensrt_cpu_stats {
     double terms, clip, tau, dark;
 } lensrt_cpu_stats;
 
-/* Buffers for LENSRT_PASS samples (rows in float or double as the render keeps them). */
-lensrt_result lensrt_cpu_alloc_pass(lensrt_render r, lensrt_cpu_pass *pd);
+/* Buffers for up to n_samples (at most LENSRT_PASS) samples, rows in float or double as
+ * the render keeps them; 0 when out of memory (nothing kept, no message: tiles call it
+ * from many threads). */
+int lensrt_cpu_alloc_pass(lensrt_render r, lensrt_cpu_pass *pd, int n_samples);
 void lensrt_cpu_free_pass(lensrt_context ctx, lensrt_cpu_pass *pd);
 
 /* The rows, phases and amplitudes of samples xy[0 .. 2 n) of wavelength w (blocks padded
@@ -50,5 +52,8 @@ typedef struct lensrt_cpu_pixel {
 } lensrt_cpu_pixel;
 
 int lensrt_cpu_setup_pixel(const lensrt_render r, int w, double x, double y, lensrt_cpu_pixel *px);
+
+/* The CPU device's host-scheduled tile (cpu/tiles.c; lensrt_device_ops.tile). */
+lensrt_result lensrt_cpu_tile(lensrt_render r, int x0, int y0, int width, int height);
 
 #endif /* LENSRT_CPU_PASS_H */

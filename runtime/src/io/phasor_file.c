@@ -7,6 +7,7 @@
  *   i32 width, height, wavelengths, lights, has_sum_of_squares, pad,
  *   f64 sums[2 * lights * wavelengths * pixels], f64 sums of squares[...] (if present). */
 #include "../core/render.h"
+#include "../core/tiles.h"
 
 #include <errno.h>
 #include <stdio.h>
@@ -80,7 +81,9 @@ lensrt_result lensrt_render_save(lensrt_render r, const char *path)
     FILE *f;
     size_t n;
     int ok, err = 0;
+    lensrt_result res;
     if (!r || !path) return LENSRT_ERROR_INVALID_ARGUMENT;
+    if ((res = lensrt_tiles_idle(r, "save")) != LENSRT_SUCCESS) return res;
     n = n_sums(r);
     memset(&hd, 0, sizeof hd);
     memcpy(hd.magic, MAGIC, sizeof MAGIC);
@@ -163,6 +166,7 @@ lensrt_result lensrt_render_load(lensrt_render r, const char *path)
     double *sum, *sumsq;
     lensrt_result res;
     if (!r || !path) return LENSRT_ERROR_INVALID_ARGUMENT;
+    if ((res = lensrt_tiles_idle(r, "load")) != LENSRT_SUCCESS) return res;
     if ((res = read_file(r, path, &hd, &sum, &sumsq)) != LENSRT_SUCCESS) return res;
     // Replace the sums; a later run() continues the saved sequence when the seed matches
     lensrt_free(r->ctx, r->sum);
@@ -185,6 +189,7 @@ lensrt_result lensrt_render_merge(lensrt_render r, const char *path)
     lensrt_result res;
     size_t i, n;
     if (!r || !path) return LENSRT_ERROR_INVALID_ARGUMENT;
+    if ((res = lensrt_tiles_idle(r, "merge")) != LENSRT_SUCCESS) return res;
     if ((res = read_file(r, path, &hd, &sum, &sumsq)) != LENSRT_SUCCESS) return res;
     // The same seed means the same sample points: adding them would count them twice
     if (hd.seed == r->desc.seed && hd.samples > 0 && r->samples > 0) {

@@ -1,0 +1,163 @@
+/* Host-scheduled tiles: a render's next samples, one rectangle of the window per call, on
+ * threads the caller schedules.
+ *
+ * A pixel's sums depend only on the pixel and the samples (each pass adds the pixel's
+ * block sums once, in block order), never on which group, thread or call splats it, so
+ * tiles that cover every pixel once give run()'s sums bit for bit. The session keeps:
+ * the sample range (fixed at begin), a coverage count per pixel (each tile claims its
+ * pixels with atomic increments before it splats, so two tiles never write one pixel),
+ * a copy of the sums (put back when the session fails), the set-up statistics (integer
+ * counts, added atomically) and the first failure (claimed atomically, reported by end
+ * on the caller's thread: tiles never write the context's last error). */
+#include "tiles.h"
+
+#include "../c_numbers.h"
+#include "atomic.h"
+#include "device.h"
+
+#include <stdarg.h>
+#include <string.h>
+
+lensrt_result lensrt_tiles_fail(lensrt_render r, lensrt_result result, const char *fmt, ...)
+{
+    lensrt_tiles *t = r->tiles;
+    va_list args;
+    if (!t || !lensrt_atomic_claim(&t->failed)) return result;
+    t->failure = result;
+    va_start(args, fmt);
+    lensrt_vsnprintf_c(t->message, sizeof t->message, fmt, args);
+    va_end(args);
+    return result;
+}
+
+void lensrt_tiles_add_stats(lensrt_render r, uint64_t terms, uint64_t clip, uint64_t tau, uint64_t dark)
+{
+    lensrt_tiles *t = r->tiles;
+    lensrt_atomic_add_u64(&t->terms, terms);
+    lensrt_atomic_add_u64(&t->clip, clip);
+    lensrt_atomic_add_u64(&t->tau, tau);
+    lensrt_atomic_add_u64(&t->dark, dark);
+}
+
+lensrt_result lensrt_tiles_idle(lensrt_render r, const char *what)
+{
+    if (!r->tiles) return LENSRT_SUCCESS;
+    return lensrt_fail(r->ctx, LENSRT_ERROR_INVALID_ARGUMENT,
+                       "%s: a tile session is open (lensrt_render_tiles_begin without lensrt_render_tiles_end)", what);
+}
+
+void lensrt_tiles_free(lensrt_render r)
+{
+    lensrt_tiles *t = r->tiles;
+    if (!t) return;
+    lensrt_free(r->ctx, t->cover);
+    lensrt_free(r->ctx, t->sum0);
+    lensrt_free(r->ctx, t->sumsq0);
+    lensrt_free(r->ctx, t);
+    r->tiles = NULL;
+}
+
+static size_t n_sums(const lensrt_render r)
+{
+    return (size_t)r->n_lights * (size_t)r->n_wl * (size_t)r->width * (size_t)r->height;
+}
+
+lensrt_result lensrt_render_tiles_begin(lensrt_render r, uint64_t samples_per_wavelength)
+{
+    const size_t npix = r ? (size_t)r->width * (size_t)r->height : 0, ns = r ? n_sums(r) : 0;
+    lensrt_tiles *t;
+    lensrt_result res;
+    if (!r) return LENSRT_ERROR_INVALID_ARGUMENT;
+    if ((res = lensrt_tiles_idle(r, "tiles_begin")) != LENSRT_SUCCESS) return res;
+    if (!r->device->tile)
+        return lensrt_fail(r->ctx, LENSRT_ERROR_UNSUPPORTED,
+                           "tiles_begin: the %s device renders whole passes only; host-scheduled tiles need device "
+                           "cpu (or use lensrt_render_run)", r->device->name);
+    if (samples_per_wavelength == 0 || samples_per_wavelength > ((uint64_t)1 << 40))
+        return lensrt_fail(r->ctx, LENSRT_ERROR_INVALID_ARGUMENT, "tiles_begin: samples per wavelength must be 1..2^40, got %llu",
+                           (unsigned long long)samples_per_wavelength);
+    t = lensrt_calloc(r->ctx, 1, sizeof *t);
+    if (!t) return lensrt_fail(r->ctx, LENSRT_ERROR_OUT_OF_MEMORY, "tiles_begin: out of memory");
+    r->tiles = t;
+    t->first = r->samples;
+    t->count = samples_per_wavelength;
+    t->t0 = lensrt_seconds();
+    // Coverage counts, and the sums as they are (put back if the session fails)
+    t->cover = lensrt_calloc(r->ctx, npix, sizeof *t->cover);
+    t->sum0 = lensrt_alloc(r->ctx, ns * 2 * sizeof(double));
+    if (r->sumsq) t->sumsq0 = lensrt_alloc(r->ctx, ns * sizeof(double));
+    if (!t->cover || !t->sum0 || (r->sumsq && !t->sumsq0)) {
+        lensrt_tiles_free(r);
+        return lensrt_fail(r->ctx, LENSRT_ERROR_OUT_OF_MEMORY, "tiles_begin: out of memory for a copy of %zu phasor sums", ns);
+    }
+    memcpy(t->sum0, r->sum, ns * 2 * sizeof(double));
+    if (r->sumsq) memcpy(t->sumsq0, r->sumsq, ns * sizeof(double));
+    return LENSRT_SUCCESS;
+}
+
+lensrt_result lensrt_render_tile(lensrt_render r, int x0, int y0, int width, int height)
+{
+    lensrt_tiles *t = r ? r->tiles : NULL;
+    int x, y, twice = 0, tx = 0, ty = 0;
+    if (!t) return LENSRT_ERROR_INVALID_ARGUMENT; /* no session: nowhere to record why */
+    if (x0 < 0 || y0 < 0 || width <= 0 || height <= 0 || x0 > r->width - width || y0 > r->height - height)
+        return lensrt_tiles_fail(r, LENSRT_ERROR_INVALID_ARGUMENT,
+                                 "tile: pixels %d .. %d of rows %d .. %d (%d x %d at (%d, %d)) are not inside the %d x %d window",
+                                 x0, x0 + width - 1, y0, y0 + height - 1, width, height, x0, y0, r->width, r->height);
+    // Claim every pixel first; if another tile has one, render nothing (only one tile
+    // ever writes a pixel's sums, so overlapping calls do not race on them)
+    for (y = y0; y < y0 + height; y++)
+        for (x = x0; x < x0 + width; x++)
+            if (lensrt_atomic_add_u32(&t->cover[(size_t)y * (size_t)r->width + (size_t)x], 1) != 0 && !twice) {
+                twice = 1;
+                tx = x;
+                ty = y;
+            }
+    if (twice)
+        return lensrt_tiles_fail(r, LENSRT_ERROR_INVALID_ARGUMENT,
+                                 "tile %d x %d at (%d, %d): pixel (%d, %d) was already covered by another tile",
+                                 width, height, x0, y0, tx, ty);
+    return r->device->tile(r, x0, y0, width, height);
+}
+
+lensrt_result lensrt_render_tiles_end(lensrt_render r)
+{
+    lensrt_tiles *t = r ? r->tiles : NULL;
+    const size_t npix = r ? (size_t)r->width * (size_t)r->height : 0, ns = r ? n_sums(r) : 0;
+    lensrt_result res = LENSRT_SUCCESS;
+    size_t p;
+    if (!r) return LENSRT_ERROR_INVALID_ARGUMENT;
+    if (!t) return lensrt_fail(r->ctx, LENSRT_ERROR_INVALID_ARGUMENT, "tiles_end: no tile session (lensrt_render_tiles_begin)");
+    // Every pixel exactly once (the first offender in row-major order), then the tiles'
+    // own failures
+    for (p = 0; p < npix && t->cover[p] == 1; p++) continue;
+    if (p < npix && t->cover[p] == 0)
+        res = lensrt_fail(r->ctx, LENSRT_ERROR_INVALID_ARGUMENT,
+                          "tiles_end: pixel (%d, %d) was not covered; every pixel must be covered exactly once between "
+                          "tiles_begin and tiles_end (the sums are as before tiles_begin)",
+                          (int)(p % (size_t)r->width), (int)(p / (size_t)r->width));
+    else if (p < npix)
+        res = lensrt_fail(r->ctx, LENSRT_ERROR_INVALID_ARGUMENT,
+                          "tiles_end: pixel (%d, %d) was covered %u times; every pixel must be covered exactly once "
+                          "between tiles_begin and tiles_end (the sums are as before tiles_begin)",
+                          (int)(p % (size_t)r->width), (int)(p / (size_t)r->width), (unsigned)t->cover[p]);
+    else if (t->failed)
+        res = lensrt_fail(r->ctx, t->failure, "%s (the sums are as before tiles_begin)", t->message);
+    if (res != LENSRT_SUCCESS) {
+        memcpy(r->sum, t->sum0, ns * 2 * sizeof(double));
+        if (r->sumsq) memcpy(r->sumsq, t->sumsq0, ns * sizeof(double));
+        lensrt_tiles_free(r);
+        return res;
+    }
+    // Commit as run() would: samples, splats, the statistics of a pass, the wall time
+    r->samples += t->count;
+    r->splats += t->count * (uint64_t)r->n_wl * (uint64_t)npix;
+    r->stat_terms = (double)t->terms;
+    r->stat_clip = (double)t->clip;
+    r->stat_tau = (double)t->tau;
+    r->stat_dark = (double)t->dark;
+    r->stat_count = (double)npix * r->n_wl;
+    r->seconds += lensrt_seconds() - t->t0;
+    lensrt_tiles_free(r);
+    return LENSRT_SUCCESS;
+}
