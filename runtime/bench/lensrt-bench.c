@@ -41,12 +41,23 @@
  * renders one pixel per 36 x 36 block (40 x 30 pixels over the same window; `--gl-stride`;
  * its splats per second do not depend on the pitch either) and `--gl-samples` per
  * wavelength (default 16384, one pass). Without a GL device the GL part is skipped with
- * the reason; the CPU part still runs. */
+ * the reason; the CPU part still runs.
+ *
+ * Tiles side (`--tile WxH`, default 32x32; 0x0 skips it): right after each repetition's
+ * bracketing baseline, the same render (same seed) scheduled by the host as
+ * lensrt_render_tiles_begin, lensrt_render_tile on that many pthreads as lensrt's OpenMP
+ * threads (tiles of W x H pixels, smaller at the right and bottom edges, taken in row-major
+ * order from a shared counter), lensrt_render_tiles_end; its splats per second (wall time
+ * from begin to end) against the run() of the same repetition, and whether its image
+ * equals run()'s bit for bit. Every tile draws and prepares the samples itself: the cost
+ * of one 1 x 1 tile (that preparation, for every wavelength) is measured once per
+ * f-number. */
 #include "lensrt.h"
 #include "lens0001.h"
 
 #include <errno.h>
 #include <math.h>
+#include <pthread.h>
 #include <stdint.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -132,7 +143,9 @@ static void usage(FILE *f)
         "  --gl-samples N         aperture samples per wavelength of the timed GL run (default 16384)\n"
         "  --gl-warmup N          samples per wavelength of the untimed first run() of each GL render,\n"
         "                         which compiles the shaders and finds the terms per pixel (default %d;\n"
-        "                         0: time the first call, set-up included)\n",
+        "                         0: time the first call, set-up included)\n"
+        "  --tile WxH             host-scheduled tiles of W x H pixels on as many pthreads as\n"
+        "                         lensrt's OpenMP threads, against run() (default 32x32; 0x0: skip)\n",
         DEFAULT_TABLE, DEFAULT_STRIDE, DEFAULT_GL_STRIDE, DEFAULT_GL_WARMUP);
 }
 
@@ -390,7 +403,102 @@ typedef struct f_result {
     double ratio[MAX_REP];
     baseline_result base1;                   /* single thread, before and after the repetitions */
     double sps_med, baseN_med, ratio_med;
+    /* host-scheduled tiles, per repetition: splats per second, / run() of the repetition */
+    double tile_sps[MAX_REP], tile_seconds[MAX_REP], tile_ratio[MAX_REP];
+    int tile_identical;                      /* every repetition's image equal to run()'s */
+    double tile_sps_med, tile_ratio_med, one_tile_seconds;
 } f_result;
+
+/* Host-scheduled tiles: a pool of pthreads taking W x H tiles from a shared counter. */
+typedef struct tile_pool {
+    lensrt_render render;
+    int width, height, tw, th, nx, n, next;
+    lensrt_result first_error;
+    pthread_mutex_t lock;
+} tile_pool;
+
+static void *tile_worker(void *arg)
+{
+    tile_pool *p = arg;
+    for (;;) {
+        int k, x0, y0;
+        lensrt_result r;
+        pthread_mutex_lock(&p->lock);
+        k = p->next < p->n ? p->next++ : -1;
+        pthread_mutex_unlock(&p->lock);
+        if (k < 0) return NULL;
+        x0 = (k % p->nx) * p->tw;
+        y0 = (k / p->nx) * p->th;
+        r = lensrt_render_tile(p->render, x0, y0, x0 + p->tw <= p->width ? p->tw : p->width - x0,
+                               y0 + p->th <= p->height ? p->th : p->height - y0);
+        if (r != LENSRT_SUCCESS) {
+            pthread_mutex_lock(&p->lock);
+            if (p->first_error == LENSRT_SUCCESS) p->first_error = r;
+            pthread_mutex_unlock(&p->lock);
+        }
+    }
+}
+
+/* One tile-scheduled render of `samples` per wavelength on `threads` pthreads; the
+ * number of tiles in *n_tiles. */
+static lensrt_result run_tiles(lensrt_render render, uint64_t samples, int width, int height, int tw, int th,
+                               int threads, int *n_tiles)
+{
+    pthread_t th_[64];
+    tile_pool p;
+    lensrt_result r;
+    int i, started = 0;
+    if (threads > 64) threads = 64;
+    memset(&p, 0, sizeof p);
+    p.render = render;
+    p.width = width;
+    p.height = height;
+    p.tw = tw;
+    p.th = th;
+    p.nx = (width + tw - 1) / tw;
+    p.n = p.nx * ((height + th - 1) / th);
+    *n_tiles = p.n;
+    if ((r = lensrt_render_tiles_begin(render, samples)) != LENSRT_SUCCESS) return r;
+    pthread_mutex_init(&p.lock, NULL);
+    for (i = 0; i < threads; i++) started += pthread_create(&th_[started], NULL, tile_worker, &p) == 0;
+    if (started == 0) tile_worker(&p); /* no thread could be made: the caller's alone */
+    for (i = 0; i < started; i++) pthread_join(th_[i], NULL);
+    pthread_mutex_destroy(&p.lock);
+    r = lensrt_render_tiles_end(render);
+    return p.first_error != LENSRT_SUCCESS ? p.first_error : r;
+}
+
+/* Seconds of one 1 x 1 tile: drawing and preparing every wavelength's samples, which each
+ * tile repeats, plus one pixel's splats. The session is then refused (the other pixels
+ * are not covered) and the render left as it was. */
+static double one_tile_seconds(lensrt_context ctx, const lensrt_render_desc *desc, uint64_t samples)
+{
+    lensrt_render render = NULL;
+    double t0, t1;
+    if (lensrt_render_create(ctx, desc, &render) != LENSRT_SUCCESS) return -1.0;
+    if (lensrt_render_tiles_begin(render, samples) != LENSRT_SUCCESS) {
+        lensrt_render_destroy(render);
+        return -1.0;
+    }
+    t0 = now_seconds();
+    lensrt_render_tile(render, 0, 0, 1, 1);
+    t1 = now_seconds();
+    lensrt_render_tiles_end(render); /* refused: 1 pixel of many */
+    lensrt_render_destroy(render);
+    return t1 - t0;
+}
+
+/* Whether two renders' images are equal bit for bit (-1: could not compare). */
+static int same_image(lensrt_render a, lensrt_render b, size_t count)
+{
+    float *ia = malloc(sizeof(float) * count), *ib = malloc(sizeof(float) * count);
+    int same = -1;
+    if (ia && ib && lensrt_render_image(a, ia, count) == LENSRT_SUCCESS && lensrt_render_image(b, ib, count) == LENSRT_SUCCESS)
+        same = memcmp(ia, ib, sizeof(float) * count) == 0;
+    free(ia);
+    free(ib);
+    return same;
+}
 
 /* The render's stats into a struct that may have been zeroed with its holder. */
 static lensrt_result bench_stats(lensrt_render render, lensrt_render_stats *st)
@@ -477,6 +585,7 @@ int main(int argc, char **argv)
     // GL: what to measure, where its context comes from, its pixel grid and sample counts
     int do_cpu = 1, do_gl = 1, gl_ok = 0;
     long gl_stride = DEFAULT_GL_STRIDE, gw = 0, gh = 0;
+    long tile_w = 32, tile_h = 32;           /* host-scheduled tiles (0 x 0: not measured) */
     long long gl_samples = 16384, gl_warmup = DEFAULT_GL_WARMUP;
     const char *device_arg = "both";
     lensrt_gl_platform gl_platform = LENSRT_GL_PLATFORM_AUTO;
@@ -512,6 +621,8 @@ int main(int argc, char **argv)
         else if (strcmp(a, "--size") == 0) ok = parse_pair_d(v, 'x', &size_x, &size_y) && size_x > 0 && size_y > 0;
         else if (strcmp(a, "--field") == 0) ok = parse_pair_d(v, ',', &field_x, &field_y);
         else if (strcmp(a, "--focus") == 0) ok = parse_d(v, &focus);
+        else if (strcmp(a, "--tile") == 0)
+            ok = parse_pair_i(v, 'x', &tile_w, &tile_h) && ((tile_w > 0 && tile_h > 0) || (tile_w == 0 && tile_h == 0));
         else if (strcmp(a, "--baseline-grid") == 0) ok = parse_pair_i(v, 'x', &gx, &gy) && gx > 0 && gy > 0 && gx * gy <= 65536;
         else if (strcmp(a, "--baseline-seconds") == 0) ok = parse_d(v, &base_seconds) && base_seconds >= 0;
         else if (strcmp(a, "--device") == 0) {
@@ -763,19 +874,52 @@ int main(int argc, char **argv)
                 goto done;
             }
             bench_stats(render, &fr->stats);
-            lensrt_render_destroy(render);
             post = run_baseline(&sc, threads, 256, 0.5 * base_seconds, (uint64_t)seed + 2 * (uint64_t)k + 1, center_pixel);
             if (pre.seconds < 0 || post.seconds < 0) {
                 fprintf(stderr, "lensrt-bench: out of memory in the baseline\n");
+                lensrt_render_destroy(render);
                 goto done;
             }
             fr->baseN[k] = combine(&pre, &post);
             fr->sps[k] = fr->stats.splats_per_second;
             fr->seconds[k] = fr->stats.seconds;
             fr->ratio[k] = fr->sps[k] / fr->baseN[k].splats_per_second;
-            printf(" [lensrt %.3g/s in %.1f s, baseline %.3g/s: %.0fx]", fr->sps[k], fr->seconds[k],
+            printf(" [lensrt %.3g/s in %.1f s, baseline %.3g/s: %.0fx", fr->sps[k], fr->seconds[k],
                    fr->baseN[k].splats_per_second, fr->ratio[k]);
+            // The same render (same seed) scheduled as tiles on pthreads
+            if (tile_w > 0) {
+                lensrt_render tiled = NULL;
+                lensrt_render_stats ts;
+                int n_tiles = 0, same;
+                memset(&ts, 0, sizeof ts);
+                if ((r = lensrt_render_create(ctx, &desc, &tiled)) != LENSRT_SUCCESS ||
+                    (r = run_tiles(tiled, (uint64_t)samples, (int)rw, (int)rh, (int)tile_w, (int)tile_h, threads,
+                                   &n_tiles)) != LENSRT_SUCCESS) {
+                    status = fail(ctx, "tiles", r);
+                    lensrt_render_destroy(tiled);
+                    lensrt_render_destroy(render);
+                    goto done;
+                }
+                bench_stats(tiled, &ts);
+                same = same_image(render, tiled, (size_t)rw * (size_t)rh * (size_t)n_wl);
+                if (k == 0) fr->tile_identical = same;
+                else if (same != 1) fr->tile_identical = same;
+                fr->tile_sps[k] = ts.splats_per_second;
+                fr->tile_seconds[k] = ts.seconds;
+                fr->tile_ratio[k] = fr->tile_sps[k] / fr->sps[k];
+                printf("; %d tiles %.3g/s in %.1f s: %.2fx run%s", n_tiles, fr->tile_sps[k], fr->tile_seconds[k],
+                       fr->tile_ratio[k], same == 1 ? ", same image" : same == 0 ? ", IMAGE DIFFERS" : "");
+                lensrt_render_destroy(tiled);
+            }
+            printf("]");
+            lensrt_render_destroy(render);
             fflush(stdout);
+        }
+        if (tile_w > 0 && fr->reps > 0) {
+            desc.seed = (uint64_t)seed;
+            fr->one_tile_seconds = one_tile_seconds(ctx, &desc, (uint64_t)samples);
+            fr->tile_sps_med = median(fr->tile_sps, fr->reps);
+            fr->tile_ratio_med = median(fr->tile_ratio, fr->reps);
         }
         if (fr->reps > 0) {
             double bn[MAX_REP];
@@ -853,6 +997,27 @@ int main(int argc, char **argv)
                " terms per splat after pruning; clip, tau: fractions of pixels that needed the inner-pupil clip or a\n"
                " varying transmittance; base coh.: |sum X| / sum |X| of the baseline at the window centre, a check\n"
                " that its phases agree to a fraction of a wave across the aperture)\n", threads);
+    }
+    if (do_cpu && tile_w > 0) {
+        const int n_tiles = (int)(((rw + tile_w - 1) / tile_w) * ((rh + tile_h - 1) / tile_h));
+        printf("\nhost-scheduled tiles of %ldx%ld pixels (%d tiles of the %ldx%ld window) on %d pthreads against\n"
+               "run() on %d OpenMP threads, same renders, median of %ld\n", tile_w, tile_h, n_tiles, rw, rh, threads,
+               threads, reps);
+        printf("%-6s %10s %10s %8s %12s %11s %11s\n", "f/N", "run/s", "tiles/s", "ratio", "1x1 tile s", "prep share",
+               "same image");
+        for (i = 0; i < n_f; i++) {
+            const f_result *fr = &res[i];
+            double share = fr->one_tile_seconds * n_tiles / (median(fr->tile_seconds, fr->reps) * threads);
+            printf("%-6g %10.3g %10.3g %8.3f %12.4f %10.1f%% %11s\n", fr->f_number, fr->sps_med, fr->tile_sps_med,
+                   fr->tile_ratio_med, fr->one_tile_seconds, 100.0 * share,
+                   fr->tile_identical == 1 ? "yes" : fr->tile_identical == 0 ? "NO" : "?");
+        }
+        printf("headline tiles f/%g: %.3g splats/s, %.3fx run() (%ldx%ld tiles, %d pthreads)\n", res[head].f_number,
+               res[head].tile_sps_med, res[head].tile_ratio_med, tile_w, tile_h, threads);
+        printf("(ratio: tiles / run() of the same repetition; 1x1 tile s: one tile's fixed cost, drawing and\n"
+               " preparing every wavelength's samples, which every tile repeats; prep share: that cost times the\n"
+               " tiles over the tiled render's thread-seconds; same image: the tiled render's image equals run()'s\n"
+               " bit for bit)\n");
     }
     if (n_gl > 0) {
         const gl_result *gh_ = NULL;
@@ -989,6 +1154,34 @@ int main(int argc, char **argv)
                         gr->stats.tau_fraction, gr->stats.dark_fraction);
             }
             fprintf(f, "%s]}", n_gl ? "\n    " : "");
+        }
+        // Host-scheduled tiles: the headline, then per f-number
+        fprintf(f, ",\n  \"tiles\": ");
+        if (!do_cpu || tile_w == 0) {
+            fprintf(f, "{\"skipped\": ");
+            json_string(f, !do_cpu ? "--device gl" : "--tile 0x0");
+            fprintf(f, "}");
+        } else {
+            fprintf(f, "{\"tile\": [%ld, %ld], \"tiles\": %ld, \"threads\": %d, \"scheduler\": \"pthreads, tiles in "
+                       "row-major order from a shared counter\", \"f_number\": %.17g, \"splats_per_second\": %.17g, "
+                       "\"ratio_vs_run\": %.17g,\n    \"per_f_number\": {",
+                    tile_w, tile_h, ((rw + tile_w - 1) / tile_w) * ((rh + tile_h - 1) / tile_h), threads, h->f_number,
+                    h->tile_sps_med, h->tile_ratio_med);
+            for (i = 0; i < n_f; i++) {
+                const f_result *fr = &res[i];
+                fprintf(f, "%s\n      \"%g\": {\"splats_per_second\": %.17g, \"ratio_vs_run\": %.17g, "
+                           "\"one_tile_seconds\": %.17g, \"identical_to_run\": %s, \"repetitions\": "
+                           "{\"splats_per_second\": ",
+                        i ? "," : "", fr->f_number, fr->tile_sps_med, fr->tile_ratio_med, fr->one_tile_seconds,
+                        fr->tile_identical == 1 ? "true" : "false");
+                json_list(f, fr->tile_sps, fr->reps);
+                fprintf(f, ", \"seconds\": ");
+                json_list(f, fr->tile_seconds, fr->reps);
+                fprintf(f, ", \"ratio_vs_run\": ");
+                json_list(f, fr->tile_ratio, fr->reps);
+                fprintf(f, "}}");
+            }
+            fprintf(f, "\n    }}");
         }
         fprintf(f, ",\n  \"wall_seconds\": %.17g\n}\n", now_seconds() - t_start);
         if (fclose(f) != 0) {
