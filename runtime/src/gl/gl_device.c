@@ -566,7 +566,7 @@ lensrt_result lensrt_gl_get(lensrt_context ctx, lensrt_gl **out)
         if (!failed) {
             gl->platform = p;
             lensrt_gl_release(gl);
-            // The context tears the device down through this hook (context.c knows no GL)
+            // The context tears the device down through this hook (core/context.c knows no GL)
             ctx->device = gl;
             ctx->device_destroy = gl_destroy;
             *out = gl;

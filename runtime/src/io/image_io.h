@@ -15,7 +15,7 @@
 #include <stdio.h>
 #include <stdint.h>
 
-/* The context's allocator (never NULL members once set up by context.c). */
+/* The context's allocator (never NULL members once set up by core/context.c). */
 typedef struct lensrt_allocator {
     void *(*alloc_fn)(size_t size, void *user_data);
     void (*free_fn)(void *ptr, void *user_data);

@@ -7,6 +7,8 @@
  * (LENSRT_TRANSPORT_FREE_SPACE) from the sample's x and y. */
 #include "lens.h"
 
+#include "../c_numbers.h"
+
 #include <math.h>
 
 static int one_dimensional(lensrt_lens lens) { return lens->model.one_dimensional; }
@@ -121,3 +123,46 @@ const lensrt_lens_ops lensrt_lens_analytic = {
     one_dimensional, wavelength_range, check_light, choose_stop, check_window, prepare,
     sample_rows, sample_wave, image_point, table_file,
 };
+
+lensrt_result lensrt_lens_create_analytic(lensrt_context ctx, const lensrt_analytic_lens *desc,
+                                          lensrt_lens *out)
+{
+    lensrt_lens lens;
+    lensrt_analytic_lens full;
+    lensrt_result res;
+    if (!ctx || !desc || !out) return lensrt_fail(ctx, LENSRT_ERROR_INVALID_ARGUMENT, "lensrt_lens_create_analytic: NULL argument");
+    *out = NULL;
+    // Read the caller's struct as far as its struct_size (the ABI rules of lensrt.h)
+    if ((res = lensrt_struct_in(ctx, "lensrt_analytic_lens", desc, &full, sizeof full)) != LENSRT_SUCCESS) return res;
+    desc = &full;
+    if (!(desc->sensor_distance_mm > 0 && isfinite(desc->sensor_distance_mm)))
+        return lensrt_fail(ctx, LENSRT_ERROR_INVALID_ARGUMENT,
+                           "analytic lens: sensor_distance_mm must be positive and finite, got %g",
+                           desc->sensor_distance_mm);
+    if (!isfinite(desc->focal_length_mm) || desc->focal_length_mm < 0)
+        return lensrt_fail(ctx, LENSRT_ERROR_INVALID_ARGUMENT,
+                           "analytic lens: focal_length_mm must be 0 (none) or positive, got %g",
+                           desc->focal_length_mm);
+    lens = lensrt_calloc(ctx, 1, sizeof *lens);
+    if (!lens) return lensrt_fail(ctx, LENSRT_ERROR_OUT_OF_MEMORY, "analytic lens: out of memory");
+    lens->ctx = ctx;
+    lens->analytic = 1;
+    lens->model = *desc;
+    // The name goes into EXR metadata and the phasor files' scene hash: the "C" locale
+    lensrt_snprintf_c(lens->name, sizeof lens->name, "%s%s, sensor at %g mm",
+             desc->one_dimensional ? "one-dimensional " : "",
+             desc->focal_length_mm > 0 ? "perfect thin lens" : "free space", desc->sensor_distance_mm);
+    lens->focal_length_mm = desc->focal_length_mm;
+    lens->info.struct_size = sizeof lens->info;
+    lens->info.name = lens->name;
+    lens->info.analytic = 1;
+    lens->info.psf_vs_exact_cell = lens->psf_vs_exact_cell; /* "": no trust figures */
+    lens->info.focal_length_mm = desc->focal_length_mm;
+    lens->info.wavelength_min_nm = 1.0;
+    lens->info.wavelength_max_nm = 1e6;
+    lens->info.focus_offset_min_mm = -desc->sensor_distance_mm;
+    lens->info.focus_offset_max_mm = 1e300;
+    lens->info.field_x = lens->info.field_y = 1.0;
+    *out = lens;
+    return LENSRT_SUCCESS;
+}

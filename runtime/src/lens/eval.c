@@ -2,7 +2,7 @@
  * (lensrt_lens_system_info), for a renderer's own rays.
  *
  * A system's output is sum_t c_t prod_i xhat_i^e_ti over its terms, xhat_i the normalised
- * input i (lens_table.c, lensrt_normalise). Rays are evaluated in blocks of BLOCK: per
+ * input i (lens/table.c, lensrt_normalise). Rays are evaluated in blocks of BLOCK: per
  * block, the powers xhat^0 .. xhat^LENSRT_MAX_DEGREE of every input are tabulated once,
  * ray index innermost, and each term is then one pass over the block's rays, which the
  * compiler vectorises (the rays of a block share the term's exponents). The fits write

@@ -1,12 +1,12 @@
-/* Lenses: the `lensfit-poly-table` reader (version 3) and the analytic lens.
+/* Fitted lenses: the `lensfit-poly-table` reader (version 3).
  *
  * Reentrant and independent of the host's locale: lines are split by split_fields (not
  * strtok, whose hidden state a host's own strtok loop or another thread would share),
  * numbers are read by lensrt_strtod_c (the "C" locale on this thread for the call: under
  * de_DE's LC_NUMERIC strtod stops at the '.' of "1.5"), and characters are classified
  * as ASCII, not by the locale's <ctype.h> tables. */
-#include "c_numbers.h"
-#include "internal.h"
+#include "../c_numbers.h"
+#include "../internal.h"
 
 #include <errno.h>
 #include <math.h>
@@ -188,25 +188,6 @@ static lensrt_result read_system(reader *r, lensrt_system *sys)
     if (!next_line(r) || strcmp(r->tok[0], "end") != 0)
         return parse_fail(r, "expected 'end' after the outputs of system %s", sys->name);
     return LENSRT_SUCCESS;
-}
-
-static void free_system(lensrt_context ctx, lensrt_system *sys)
-{
-    int k;
-    for (k = 0; k < 8; k++) {
-        lensrt_free(ctx, sys->outputs[k].exponents);
-        lensrt_free(ctx, sys->outputs[k].coefficients);
-    }
-}
-
-void lensrt_lens_destroy(lensrt_context ctx, lensrt_lens lens)
-{
-    if (!lens) return;
-    (void)ctx;
-    ctx = lens->ctx; /* the context that allocated it */
-    free_system(ctx, &lens->p_o);
-    free_system(ctx, &lens->p_s);
-    lensrt_free(ctx, lens);
 }
 
 /* The input names each system must have, in this order. */
@@ -496,60 +477,4 @@ lensrt_result lensrt_lens_load(lensrt_context ctx, const char *table_path, lensr
     res = lensrt_lens_load_text(ctx, text, (size_t)size, table_path, out);
     lensrt_free(ctx, text);
     return res;
-}
-
-lensrt_result lensrt_lens_create_analytic(lensrt_context ctx, const lensrt_analytic_lens *desc,
-                                          lensrt_lens *out)
-{
-    lensrt_lens lens;
-    lensrt_analytic_lens full;
-    lensrt_result res;
-    if (!ctx || !desc || !out) return lensrt_fail(ctx, LENSRT_ERROR_INVALID_ARGUMENT, "lensrt_lens_create_analytic: NULL argument");
-    *out = NULL;
-    // Read the caller's struct as far as its struct_size (the ABI rules of lensrt.h)
-    if ((res = lensrt_struct_in(ctx, "lensrt_analytic_lens", desc, &full, sizeof full)) != LENSRT_SUCCESS) return res;
-    desc = &full;
-    if (!(desc->sensor_distance_mm > 0 && isfinite(desc->sensor_distance_mm)))
-        return lensrt_fail(ctx, LENSRT_ERROR_INVALID_ARGUMENT,
-                           "analytic lens: sensor_distance_mm must be positive and finite, got %g",
-                           desc->sensor_distance_mm);
-    if (!isfinite(desc->focal_length_mm) || desc->focal_length_mm < 0)
-        return lensrt_fail(ctx, LENSRT_ERROR_INVALID_ARGUMENT,
-                           "analytic lens: focal_length_mm must be 0 (none) or positive, got %g",
-                           desc->focal_length_mm);
-    lens = lensrt_calloc(ctx, 1, sizeof *lens);
-    if (!lens) return lensrt_fail(ctx, LENSRT_ERROR_OUT_OF_MEMORY, "analytic lens: out of memory");
-    lens->ctx = ctx;
-    lens->analytic = 1;
-    lens->model = *desc;
-    // The name goes into EXR metadata and the phasor files' scene hash: the "C" locale
-    lensrt_snprintf_c(lens->name, sizeof lens->name, "%s%s, sensor at %g mm",
-             desc->one_dimensional ? "one-dimensional " : "",
-             desc->focal_length_mm > 0 ? "perfect thin lens" : "free space", desc->sensor_distance_mm);
-    lens->focal_length_mm = desc->focal_length_mm;
-    lens->info.struct_size = sizeof lens->info;
-    lens->info.name = lens->name;
-    lens->info.analytic = 1;
-    lens->info.psf_vs_exact_cell = lens->psf_vs_exact_cell; /* "": no trust figures */
-    lens->info.focal_length_mm = desc->focal_length_mm;
-    lens->info.wavelength_min_nm = 1.0;
-    lens->info.wavelength_max_nm = 1e6;
-    lens->info.focus_offset_min_mm = -desc->sensor_distance_mm;
-    lens->info.focus_offset_max_mm = 1e300;
-    lens->info.field_x = lens->info.field_y = 1.0;
-    *out = lens;
-    return LENSRT_SUCCESS;
-}
-
-lensrt_result lensrt_lens_get_info(lensrt_lens lens, lensrt_lens_info *out)
-{
-    // A lens is shared between threads: no message is recorded in its context
-    if (!lens || !out) return LENSRT_ERROR_INVALID_ARGUMENT;
-    return lensrt_struct_out(NULL, "lensrt_lens_info", out, &lens->info, sizeof lens->info);
-}
-
-double lensrt_normalise(const lensrt_input *in, double v)
-{
-    double w = in->transform == LENSRT_TRANSFORM_INVERSE_SQUARE ? 1.0 / (v * v) : v;
-    return (w - in->c) / in->s;
 }

@@ -1,7 +1,7 @@
 /* Context: allocator and log hooks, error messages, result strings. Messages are
  * formatted in the "C" locale (c_numbers.h), whatever the host's LC_NUMERIC. */
-#include "c_numbers.h"
-#include "internal.h"
+#include "../c_numbers.h"
+#include "../internal.h"
 
 #include <stdio.h>
 #include <stdlib.h>
