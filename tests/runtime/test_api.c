@@ -1,6 +1,7 @@
 /*
  * test_api: the public contract of lensrt (lensrt.h), through the library's exported
- * symbols only: result strings, context hooks (allocator, log), argument checks and
+ * symbols only (one program over 600 lines: its sections share one context, lens and
+ * failing-allocator harness, and each is a short list of contract checks): result strings, context hooks (allocator, log), argument checks and
  * their messages, lens tables (file and memory, errors with file and line), renders
  * (determinism across thread counts, save/load, cancellation, sample counts) and
  * atomic image writes.

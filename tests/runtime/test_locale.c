@@ -1,5 +1,6 @@
 /*
- * test_locale: lensrt reads and writes numbers the same whatever the host's locale.
+ * test_locale: lensrt reads and writes numbers the same whatever the host's locale
+ * (just over 600 lines: one section per place lensrt reads or writes text).
  *
  * A renderer that calls setlocale(LC_ALL, "") under de_DE.UTF-8 gets a comma as the
  * decimal point: strtod stops at the '.' of "1.5" and "%g" writes "1,5". lensrt's text

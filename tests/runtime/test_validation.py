@@ -1,5 +1,8 @@
 """Validation of the lensrt renderer against closed forms and direct quadrature.
 
+Over 600 lines: the numbered sections share the closed forms and quadratures defined
+at the top (Airy, slits, disc amplitude integrals) and the GL tests import them.
+
 Conventions of the library (runtime/src/lens/analytic.c sample_wave, cpu/kernel.c
 lensrt_kernel_free_space): an analytic lens is the aperture plane, then free space to a
 sensor at sensor_distance_mm + focus_offset_mm; with focal_length_mm > 0 the aperture
