@@ -6,8 +6,11 @@
 #                spread function at f/2, f/8 and f/32 to 1% Monte Carlo error (EXR, PNG and
 #                a sheet of the three with scale bars, build/demo/psf/), and
 #                at f/8 on the GL device
-#   make test    lint, the C tests (also under ASan/UBSan) and the Python test suite
-#   make bench   ray-tracer throughput, generated-code speed, fit report, lensrt splat rate,
+#   make test    lint, the C tests and examples/embed (also under ASan/UBSan, and a minimal
+#                build without EXR, OpenMP and GL) and the Python test suite
+#   make bench   ray-tracer throughput, generated-code speed, fit report, lensrt splat rate
+#                (and tile-scheduled against run()), per-ray evaluation against exact tracing,
+#                compiled-in Horner code against lensrt's set-up,
 #                per-ray evaluation against the exact tracer, error against run time, and per generated lens the fit time and the worst
 #                PSF cell against exactly traced rays (build/bench/)
 
