@@ -40,36 +40,7 @@
 
 /* ------------------------------------------------------------- harness ----- */
 
-static int g_checks = 0, g_failures = 0;
-
-static void check_at(int ok, int line, const char *fmt, ...)
-{
-    ++g_checks;
-    if (!ok) {
-        va_list args;
-        ++g_failures;
-        fprintf(stderr, "test_api.c:%d: FAILED: ", line);
-        va_start(args, fmt);
-        vfprintf(stderr, fmt, args);
-        va_end(args);
-        fputc('\n', stderr);
-    }
-}
-#define CHECK(cond, ...) check_at((cond) ? 1 : 0, __LINE__, __VA_ARGS__)
-
-static void check_res_at(int line, const char *expr, lensrt_result got, lensrt_result want, lensrt_context ctx)
-{
-    check_at(got == want, line, "%s: got %d (%s), expected %d (%s); last error: '%s'", expr, (int)got,
-             lensrt_result_string(got), (int)want, lensrt_result_string(want),
-             ctx ? lensrt_context_last_error(ctx) : "(no context)");
-}
-/* Call, then check the result code (the expression is printed on failure). */
-#define CHECK_RES(ctx, want, call) check_res_at(__LINE__, #call, (call), (want), (ctx))
-
-/* last_error of ctx contains `needle` */
-#define CHECK_MSG(ctx, needle)                                                                     \
-    CHECK(strstr(lensrt_context_last_error(ctx), (needle)) != NULL,                                \
-          "last error '%s' does not contain '%s'", lensrt_context_last_error(ctx), (needle))
+#include "check.h"
 
 static char g_scratch[2048];
 static const char *g_table; /* path of lens 0001's table */
@@ -610,13 +581,14 @@ static void expect_create_error(int line, lensrt_context ctx, hooks *h, const le
     int logs = h->n_error_logs;
     res = lensrt_render_create(ctx, d, &r);
     e = lensrt_context_last_error(ctx);
-    check_at(res == want, line, "render_create: got %s, expected %s; last error '%s'", lensrt_result_string(res),
+    check_at(res == want, __FILE__, line, "render_create: got %s, expected %s; last error '%s'", lensrt_result_string(res),
              lensrt_result_string(want), e);
-    check_at(strstr(e, needle) != NULL, line, "render_create: last error '%s' does not name '%s'", e, needle);
-    check_at(h->n_error_logs == logs + 1 && strcmp(h->last_log, e) == 0 && h->last_level == LENSRT_LOG_ERROR, line,
+    check_at(strstr(e, needle) != NULL, __FILE__, line, "render_create: last error '%s' does not name '%s'", e, needle);
+    check_at(h->n_error_logs == logs + 1 && strcmp(h->last_log, e) == 0 && h->last_level == LENSRT_LOG_ERROR, __FILE__,
+             line,
              "render_create: the log hook got %d error(s), last '%s', expected '%s'", h->n_error_logs - logs,
              h->last_log, e);
-    check_at(r == NULL, line, "a failed render_create returned a render");
+    check_at(r == NULL, __FILE__, line, "a failed render_create returned a render");
     lensrt_render_destroy(r);
 }
 #define EXPECT_CREATE_ERROR(d, want, needle) expect_create_error(__LINE__, ctx, &h, (d), (want), (needle))
@@ -837,19 +809,19 @@ static void expect_table_error(int line, lensrt_context ctx, const char *text, c
     char where[512];
     const char *e;
     if (!text) {
-        check_at(0, line, "out of memory making a table");
+        check_at(0, __FILE__, line, "out of memory making a table");
         return;
     }
     res = lensrt_lens_load_text(ctx, text, strlen(text), name, &lens);
     e = lensrt_context_last_error(ctx);
-    check_at(res == LENSRT_ERROR_PARSE, line, "load_text: got %s, expected parse error; last error '%s'",
+    check_at(res == LENSRT_ERROR_PARSE, __FILE__, line, "load_text: got %s, expected parse error; last error '%s'",
              lensrt_result_string(res), e);
-    check_at(lens == NULL, line, "a failed load_text returned a lens");
+    check_at(lens == NULL, __FILE__, line, "a failed load_text returned a lens");
     if (want_line > 0) {
         snprintf(where, sizeof where, "%s:%d:", name, want_line);
-        check_at(strstr(e, where) != NULL, line, "last error '%s' does not name '%s'", e, where);
+        check_at(strstr(e, where) != NULL, __FILE__, line, "last error '%s' does not name '%s'", e, where);
     }
-    check_at(strstr(e, needle) != NULL, line, "last error '%s' does not contain '%s'", e, needle);
+    check_at(strstr(e, needle) != NULL, __FILE__, line, "last error '%s' does not contain '%s'", e, needle);
     lensrt_lens_destroy(ctx, lens);
 }
 #define EXPECT_TABLE_ERROR(text, name, want_line, needle) \

@@ -33,33 +33,7 @@
 
 /* ------------------------------------------------------------- harness ----- */
 
-static int g_checks = 0, g_failures = 0;
-
-static void check_at(int ok, int line, const char *fmt, ...)
-{
-    ++g_checks;
-    if (!ok) {
-        va_list args;
-        ++g_failures;
-        fprintf(stderr, "test_compiled.c:%d: FAILED: ", line);
-        va_start(args, fmt);
-        vfprintf(stderr, fmt, args);
-        va_end(args);
-        fputc('\n', stderr);
-    }
-}
-#define CHECK(cond, ...) check_at((cond) ? 1 : 0, __LINE__, __VA_ARGS__)
-
-static void check_res_at(int line, const char *expr, lensrt_result got, lensrt_result want, lensrt_context ctx)
-{
-    check_at(got == want, line, "%s: got %d (%s), expected %d (%s); last error: '%s'", expr, (int)got,
-             lensrt_result_string(got), (int)want, lensrt_result_string(want),
-             ctx ? lensrt_context_last_error(ctx) : "(no context)");
-}
-#define CHECK_RES(ctx, want, call) check_res_at(__LINE__, #call, (call), (want), (ctx))
-#define CHECK_MSG(ctx, needle)                                                                     \
-    CHECK(strstr(lensrt_context_last_error(ctx), (needle)) != NULL,                                \
-          "last error '%s' does not contain '%s'", lensrt_context_last_error(ctx), (needle))
+#include "check.h"
 
 static uint64_t splitmix64(uint64_t *state)
 {

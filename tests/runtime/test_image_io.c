@@ -28,22 +28,7 @@
 
 /* ------------------------------------------------------------- harness ----- */
 
-static int g_checks = 0, g_failures = 0;
-
-static void check_at(int ok, int line, const char *fmt, ...)
-{
-    ++g_checks;
-    if (!ok) {
-        va_list args;
-        ++g_failures;
-        fprintf(stderr, "test_image_io.c:%d: FAILED: ", line);
-        va_start(args, fmt);
-        vfprintf(stderr, fmt, args);
-        va_end(args);
-        fputc('\n', stderr);
-    }
-}
-#define CHECK(cond, ...) check_at((cond) ? 1 : 0, __LINE__, __VA_ARGS__)
+#include "check.h"
 
 static char g_dir[4096]; /* the scratch folder */
 

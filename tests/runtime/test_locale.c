@@ -47,28 +47,7 @@
 
 /* ------------------------------------------------------------- harness ----- */
 
-static int g_checks = 0, g_failures = 0;
-
-static void check_at(int ok, int line, const char *fmt, ...)
-{
-    ++g_checks;
-    if (!ok) {
-        va_list args;
-        ++g_failures;
-        fprintf(stderr, "test_locale.c:%d: FAILED: ", line);
-        va_start(args, fmt);
-        vfprintf(stderr, fmt, args);
-        va_end(args);
-        fputc('\n', stderr);
-    }
-}
-#define CHECK(cond, ...) check_at((cond) ? 1 : 0, __LINE__, __VA_ARGS__)
-#define CHECK_OK(ctx, call)                                                                          \
-    do {                                                                                             \
-        lensrt_result res_ = (call);                                                                 \
-        CHECK(res_ == LENSRT_SUCCESS, "%s: %s (%s)", #call, lensrt_result_string(res_),              \
-              lensrt_context_last_error(ctx));                                                       \
-    } while (0)
+#include "check.h"
 
 static char g_scratch[2048];
 static const char *g_table, *g_psf;

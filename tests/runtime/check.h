@@ -1,0 +1,53 @@
+/* The C tests' harness: CHECK counts every check and prints each failure with its file
+ * and line (and the message), so one run lists every failure; main returns non-zero when
+ * g_failures is. With lensrt.h included first: CHECK_RES (a call's result code against
+ * the expected one, with the context's last error), CHECK_OK and CHECK_MSG. */
+#ifndef LENSRT_TEST_CHECK_H
+#define LENSRT_TEST_CHECK_H
+
+#include <stdarg.h>
+#include <stdio.h>
+#include <string.h>
+
+static int g_checks = 0, g_failures = 0;
+
+static inline void check_at(int ok, const char *file, int line, const char *fmt, ...)
+#if defined(__GNUC__)
+    __attribute__((format(printf, 4, 5)))
+#endif
+    ;
+static inline void check_at(int ok, const char *file, int line, const char *fmt, ...)
+{
+    const char *base = strrchr(file, '/');
+    ++g_checks;
+    if (!ok) {
+        va_list args;
+        ++g_failures;
+        fprintf(stderr, "%s:%d: FAILED: ", base ? base + 1 : file, line);
+        va_start(args, fmt);
+        vfprintf(stderr, fmt, args);
+        va_end(args);
+        fputc('\n', stderr);
+    }
+}
+#define CHECK(cond, ...) check_at((cond) ? 1 : 0, __FILE__, __LINE__, __VA_ARGS__)
+
+#ifdef LENSRT_H
+static inline void check_res_at(int line, const char *file, const char *expr, lensrt_result got, lensrt_result want,
+                                lensrt_context ctx)
+{
+    check_at(got == want, file, line, "%s: got %d (%s), expected %d (%s); last error: '%s'", expr, (int)got,
+             lensrt_result_string(got), (int)want, lensrt_result_string(want),
+             ctx ? lensrt_context_last_error(ctx) : "(no context)");
+}
+/* Call, then check the result code (the expression is printed on failure). */
+#define CHECK_RES(ctx, want, call) check_res_at(__LINE__, __FILE__, #call, (call), (want), (ctx))
+/* Call, then check it succeeded. */
+#define CHECK_OK(ctx, call) CHECK_RES(ctx, LENSRT_SUCCESS, call)
+/* The last error of ctx contains `needle`. */
+#define CHECK_MSG(ctx, needle)                                                                     \
+    CHECK(strstr(lensrt_context_last_error(ctx), (needle)) != NULL,                                \
+          "last error '%s' does not contain '%s'", lensrt_context_last_error(ctx), (needle))
+#endif
+
+#endif /* LENSRT_TEST_CHECK_H */
