@@ -14,17 +14,7 @@
 #include <stdlib.h>
 #include <string.h>
 
-static int g_failures = 0;
-
-#define CHECK(cond, ...)                                                      \
-    do {                                                                      \
-        if (!(cond)) {                                                        \
-            fprintf(stderr, "%s:%d: check failed: %s: ", __FILE__, __LINE__, #cond); \
-            fprintf(stderr, __VA_ARGS__);                                     \
-            fprintf(stderr, "\n");                                            \
-            g_failures++;                                                     \
-        }                                                                     \
-    } while (0)
+#include "check.h"
 
 #define SENTINEL 0xA5
 #define SLACK 64 /* bytes of sentinel after the largest struct */
@@ -274,10 +264,6 @@ int main(void)
     }
     lensrt_lens_destroy(ctx, lens);
     lensrt_context_destroy(ctx);
-    if (g_failures) {
-        fprintf(stderr, "test_abi: %d checks failed\n", g_failures);
-        return 1;
-    }
-    printf("test_abi: all checks passed\n");
-    return 0;
+    printf("test_abi: %d checks, %d failed\n", g_checks, g_failures);
+    return g_failures ? 1 : 0;
 }
