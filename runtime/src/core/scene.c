@@ -14,9 +14,10 @@ lensrt_result lensrt_scene_check_desc(lensrt_context ctx, const lensrt_render_de
     const lensrt_sensor *s = &d->sensor;
     const lensrt_aperture *a = &d->aperture;
     int i;
-    if (s->width <= 0 || s->height <= 0 || s->width > 65536 || s->height > 65536)
+    if (s->width <= 0 || s->height <= 0 || s->width > LENSRT_MAX_RESOLUTION || s->height > LENSRT_MAX_RESOLUTION)
         return lensrt_fail(ctx, LENSRT_ERROR_INVALID_ARGUMENT,
-                           "sensor: resolution must be 1..65536 pixels per side, got %d x %d", s->width, s->height);
+                           "sensor: resolution must be 1..%d pixels per side, got %d x %d", LENSRT_MAX_RESOLUTION, s->width,
+                           s->height);
     if (!(s->width_mm > 0 && isfinite(s->width_mm)) || !(s->height_mm >= 0 && isfinite(s->height_mm)))
         return lensrt_fail(ctx, LENSRT_ERROR_INVALID_ARGUMENT,
                            "sensor: width_mm must be positive and height_mm positive or 0, got %g and %g",
@@ -27,10 +28,12 @@ lensrt_result lensrt_scene_check_desc(lensrt_context ctx, const lensrt_render_de
         return lensrt_fail(ctx, LENSRT_ERROR_OUT_OF_DOMAIN,
                            "sensor: focus offset %g mm is outside the fitted range [%g, %g] mm of %s",
                            s->focus_offset_mm, info->focus_offset_min_mm, info->focus_offset_max_mm, info->name);
-    if (d->n_lights < 0 || (d->n_lights > 0 && !d->lights) || d->n_lights > 64)
-        return lensrt_fail(ctx, LENSRT_ERROR_INVALID_ARGUMENT, "lights: expected 0..64 lights with a non-NULL array, got %d", d->n_lights);
-    if (d->n_wavelengths < 0 || d->n_wavelengths > 4096)
-        return lensrt_fail(ctx, LENSRT_ERROR_INVALID_ARGUMENT, "wavelengths: expected 0..4096, got %d", d->n_wavelengths);
+    if (d->n_lights < 0 || (d->n_lights > 0 && !d->lights) || d->n_lights > LENSRT_MAX_LIGHTS)
+        return lensrt_fail(ctx, LENSRT_ERROR_INVALID_ARGUMENT, "lights: expected 0..%d lights with a non-NULL array, got %d",
+                           LENSRT_MAX_LIGHTS, d->n_lights);
+    if (d->n_wavelengths < 0 || d->n_wavelengths > LENSRT_MAX_WAVELENGTHS)
+        return lensrt_fail(ctx, LENSRT_ERROR_INVALID_ARGUMENT, "wavelengths: expected 0..%d, got %d", LENSRT_MAX_WAVELENGTHS,
+                           d->n_wavelengths);
     if (d->wavelengths_nm && d->n_wavelengths == 0)
         return lensrt_fail(ctx, LENSRT_ERROR_INVALID_ARGUMENT, "wavelengths: an array was given with n_wavelengths 0");
     for (i = 0; d->wavelengths_nm && i < d->n_wavelengths; i++) {
@@ -54,9 +57,10 @@ lensrt_result lensrt_scene_check_desc(lensrt_context ctx, const lensrt_render_de
                            d->sampler == LENSRT_SAMPLER_SOBOL ? "sobol" : "stratified");
     if (!(d->phase_tolerance_waves >= 0 && d->phase_tolerance_waves < 0.5))
         return lensrt_fail(ctx, LENSRT_ERROR_INVALID_ARGUMENT, "phase_tolerance_waves must be in [0, 0.5), got %g", d->phase_tolerance_waves);
-    if (a->shape == LENSRT_APERTURE_BLADES && (a->blades < 3 || a->blades > 64 || !(a->blade_curvature >= 0 && a->blade_curvature <= 1)))
+    if (a->shape == LENSRT_APERTURE_BLADES && (a->blades < 3 || a->blades > LENSRT_MAX_BLADES || !(a->blade_curvature >= 0 && a->blade_curvature <= 1)))
         return lensrt_fail(ctx, LENSRT_ERROR_INVALID_ARGUMENT,
-                           "aperture: blades must be 3..64 with curvature in [0, 1], got %d blades, curvature %g",
+                           "aperture: blades must be 3..%d with curvature in [0, 1], got %d blades, curvature %g",
+                           LENSRT_MAX_BLADES,
                            a->blades, a->blade_curvature);
     if (a->shape == LENSRT_APERTURE_SLIT && (!(a->slit_width_mm > 0) || !(a->slit_separation_mm >= 0) ||
                                              (a->slit_separation_mm > 0 && a->slit_separation_mm < a->slit_width_mm)))

@@ -164,7 +164,7 @@ static lensrt_result read_system(reader *r, lensrt_system *sys)
     for (k = 0; k < sys->n_outputs; k++) {
         lensrt_poly *p = &sys->outputs[k];
         if (!next_line(r) || strcmp(r->tok[0], "output") != 0 || r->n_tok != 4 ||
-            !parse_int(r->tok[3], 0, 1000000, &p->n_terms))
+            !parse_int(r->tok[3], 0, LENSRT_MAX_TERMS, &p->n_terms))
             return parse_fail(r, "expected 'output NAME UNIT N_TERMS'%s", "");
         snprintf(p->name, sizeof p->name, "%s", r->tok[1]);
         p->exponents = lensrt_calloc(r->ctx, (size_t)p->n_terms * (size_t)sys->n_inputs + 1, 1);
