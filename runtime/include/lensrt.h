@@ -494,14 +494,21 @@ LENSRT_API lensrt_result lensrt_render_tiles_begin(lensrt_render render, uint64_
  * renders nothing and fails (LENSRT_ERROR_INVALID_ARGUMENT), as do calls outside a session.
  *
  * Thread model: a tile reads the render's prepared scene and writes only its own pixels'
- * sums; coverage counts, statistics and the first failure are kept with atomic
- * operations. It never writes the context's last error (other tiles may be running): the
- * result code says what failed, and tiles_end reports the first failure with its message.
- * Each call draws and prepares the samples of the range itself (per-sample work is
- * repeated per tile: use tiles of a few thousand pixels or more; runtime/README.md gives
- * the measured cost), allocating one pass's sample buffers (up to 16384 samples per
- * wavelength at a time) through the context's allocator hooks, which must therefore be
- * thread-safe (malloc is), and uses about 170 KB of the calling thread's stack. */
+ * sums; coverage counts, statistics, the first failure and the session's shared samples
+ * are kept with atomic operations. It never writes the context's last error (other tiles
+ * may be running): the result code says what failed, and tiles_end reports the first
+ * failure with its message. Each pass's samples of each wavelength are drawn and
+ * prepared once per session, by the tiles that reach them first, each taking chunks of
+ * 512 samples no other tile has taken; a tile that finds the last chunks taken (or the
+ * slot being allocated) waits for them by spinning (a fraction of a millisecond, longer
+ * only if the thread preparing one is descheduled; the thread preparing a chunk never
+ * waits). The shared samples are kept
+ * until tiles_end, at most 512 MB per session (about 13 MB per pass and wavelength for
+ * lens 0001 in float); beyond that, tiles prepare the samples themselves (same bits, more
+ * time: runtime/README.md gives the measured costs) in one pass's buffers (up to 16384
+ * samples per wavelength). Memory comes from the context's allocator hooks, which must
+ * therefore be thread-safe (malloc is); a tile uses about 170 KB of the calling thread's
+ * stack. */
 LENSRT_API lensrt_result lensrt_render_tile(lensrt_render render, int x0, int y0, int width, int height);
 
 /* End the session on the caller's thread once every tile call has returned: checks that
@@ -509,7 +516,8 @@ LENSRT_API lensrt_result lensrt_render_tile(lensrt_render render, int x0, int y0
  * first pixel, in row-major order, that was not covered or was covered more than once)
  * and that no tile failed (else that failure's result and message); on failure the sums
  * are put back as they were before tiles_begin. On success the session's samples, splats,
- * statistics and wall time (tiles_begin to tiles_end) are added as run() would. */
+ * statistics and wall time (tiles_begin to tiles_end) are added as run() would. Either way
+ * the session's shared samples are freed. */
 LENSRT_API lensrt_result lensrt_render_tiles_end(lensrt_render render);
 
 typedef struct lensrt_render_stats {

@@ -7,8 +7,11 @@
  * the sample range (fixed at begin), a coverage count per pixel (each tile claims its
  * pixels with atomic increments before it splats, so two tiles never write one pixel),
  * a copy of the sums (put back when the session fails), the set-up statistics (integer
- * counts, added atomically) and the first failure (claimed atomically, reported by end
- * on the caller's thread: tiles never write the context's last error). */
+ * counts, added atomically), the first failure (claimed atomically, reported by end
+ * on the caller's thread: tiles never write the context's last error) and the samples
+ * the tiles share (one slot per pass and wavelength, prepared once by the tiles that
+ * reach it first and read by all: samples are pure functions of seed, wavelength and
+ * index, so the shared data has the bits each tile would have made). */
 #include "tiles.h"
 
 #include "../c_numbers.h"
@@ -30,6 +33,45 @@ lensrt_result lensrt_tiles_fail(lensrt_render r, lensrt_result result, const cha
     return result;
 }
 
+void *lensrt_tiles_shared(lensrt_render r, uint64_t slot, size_t bytes, int n_chunks,
+                          lensrt_tiles_prepare_fn prepare, const void *job)
+{
+    lensrt_tiles *t = r->tiles;
+    lensrt_tiles_slot *s;
+    int32_t state, c;
+    if (slot >= t->n_slots) return NULL;
+    s = &t->slots[slot];
+    // Ready (every tile after the first few): the data, seen through done's acquire
+    state = lensrt_atomic_load_acquire(&s->state);
+    if (state == LENSRT_SLOT_OPEN && lensrt_atomic_load_acquire(&s->done) == n_chunks) return s->data;
+    // The first tile here takes the slot's share of the cap and allocates its data, then
+    // opens it (the release publishes the pointer); over the cap or out of memory, the
+    // slot stays private to every tile
+    if (state == LENSRT_SLOT_EMPTY) {
+        if (lensrt_atomic_cas_i32(&s->state, LENSRT_SLOT_EMPTY, LENSRT_SLOT_CLAIMED)) {
+            if (lensrt_atomic_add_fetch_u64(&t->shared_bytes, bytes) > LENSRT_TILES_SHARED_BYTES ||
+                !(s->data = lensrt_alloc(r->ctx, bytes))) {
+                (void)lensrt_atomic_add_fetch_u64(&t->shared_bytes, (uint64_t)0 - bytes);
+                lensrt_atomic_store_release(&s->state, LENSRT_SLOT_PRIVATE);
+                return NULL;
+            }
+            lensrt_atomic_store_release(&s->state, LENSRT_SLOT_OPEN);
+        }
+        state = lensrt_atomic_load_acquire(&s->state);
+    }
+    // Another tile is allocating (no work in it but the allocator's): wait for it
+    while (state == LENSRT_SLOT_CLAIMED) state = lensrt_atomic_load_acquire(&s->state);
+    if (state != LENSRT_SLOT_OPEN) return NULL;
+    // Prepare the chunks no tile has taken yet, then wait for those other tiles took
+    // (each is being prepared, with no wait inside, so the wait is one chunk at most)
+    while (lensrt_atomic_load_acquire(&s->next) < n_chunks && (c = lensrt_atomic_add_i32(&s->next, 1)) < n_chunks) {
+        prepare(r, s->data, c, job);
+        (void)lensrt_atomic_add_i32(&s->done, 1);
+    }
+    while (lensrt_atomic_load_acquire(&s->done) < n_chunks) continue;
+    return s->data;
+}
+
 void lensrt_tiles_add_stats(lensrt_render r, uint64_t terms, uint64_t clip, uint64_t tau, uint64_t dark)
 {
     lensrt_tiles *t = r->tiles;
@@ -49,7 +91,10 @@ lensrt_result lensrt_tiles_idle(lensrt_render r, const char *what)
 void lensrt_tiles_free(lensrt_render r)
 {
     lensrt_tiles *t = r->tiles;
+    size_t k;
     if (!t) return;
+    for (k = 0; t->slots && k < t->n_slots; k++) lensrt_free(r->ctx, t->slots[k].data);
+    lensrt_free(r->ctx, t->slots);
     lensrt_free(r->ctx, t->cover);
     lensrt_free(r->ctx, t->sum0);
     lensrt_free(r->ctx, t->sumsq0);
@@ -65,6 +110,7 @@ static size_t n_sums(const lensrt_render r)
 lensrt_result lensrt_render_tiles_begin(lensrt_render r, uint64_t samples_per_wavelength)
 {
     const size_t npix = r ? (size_t)r->width * (size_t)r->height : 0, ns = r ? n_sums(r) : 0;
+    uint64_t n_slots;
     lensrt_tiles *t;
     lensrt_result res;
     if (!r) return LENSRT_ERROR_INVALID_ARGUMENT;
@@ -82,13 +128,18 @@ lensrt_result lensrt_render_tiles_begin(lensrt_render r, uint64_t samples_per_wa
     t->first = r->samples;
     t->count = samples_per_wavelength;
     t->t0 = lensrt_seconds();
-    // Coverage counts, and the sums as they are (put back if the session fails)
+    // The shared samples' slots (empty: the tiles fill them), coverage counts, and the
+    // sums as they are (put back if the session fails)
+    n_slots = (samples_per_wavelength + LENSRT_PASS - 1) / LENSRT_PASS * (uint64_t)r->n_wl;
+    t->n_slots = n_slots < LENSRT_TILES_SLOTS ? (size_t)n_slots : LENSRT_TILES_SLOTS;
+    t->slots = lensrt_calloc(r->ctx, t->n_slots, sizeof *t->slots);
     t->cover = lensrt_calloc(r->ctx, npix, sizeof *t->cover);
     t->sum0 = lensrt_alloc(r->ctx, ns * 2 * sizeof(double));
     if (r->sumsq) t->sumsq0 = lensrt_alloc(r->ctx, ns * sizeof(double));
-    if (!t->cover || !t->sum0 || (r->sumsq && !t->sumsq0)) {
+    if (!t->slots || !t->cover || !t->sum0 || (r->sumsq && !t->sumsq0)) {
         lensrt_tiles_free(r);
-        return lensrt_fail(r->ctx, LENSRT_ERROR_OUT_OF_MEMORY, "tiles_begin: out of memory for a copy of %zu phasor sums", ns);
+        return lensrt_fail(r->ctx, LENSRT_ERROR_OUT_OF_MEMORY,
+                           "tiles_begin: out of memory for a copy of %zu phasor sums and %zu pixels' coverage", ns, npix);
     }
     memcpy(t->sum0, r->sum, ns * 2 * sizeof(double));
     if (r->sumsq) memcpy(t->sumsq0, r->sumsq, ns * sizeof(double));

@@ -42,6 +42,30 @@ int lensrt_cpu_alloc_pass(lensrt_render r, lensrt_cpu_pass *pd, int n_samples)
     return 1;
 }
 
+size_t lensrt_cpu_pass_view(lensrt_render r, void *data, int n_samples, lensrt_cpu_pass *pd)
+{
+    const size_t nb = ((size_t)n_samples + LENSRT_BLOCK - 1) / LENSRT_BLOCK;
+    const size_t elt = r->double_rows ? sizeof(double) : sizeof(float);
+    const size_t rows = (nb * (size_t)r->n_rows * LENSRT_BLOCK * elt + 63) / 64 * 64;
+    const size_t lanes = (nb * (size_t)r->n_lights * LENSRT_BLOCK * elt + 63) / 64 * 64;
+    unsigned char *p = data;
+    if (!p) return rows + 2 * lanes;
+    // Rows, then phases, then amplitudes, in the render's precision
+    memset(pd, 0, sizeof *pd);
+    pd->n = n_samples;
+    pd->n_blocks = (int)nb;
+    if (r->double_rows) {
+        pd->mono_d = (void *)p;
+        pd->phase_d = (void *)(p + rows);
+        pd->amp_d = (void *)(p + rows + lanes);
+    } else {
+        pd->mono_f = (void *)p;
+        pd->phase_f = (void *)(p + rows);
+        pd->amp_f = (void *)(p + rows + lanes);
+    }
+    return rows + 2 * lanes;
+}
+
 static lensrt_result cpu_create(lensrt_render r)
 {
     (void)r;

@@ -35,6 +35,15 @@ void lensrt_cpu_free_pass(lensrt_context ctx, lensrt_cpu_pass *pd);
  * with zero amplitude), in OpenMP threads (threaded) or on the calling thread alone. */
 void lensrt_cpu_prepare_samples(lensrt_render r, int w, const double *xy, int n, lensrt_cpu_pass *pd, int threaded);
 
+/* The same for blocks b0 .. b1 - 1 alone, on the calling thread: xy[0 .. 2 n) are the
+ * samples from the first of them on (n may be less than the blocks hold: padding). pd's
+ * n and n_blocks are left as they are. */
+void lensrt_cpu_prepare_blocks(lensrt_render r, int w, const double *xy, int n, lensrt_cpu_pass *pd, int b0, int b1);
+
+/* One pass's buffers of up to n_samples samples laid out in `data` (NULL: only the size):
+ * the bytes they take, each buffer aligned to 64 bytes from data. */
+size_t lensrt_cpu_pass_view(lensrt_render r, void *data, int n_samples, lensrt_cpu_pass *pd);
+
 /* Splat every sample of pd to pixels p0 .. p1 - 1 (row-major indices) for wavelength w,
  * adding to their sums, on the calling thread; the set-up's statistics add to *st. */
 void lensrt_cpu_splat_pixels(lensrt_render r, int w, const lensrt_cpu_pass *pd, long p0, long p1, lensrt_cpu_stats *st);

@@ -11,8 +11,8 @@
 #include <omp.h>
 #endif
 
-/* Sample j of the pass (j >= n: padding, zero amplitude). */
-static void prepare_sample(const lensrt_render r, int w, const double *xy, int n, const lensrt_cpu_pass *pd, long j)
+/* Sample j of the pass at xy[0], xy[1] (NULL: padding, zero amplitude). */
+static void prepare_sample(const lensrt_render r, int w, const double *xy, const lensrt_cpu_pass *pd, long j)
 {
     const lensrt_lens_ops *ops = r->lens_ops;
     const double lambda_mm = r->wavelengths[w] / LENSRT_NM_PER_MM;
@@ -23,9 +23,9 @@ static void prepare_sample(const lensrt_render r, int w, const double *xy, int n
     double x = 0, y = 0, inside = 0.0, mono[136];
     lensrt_rows rows;
     int l;
-    if (j < n) {
-        x = xy[2 * j];
-        y = xy[2 * j + 1];
+    if (xy) {
+        x = xy[0];
+        y = xy[1];
         inside = lensrt_aperture_contains(&r->desc.aperture, r->stop_radius, x, y) ? 1.0 : 0.0;
     }
     rows.f = pd->mono_f ? pd->mono_f + row0 : NULL;
@@ -55,11 +55,18 @@ void lensrt_cpu_prepare_samples(lensrt_render r, int w, const double *xy, int n,
     pd->n_blocks = (n + LENSRT_BLOCK - 1) / LENSRT_BLOCK;
     count = (long)pd->n_blocks * LENSRT_BLOCK;
     if (!threaded) {
-        for (j = 0; j < count; j++) prepare_sample(r, w, xy, n, pd, j);
+        for (j = 0; j < count; j++) prepare_sample(r, w, j < n ? xy + 2 * j : NULL, pd, j);
         return;
     }
 #ifdef LENSRT_OPENMP
 #pragma omp parallel for schedule(static) num_threads(r->ctx->threads > 0 ? r->ctx->threads : omp_get_max_threads())
 #endif
-    for (j = 0; j < count; j++) prepare_sample(r, w, xy, n, pd, j);
+    for (j = 0; j < count; j++) prepare_sample(r, w, j < n ? xy + 2 * j : NULL, pd, j);
+}
+
+void lensrt_cpu_prepare_blocks(lensrt_render r, int w, const double *xy, int n, lensrt_cpu_pass *pd, int b0, int b1)
+{
+    const long j0 = (long)b0 * LENSRT_BLOCK;
+    long j;
+    for (j = j0; j < (long)b1 * LENSRT_BLOCK; j++) prepare_sample(r, w, j - j0 < n ? xy + 2 * (j - j0) : NULL, pd, j);
 }
