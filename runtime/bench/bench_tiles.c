@@ -4,9 +4,10 @@
  * pthreads as lensrt's OpenMP threads (tiles of W x H pixels, smaller at the right and
  * bottom edges, taken in row-major order from a shared counter), lensrt_render_tiles_end;
  * its splats per second (wall time from begin to end) against the run() of the same
- * repetition, and whether its image equals run()'s bit for bit. Every tile draws and
- * prepares the samples itself: the cost of one 1 x 1 tile (that preparation, for every
- * wavelength) is measured once per f-number. */
+ * repetition, and whether its image equals run()'s bit for bit. A session prepares each
+ * (pass, wavelength)'s samples once and its tiles share them (core/tiles.c): the cost of
+ * one 1 x 1 tile in a session of its own (it prepares every slot itself) is measured once
+ * per f-number. */
 #include "bench.h"
 
 #include <pthread.h>
@@ -74,8 +75,8 @@ static lensrt_result run_tiles(lensrt_render render, uint64_t samples, int width
     return p.first_error != LENSRT_SUCCESS ? p.first_error : r;
 }
 
-/* Seconds of one 1 x 1 tile: drawing and preparing every wavelength's samples, which each
- * tile repeats, plus one pixel's splats. The session is then refused (the other pixels
+/* Seconds of one 1 x 1 tile alone in its session: drawing and preparing every pass's and
+ * wavelength's samples (the session's shared preparation), plus one pixel's splats. The session is then refused (the other pixels
  * are not covered) and the render left as it was. */
 static double one_tile_seconds(lensrt_context ctx, const lensrt_render_desc *desc, uint64_t samples)
 {
@@ -157,17 +158,18 @@ void tiles_print(const bench_options *o, const f_result *res)
            "same image");
     for (i = 0; i < o->n_f; i++) {
         const f_result *fr = &res[i];
-        double share = fr->one_tile_seconds * n_tiles / (median(fr->tile_seconds, fr->reps) * o->threads);
+        // The session prepares the samples once, shared by its tiles
+        double share = fr->one_tile_seconds / (median(fr->tile_seconds, fr->reps) * o->threads);
         printf("%-6g %10.3g %10.3g %8.3f %12.4f %10.1f%% %11s\n", fr->f_number, fr->sps_med, fr->tile_sps_med,
                fr->tile_ratio_med, fr->one_tile_seconds, 100.0 * share,
                fr->tile_identical == 1 ? "yes" : fr->tile_identical == 0 ? "NO" : "?");
     }
     printf("headline tiles f/%g: %.3g splats/s, %.3fx run() (%ldx%ld tiles, %d pthreads)\n", res[o->head].f_number,
            res[o->head].tile_sps_med, res[o->head].tile_ratio_med, o->tile_w, o->tile_h, o->threads);
-    printf("(ratio: tiles / run() of the same repetition; 1x1 tile s: one tile's fixed cost, drawing and\n"
-           " preparing every wavelength's samples, which every tile repeats; prep share: that cost times the\n"
-           " tiles over the tiled render's thread-seconds; same image: the tiled render's image equals run()'s\n"
-           " bit for bit)\n");
+    printf("(ratio: tiles / run() of the same repetition; 1x1 tile s: a session's sample preparation, drawing\n"
+           " and preparing every wavelength's samples once for all its tiles (a lone 1x1 tile does it all);\n"
+           " prep share: that cost over the tiled render's thread-seconds; same image: the tiled render's\n"
+           " image equals run()'s bit for bit)\n");
 }
 
 /* The JSON's "tiles": the headline, then per f-number, or why there are none. */

@@ -533,8 +533,9 @@ int main(int argc, char **argv)
     am.sensor_distance_mm = 50.0;
     CHECK_RES(ctx, lensrt_lens_create_analytic(ctx, &am, &perfect), LENSRT_SUCCESS);
 
-    // Every tile draws and prepares the samples again: the two-pass count (17000) with a
-    // few tilings, every tiling with fewer samples
+    // Tiles share each (pass, wavelength)'s prepared samples (or prepare privately past the
+    // session's memory cap): the two-pass count (17000) with a few tilings, every tiling
+    // with fewer samples
     scene_fitted(ctx, fitted, &s);
     test_equal_to_run(ctx, &s, s.n, 0x13);
     test_equal_to_run(ctx, &s, 1500, 0x1f);
