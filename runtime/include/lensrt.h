@@ -100,6 +100,19 @@ LENSRT_API const char *lensrt_version_string(void);
 #define LENSRT_MAX_DEGREE 15            /* highest exponent of one input in a lens table,
                                            and highest total degree of the stop monomials */
 #define LENSRT_MAX_TERMS 1000000        /* terms of one output of a lens table */
+/* A lens table's outputs are bounded inside their domain by the sum of their |coefficients|
+ * (every monomial of normalised inputs is at most 1 there); the reader refuses a table
+ * whose sums exceed these (the shipped lenses have at most 225 and 2.3). */
+#define LENSRT_MAX_COEFFICIENT_SUM 1e6  /* positions and optical path lengths, mm */
+#define LENSRT_MAX_TRANSMITTANCE_SUM 1e2 /* tau_o, tau_i */
+/* Largest light intensity. A sample's phasor is at most sqrt(intensity * tau_o * tau_i)
+ * <= sqrt(intensity) * LENSRT_MAX_TRANSMITTANCE_SUM, and the kernel sums 256 of them (and
+ * their squares, for the unbiased estimator) in float: 256 * 1e30 * 1e4 = 2.6e36 stays
+ * below FLT_MAX (3.4e38). The image itself is the intensity times the pixel's gain, up to
+ * about (stop area / (wavelength x sensor distance))^2 at a focus (1.4e8 for lens 0001
+ * wide open, far more for an analytic lens with a large stop): a pixel beyond FLT_MAX
+ * is refused by lensrt_render_image (and _rgb and the writers), never handed out as inf. */
+#define LENSRT_MAX_INTENSITY 1e30
 
 /* ---------------------------------------------------------------- results ----- */
 
@@ -259,7 +272,10 @@ LENSRT_API lensrt_result lensrt_lens_get_info(lensrt_lens lens, lensrt_lens_info
 
 /* Where a light's chief ray (through the stop centre) meets the sensor, in mm on the
  * sensor: the point where the total phase is stationary at the stop centre, found by
- * Newton's method on the polynomials (for analytic lenses, the geometric image). */
+ * Newton's method on the polynomials (for analytic lenses, the geometric image). NaN
+ * arguments, field angles beyond +-90 deg and negative distances are
+ * LENSRT_ERROR_INVALID_ARGUMENT; wavelengths, focus offsets and distances outside the
+ * lens's fitted ranges (lensrt_lens_info) LENSRT_ERROR_OUT_OF_DOMAIN. */
 typedef struct lensrt_light lensrt_light;
 LENSRT_API lensrt_result lensrt_lens_image_point(lensrt_context ctx, lensrt_lens lens, const lensrt_light *light,
                                       double wavelength_nm, double focus_offset_mm, double xy_mm[2]);
@@ -459,13 +475,15 @@ typedef int (*lensrt_progress_fn)(double fraction, double eta_seconds, void *use
 /* Add `samples_per_wavelength` aperture samples for every wavelength, continuing the
  * sample sequence where the sums left off: two runs draw the same samples as one longer
  * run, and give the same sums up to rounding (bit for bit, on either device, when the
- * first run's count is a multiple of 256: samples are summed in blocks of 256). */
+ * first run's count is a multiple of 256: samples are summed in blocks of 256, and each
+ * block is added to the phasor sums on its own; tests/runtime/test_robust.c). */
 LENSRT_API lensrt_result lensrt_render_run(lensrt_render render, uint64_t samples_per_wavelength,
                                 lensrt_progress_fn progress, void *user_data);
 
 /* Splat caller-chosen aperture points (x, y pairs in mm on the stop, uniform density over
  * the aperture's bounding disc) for wavelength index `wavelength`; points outside the
- * aperture shape count as samples with zero contribution. */
+ * aperture shape, however far, count as samples with zero contribution; points that are
+ * not finite are refused (LENSRT_ERROR_INVALID_ARGUMENT). */
 LENSRT_API lensrt_result lensrt_render_splat_points(lensrt_render render, int wavelength,
                                          const double *xy_mm, size_t n_points);
 
@@ -542,7 +560,9 @@ LENSRT_API const double *lensrt_render_wavelengths(lensrt_render render);
 /* Intensity per wavelength, lights added: out[(w * height + y) * width + x], count =
  * n_wavelengths * width * height. Units: irradiance on the sensor relative to a unit
  * irradiance on the stop (so the sum over pixels times the pixel area is the power
- * through the aperture, times transmittance). Row 0 is the top of the image (+y). */
+ * through the aperture, times transmittance). Row 0 is the top of the image (+y).
+ * A pixel that is not a finite float is LENSRT_ERROR_OUT_OF_DOMAIN with a message naming
+ * the pixel and wavelength (lensrt_render_rgb and the image writers likewise). */
 LENSRT_API lensrt_result lensrt_render_image(lensrt_render render, float *out, size_t count);
 /* Linear sRGB (D65 white) from the spectral image through the CIE 1931 2-degree
  * observer: out[(y * width + x) * 3 + c], count = 3 * width * height. */

@@ -86,14 +86,31 @@ lensrt_result lensrt_lens_image_point(lensrt_context ctx, lensrt_lens lens, cons
 {
     double lx, ly;
     lensrt_light full;
+    lensrt_lens_info info = LENSRT_LENS_INFO_INIT;
     lensrt_result res;
     if (!ctx || !lens || !light || !xy_mm) return lensrt_fail(ctx, LENSRT_ERROR_INVALID_ARGUMENT, "image_point: NULL argument");
     if ((res = lensrt_struct_in(ctx, "image_point: lensrt_light", light, &full, sizeof full)) != LENSRT_SUCCESS)
         return res;
     light = &full;
-    if (!(wavelength_nm > 0) || !isfinite(focus_offset_mm) || fabs(light->field_x_deg) >= 90 || fabs(light->field_y_deg) >= 90)
-        return lensrt_fail(ctx, LENSRT_ERROR_INVALID_ARGUMENT, "image_point: wavelength %g nm, focus %g mm, field (%g, %g) deg",
-                           wavelength_nm, focus_offset_mm, light->field_x_deg, light->field_y_deg);
+    if (!(wavelength_nm > 0) || !isfinite(wavelength_nm) || !isfinite(focus_offset_mm) ||
+        !(fabs(light->field_x_deg) < 90) || !(fabs(light->field_y_deg) < 90) || !(light->distance_mm >= 0) ||
+        !isfinite(light->distance_mm))
+        return lensrt_fail(ctx, LENSRT_ERROR_INVALID_ARGUMENT,
+                           "image_point: wavelength %g nm, focus %g mm, field (%g, %g) deg, distance %g mm: expected a "
+                           "positive wavelength, finite focus, field angles within +-90 deg and a distance >= 0 (0: infinity)",
+                           wavelength_nm, focus_offset_mm, light->field_x_deg, light->field_y_deg, light->distance_mm);
+    // The lens's fitted ranges (as lensrt_render_create checks them): outside, the
+    // polynomials extrapolate and the point would be a guess
+    lensrt_lens_get_info(lens, &info);
+    if (wavelength_nm < info.wavelength_min_nm - 1e-9 || wavelength_nm > info.wavelength_max_nm + 1e-9)
+        return lensrt_fail(ctx, LENSRT_ERROR_OUT_OF_DOMAIN, "image_point: wavelength %g nm is outside the fitted range [%g, %g] nm of %s",
+                           wavelength_nm, info.wavelength_min_nm, info.wavelength_max_nm, info.name);
+    if (focus_offset_mm < info.focus_offset_min_mm - 1e-9 || focus_offset_mm > info.focus_offset_max_mm + 1e-9)
+        return lensrt_fail(ctx, LENSRT_ERROR_OUT_OF_DOMAIN, "image_point: focus offset %g mm is outside the fitted range [%g, %g] mm of %s",
+                           focus_offset_mm, info.focus_offset_min_mm, info.focus_offset_max_mm, info.name);
+    if (light->distance_mm > 0 && light->distance_mm < info.distance_min_mm)
+        return lensrt_fail(ctx, LENSRT_ERROR_OUT_OF_DOMAIN, "image_point: distance %g mm is closer than the fitted %g mm of %s",
+                           light->distance_mm, info.distance_min_mm, info.name);
     lensrt_light_direction(light, &lx, &ly);
     return lensrt_lens_ops_of(lens)->image_point(ctx, lens, light, lx, ly, wavelength_nm, focus_offset_mm, xy_mm);
 }

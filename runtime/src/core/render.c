@@ -215,6 +215,27 @@ lensrt_result lensrt_render_run(lensrt_render r, uint64_t samples_per_wavelength
     return res;
 }
 
+/* A point outside the aperture contributes nothing (its amplitude is 0), but the devices
+ * still evaluate the lens there, and far away its monomials reach inf: 0 * inf is NaN in
+ * every pixel. Such points are moved to one fixed point outside the sampled region and
+ * the polynomials' reach (twice mono_radius, monomials at most 2^15), where the lens is
+ * finite and the aperture test still says outside. Points that are not finite are refused. */
+static lensrt_result outside_to_edge(lensrt_render r, double *xy, size_t n, size_t first)
+{
+    const double edge = 2.0 * r->mono_radius;
+    size_t j;
+    for (j = 0; j < n; j++) {
+        if (!isfinite(xy[2 * j]) || !isfinite(xy[2 * j + 1]))
+            return lensrt_fail(r->ctx, LENSRT_ERROR_INVALID_ARGUMENT, "splat_points: point %zu (%g, %g) mm is not finite",
+                               first + j, xy[2 * j], xy[2 * j + 1]);
+        if (!lensrt_aperture_contains(&r->desc.aperture, r->stop_radius, xy[2 * j], xy[2 * j + 1])) {
+            xy[2 * j] = edge;
+            xy[2 * j + 1] = 0.0;
+        }
+    }
+    return LENSRT_SUCCESS;
+}
+
 lensrt_result lensrt_render_splat_points(lensrt_render r, int wavelength, const double *xy_mm, size_t n_points)
 {
     double t0 = lensrt_seconds();
@@ -234,6 +255,7 @@ lensrt_result lensrt_render_splat_points(lensrt_render r, int wavelength, const 
         size_t n = n_points - done < PASS ? n_points - done : PASS;
         memset(xy, 0, sizeof(double) * PASS * 2);
         memcpy(xy, xy_mm + 2 * done, sizeof(double) * 2 * n);
+        if ((res = outside_to_edge(r, xy, n, done)) != LENSRT_SUCCESS) break;
         res = r->device->pass(r, wavelength, xy, (int)n);
         if (res == LENSRT_SUCCESS) {
             done += n;
@@ -305,6 +327,12 @@ lensrt_result lensrt_render_image(lensrt_render r, float *out, size_t count)
                     total += r->measure * r->measure * s2 / (n * n);
             }
             out[(size_t)w * npix + p] = (float)total;
+            // Never a silent inf or NaN: name the pixel and wavelength instead
+            if (!isfinite(out[(size_t)w * npix + p]))
+                return lensrt_fail(r->ctx, LENSRT_ERROR_OUT_OF_DOMAIN,
+                                   "image: pixel (%d, %d) at %g nm (wavelength %d) is %g, not a finite float: the "
+                                   "lights' intensities or the lens table are beyond what the sums can hold",
+                                   (int)(p % (size_t)r->width), (int)(p / (size_t)r->width), r->wavelengths[w], w, total);
         }
     return LENSRT_SUCCESS;
 }

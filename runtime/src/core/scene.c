@@ -95,6 +95,10 @@ static lensrt_result place_lights(lensrt_render r, const lensrt_lens_info *info)
         if (!isfinite(l->field_x_deg) || !isfinite(l->field_y_deg) || !isfinite(l->distance_mm) ||
             !(l->intensity >= 0 && isfinite(l->intensity)))
             return lensrt_fail(r->ctx, LENSRT_ERROR_INVALID_ARGUMENT, "light %d: values must be finite, intensity not negative", i);
+        // Bounded so that no float accumulator of the kernel can overflow (lensrt.h)
+        if (l->intensity > LENSRT_MAX_INTENSITY)
+            return lensrt_fail(r->ctx, LENSRT_ERROR_INVALID_ARGUMENT, "light %d: intensity %g is above LENSRT_MAX_INTENSITY (%g)",
+                               i, l->intensity, LENSRT_MAX_INTENSITY);
         if (fabs(l->field_x_deg) >= 90.0 || fabs(l->field_y_deg) >= 90.0 || l->distance_mm < 0)
             return lensrt_fail(r->ctx, LENSRT_ERROR_OUT_OF_DOMAIN,
                                "light %d: at (%g, %g) deg, distance %g mm is behind the lens "

@@ -1,6 +1,11 @@
 /* The CPU device's splats: every sample block of a pass to every pixel, in groups of
  * LENSRT_CPU_GROUP pixels that are set up together and then streamed past each block
- * (cpu/kernel.c), one group per OpenMP task. Each transport has its group function. */
+ * (cpu/kernel.c), one group per OpenMP task. Each transport has its group function.
+ *
+ * Each block's sums are added to the pixel's phasor sums as soon as the block is done
+ * (not a pass's worth at once): the sums then see the same additions in the same order
+ * however the samples are split into run() calls, as long as every call but the last
+ * draws a multiple of LENSRT_BLOCK (256) samples (lensrt.h's promise). */
 #include "pass.h"
 
 #include "../lens/lens.h"
@@ -31,10 +36,9 @@ static void group_polynomial(lensrt_render r, int w, const lensrt_cpu_pass *pd, 
     const int dbl = r->desc.precision == LENSRT_PRECISION_DOUBLE;
     lensrt_cpu_pixel px[LENSRT_CPU_GROUP];
     int live[LENSRT_CPU_GROUP];
-    double acc[LENSRT_CPU_GROUP][3 * 64];
+    double acc[3 * 64];
     long p;
     int b;
-    memset(acc, 0, sizeof acc);
     for (p = p0; p < p1; p++) {
         live[p - p0] = lensrt_cpu_setup_pixel(r, w, r->xs[p % r->width], r->ys[p / r->width], &px[p - p0]);
         if (!live[p - p0]) {
@@ -48,17 +52,17 @@ static void group_polynomial(lensrt_render r, int w, const lensrt_cpu_pass *pd, 
     for (b = 0; b < nb; b++)
         for (p = p0; p < p1; p++) {
             if (!live[p - p0]) continue;
+            memset(acc, 0, sizeof(double) * 3 * (size_t)nl);
             if (dbl)
                 lensrt_kernel_d(pd->mono_d + (size_t)b * r->n_rows * LENSRT_BLOCK, nl,
                                 pd->phase_d + (size_t)b * nl * LENSRT_BLOCK,
-                                pd->amp_d + (size_t)b * nl * LENSRT_BLOCK, &px[p - p0].d, acc[p - p0]);
+                                pd->amp_d + (size_t)b * nl * LENSRT_BLOCK, &px[p - p0].d, acc);
             else
                 lensrt_kernel_f(pd->mono_f + (size_t)b * r->n_rows * LENSRT_BLOCK, nl,
                                 pd->phase_f + (size_t)b * nl * LENSRT_BLOCK,
-                                pd->amp_f + (size_t)b * nl * LENSRT_BLOCK, &px[p - p0].f, acc[p - p0]);
+                                pd->amp_f + (size_t)b * nl * LENSRT_BLOCK, &px[p - p0].f, acc);
+            add_sums(r, w, (size_t)p, acc, px[p - p0].amp);
         }
-    for (p = p0; p < p1; p++)
-        if (live[p - p0]) add_sums(r, w, (size_t)p, acc[p - p0], px[p - p0].amp);
 }
 
 /* Free space: the Rayleigh-Sommerfeld kernel from each sample's x, y (in double). */
@@ -69,19 +73,20 @@ static void group_free_space(lensrt_render r, int w, const lensrt_cpu_pass *pd, 
     const double lambda_mm = r->wavelengths[w] / LENSRT_NM_PER_MM;
     const int nl = r->n_lights, nb = pd->n_blocks;
     const int naive = r->desc.precision == LENSRT_PRECISION_NAIVE_FLOAT;
-    double acc[LENSRT_CPU_GROUP][3 * 64];
+    double acc[3 * 64];
     long p;
     int b;
     (void)st; /* no per-pixel set-up to count */
-    memset(acc, 0, sizeof acc);
     for (b = 0; b < nb; b++)
-        for (p = p0; p < p1; p++)
+        for (p = p0; p < p1; p++) {
+            memset(acc, 0, sizeof(double) * 3 * (size_t)nl);
             lensrt_kernel_free_space(pd->mono_d + (size_t)b * r->n_rows * LENSRT_BLOCK, nl,
                                      pd->phase_d + (size_t)b * nl * LENSRT_BLOCK,
                                      pd->amp_d + (size_t)b * nl * LENSRT_BLOCK,
                                      r->xs[p % r->width], r->ys[p / r->width], z, lambda_mm,
-                                     m->one_dimensional, naive, acc[p - p0]);
-    for (p = p0; p < p1; p++) add_sums(r, w, (size_t)p, acc[p - p0], 1.0);
+                                     m->one_dimensional, naive, acc);
+            add_sums(r, w, (size_t)p, acc, 1.0);
+        }
 }
 
 static const splat_group_fn splat_group[LENSRT_TRANSPORT_COUNT] = {

@@ -34,12 +34,6 @@ void main()
     uint q = gl_GlobalInvocationID.x;
     if (q >= u_count) return;
     uint p = u_first + q;
-    dvec2 total[NL];
-    double total_sq[NL];
-    for (int l = 0; l < NL; l++) {
-        total[l] = dvec2(0.0LF);
-        total_sq[l] = 0.0LF;
-    }
 #if ANALYTIC
     // Free space after the stop: Rayleigh-Sommerfeld cos(theta) / (lambda r), or
     // cos(theta) / sqrt(lambda r) for cylindrical waves
@@ -107,17 +101,15 @@ void main()
                 sq[l] += a * a;
             }
         }
+        // Add the block to the phasor framebuffer (each pixel is one invocation: no
+        // atomics needed); block by block, so that the sums do not depend on how run()
+        // calls split the samples at multiples of BLOCK
         for (int l = 0; l < NL; l++) {
-            total[l] += dvec2(acc[l]);
-            total_sq[l] += double(sq[l]);
-        }
-    }
-    // Add to the phasor framebuffer (each pixel is one invocation: no atomics needed)
-    for (int l = 0; l < NL; l++) {
-        uint i = (uint(l) * uint(NW) + u_w) * u_npix + p;
-        sums[i] += total[l] * double(amp_px);
+            uint i = (uint(l) * uint(NW) + u_w) * u_npix + p;
+            sums[i] += dvec2(acc[l]) * double(amp_px);
 #if UNBIASED
-        sumsq[i] += total_sq[l] * double(amp_px) * double(amp_px);
+            sumsq[i] += double(sq[l]) * double(amp_px) * double(amp_px);
 #endif
+        }
     }
 }

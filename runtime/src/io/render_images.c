@@ -5,18 +5,25 @@
 #include "../core/render.h"
 #include "../lens/lens.h"
 
+#include <math.h>
 #include <stdio.h>
 #include <string.h>
 
 static lensrt_result spectral_and_rgb(lensrt_render r, float **spectral, float **rgb)
 {
-    size_t npix = (size_t)r->width * (size_t)r->height;
+    size_t npix = (size_t)r->width * (size_t)r->height, p;
     lensrt_result res;
     *spectral = lensrt_alloc(r->ctx, sizeof(float) * npix * (size_t)r->n_wl);
     *rgb = lensrt_alloc(r->ctx, sizeof(float) * npix * 3);
     if (!*spectral || !*rgb) return lensrt_fail(r->ctx, LENSRT_ERROR_OUT_OF_MEMORY, "image: out of memory");
     if ((res = lensrt_render_image(r, *spectral, npix * (size_t)r->n_wl)) != LENSRT_SUCCESS) return res;
     lensrt_spectrum_to_rgb(r->n_wl, r->wavelengths, *spectral, npix, *rgb);
+    // Finite spectra near FLT_MAX can still add up to inf in a colour channel
+    for (p = 0; p < 3 * npix; p++)
+        if (!isfinite((*rgb)[p]))
+            return lensrt_fail(r->ctx, LENSRT_ERROR_OUT_OF_DOMAIN, "rgb: pixel (%d, %d) channel %d is %g, not a finite float",
+                               (int)(p / 3 % (size_t)r->width), (int)(p / 3 / (size_t)r->width), (int)(p % 3),
+                               (double)(*rgb)[p]);
     return LENSRT_SUCCESS;
 }
 

@@ -14,6 +14,7 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <sys/stat.h>
 
 /* A cursor over the table text that knows the current line for messages. */
 typedef struct reader {
@@ -136,9 +137,53 @@ static int parse_int(const char *s, int lo, int hi, int *v)
     return 1;
 }
 
+/* The declared domain of an input (its line's fields are r->tok[3..7]: lo, hi, transform,
+ * c, s), checked against its transform (a reader's check, so
+ * that nothing the polynomials are evaluated at can overflow): lo < hi, lo > 0 for
+ * inverse_square (w = 1/v^2), and the transform maps the domain onto [-1, 1] exactly as
+ * lensfit writes it (within DOMAIN_SLACK for the decimal text), so that every monomial
+ * of normalised inputs is at most 1 inside the domain. */
+#define DOMAIN_SLACK 1e-9
+static lensrt_result check_input(reader *r, const char *sys, const lensrt_input *in)
+{
+    double a, b;
+    if (!(in->lo < in->hi))
+        return parse_failf(r, "system %s: input %s: domain lo %s, hi %s is empty (lo must be below hi)", sys,
+                           in->name, r->tok[3], r->tok[4]);
+    if (in->transform == LENSRT_TRANSFORM_INVERSE_SQUARE && !(in->lo > 0))
+        return parse_failf(r, "system %s: input %s: inverse_square needs lo > 0, found lo %s", sys, in->name,
+                           r->tok[3]);
+    // The domain's ends, normalised: -1 and 1 (in either order: 1/v^2 falls with v)
+    a = lensrt_normalise(in, in->lo);
+    b = lensrt_normalise(in, in->hi);
+    if (!(fabs(fmin(a, b) + 1.0) <= DOMAIN_SLACK && fabs(fmax(a, b) - 1.0) <= DOMAIN_SLACK))
+        return parse_failf(r, "system %s: input %s: transform %s c %s s %s maps the domain [%s, %s] to [%.17g, "
+                              "%.17g], not [-1, 1]", sys, in->name, r->tok[5], r->tok[6], r->tok[7], r->tok[3],
+                           r->tok[4], fmin(a, b), fmax(a, b));
+    return LENSRT_SUCCESS;
+}
+
+/* Inside the domain every monomial is at most 1 in magnitude, so sum |c_t| bounds the
+ * output there: it must stay below LENSRT_MAX_COEFFICIENT_SUM (transmittances tau_o and
+ * tau_i, output 2, below LENSRT_MAX_TRANSMITTANCE_SUM). */
+static lensrt_result check_output(reader *r, const char *sys, const lensrt_poly *p, int k, int line)
+{
+    const double bound = k == 2 ? LENSRT_MAX_TRANSMITTANCE_SUM : LENSRT_MAX_COEFFICIENT_SUM;
+    double total = 0.0;
+    int t;
+    for (t = 0; t < p->n_terms; t++) total += fabs(p->coefficients[t]);
+    if (!(total <= bound))
+        return lensrt_fail(r->ctx, LENSRT_ERROR_PARSE,
+                           "%s:%d: system %s: output %s: the sum of |coefficients| is %.6g, above the bound %g "
+                           "(the largest value the output may reach inside its domain)", r->name, line, sys, p->name,
+                           total, bound);
+    return LENSRT_SUCCESS;
+}
+
 static lensrt_result read_system(reader *r, lensrt_system *sys)
 {
-    int i, t, k;
+    lensrt_result res;
+    int i, t, k, line;
     // system NAME n_inputs n_outputs
     if (r->n_tok != 4 || !parse_int(r->tok[2], 1, 8, &sys->n_inputs) ||
         !parse_int(r->tok[3], 1, 8, &sys->n_outputs))
@@ -159,6 +204,7 @@ static lensrt_result read_system(reader *r, lensrt_system *sys)
         if (strcmp(r->tok[5], "affine") == 0) in->transform = LENSRT_TRANSFORM_AFFINE;
         else if (strcmp(r->tok[5], "inverse_square") == 0) in->transform = LENSRT_TRANSFORM_INVERSE_SQUARE;
         else return parse_fail(r, "unknown transform '%s' (affine or inverse_square)", r->tok[5]);
+        if ((res = check_input(r, sys->name, in)) != LENSRT_SUCCESS) return res;
     }
     // output NAME UNIT N_TERMS, then one line per term: exponents and coefficient
     for (k = 0; k < sys->n_outputs; k++) {
@@ -167,6 +213,7 @@ static lensrt_result read_system(reader *r, lensrt_system *sys)
             !parse_int(r->tok[3], 0, LENSRT_MAX_TERMS, &p->n_terms))
             return parse_fail(r, "expected 'output NAME UNIT N_TERMS'%s", "");
         snprintf(p->name, sizeof p->name, "%s", r->tok[1]);
+        line = r->line;
         p->exponents = lensrt_calloc(r->ctx, (size_t)p->n_terms * (size_t)sys->n_inputs + 1, 1);
         p->coefficients = lensrt_calloc(r->ctx, (size_t)p->n_terms + 1, sizeof(double));
         if (!p->exponents || !p->coefficients)
@@ -184,6 +231,7 @@ static lensrt_result read_system(reader *r, lensrt_system *sys)
             if (!parse_real(r->tok[sys->n_inputs], &p->coefficients[t]))
                 return parse_fail(r, "coefficient '%s' is not a finite number", r->tok[sys->n_inputs]);
         }
+        if ((res = check_output(r, sys->name, p, k, line)) != LENSRT_SUCCESS) return res;
     }
     if (!next_line(r) || strcmp(r->tok[0], "end") != 0)
         return parse_fail(r, "expected 'end' after the outputs of system %s", sys->name);
@@ -214,6 +262,25 @@ static lensrt_result check_system(lensrt_context ctx, const char *file, const le
             return lensrt_fail(ctx, LENSRT_ERROR_PARSE,
                                "%s: system %s: output %d: expected '%s', found '%s'", file,
                                s->name, i, outs[i], s->outputs[i].name);
+    return LENSRT_SUCCESS;
+}
+
+/* The two systems describe one lens: the stop point and wavelength inputs (3, 4, 5) have
+ * the same domain in both, and u_O (an inverse distance) is not negative. */
+static lensrt_result check_shared_inputs(lensrt_context ctx, const char *file, const lensrt_lens lens)
+{
+    int i;
+    for (i = 3; i < 6; i++) {
+        const lensrt_input *a = &lens->p_o.inputs[i], *b = &lens->p_s.inputs[i];
+        if (a->lo != b->lo || a->hi != b->hi)
+            return lensrt_fail(ctx, LENSRT_ERROR_PARSE,
+                               "%s: input %s: P_o's domain [%.17g, %.17g] differs from P_s's [%.17g, %.17g] "
+                               "(one lens, one stop and one wavelength range)", file, a->name, a->lo, a->hi, b->lo,
+                               b->hi);
+    }
+    if (!(lens->p_o.inputs[2].lo >= 0))
+        return lensrt_fail(ctx, LENSRT_ERROR_PARSE, "%s: input u_O (1 / distance): domain lo %.17g is negative", file,
+                           lens->p_o.inputs[2].lo);
     return LENSRT_SUCCESS;
 }
 
@@ -427,6 +494,7 @@ lensrt_result lensrt_lens_load_text(lensrt_context ctx, const char *text, size_t
                           r.name, r.line, !lens->p_o.n_inputs ? "P_o" : "P_s");
     if (res == LENSRT_SUCCESS) res = check_system(ctx, r.name, &lens->p_o, P_O_INPUTS, P_O_OUTPUTS);
     if (res == LENSRT_SUCCESS) res = check_system(ctx, r.name, &lens->p_s, P_S_INPUTS, P_S_OUTPUTS);
+    if (res == LENSRT_SUCCESS) res = check_shared_inputs(ctx, r.name, lens);
     if (res == LENSRT_SUCCESS && (seen & 0x1f) != 0x1f)
         res = lensrt_fail(ctx, LENSRT_ERROR_PARSE,
                           "%s: missing lens line(s): focal_length_mm, stop_radius_max_mm, "
@@ -452,9 +520,16 @@ lensrt_result lensrt_lens_load(lensrt_context ctx, const char *table_path, lensr
     char *text;
     long size;
     size_t got;
+    struct stat st;
     lensrt_result res;
     if (!ctx || !table_path || !out) return lensrt_fail(ctx, LENSRT_ERROR_INVALID_ARGUMENT, "lensrt_lens_load: NULL argument");
     *out = NULL;
+    // A regular file only, checked before opening: a FIFO would block the open, a
+    // folder or a device has no size to read
+    if (stat(table_path, &st) != 0)
+        return lensrt_fail(ctx, LENSRT_ERROR_IO, "%s: cannot open lens table: %s", table_path, strerror(errno));
+    if (!S_ISREG(st.st_mode))
+        return lensrt_fail(ctx, LENSRT_ERROR_IO, "%s: not a regular file (a lens table is a file)", table_path);
     // Read the whole file, then parse it from memory
     f = fopen(table_path, "rb");
     if (!f) return lensrt_fail(ctx, LENSRT_ERROR_IO, "%s: cannot open lens table: %s", table_path, strerror(errno));
