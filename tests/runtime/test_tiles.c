@@ -75,14 +75,17 @@ static unsigned char *read_all(const char *path, size_t *size)
     return data;
 }
 
-/* The phasor file layout (io/phasor_file.c, format `lensrt-phasors 1`): magic[16], u32
+/* The phasor file layout (io/phasor_file.c, format `lensrt-phasors 2`): magic[16], u32
  * version and marker, u64 scene, seed, samples, splats, then f64 seconds at bytes 56..63
- * (the wall time, which differs between any two renders), then the sizes and the sums. */
+ * (the wall time, which differs between any two renders), then the sizes, the checksum
+ * at bytes 88..95 (over the whole file, so it covers the wall time too), then the sums. */
 #define SECONDS_AT 56
 #define SECONDS_END 64
+#define CHECKSUM_AT 88
+#define CHECKSUM_END 96
 
-/* Save both renders' sums and compare every byte but the wall time: scene, seed, sample
- * and splat counts, every phasor sum and sum of squares. */
+/* Save both renders' sums and compare every byte but the wall time (and the checksum
+ * over it): scene, seed, sample and splat counts, every phasor sum and sum of squares. */
 static int same_sums(lensrt_context ctx, lensrt_render a, lensrt_render b, const char *what)
 {
     char pa[4200], pb[4200];
@@ -95,10 +98,11 @@ static int same_sums(lensrt_context ctx, lensrt_render a, lensrt_render b, const
     CHECK_RES(ctx, lensrt_render_save(b, pb), LENSRT_SUCCESS);
     da = read_all(pa, &na);
     db = read_all(pb, &nb);
-    same = da && db && na == nb && na > SECONDS_END && memcmp(da, db, SECONDS_AT) == 0 &&
-           memcmp(da + SECONDS_END, db + SECONDS_END, na - SECONDS_END) == 0;
+    same = da && db && na == nb && na > CHECKSUM_END && memcmp(da, db, SECONDS_AT) == 0 &&
+           memcmp(da + SECONDS_END, db + SECONDS_END, CHECKSUM_AT - SECONDS_END) == 0 &&
+           memcmp(da + CHECKSUM_END, db + CHECKSUM_END, na - CHECKSUM_END) == 0;
     if (!same && da && db && na == nb) {
-        for (i = SECONDS_END; i < na && da[i] == db[i]; i++) continue;
+        for (i = SECONDS_END; i < na && (da[i] == db[i] || (i >= CHECKSUM_AT && i < CHECKSUM_END)); i++) continue;
         if (memcmp(da, db, SECONDS_AT) != 0) i = 0;
         CHECK(0, "%s: the phasor files differ from byte %zu of %zu", what, i, na);
     } else {

@@ -68,6 +68,12 @@ struct lensrt_render_s {
     double *sum, *sumsq;
     uint64_t samples;             /* N per wavelength */
     uint64_t splats;
+    /* phasor_file.c's record of the samples the sums hold: runs[i] = {seed, first, end}
+     * of sample indices; samples past runs_samples came from run() with desc.seed at
+     * indices [runs_samples, samples) and are recorded on the next save or merge */
+    uint64_t runs[64][3];
+    int n_runs;
+    uint64_t runs_samples;
     double seconds;
     struct lensrt_tiles *tiles;   /* the open tile session, or NULL */
     /* pruning statistics of the last pass: sums over (pixel, wavelength) */

@@ -220,7 +220,7 @@ lensrt_result lensrt_write_exr(const lensrt_allocator *allocator, const char *pa
     char (*names)[EXR_CHANNEL_NAME_SIZE] = NULL;
     int *channel_of = NULL; /* encoder channel -> our channel (0..n-1 spectral, n..n+2 R G B) */
     char *tmp_name = NULL, *lights = NULL;
-    const char *step = "";
+    const char *step = "", *refusal;
     exr_result_t rv = EXR_ERR_SUCCESS;
     lensrt_result result = LENSRT_SUCCESS;
     size_t n_pixels;
@@ -294,7 +294,13 @@ lensrt_result lensrt_write_exr(const lensrt_allocator *allocator, const char *pa
     strcpy(names[n_wavelengths + 1], "G");
     strcpy(names[n_wavelengths + 2], "B");
 
-    /* Step 3: the temporary file, and an OpenEXRCore write context on it. */
+    /* Step 3: the temporary file (a regular target or none), and an OpenEXRCore write
+     * context on it. */
+    if ((refusal = lensrt_target_refusal(path)) != NULL) {
+        exr_set_error(err, err_size, "EXR '%s' %s", path, refusal);
+        result = LENSRT_ERROR_IO;
+        goto cleanup;
+    }
     sink.fd = lensrt_open_temporary(allocator, path, &tmp_name, &open_errno);
     if (sink.fd < 0) {
         exr_set_error(err, err_size, "EXR '%s': cannot create a temporary file next to it: %s", path,

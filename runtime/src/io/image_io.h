@@ -22,9 +22,15 @@ typedef struct lensrt_allocator {
     void *user_data;
 } lensrt_allocator;
 
-/* Create `<path>.tmp-<pid>-<clock>-<attempt>` exclusively and return its descriptor, its
- * name in *out_name (free with the allocator) and 0 in *out_errno; -1 and the errno on
- * failure (ENOMEM when the name cannot be allocated). */
+/* NULL when `path` may be replaced (absent or a regular file); otherwise what it is, a
+ * phrase for a message ("is a symbolic link; ...", "is a directory, not a file", ...).
+ * Every writer asks before it creates its temporary file. */
+const char *lensrt_target_refusal(const char *path);
+
+/* Create `<path>.tmp-<pid>-<clock>-<attempt>` exclusively, with the permission bits of
+ * an existing `path` (after removing such files of processes no longer running), and
+ * return its descriptor, its name in *out_name (free with the allocator) and 0 in
+ * *out_errno; -1 and the errno on failure (ENOMEM when the name cannot be allocated). */
 int lensrt_open_temporary(const lensrt_allocator *allocator, const char *path, char **out_name,
                           int *out_errno);
 /* The same as a stdio stream opened "wb" (NULL, no file left and *out_name NULL on failure). */

@@ -258,6 +258,7 @@ lensrt_result lensrt_write_png(const lensrt_allocator *allocator, const char *pa
     static const unsigned char signature[8] = {0x89, 'P', 'N', 'G', '\r', '\n', 0x1A, '\n'};
     lensrt_result result = LENSRT_SUCCESS;
     int open_errno = 0;
+    const char *refusal;
 
     if (err && err_size > 0)
         err[0] = '\0';
@@ -311,6 +312,11 @@ lensrt_result lensrt_write_png(const lensrt_allocator *allocator, const char *pa
     }
     memset(&w, 0, sizeof w);
     png_crc_init(&w.crc);
+    if ((refusal = lensrt_target_refusal(path)) != NULL) {
+        png_set_error(err, err_size, "PNG '%s' %s", path, refusal);
+        result = LENSRT_ERROR_IO;
+        goto cleanup;
+    }
     w.file = lensrt_fopen_temporary(allocator, path, &tmp_name, &open_errno);
     if (!w.file) {
         png_set_error(err, err_size, "PNG '%s': cannot create a temporary file next to it: %s", path,
