@@ -52,6 +52,7 @@ static void usage(FILE *f)
         "  --curvature K          blade curvature, 0 straight .. 1 round (default 0)\n"
         "  --rotation DEG         blade rotation (default 0)\n"
         "  --wavelengths N|A,B,.. count uniform over the fitted range, or a list in nm (default 16)\n"
+        "  --wavelength NM        one wavelength in nm (--wavelengths 550 is a count of 550)\n"
         "  --light X,Y[,D[,I]]    field angles (deg), distance from the first vertex (mm, 0 or inf:\n"
         "                         infinity) and intensity; repeat for several (default 0,0)\n"
         "  --samples N            aperture samples per wavelength (default 65536), rendered as two\n"
@@ -113,7 +114,10 @@ static int parse_long(const char *s, long long lo, long long hi, long long *v)
     return end != s && *end == '\0' && errno == 0 && *v >= lo && *v <= hi;
 }
 
-/* Split "a,b,c" (or "axb") into up to n doubles; returns the count or -1. */
+/* Split "a,b,c" (or "axb") into up to n doubles; returns the count or -1. The word "inf"
+ * gives INFINITY, which only a light's distance accepts (as infinity): every other
+ * number, and any other spelling of a non-finite value, is refused (-1 or by the caller),
+ * never read as 0. */
 static int parse_list(const char *s, char sep, double *out, int n)
 {
     char buf[8192], *p, *q;
@@ -123,11 +127,20 @@ static int parse_list(const char *s, char sep, double *out, int n)
     for (p = buf; k < n; p = q + 1) {
         q = strchr(p, sep);
         if (q) *q = '\0';
-        if (strcmp(p, "inf") == 0) out[k++] = 0.0;
+        if (strcmp(p, "inf") == 0) out[k++] = INFINITY;
         else if (!parse_double(p, &out[k++])) return -1;
         if (!q) return k;
     }
     return -1;
+}
+
+/* Whether the first n values of a parsed list are finite. */
+static int all_finite(const double *t, int n)
+{
+    int k;
+    for (k = 0; k < n; k++)
+        if (!isfinite(t[k])) return 0;
+    return 1;
 }
 
 static int file_exists(const char *path)
@@ -142,6 +155,16 @@ static int writable(const char *path)
 {
     char probe[4096];
     FILE *f;
+    struct stat st;
+    // An empty name or a folder would pass the probe and fail only after the render
+    if (!path[0]) {
+        errno = ENOENT;
+        return 0;
+    }
+    if (stat(path, &st) == 0 && S_ISDIR(st.st_mode)) {
+        errno = EISDIR;
+        return 0;
+    }
     if (snprintf(probe, sizeof probe, "%s.probe-%ld", path, (long)time(NULL)) >= (int)sizeof probe) return 0;
     f = fopen(probe, "wb");
     if (!f) return 0;
@@ -239,6 +262,8 @@ static void on_log(lensrt_log_level level, const char *message, void *user)
 {
     progress_state *ps = user;
     if (level == LENSRT_LOG_INFO && ps->quiet) return;
+    // Errors are printed once, by the failing step (lensrt_context_last_error)
+    if (level == LENSRT_LOG_ERROR) return;
     fprintf(stderr, "lensrt-psf: %s%s\n", level == LENSRT_LOG_ERROR ? "" : level == LENSRT_LOG_WARNING ? "warning: " : "",
             message);
 }
@@ -311,15 +336,21 @@ int main(int argc, char **argv)
             height = (int)t[1];
         } else if (strcmp(a, "--size") == 0) {
             k = parse_list(v, 'x', t, 2);
-            if (k < 1 || t[0] <= 0 || (k == 2 && t[1] <= 0)) return bad(a, v, "expected W or WxH in mm, positive");
+            if (k < 1 || !all_finite(t, k) || t[0] <= 0 || (k == 2 && t[1] <= 0)) return bad(a, v, "expected W or WxH in mm, positive and finite");
             size[0] = t[0];
             size[1] = k == 2 ? t[1] : 0.0;
         } else if (strcmp(a, "--center") == 0) {
-            if (parse_list(v, ',', center, 2) != 2) return bad(a, v, "expected X,Y in mm");
+            if (parse_list(v, ',', center, 2) != 2 || !all_finite(center, 2)) return bad(a, v, "expected X,Y in mm, finite");
             have_center = 1;
         } else if (strcmp(a, "--light") == 0) {
             k = parse_list(v, ',', t, 4);
             if (k < 2 || n_lights >= MAX_LIGHTS) return bad(a, v, "expected X,Y[,DISTANCE[,INTENSITY]] (at most 64 lights)");
+            // Only the distance may be inf (the light at infinity, as 0)
+            if (!all_finite(t, 2) || (k > 3 && !isfinite(t[3]))) return bad(a, v, "field angles and intensity must be finite numbers (only the distance may be inf)");
+            if (k > 2 && isinf(t[2])) {
+                if (t[2] < 0) return bad(a, v, "the distance must be positive, 0 or inf");
+                t[2] = 0.0;
+            }
             { const lensrt_light zero_light = LENSRT_LIGHT_INIT; lights[n_lights] = zero_light; }
             lights[n_lights].field_x_deg = t[0];
             lights[n_lights].field_y_deg = t[1];
@@ -329,8 +360,12 @@ int main(int argc, char **argv)
             n_lights++;
         } else if (strcmp(a, "--wavelengths") == 0) {
             if (parse_long(v, 1, MAX_WAVELENGTHS, &n)) n_wl = (int)n;
-            else if (strchr(v, ',') && (k = parse_list(v, ',', wl, MAX_WAVELENGTHS)) > 0) n_wl = -k;
-            else return bad(a, v, "expected a count (1..4096) or a comma-separated list in nm");
+            else if (strchr(v, ',') && (k = parse_list(v, ',', wl, MAX_WAVELENGTHS)) > 0 && all_finite(wl, k)) n_wl = -k;
+            else return bad(a, v, "expected a count (1..4096) or a comma-separated list in nm (one wavelength: --wavelength NM)");
+        } else if (strcmp(a, "--wavelength") == 0) {
+            // One wavelength in nm: "--wavelengths 550" is a count of 550
+            if (!parse_double(v, &wl[0]) || wl[0] <= 0) return bad(a, v, "expected one wavelength in nm, e.g. 550");
+            n_wl = -1;
         } else if (strcmp(a, "--sampler") == 0) {
             if (strcmp(v, "sobol") == 0) sampler = LENSRT_SAMPLER_SOBOL;
             else if (strcmp(v, "random") == 0) sampler = LENSRT_SAMPLER_RANDOM;
@@ -366,6 +401,13 @@ int main(int argc, char **argv)
         fprintf(stderr, "lensrt-psf: --max-samples goes with --target-error\n");
         return 2;
     }
+    if (estimator == LENSRT_ESTIMATOR_UNBIASED && !resume && !merge &&
+        (estimate && samples >= 2 ? samples < 4 : samples < 2)) {
+        // Its image needs 2 samples per render: checked here, not after the render
+        fprintf(stderr, "lensrt-psf: --estimator unbiased needs 2 samples per image: --samples %lld is too few "
+                "(at least 4 for the two halves, 2 with --no-estimate)\n", samples);
+        return 2;
+    }
     if (!max_samples) max_samples = samples > DEFAULT_MAX_SAMPLES ? samples : DEFAULT_MAX_SAMPLES;
     if (max_samples < samples) {
         fprintf(stderr, "lensrt-psf: --max-samples %lld is below --samples %lld\n", max_samples, samples);
@@ -395,7 +437,16 @@ int main(int argc, char **argv)
         fprintf(stderr, "lensrt-psf: %s\n", lensrt_result_string(res));
         return 1;
     }
-    if (strstr(lens_arg, ".table")) snprintf(table, sizeof table, "%s", lens_arg);
+    if (strstr(lens_arg, ".table")) {
+        // A regular file only: a FIFO would block, a folder is no table
+        struct stat lst;
+        if (stat(lens_arg, &lst) == 0 && !S_ISREG(lst.st_mode)) {
+            fprintf(stderr, "lensrt-psf: --lens: '%s' is not a regular file\n", lens_arg);
+            lensrt_context_destroy(ctx);
+            return 2;
+        }
+        snprintf(table, sizeof table, "%s", lens_arg);
+    }
     else if (!find_table(gen, lens_arg, table, sizeof table)) {
         fprintf(stderr, "lensrt-psf: --lens: unknown lens '%s': no %s/%s-*/lens%s.table (see --generated)\n",
                 lens_arg, gen, lens_arg, lens_arg);

@@ -1,0 +1,141 @@
+"""lensrt-psf refuses bad input at once: exit status 2, one line naming the problem, no
+output written (issue 14, defects 3, 6 and 7).
+
+Each case is a command that today's tool must refuse before rendering; the renders are
+tiny (16 x 16, 2 wavelengths, 64 samples) so that a case which wrongly renders is quick
+and is caught by its exit status and by the output file it leaves. Set LENSRT_PSF to test
+another build of the tool (default build/runtime/runtime/lensrt-psf, as `make` builds it).
+"""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[2]
+PSF = Path(os.environ.get("LENSRT_PSF", ROOT / "build" / "runtime" / "runtime" / "lensrt-psf"))
+LENS0001 = ROOT / "generated" / "0001-angenieux-double-gauss" / "lens0001.table"
+BASE = ["--f-number", "8", "--resolution", "16x16", "--samples", "64", "--wavelengths", "2",
+        "--quiet"]
+
+
+@pytest.fixture(autouse=True)
+def _needs_tool() -> None:
+    if not PSF.exists():
+        pytest.skip(f"{PSF} is not built")
+
+
+def run(*args: str, lens: str = str(LENS0001)) -> subprocess.CompletedProcess:
+    return subprocess.run([str(PSF), "--lens", lens, *BASE, *args], capture_output=True,
+                          text=True, timeout=120)
+
+
+def refused(r: subprocess.CompletedProcess, *words: str) -> None:
+    """Exit 2, exactly one line on stderr containing every word."""
+    lines = r.stderr.strip().splitlines()
+    assert r.returncode == 2, (r.returncode, r.stderr)
+    assert len(lines) == 1, r.stderr
+    for w in words:
+        assert w in lines[0], (w, lines[0])
+
+
+@pytest.mark.parametrize("option,value", [
+    ("--light", "inf,5"), ("--light", "5,inf"), ("--light", "0,0,100,inf"),
+    ("--light", "nan,0"), ("--center", "inf,inf"), ("--center", "0,inf"),
+    ("--size", "inf"), ("--size", "0.1xinf"), ("--wavelengths", "500,inf"),
+    ("--wavelengths", "inf,600"), ("--focus", "inf"), ("--wavelength", "inf"),
+])
+def test_non_finite_values_are_refused(tmp_path: Path, option: str, value: str) -> None:
+    out = tmp_path / "out.exr"
+    refused(run(option, value, "-o", str(out)), option, value)
+    assert not out.exists()
+
+
+def test_light_at_infinity_still_means_infinity(tmp_path: Path) -> None:
+    # The distance alone may be inf: the same light as distance 0 (the documented meaning),
+    # hence the same phasor sums bit for bit (same seed, same scene). The sums are the
+    # file's last 16 x 16 pixels x 2 wavelengths x 2 doubles; the header before them
+    # holds the render time.
+    a, b = tmp_path / "a.phasors", tmp_path / "b.phasors"
+    ra = run("--light", "1,2,inf", "--save-phasors", str(a), "--no-estimate")
+    rb = run("--light", "1,2,0", "--save-phasors", str(b), "--no-estimate")
+    assert ra.returncode == 0 and rb.returncode == 0, ra.stderr + rb.stderr
+    n = 16 * 16 * 2 * 2 * 8
+    assert a.read_bytes()[-n:] == b.read_bytes()[-n:]
+
+
+def test_one_wavelength(tmp_path: Path) -> None:
+    # --wavelength 550 renders one wavelength; --wavelengths 550 stays a count (the EXR
+    # of the single wavelength is far smaller than one of 550 channels)
+    out = tmp_path / "one.exr"
+    r = run("--wavelength", "550", "-o", str(out), "--no-estimate")
+    assert r.returncode == 0, r.stderr
+    assert out.stat().st_size < 16 * 16 * 4 * 20
+    refused(run("--wavelength", "550nm", "-o", str(tmp_path / "x.exr")), "--wavelength", "550nm")
+    assert "--wavelength NM" in subprocess.run([str(PSF), "--help"], capture_output=True,
+                                               text=True).stdout
+
+
+@pytest.mark.parametrize("option", ["-o", "--png", "--save-phasors"])
+def test_folder_as_output_is_refused_before_rendering(tmp_path: Path, option: str) -> None:
+    other = tmp_path / "other.phasors"
+    extra = [] if option == "--save-phasors" else ["--save-phasors", str(other)]
+    refused(run(option, str(tmp_path), *extra), str(tmp_path))
+    assert not other.exists()
+
+
+def test_empty_output_is_refused_before_rendering(tmp_path: Path) -> None:
+    other = tmp_path / "other.phasors"
+    refused(run("-o", "", "--save-phasors", str(other)), "cannot write")
+    assert not other.exists()
+
+
+@pytest.mark.parametrize("extra", [["--samples", "1"], ["--samples", "3"],
+                                   ["--samples", "1", "--no-estimate"]])
+def test_unbiased_with_too_few_samples_is_refused_before_rendering(tmp_path: Path, extra) -> None:
+    out = tmp_path / "out.phasors"
+    refused(run("--estimator", "unbiased", *extra, "--save-phasors", str(out)), "unbiased")
+    assert not out.exists()
+
+
+def test_library_error_printed_once(tmp_path: Path) -> None:
+    # A lens table that does not parse: the loader's message, once (it used to come
+    # through the log hook and again from the tool)
+    bad = tmp_path / "bad.table"
+    bad.write_text("not a lens table\n")
+    refused(run("-o", str(tmp_path / "out.exr"), lens=str(bad)), str(bad))
+
+
+def test_folder_as_lens_is_refused(tmp_path: Path) -> None:
+    folder = tmp_path / "x.table"
+    folder.mkdir()
+    refused(run("-o", str(tmp_path / "out.exr"), lens=str(folder)), str(folder), "regular file")
+
+
+def test_fifo_as_lens_is_refused(tmp_path: Path) -> None:
+    # Without the check the open blocks forever: the timeout fails the test
+    fifo = tmp_path / "f.table"
+    os.mkfifo(fifo)
+    r = subprocess.run([str(PSF), "--lens", str(fifo), *BASE, "-o", str(tmp_path / "o.exr")],
+                       capture_output=True, text=True, timeout=20)
+    refused(r, str(fifo), "regular file")
+
+
+@pytest.mark.parametrize("kind", ["folder", "fifo"])
+def test_loader_refuses_non_regular_files(tmp_path: Path, kind: str) -> None:
+    # lensrt_lens_load itself (not only the tool): a folder used to make it ask for 2^63
+    # bytes, a FIFO to block in the open; run in a child so that a blocking open fails
+    # the test by its timeout instead of hanging the run
+    path = tmp_path / "x.table"
+    path.mkdir() if kind == "folder" else os.mkfifo(path)
+    code = ("import sys; sys.path.insert(0, sys.argv[1]); import lensrt_ctypes as L\n"
+            "try:\n    L.Lensrt().load(sys.argv[2])\nexcept L.LensrtError as e:\n"
+            "    print(e); sys.exit(7)\n")
+    r = subprocess.run([sys.executable, "-c", code, str(ROOT / "runtime" / "python"), str(path)],
+                       capture_output=True, text=True, timeout=20)
+    assert r.returncode == 7, r.stdout + r.stderr
+    assert "not a regular file" in r.stdout and str(path) in r.stdout
