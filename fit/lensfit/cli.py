@@ -19,11 +19,52 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
 import sys
 from pathlib import Path
 
-from lensfit.errors import LensError
+from lensfit.errors import InputError, LensError
 from lensfit.glass import UnknownGlassError
+
+# lensfit draw --rays: rays per fan (a fan of 10^8 rays grew to 19 GB; 1000 rays are
+# already finer than the 130 dpi drawing can show)
+MAX_RAYS = 1000
+
+
+def _nearest_existing(path: Path) -> Path:
+    p = path.absolute()
+    while not p.exists() and p != p.parent:
+        p = p.parent
+    return p
+
+
+def _check_folder(path: str | Path, option: str) -> Path:
+    """An output folder that can be created or written, checked before any work."""
+    p = Path(path)
+    if str(path) == "":
+        raise InputError(f"{option}: expected a folder, found an empty name")
+    if p.exists() and not p.is_dir():
+        raise InputError(f"{option} {p}: is a file, expected a folder")
+    base = _nearest_existing(p)
+    if not base.is_dir():
+        raise InputError(f"{option} {p}: {base} is a file, not a folder")
+    if not os.access(base, os.W_OK | os.X_OK):
+        raise InputError(f"{option} {p}: {base} is not writable")
+    return p
+
+
+def _check_file(path: str | Path, option: str) -> Path:
+    """An output file whose folder exists and is writable, checked before any work."""
+    p = Path(path)
+    if str(path) == "" or p.is_dir():
+        raise InputError(f"{option} {str(path)!r}: expected a file name, found "
+                         f"{'a folder' if str(path) else 'an empty name'}")
+    parent = p.absolute().parent
+    if not parent.is_dir():
+        raise InputError(f"{option} {p}: the folder {parent} does not exist")
+    if not os.access(parent, os.W_OK | os.X_OK):
+        raise InputError(f"{option} {p}: the folder {parent} is not writable")
+    return p
 
 
 def _fmt(v: float | None, unit: str = "", digits: int = 4) -> str:
@@ -82,10 +123,12 @@ def cmd_draw(args: argparse.Namespace) -> int:
     from lensfit.draw import draw_lens
     from lensfit.prescription import load_lens
 
-    lens = load_lens(args.lens)
-    out = Path(args.output)
+    if not 2 <= args.rays <= MAX_RAYS:
+        raise InputError(f"--rays {args.rays}: expected 2 to {MAX_RAYS} rays per fan")
+    out = _check_file(args.output, "-o")
     if out.suffix.lower() != ".png":
         raise LensError(f"expected a .png output file, found {out.name!r}", key="-o")
+    lens = load_lens(args.lens)
     draw_lens(lens, out, field_deg=args.field, rays=args.rays, f_number=args.f_number)
     print(f"wrote {out}")
     return 0
@@ -95,9 +138,9 @@ def cmd_import(args: argparse.Namespace) -> int:
     from lensfit.prescription import lens_from_dict
     from lensfit.prescription.lentil import convert_entry, load_lentil_json, slug, to_toml
 
+    outdir = _check_folder(args.output, "-o")
     data = load_lentil_json(args.json_file)
     ids = args.id or sorted(data)
-    outdir = Path(args.output)
     outdir.mkdir(parents=True, exist_ok=True)
     for lens_id in ids:
         if lens_id not in data:
@@ -144,9 +187,9 @@ def _pair(text: str | None, what: str) -> tuple[float, float] | None:
     try:
         lo, hi = (float(v) for v in parts)
     except ValueError:
-        raise ValueError(f"{what} = {text!r}: expected two numbers LO,HI") from None
+        raise InputError(f"{what} = {text!r}: expected two numbers LO,HI") from None
     if not (math.isfinite(lo) and math.isfinite(hi) and lo < hi):
-        raise ValueError(f"{what} = {text!r}: expected finite numbers with LO < HI")
+        raise InputError(f"{what} = {text!r}: expected finite numbers with LO < HI")
     return lo, hi
 
 
@@ -167,11 +210,13 @@ def _options(args: argparse.Namespace):
 
     extra = {"psf_target": args.psf_target, "method": args.method}
     if args.quick:
-        return FitOptions(max_terms=60, piston_terms=20, max_degree=7, phase_degree=8,
-                          train_groups=600, train_per_group=8, test_groups=100,
-                          groups=1000, aperture_points=64, field_degrees=(4, 6),
-                          aperture_degree=8, **extra)
-    return FitOptions(**extra)
+        extra.update(max_terms=60, piston_terms=20, max_degree=7, phase_degree=8,
+                     train_groups=600, train_per_group=8, test_groups=100, groups=1000,
+                     aperture_points=64, field_degrees=(4, 6), aperture_degree=8)
+    try:  # FitOptions checks its values (--psf-target) and says which is wrong
+        return FitOptions(**extra)
+    except ValueError as e:
+        raise InputError(str(e)) from None
 
 
 def _print_trust(fig: dict) -> None:
@@ -189,6 +234,11 @@ def cmd_fit(args: argparse.Namespace) -> int:
     from lensfit.generate import GENERATED_DIR, lens_folder_name
     from lensfit.prescription import load_lens
 
+    # Outputs first: a bad folder must not surface after the whole fit
+    if args.generated:
+        _check_folder(args.generated, "--generated")
+    if args.report:
+        _check_folder(args.report, "--report")
     lens = load_lens(args.lens)
     gen = Path(args.generated) if args.generated else GENERATED_DIR
     if args.scene:
@@ -198,7 +248,7 @@ def cmd_fit(args: argparse.Namespace) -> int:
                                                        "wavelengths", "close_focus", "focus")
                  if getattr(args, k) is not None]
         if given:
-            raise ValueError(f"--scene {args.scene}: the scene sets the domain (its lights, "
+            raise InputError(f"--scene {args.scene}: the scene sets the domain (its lights, "
                              f"wavelengths, f_number and focus); drop {', '.join(given)}")
         scene = load_scene(args.scene)
         domain, options = scene_domain(lens, scene), _options(args)
@@ -231,6 +281,8 @@ def cmd_report(args: argparse.Namespace) -> int:
     from lensfit.generate import lens_folder_name
     from lensfit.prescription import load_lens
 
+    if args.out:
+        _check_folder(args.out, "-o")  # before the fit, not after it
     lens = load_lens(args.lens)
     domain, options = _domain_and_options(args, lens)
     report_dir = Path(args.out) if args.out else Path("build/report") / lens_folder_name(lens)
@@ -258,11 +310,13 @@ def cmd_scene(args: argparse.Namespace) -> int:
     from lensfit.prescription import load_lens
     from lensfit.report import ns_per_eval
 
+    if args.out:
+        _check_folder(args.out, "-o")
     lens = load_lens(args.lens)
     gen = (Path(args.generated) if args.generated else GENERATED_DIR) / lens_folder_name(lens)
     fit_file = gen / "fit.json"
     if not fit_file.exists():
-        raise ValueError(f"{fit_file}: no fit for {lens.name}; run `lensfit fit {args.lens}`")
+        raise InputError(f"{fit_file}: no fit for {lens.name}; run `lensfit fit {args.lens}`")
     systems, _ = read_fit_json(fit_file)
     scene = sc.load_scene(args.scene)
     special = sc.specialise(systems, scene)
@@ -404,10 +458,15 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
+    from lensfit.sample.rays import SamplingError
+    from lensfit.scene import SceneError
+
     args = build_parser().parse_args(argv)
     try:
         return args.func(args)
-    except (LensError, UnknownGlassError, ValueError) as e:
+    except (InputError, LensError, SceneError, SamplingError, UnknownGlassError) as e:
+        # The project's own errors, about the input: one line and exit 2. Anything else
+        # (a ValueError from numpy, say) is a bug and keeps its traceback.
         print(f"lensfit: error: {e}", file=sys.stderr)
         return 2
 

@@ -17,6 +17,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
+from lensfit.errors import InputError  # noqa: E402
 from lensfit.paraxial import D_LINE_NM, paraxial, stop_radius_for_f_number  # noqa: E402
 from lensfit.prescription.model import Lens  # noqa: E402
 from lensfit.sample.domain import FULL_FRAME_HALF_DIAGONAL_MM, MAX_DEFAULT_FIELD_DEG  # noqa: E402
@@ -162,10 +163,10 @@ def draw_lens(
 ) -> Path:
     """Write the cross-section of ``lens`` with ray fans to ``output`` (PNG, atomic)."""
     if rays < 2:
-        raise ValueError(f"need at least 2 rays per fan, got {rays}")
+        raise InputError(f"need at least 2 rays per fan, got {rays}")
     field = default_field_deg(lens) if field_deg is None else float(field_deg)
     if not -89.0 <= field <= 89.0:
-        raise ValueError(f"field angle must be within +-89 degrees, got {field}")
+        raise InputError(f"field angle must be within +-89 degrees, got {field}")
     stop_r = lens.stop_radius_max_mm
     if f_number is not None:
         stop_r = stop_radius_for_f_number(lens, f_number)

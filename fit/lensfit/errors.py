@@ -3,6 +3,46 @@
 from __future__ import annotations
 
 
+class InputError(ValueError):
+    """Bad input other than a lens file (an option, an output path, a fit file), as one
+    line naming the option or file and the value. The command line reports it with exit
+    status 2; other exceptions are bugs and keep their traceback."""
+
+
+def regular_file_problem(path: str | object) -> str | None:
+    """Why ``path`` cannot be read as an input file (a folder, a FIFO, a device: a FIFO
+    would block the read), or None for a regular file or a missing one (whose read
+    reports it)."""
+    import os
+    import stat
+
+    try:
+        mode = os.stat(path).st_mode  # type: ignore[arg-type]
+    except OSError:
+        return None
+    return None if stat.S_ISREG(mode) else "not a regular file"
+
+
+def toml_overflow(obj: object, path: tuple = ()) -> tuple[tuple, int] | None:
+    """The first integer in parsed TOML too large for a float (TOML integers are
+    unbounded in Python; float() of one raises OverflowError), with its key path."""
+    import sys
+
+    if isinstance(obj, dict):
+        items = obj.items()
+    elif isinstance(obj, list):
+        items = enumerate(obj)
+    elif isinstance(obj, int) and not isinstance(obj, bool) and abs(obj) > sys.float_info.max:
+        return path, obj
+    else:
+        return None
+    for k, v in items:
+        found = toml_overflow(v, (*path, k))
+        if found:
+            return found
+    return None
+
+
 class LensError(ValueError):
     """A prescription (or other lens input) that cannot be used.
 

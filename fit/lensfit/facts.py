@@ -10,6 +10,7 @@ from __future__ import annotations
 import math
 from dataclasses import astuple, dataclass, fields
 
+from lensfit.errors import InputError
 from lensfit.paraxial.paraxial import paraxial, stop_radius_f1_mm
 from lensfit.prescription.model import Lens
 
@@ -40,7 +41,7 @@ class LensFacts:
         for key, value in zip(self.keys()[1:], self.values()[1:], strict=True):
             problem = fact_problem(key, value)
             if problem:
-                raise ValueError(f"lens {key} = {value!r}: {problem}")
+                raise InputError(f"lens {key} = {value!r}: {problem}")
         return self
 
 

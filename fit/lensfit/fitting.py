@@ -46,6 +46,7 @@ from typing import Any
 
 import numpy as np
 
+from lensfit.errors import InputError
 from lensfit.poly.omp import OmpPath, omp
 from lensfit.poly.polynomial import Input, Polynomial, System, design_matrix, monomials
 from lensfit.poly.tensor import aperture_exponents, field_exponents, fit_tensor
@@ -221,10 +222,10 @@ def fit_system(name: str, inputs: tuple[Input, ...], outputs, train: Samples, te
     """Fit every output of one system to its samples."""
     fit_rows = train.vignetting <= TRAIN_VIGNETTING
     if not np.any(fit_rows):
-        raise ValueError(f"{name}: no training ray within {TRAIN_VIGNETTING} of the housings")
+        raise InputError(f"{name}: no training ray within {TRAIN_VIGNETTING} of the housings")
     tr, te = train.subset(fit_rows), test.subset(test.passes)
     if len(te) == 0:
-        raise ValueError(f"{name}: no held-out ray passes the lens")
+        raise InputError(f"{name}: no held-out ray passes the lens")
     scaffold = System(name, inputs, ())
     xt, xe = scaffold.normalise(tr.inputs), scaffold.normalise(te.inputs)
     exps = monomials(len(inputs), options.max_degree)
@@ -300,7 +301,7 @@ def fit_system_tensor(name: str, inputs: tuple[Input, ...], outputs, train: Grid
     held-out error reaches the target."""
     te = test.subset(test.passes)
     if len(te) == 0:
-        raise ValueError(f"{name}: no held-out ray passes the lens")
+        raise InputError(f"{name}: no held-out ray passes the lens")
     scaffold = System(name, inputs, ())
     # Normalised grid coordinates: the stop points, and the field points
     # (the columns not wanted are filled with each input's lower bound, a valid value)
@@ -320,7 +321,7 @@ def fit_system_tensor(name: str, inputs: tuple[Input, ...], outputs, train: Grid
     with np.errstate(invalid="ignore"):
         mask = train.ok & (train.vignetting <= TRAIN_VIGNETTING)
     if not np.any(mask):
-        raise ValueError(f"{name}: no training ray within {TRAIN_VIGNETTING} of the housings")
+        raise InputError(f"{name}: no training ray within {TRAIN_VIGNETTING} of the housings")
     polys: list[Polynomial] = []
     fits: list[OutputFit] = []
     for j, (out, unit) in enumerate(outputs):

@@ -33,6 +33,7 @@ from typing import Any
 from lensfit.codegen import emit_c, emit_glsl, write_table
 from lensfit.codegen.c_horner import file_stem
 from lensfit.codegen.table import Table, read_table
+from lensfit.errors import InputError
 from lensfit.facts import LensFacts, lens_facts
 from lensfit.poly import System
 from lensfit.prescription.model import Lens
@@ -105,19 +106,19 @@ def regenerate(folder: Path) -> tuple[Lens, list[str]]:
     folder = Path(folder)
     fit_file = folder / "fit.json"
     if not fit_file.is_file():
-        raise ValueError(f"{fit_file}: no fit.json to regenerate from; run `lensfit fit`")
+        raise InputError(f"{fit_file}: no fit.json to regenerate from; run `lensfit fit`")
     systems, meta = read_fit_json(fit_file)
     trust = getattr(systems, "trust", None)
     if trust is None:
-        raise ValueError(f"{fit_file}: its table predates the trust figures (version 3); "
+        raise InputError(f"{fit_file}: its table predates the trust figures (version 3); "
                          "run `lensfit fit` to refit and measure them")
     lens_file = meta.get("lens_file")
     if not isinstance(lens_file, str) or not lens_file:
-        raise ValueError(f"{fit_file}: key 'lens_file': expected the lens's file name, "
+        raise InputError(f"{fit_file}: key 'lens_file': expected the lens's file name, "
                          f"found {lens_file!r}")
     lens = load_lens(Path(lens_file).stem)
     if folder.name != lens_folder_name(lens):
-        raise ValueError(f"{folder}: the folder of {lens_file} is named "
+        raise InputError(f"{folder}: the folder of {lens_file} is named "
                          f"{lens_folder_name(lens)!r}, not {folder.name!r}")
     meta = {k: v for k, v in meta.items() if k not in ("format", "table")}
     files = lens_files(lens, list(systems), meta, trust)
@@ -168,17 +169,22 @@ def read_fit_json(path: Path) -> tuple[Table, dict[str, Any]]:
     """(the systems, from the table fit.json names, with its lens facts and trust; the
     rest of fit.json)."""
     path = Path(path)
-    doc = json.loads(path.read_text(encoding="utf-8"))
+    try:
+        doc = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError, RecursionError) as e:
+        raise InputError(f"{path}: cannot read fit.json: {e or 'nested too deeply'}") from None
+    if not isinstance(doc, dict):
+        raise InputError(f"{path}: expected a JSON object, found {type(doc).__name__}")
     if doc.get("format") != "lensfit-fit 2":
-        raise ValueError(f"{path}: key 'format': expected 'lensfit-fit 2', "
+        raise InputError(f"{path}: key 'format': expected 'lensfit-fit 2', "
                          f"found {doc.get('format')!r}; run `lensfit fit` to refit")
     name = doc.get("table")
     if not isinstance(name, str) or "/" in name or not name.endswith(".table"):
-        raise ValueError(f"{path}: key 'table': expected the table's file name, found "
+        raise InputError(f"{path}: key 'table': expected the table's file name, found "
                          f"{name!r}")
     table = path.parent / name
     try:
         systems = read_table(table.read_text(encoding="utf-8"))
-    except ValueError as e:
-        raise ValueError(f"{table}: {e}") from None
+    except (OSError, ValueError) as e:
+        raise InputError(f"{table}: {e}") from None
     return systems, doc

@@ -35,6 +35,7 @@ from typing import Any
 
 import numpy as np
 
+from lensfit.errors import regular_file_problem, toml_overflow
 from lensfit.poly import Polynomial, System
 
 APERTURE_INPUTS = ("x_a", "y_a")
@@ -93,18 +94,31 @@ class Scene:
         for k in d:
             if k not in known:
                 raise fail(k, d[k], f"unknown key (known: {', '.join(sorted(known))})")
+        # Integers beyond a float's range (float() would raise OverflowError)
+        big = toml_overflow(d)
+        if big:
+            raise fail(".".join(str(p) for p in big[0]), big[1],
+                       "expected a number within a float's range")
         name = d.get("name")
         if not isinstance(name, str) or not name or not name.replace("-", "_").isidentifier():
             raise fail("name", name, "expected a name of letters, digits, '_' or '-'")
         lam = d.get("wavelengths_nm")
         if (not isinstance(lam, list) or not lam
-                or not all(isinstance(v, int | float) and v > 0 for v in lam)):
-            raise fail("wavelengths_nm", lam, "expected a non-empty list of positive numbers")
+                or not all(isinstance(v, int | float) and not isinstance(v, bool)
+                           and math.isfinite(v) and v > 0 for v in lam)):
+            raise fail("wavelengths_nm", lam,
+                       "expected a non-empty list of positive finite numbers")
         lights = []
         raw_lights = d.get("light")
         if not isinstance(raw_lights, list) or not raw_lights:
             raise fail("light", raw_lights, "expected at least one [[light]] table")
+        light_keys = {"field_x_deg", "field_y_deg", "distance_mm"}
         for i, lt in enumerate(raw_lights):
+            # An unknown key (a misspelt distance_mm) would leave the light at infinity
+            for k in lt if isinstance(lt, dict) else ():
+                if k not in light_keys:
+                    raise fail(f"light[{i}].{k}", lt[k], "unknown key in [[light]] (known: "
+                               f"{', '.join(sorted(light_keys))})")
             try:
                 dist = lt.get("distance_mm", "inf")
                 dist = math.inf if dist == "inf" else float(dist)
@@ -142,10 +156,15 @@ class Scene:
 
 def load_scene(path: str | Path) -> Scene:
     p = Path(path)
+    problem = regular_file_problem(p)  # a FIFO would block the read
+    if problem:
+        raise SceneError(f"{p}: cannot read scene: {problem}")
     try:
         doc = tomllib.loads(p.read_text(encoding="utf-8"))
     except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError) as e:
         raise SceneError(f"{p}: cannot read scene: {e}") from None
+    except RecursionError:
+        raise SceneError(f"{p}: cannot read scene: nested too deeply") from None
     return Scene.from_dict(doc, str(p))
 
 

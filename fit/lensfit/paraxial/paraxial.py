@@ -16,6 +16,7 @@ from typing import Any
 
 import numpy as np
 
+from lensfit.errors import InputError
 from lensfit.prescription.model import Lens
 
 D_LINE_NM = 587.5618
@@ -166,12 +167,12 @@ def stop_radius_for_f_number(
 
     Raises ValueError when the lens cannot open that wide."""
     if not (f_number > 0 and math.isfinite(f_number)):
-        raise ValueError(f"f-number must be a positive finite number, got {f_number}")
+        raise InputError(f"f-number must be a positive finite number, got {f_number}")
     r, p = _stop_radius(lens, f_number, meridian, wavelength_nm)
     widest = lens.stop_radius_max_mm
     if r > widest * (1 + 1e-12):
         fastest = p.efl_mm / (2.0 * p.entrance_pupil.radius_mm * widest)
-        raise ValueError(
+        raise InputError(
             f"f/{f_number:g} is wider than {lens.name} allows: its stop opens to "
             f"{widest:g} mm, which is f/{abs(fastest):.3g}"
         )
@@ -196,7 +197,7 @@ def image_distance(
     if math.isinf(object_distance_mm):
         return -a / c if c != 0 else math.inf
     if not object_distance_mm > 0:
-        raise ValueError(f"object distance must be positive, got {object_distance_mm}")
+        raise InputError(f"object distance must be positive, got {object_distance_mm}")
     # A ray from the axial object point with slope 1 reaches the first vertex at height L
     y, nu = a * object_distance_mm + b, c * object_distance_mm + d
     if nu == 0:

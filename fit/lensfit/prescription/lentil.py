@@ -65,7 +65,7 @@ def _glass(name: str, nd: float | None, vd: float | None) -> tuple[dict[str, Any
     return {"nd": nd, "vd": vd, "glass_label": name}, note
 
 
-def _number(value: Any, source: str, i: int, key: str, lens_id: str) -> float:
+def _number(value: Any, source: str, i: int | None, key: str, lens_id: str) -> float:
     """A finite number from an element field, or a LensError naming file, element and key."""
     if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
         raise LensError(
@@ -81,15 +81,22 @@ def convert_entry(
     lens_id: str, entry: dict[str, Any], *, source: str, scale: float = 1.0
 ) -> dict[str, Any]:
     """One lentil entry as plain data in the lensdb TOML layout."""
+    # Types first: a JSON entry of the wrong shape is bad input, not a crash
+    if not isinstance(entry, dict):
+        raise LensError(f"entry {lens_id}: expected an object, found {type(entry).__name__}",
+                        file=source, key=f"{lens_id}")
     elements = entry.get("optical-elements-patent") or entry.get("optical-elements-adjusted")
     if not elements:
         raise LensError("entry has no optical elements", file=source, key=f"{lens_id}")
+    if not isinstance(elements, list) or not all(isinstance(e, dict) for e in elements):
+        raise LensError(f"entry {lens_id}: expected a list of element objects, found "
+                        f"{elements!r:.60}", file=source, key="optical-elements")
     notes: list[str] = []
     surfaces: list[dict[str, Any]] = []
     for i, e in enumerate(elements):
         s: dict[str, Any] = {}
         mat = str(e.get("material", "")).strip()
-        radius = float(e.get("radius") or 0.0)
+        radius = _number(e.get("radius") or 0.0, source, i, "radius", lens_id)
         geometry = e.get("lens-geometry", "spherical")
         flat = radius == 0.0 or abs(radius) >= FLAT_RADIUS or mat.lower() == "iris"
         if flat:
@@ -133,7 +140,12 @@ def convert_entry(
         s["semi_diameter"] = sd
         if s["shape"] == "asphere":
             s["conic"] = 0.0
-            s["aspheric"] = [float(a) for a in (e.get("aspherical-equation") or [])]
+            coeffs = e.get("aspherical-equation") or []
+            if not isinstance(coeffs, list):
+                raise LensError(f"entry {lens_id}: expected a list of numbers, found {coeffs!r}",
+                                file=source, surface=i, key="aspherical-equation")
+            s["aspheric"] = [_number(a, source, i, "aspherical-equation", lens_id)
+                             for a in coeffs]
         if mat.lower() == "iris":
             s["stop"] = True
         surfaces.append(s)
@@ -142,7 +154,10 @@ def convert_entry(
         _add_front_stop(surfaces, notes, source)
     _separate_crossing(surfaces, notes, source)
 
-    year = int(entry.get("year") or 0)
+    year = entry.get("year") or 0
+    if isinstance(year, bool) or not isinstance(year, int) or not 0 <= year <= 9999:
+        raise LensError(f"entry {lens_id}: expected a year, found {year!r}", file=source,
+                        key="year")
     company = str(entry.get("company") or "unknown")
     product = str(entry.get("product-name") or "lens")
     info: dict[str, Any] = {
@@ -155,7 +170,8 @@ def convert_entry(
     if entry.get("patent-number"):
         info["patent"] = str(entry["patent-number"])
     if entry.get("focal-length-mm-patent"):
-        info["focal_length_mm"] = float(entry["focal-length-mm-patent"])
+        info["focal_length_mm"] = _number(entry["focal-length-mm-patent"], source, None,
+                                          "focal-length-mm-patent", lens_id)
     if scale != 1.0:
         info["scale"] = scale
     text = " ".join(str(entry.get(k) or "") for k in ("notes",)).strip()

@@ -24,7 +24,7 @@ from typing import Any
 import jsonschema
 import numpy as np
 
-from lensfit.errors import LensError
+from lensfit.errors import LensError, regular_file_problem, toml_overflow
 from lensfit.glass import AIR, Medium, UnknownGlassError, abbe_glass, catalog_glass
 from lensfit.prescription.model import BARE, Coating, Layer, Lens, Surface
 
@@ -71,6 +71,10 @@ def load_lens(name: str | os.PathLike[str]) -> Lens:
     """Load, validate and resolve a prescription from a file path or a lensdb name."""
     path = find_lens_file(os.fspath(name))
     label = os.path.relpath(path) if not os.path.isabs(os.fspath(name)) else os.fspath(path)
+    # A regular file only: a FIFO would block the read, a folder is no prescription
+    problem = regular_file_problem(path)
+    if problem:
+        raise LensError(f"cannot read: {problem}", file=label)
     try:
         text = path.read_text(encoding="utf-8")
     except (OSError, UnicodeDecodeError) as e:
@@ -79,6 +83,8 @@ def load_lens(name: str | os.PathLike[str]) -> Lens:
         data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as e:
         raise LensError(f"malformed TOML: {e}", file=label) from None
+    except RecursionError:
+        raise LensError("malformed TOML: nested too deeply", file=label) from None
     return lens_from_dict(data, file=label)
 
 
@@ -174,6 +180,16 @@ def lens_from_dict(data: dict[str, Any], *, file: str = "<memory>") -> Lens:
                 surface=surface,
                 key=".".join(str(p) for p in rest),
             )
+
+    # Step 1b: every integer within a float's range (a 400-digit thickness)
+    big = toml_overflow(data)
+    if big:
+        path, _ = big
+        surface = path[1] if len(path) > 1 and path[0] == "surface" else None
+        rest = path[2:] if surface is not None else path
+        raise LensError("expected a number within a float's range, found an integer of "
+                        f"{len(str(abs(big[1])))} digits", file=file, surface=surface,
+                        key=".".join(str(p) for p in rest))
 
     # Step 2: structure against the schema; report the error deepest in the tree first
     validator = jsonschema.Draft202012Validator(_schema())

@@ -21,6 +21,7 @@ import math
 from dataclasses import asdict, dataclass, replace
 from typing import Any
 
+from lensfit.errors import InputError
 from lensfit.paraxial.paraxial import image_distance, paraxial, stop_radius_for_f_number
 from lensfit.poly.polynomial import Input
 from lensfit.prescription.model import Lens
@@ -59,7 +60,7 @@ class Domain:
             if v is not None:
                 object.__setattr__(self, k, float(v))
         if self.field_y_deg is not None and not 0.0 < self.field_y_deg < 90.0:
-            raise ValueError(f"domain: field_y_deg = {self.field_y_deg} must be in (0, 90)")
+            raise InputError(f"domain: field_y_deg = {self.field_y_deg} must be in (0, 90)")
         checks = [
             ("field_deg", 0.0 < self.field_deg < 90.0, "in (0, 90)"),
             ("close_focus_mm", self.close_focus_mm > 0.0, "positive (inf allowed)"),
@@ -72,7 +73,7 @@ class Domain:
         for key, ok, want in checks:
             value = getattr(self, key)
             if not ok or math.isnan(value):
-                raise ValueError(f"domain: {key} = {value} must be {want}")
+                raise InputError(f"domain: {key} = {value} must be {want}")
 
     @property
     def inverse_distance_max(self) -> float:
@@ -123,7 +124,7 @@ class Domain:
             d.pop("field_y_deg", None)
         unknown = set(d) - set(cls.__dataclass_fields__)
         if unknown:
-            raise ValueError(f"domain: unknown keys {sorted(unknown)}")
+            raise InputError(f"domain: unknown keys {sorted(unknown)}")
         return cls(**{k: float(v) for k, v in d.items()})
 
     def with_(self, **changes: Any) -> Domain:
@@ -169,7 +170,7 @@ def default_domain(lens: Lens, f_number: float | None = None, *,
     field_y = field_for(efl_y) if lens.anamorphic else None
     if field_deg is not None:
         if not 0.0 < field_deg < 90.0:
-            raise ValueError(f"field = {field_deg!r} degrees: expected an angle in (0, 90)")
+            raise InputError(f"field = {field_deg!r} degrees: expected an angle in (0, 90)")
         if field_y is not None:  # keep the squeeze's ratio of the two fields
             field_y = math.degrees(math.atan(math.tan(math.radians(field_deg))
                                              * efl_x / efl_y))
@@ -178,12 +179,12 @@ def default_domain(lens: Lens, f_number: float | None = None, *,
                              efl_y * math.tan(math.radians(field_y or field))))
     if image_circle_mm is not None:
         if not (math.isfinite(image_circle_mm) and image_circle_mm > 0):
-            raise ValueError(f"image circle = {image_circle_mm!r} mm: expected a positive "
+            raise InputError(f"image circle = {image_circle_mm!r} mm: expected a positive "
                              "radius")
         h = image_circle_mm
     close = float(CLOSE_FOCUS_EFL * efl) if close_focus_mm is None else float(close_focus_mm)
     if not close > 0:
-        raise ValueError(f"close focus = {close_focus_mm!r} mm: expected a positive distance "
+        raise InputError(f"close focus = {close_focus_mm!r} mm: expected a positive distance "
                          "from the first vertex, or inf")
     # Sensor travel from infinity focus to close focus, with a margin both ways
     travel = float(image_distance(lens, close) - image_distance(lens, math.inf))
