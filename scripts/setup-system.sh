@@ -28,6 +28,10 @@ done
 for pkg in libegl-dev libgl-dev libegl1 libegl-mesa0 libgl1-mesa-dri libglfw3 xvfb xauth; do
   have "$pkg" || need+=("$pkg")
 done
+# clang with its sanitizer and libFuzzer runtimes, for tests/fuzz/run.sh
+for pkg in clang libclang-rt-14-dev; do
+  have "$pkg" || need+=("$pkg")
+done
 # A comma-decimal locale for tests/runtime/test_locale.c (lensrt must read and write
 # numbers the same under de_DE's LC_NUMERIC): the locale sources, compiled below
 for pkg in locales; do
