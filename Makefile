@@ -7,7 +7,10 @@
 #                a sheet of the three with scale bars, build/demo/psf/), and
 #                at f/8 on the GL device
 #   make test    lint, the C tests and examples/embed (also under ASan/UBSan, and a minimal
-#                build without EXR, OpenMP and GL) and the Python test suite
+#                build without EXR, OpenMP and GL), the C parsers under libFuzzer for 15 s
+#                each, and the Python test suite (the TOML loaders under hypothesis too)
+#   make fuzz    the parsers fuzzed for longer (FUZZ_SECONDS per libFuzzer target,
+#                FUZZ_EXAMPLES hypothesis examples)
 #   make bench   ray-tracer throughput, generated-code speed, fit report, lensrt splat rate
 #                (and tile-scheduled against run()), per-ray evaluation against exact tracing,
 #                compiled-in Horner code against lensrt's set-up,
@@ -20,7 +23,12 @@ PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
 DEMO_LENS ?= 0001
 
-.PHONY: setup runtime demo test bench lint clean
+.PHONY: setup runtime demo test bench fuzz lint clean
+
+# Seconds per libFuzzer target: a short budget in `make test`, a long one in `make fuzz`
+FUZZ_TEST_SECONDS ?= 15
+FUZZ_SECONDS      ?= 600
+FUZZ_EXAMPLES     ?= 20000
 
 RUNTIME_BUILD := build/runtime
 ASAN_BUILD    := build/asan
@@ -87,7 +95,14 @@ test: setup lint runtime
 		|| (cat build/minimal.configure.log; exit 1)
 	cmake --build build/minimal -j 2
 	ctest --test-dir build/minimal --output-on-failure
+	bash tests/fuzz/run.sh $(FUZZ_TEST_SECONDS)
 	$(PY) -m pytest tests
+
+# The parsers under fuzzing for longer: the lens table and phasor readers (libFuzzer with
+# ASan/UBSan, build/fuzz/) and the TOML loaders (hypothesis)
+fuzz: setup
+	bash tests/fuzz/run.sh $(FUZZ_SECONDS)
+	LENSFIT_FUZZ_EXAMPLES=$(FUZZ_EXAMPLES) $(PY) -m pytest tests/fit/test_fuzz_toml.py -q
 
 bench: setup runtime
 	@mkdir -p build/bench
