@@ -14,6 +14,7 @@
 #include <errno.h>
 #include <locale.h>
 #include <math.h>
+#include <signal.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -165,12 +166,51 @@ static int writable(const char *path)
         errno = EISDIR;
         return 0;
     }
+    // The library refuses to replace a link, a device, a FIFO or a socket (io/atomic_file.c):
+    // say so now rather than after the render
+    if (lstat(path, &st) == 0 && !S_ISREG(st.st_mode)) {
+        errno = S_ISLNK(st.st_mode) ? ELOOP : EEXIST;
+        return 0;
+    }
     if (snprintf(probe, sizeof probe, "%s.probe-%ld", path, (long)time(NULL)) >= (int)sizeof probe) return 0;
     f = fopen(probe, "wb");
     if (!f) return 0;
     fclose(f);
     remove(probe);
     return 1;
+}
+
+/* Remove `<base>.mc-<pid>-a.phasors` and `-b.phasors` left by runs of this tool that were
+ * killed (kill -9) during an error estimate: those whose process no longer exists. */
+static void remove_stale_estimates(const char *base)
+{
+    char dir[4096], prefix[4096], path[8300];
+    const char *slash = strrchr(base, '/');
+    DIR *d;
+    struct dirent *e;
+    size_t np;
+    if (slash) {
+        if ((size_t)(slash - base) >= sizeof dir) return;
+        memcpy(dir, base, (size_t)(slash - base));
+        dir[slash - base] = '\0';
+        if (!dir[0]) strcpy(dir, "/");
+    } else {
+        strcpy(dir, ".");
+    }
+    if (snprintf(prefix, sizeof prefix, "%s.mc-", slash ? slash + 1 : base) >= (int)sizeof prefix) return;
+    np = strlen(prefix);
+    if (!(d = opendir(dir))) return;
+    while ((e = readdir(d)) != NULL) {
+        char *end;
+        long pid;
+        if (strncmp(e->d_name, prefix, np) != 0) continue;
+        pid = strtol(e->d_name + np, &end, 10);
+        if (pid <= 0 || (strcmp(end, "-a.phasors") != 0 && strcmp(end, "-b.phasors") != 0)) continue;
+        // Only a process that no longer exists: kill(pid, 0) fails with ESRCH
+        if (kill((pid_t)pid, 0) == 0 || errno != ESRCH) continue;
+        if (snprintf(path, sizeof path, "%s/%s", dir, e->d_name) < (int)sizeof path) remove(path);
+    }
+    closedir(d);
 }
 
 /* Find generated/<ID>-*\/lens<ID>.table. */
@@ -422,7 +462,10 @@ int main(int argc, char **argv)
         outs[2] = save;
         for (k = 0; k < 3; k++)
             if (outs[k] && !writable(outs[k])) {
-                fprintf(stderr, "lensrt-psf: cannot write '%s': %s\n", outs[k], strerror(errno));
+                fprintf(stderr, "lensrt-psf: cannot write '%s': %s\n", outs[k],
+                        errno == ELOOP ? "it is a symbolic link (give the link's target)"
+                        : errno == EEXIST ? "it exists and is not a regular file"
+                                          : strerror(errno));
                 return 2;
             }
     }
@@ -541,6 +584,7 @@ int main(int argc, char **argv)
             fprintf(stderr, "lensrt-psf: out of memory for the error estimate (3 x %zu floats)\n", n);
             goto done;
         }
+        remove_stale_estimates(base);
         snprintf(tmp_a, sizeof tmp_a, "%s.mc-%ld-a.phasors", base, (long)getpid());
         snprintf(tmp_b, sizeof tmp_b, "%s.mc-%ld-b.phasors", base, (long)getpid());
         for (;;) {

@@ -10,6 +10,7 @@ another build of the tool (default build/runtime/runtime/lensrt-psf, as `make` b
 from __future__ import annotations
 
 import os
+import stat
 import subprocess
 import sys
 from pathlib import Path
@@ -139,3 +140,42 @@ def test_loader_refuses_non_regular_files(tmp_path: Path, kind: str) -> None:
                        capture_output=True, text=True, timeout=20)
     assert r.returncode == 7, r.stdout + r.stderr
     assert "not a regular file" in r.stdout and str(path) in r.stdout
+
+
+@pytest.mark.parametrize("kind", ["symlink", "fifo"])
+def test_output_that_is_no_regular_file_refused_before_rendering(tmp_path, kind):
+    # The library refuses to replace a link or a FIFO (io/atomic_file.c); the tool says so
+    # before it renders, not after
+    target = tmp_path / "real.exr"
+    out = tmp_path / "o.exr"
+    if kind == "symlink":
+        out.symlink_to(target)
+    else:
+        os.mkfifo(out)
+    r = run("-o", str(out))
+    refused(r, str(out), "symbolic link" if kind == "symlink" else "not a regular file")
+    assert not target.exists()
+    assert out.is_symlink() if kind == "symlink" else stat.S_ISFIFO(os.lstat(out).st_mode)
+
+
+def test_error_estimate_temporaries_of_killed_runs_removed(tmp_path):
+    # A run killed during its error estimate leaves <out>.mc-<pid>-a/b.phasors; the next
+    # estimate for the same output removes those of processes that no longer exist
+    dead = _dead_pid()
+    out = tmp_path / "o.exr"
+    stale = [tmp_path / f"o.exr.mc-{dead}-a.phasors", tmp_path / f"o.exr.mc-{dead}-b.phasors"]
+    live = tmp_path / f"o.exr.mc-{os.getpid()}-a.phasors"
+    for p in [*stale, live]:
+        p.write_bytes(b"left by a killed run")
+    r = run("-o", str(out))
+    assert r.returncode == 0, r.stderr
+    assert "error estimate" in r.stdout  # the estimate ran
+    assert not any(p.exists() for p in stale)
+    assert live.exists()
+
+
+def _dead_pid() -> int:
+    """The pid of a child that has exited and been reaped (no process has it now)."""
+    p = subprocess.Popen(["true"])
+    p.wait()
+    return p.pid
