@@ -1148,6 +1148,12 @@ static void test_failing_allocator(void)
         oom_sweep("render_write_png", &h, ctx, step_png, NULL, &a);
         CHECK(file_exists(a.path), "write_png wrote no %s", a.path);
         scratch_path(a.path, sizeof a.path, "oom.phasors");
+        // save with its first allocation failing: out of memory (not an I/O error), no file
+        remove(a.path);
+        h.fail_from = h.calls;
+        CHECK_RES(ctx, LENSRT_ERROR_OUT_OF_MEMORY, lensrt_render_save(a.render, a.path));
+        h.fail_from = -1;
+        CHECK(!file_exists(a.path), "a save that ran out of memory wrote %s", a.path);
         CHECK_RES(ctx, LENSRT_SUCCESS, lensrt_render_save(a.render, a.path));
         oom_sweep("render_load", &h, ctx, step_load, NULL, &a);
         lensrt_render_destroy(a.render);
