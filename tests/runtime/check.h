@@ -1,12 +1,14 @@
 /* The C tests' harness: CHECK counts every check and prints each failure with its file
  * and line (and the message), so one run lists every failure; main returns non-zero when
  * g_failures is. With lensrt.h included first: CHECK_RES (a call's result code against
- * the expected one, with the context's last error), CHECK_OK and CHECK_MSG. */
+ * the expected one, with the context's last error), CHECK_OK and CHECK_MSG. And
+ * read_text, a whole file as a NUL-terminated string (malloc'd; NULL if unreadable). */
 #ifndef LENSRT_TEST_CHECK_H
 #define LENSRT_TEST_CHECK_H
 
 #include <stdarg.h>
 #include <stdio.h>
+#include <stdlib.h>
 #include <string.h>
 
 static int g_checks = 0, g_failures = 0;
@@ -49,5 +51,26 @@ static inline void check_res_at(int line, const char *file, const char *expr, le
     CHECK(strstr(lensrt_context_last_error(ctx), (needle)) != NULL,                                \
           "last error '%s' does not contain '%s'", lensrt_context_last_error(ctx), (needle))
 #endif
+
+static inline char *read_text(const char *path, size_t *size)
+{
+    FILE *f = fopen(path, "rb");
+    char *text = NULL;
+    long n;
+    *size = 0;
+    if (!f) return NULL;
+    if (fseek(f, 0, SEEK_END) == 0 && (n = ftell(f)) >= 0 && fseek(f, 0, SEEK_SET) == 0) {
+        text = malloc((size_t)n + 1);
+        if (text && fread(text, 1, (size_t)n, f) == (size_t)n) {
+            text[n] = '\0';
+            *size = (size_t)n;
+        } else {
+            free(text);
+            text = NULL;
+        }
+    }
+    fclose(f);
+    return text;
+}
 
 #endif /* LENSRT_TEST_CHECK_H */

@@ -75,27 +75,6 @@ static int count_entries(const char *dir, const char *needle)
     return n;
 }
 
-static char *read_text(const char *path, size_t *size)
-{
-    FILE *f = fopen(path, "rb");
-    char *text = NULL;
-    long n;
-    *size = 0;
-    if (!f) return NULL;
-    if (fseek(f, 0, SEEK_END) == 0 && (n = ftell(f)) >= 0 && fseek(f, 0, SEEK_SET) == 0) {
-        text = malloc((size_t)n + 1);
-        if (text && fread(text, 1, (size_t)n, f) == (size_t)n) {
-            text[n] = '\0';
-            *size = (size_t)n;
-        } else {
-            free(text);
-            text = NULL;
-        }
-    }
-    fclose(f);
-    return text;
-}
-
 /* Lens table text edits (malloc'd results, NULL when out of memory). Lines are found
  * with memchr: strchr over a table of megabytes per line is quadratic under ASan's
  * strict_string_checks. */

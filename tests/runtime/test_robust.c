@@ -28,27 +28,6 @@
 #include <string.h>
 #include <sys/stat.h>
 
-static char *read_text(const char *path, size_t *size)
-{
-    FILE *f = fopen(path, "rb");
-    char *text = NULL;
-    long n;
-    *size = 0;
-    if (!f) return NULL;
-    if (fseek(f, 0, SEEK_END) == 0 && (n = ftell(f)) >= 0 && fseek(f, 0, SEEK_SET) == 0) {
-        text = malloc((size_t)n + 1);
-        if (text && fread(text, 1, (size_t)n, f) == (size_t)n) {
-            text[n] = '\0';
-            *size = (size_t)n;
-        } else {
-            free(text);
-            text = NULL;
-        }
-    }
-    fclose(f);
-    return text;
-}
-
 /* A copy of text with the first `old` on line `line` (1-based) replaced by `new_text`
  * (malloc'd; NULL when the line does not hold `old`). */
 static char *edit_line(const char *text, size_t size, int line, const char *old, const char *new_text, size_t *out_size)
