@@ -1,7 +1,7 @@
 """The ``lensfit`` command line.
 
     lensfit list                         lenses in lensdb with their paraxial focal length
-    lensfit info LENS [--json]           paraxial table
+    lensfit info LENS [--json]           paraxial table (--wavelength NM: not the d line)
     lensfit draw LENS -o FILE.png        cross-section with ray fans
     lensfit import FILE.json [-o DIR]    convert a lentil-format JSON lens table to TOML
     lensfit check [LENS ...]             validate prescriptions and their EFL
@@ -22,6 +22,8 @@ import math
 import os
 import sys
 from pathlib import Path
+
+import numpy as np
 
 from lensfit.errors import InputError, LensError
 from lensfit.glass import UnknownGlassError
@@ -73,21 +75,37 @@ def _fmt(v: float | None, unit: str = "", digits: int = 4) -> str:
     return f"{v:.{digits}f}{(' ' + unit) if unit else ''}"
 
 
-def cmd_info(args: argparse.Namespace) -> int:
-    from lensfit.paraxial import stop_radius_for_f_number, table
-    from lensfit.prescription import load_lens
+# The field-sign convention, printed by `lensfit info` (README.md: Conventions)
+CONVENTION_NOTE = "z is measured from the vertex of surface 0; light travels towards +z"
 
-    lens = load_lens(args.lens)
-    stop = None
-    if args.f_number is not None:
-        try:
-            stop = stop_radius_for_f_number(lens, args.f_number)
-        except ValueError as e:
-            raise LensError(str(e), file=lens.source_file, key="--f-number") from None
-    t = table(lens, stop_radius_mm=stop)
-    if args.json:
-        print(json.dumps(t, indent=2))
-        return 0
+
+def _info_wavelengths(texts: list[str] | None, lens) -> list[float]:
+    """``--wavelength NM`` (repeatable, or a comma list) checked against the lens's
+    glasses before any work; none given: the d line."""
+    from lensfit.paraxial import D_LINE_NM
+    from lensfit.trace.tracer import _check_wavelengths
+
+    if not texts:
+        return [D_LINE_NM]
+    out = []
+    for text in texts:
+        for part in text.split(","):
+            try:
+                lam = float(part)
+            except ValueError:
+                lam = math.nan
+            if not (math.isfinite(lam) and lam > 0):
+                raise InputError(f"--wavelength {text!r}: expected positive finite "
+                                 f"wavelengths in nm, found {part.strip()!r}")
+            try:  # the glasses' published ranges, as the tracer refuses them
+                _check_wavelengths(lens, np.array([lam]))
+            except ValueError as e:
+                raise InputError(f"--wavelength {lam:g}: {e}") from None
+            out.append(lam)
+    return out
+
+
+def _info_rows(t: dict) -> list[tuple[str, str]]:
     ep, xp = t["entrance_pupil"], t["exit_pupil"]
     rows = [
         ("surfaces", f"{t['surfaces']} (stop at surface {t['stop_index']})"),
@@ -112,10 +130,32 @@ def cmd_info(args: argparse.Namespace) -> int:
         ("total track", f"{_fmt(t['total_track_mm'], 'mm')} (first vertex to sensor)"),
         ("sensor defocus", f"{_fmt(t['sensor_defocus_mm'], 'mm')} (sensor minus paraxial focus)"),
     ]
+    return rows
+
+
+def cmd_info(args: argparse.Namespace) -> int:
+    from lensfit.paraxial import stop_radius_for_f_number, table
+    from lensfit.prescription import load_lens
+
+    lens = load_lens(args.lens)
+    wavelengths = _info_wavelengths(args.wavelength, lens)
+    stop = None
+    if args.f_number is not None:  # the stop of f/N at the d line, at every wavelength
+        try:
+            stop = stop_radius_for_f_number(lens, args.f_number)
+        except ValueError as e:
+            raise LensError(str(e), file=lens.source_file, key="--f-number") from None
+    tables = [table(lens, stop_radius_mm=stop, wavelength_nm=lam) for lam in wavelengths]
+    if args.json:  # one object, or a list of them for several wavelengths
+        print(json.dumps(tables[0] if len(tables) == 1 else tables, indent=2))
+        return 0
     print(f"{lens.name}  ({lens.source_file})")
-    print("  z is measured from the vertex of surface 0; light travels towards +z")
-    for label, value in rows:
-        print(f"  {label:20s}{value}")
+    print(f"  {CONVENTION_NOTE}")
+    for i, t in enumerate(tables):
+        if i:
+            print()
+        for label, value in _info_rows(t):
+            print(f"  {label:20s}{value}")
     return 0
 
 
@@ -371,6 +411,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("lens")
     p.add_argument("--json", action="store_true", help="print a JSON object")
     p.add_argument("--f-number", type=float, help="stop the lens down to this f-number")
+    p.add_argument("--wavelength", action="append", metavar="NM",
+                   help="first-order facts at this wavelength in nm instead of the d line "
+                        "(repeatable or a comma list; the stop of --f-number stays that of "
+                        "the d line)")
     p.set_defaults(func=cmd_info)
 
     p = sub.add_parser("draw", help="draw the cross-section with ray fans")

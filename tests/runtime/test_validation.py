@@ -769,6 +769,20 @@ def test_bad_input_raises_with_parameter_named(rt, tmp_path):
         # Wider than the fit (f/2): named by f-number and the lens's limit
         fails(r"aperture: f/1\.4.*wider.*f/2", OUT_OF_DOMAIN, lens=fitted, f_number=1.4,
               **fitted_base)
+        # Issue 15, item 5: within 1e-6 (relative) of the fitted f/2 is the fitted stop
+        # (f/1.9999988 is 6e-7 wider); 3e-6 wider is refused, the two f-numbers printed
+        # with digits that tell them apart
+        n_min, r_max = info_["f_number_min"], info_["stop_radius_max_mm"]
+        near = rt.create(fitted, width=8, height=8, f_number=n_min * (1 - 6e-7),
+                         wavelengths=[WL_NM], **fitted_base)
+        near.run(256)
+        assert near.stats().stop_radius_mm == r_max  # clamped, not extrapolated
+        with pytest.raises(LensrtError, match="wider") as refused:
+            rt.create(fitted, width=8, height=8, f_number=n_min * (1 - 3e-6),
+                      wavelengths=[WL_NM], **fitted_base)
+        shown = re.findall(r"f/([0-9.]+)", str(refused.value))
+        assert len(shown) >= 2 and shown[0] != shown[-1], str(refused.value)
+        assert float(shown[0]) == pytest.approx(n_min * (1 - 3e-6), rel=1e-8)
         fails(r"wavelength 0: 300 nm.*outside the fitted range", OUT_OF_DOMAIN, lens=fitted,
               wavelengths=[300.0], **fitted_base)
         fails(r"light 0.*behind the lens", OUT_OF_DOMAIN, lens=fitted, lights=[(95.0, 0.0)],

@@ -116,6 +116,27 @@ def test_stop_radius_and_f_number_are_inverse():
         stop_radius_for_f_number(lens, float("nan"))
 
 
+def test_f_number_within_relative_tolerance_of_the_widest_is_the_widest():
+    """Issue 15, item 5: an f-number 1e-6 (relative) short of the widest stop's is that
+    stop; beyond the tolerance it is refused with digits that tell the two apart."""
+    from lensfit.paraxial.paraxial import F_NUMBER_REL_TOL
+
+    lens = load_lens("0001")
+    widest = lens.stop_radius_max_mm
+    n_widest = f_number_for_stop_radius(lens, widest)
+    # Inside: 0.5 of the tolerance wider (a typed f/1.1399994 for f/1.14) -> the widest
+    inside = n_widest / (1 + 0.5 * F_NUMBER_REL_TOL)
+    assert stop_radius_for_f_number(lens, inside) == widest
+    # Outside: 3 times the tolerance; both f-numbers printed, and they differ
+    outside = n_widest / (1 + 3 * F_NUMBER_REL_TOL)
+    with pytest.raises(ValueError, match="wider than") as info:
+        stop_radius_for_f_number(lens, outside)
+    msg = str(info.value)
+    shown = [msg.split()[0], msg.split()[-4]]  # "f/REQUESTED is wider ... which is f/WIDEST (...)"
+    assert shown[1].startswith("f/") and shown[0] != shown[1], msg
+    assert float(shown[0][2:]) == pytest.approx(outside, rel=1e-9)
+
+
 @pytest.mark.parametrize("lens_id", ["0001", "0004", "0014", "2004"])
 def test_paraxial_efl_agrees_with_small_real_rays(lens_id):
     """An independent route: the slope of a real ray at 1e-3 mm height behind the lens
