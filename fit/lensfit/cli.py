@@ -3,7 +3,9 @@
     lensfit list                         lenses in lensdb with their paraxial focal length
     lensfit info LENS [--json]           paraxial table (--wavelength NM: not the d line)
     lensfit draw LENS -o FILE.png        cross-section with ray fans
-    lensfit import FILE.json [-o DIR]    convert a lentil-format JSON lens table to TOML
+    lensfit import FILE [-o OUT]         convert a Zemax .zmx, an Optiland JSON or a lentil
+                                         JSON lens table to lensfit's TOML
+    lensfit export LENS -o OUT.zmx       write a lens as a Zemax .zmx file
     lensfit check [LENS ...]             validate prescriptions and their EFL
     lensfit fit LENS                     fit P_o and P_s, write generated/<lens>/ and a report
     lensfit regenerate LENS              rewrite generated/<lens>/ from its fit.json (no fit)
@@ -175,10 +177,17 @@ def cmd_draw(args: argparse.Namespace) -> int:
 
 
 def cmd_import(args: argparse.Namespace) -> int:
+    from lensfit.interchange import file_kind
     from lensfit.prescription import lens_from_dict
     from lensfit.prescription.lentil import convert_entry, load_lentil_json, slug, to_toml
 
-    outdir = _check_folder(args.output, "-o")
+    kind = file_kind(args.json_file)
+    if kind in ("zmx", "optiland"):
+        return _import_lens_file(args, kind)
+    if kind == "unknown":
+        raise InputError(f"{args.json_file}: expected a Zemax .zmx file or a .json file "
+                         "(Optiland or lentil)")
+    outdir = _check_folder(args.output or "lensdb", "-o")
     data = load_lentil_json(args.json_file)
     ids = args.id or sorted(data)
     outdir.mkdir(parents=True, exist_ok=True)
@@ -192,6 +201,55 @@ def cmd_import(args: argparse.Namespace) -> int:
         tmp.write_text(to_toml(conv), encoding="utf-8")
         tmp.replace(path)
         print(f"wrote {path}")
+    return 0
+
+
+def _import_lens_file(args: argparse.Namespace, kind: str) -> int:
+    """lensfit import of a .zmx or Optiland file: every problem on its own line (exit 2,
+    nothing written), the notes on what was not mapped on stderr, the TOML atomically."""
+    from lensfit.interchange import ImportProblems, read_optiland, read_zmx, write_atomic
+    from lensfit.prescription.lentil import to_toml
+
+    src = Path(args.json_file)
+    if args.id and len(args.id) > 1:
+        raise InputError(f"--id: one id for a {kind} file, found {len(args.id)}")
+    out = Path(args.output) if args.output else Path(src.stem + ".toml")
+    if out.is_dir():
+        out = out / (src.stem + ".toml")
+    out = _check_file(out, "-o")
+    if out.suffix != ".toml":
+        raise InputError(f"-o {out}: expected a .toml file or a folder")
+    lens_id = args.id[0] if args.id else src.stem
+    try:
+        result = (read_zmx if kind == "zmx" else read_optiland)(src, lens_id=lens_id)
+    except ImportProblems as e:
+        for line in e.problems:
+            print(f"lensfit: error: {line}", file=sys.stderr)
+        print(f"lensfit: error: {len(e.problems)} problem(s); nothing written", file=sys.stderr)
+        return 2
+    for line in result.notes:
+        print(f"lensfit: note: {line}", file=sys.stderr)
+    write_atomic(out, to_toml(result.data))
+    print(f"wrote {out}")
+    return 0
+
+
+def cmd_export(args: argparse.Namespace) -> int:
+    from lensfit.interchange import write_atomic, write_zmx
+    from lensfit.prescription import load_lens
+
+    out = _check_file(args.output, "-o")
+    if out.suffix.lower() != ".zmx":
+        raise InputError(f"-o {out}: expected a .zmx file")
+    lens = load_lens(args.lens)
+    try:
+        text, notes = write_zmx(lens)
+    except ValueError as e:
+        raise LensError(f"cannot export: {e}", file=lens.source_file) from None
+    for line in notes:
+        print(f"lensfit: note: {lens.source_file}: {line}", file=sys.stderr)
+    write_atomic(out, text)
+    print(f"wrote {out}")
     return 0
 
 
@@ -425,11 +483,20 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--f-number", type=float, default=None, help="stop down to this f-number")
     p.set_defaults(func=cmd_draw)
 
-    p = sub.add_parser("import", help="convert a lentil-format lens JSON to lensdb TOML")
-    p.add_argument("json_file")
-    p.add_argument("--id", action="append", help="entry id to convert (repeatable; default all)")
-    p.add_argument("-o", "--output", default="lensdb", help="output folder")
+    p = sub.add_parser("import", help="convert a Zemax .zmx, Optiland JSON or lentil JSON "
+                       "lens to lensfit TOML")
+    p.add_argument("json_file", metavar="FILE")
+    p.add_argument("--id", action="append", help="lentil: entry id to convert (repeatable; "
+                   "default all); .zmx/Optiland: the lens id (default: the file stem)")
+    p.add_argument("-o", "--output", default=None, help="lentil: output folder (default "
+                   "lensdb); .zmx/Optiland: the .toml file or a folder (default "
+                   "./FILE-stem.toml)")
     p.set_defaults(func=cmd_import)
+
+    p = sub.add_parser("export", help="write a lens as a Zemax .zmx file")
+    p.add_argument("lens")
+    p.add_argument("-o", "--output", required=True, help=".zmx file to write")
+    p.set_defaults(func=cmd_export)
 
     p = sub.add_parser("list", help="list the lenses in lensdb")
     p.set_defaults(func=cmd_list)

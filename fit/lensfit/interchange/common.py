@@ -1,0 +1,275 @@
+"""What the importers share: the result and error types, glass look-up, the lens table
+they fill in, and the atomic write of an output file."""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from lensfit.errors import InputError, LensError
+from lensfit.glass import AIR, UnknownGlassError, abbe_glass, catalog_glass
+
+# The manufacturer qualifiers lensfit.glass knows (see /lensdb/glass/README.md); before
+# the manufacturer catalogs land only the project catalog exists and this stays empty.
+try:  # pragma: no cover - depends on which glass API is installed
+    from lensfit.glass import MANUFACTURERS as _MAKERS
+    from lensfit.glass import resolve_glass as _resolve_glass
+except ImportError:  # pragma: no cover
+    _MAKERS = ()
+    _resolve_glass = None
+
+MANUFACTURERS: tuple[str, ...] = tuple(m.upper() for m in _MAKERS)
+
+
+class ImportProblems(InputError):
+    """An input that cannot be imported: one line per problem (each naming the file and
+    the line number or JSON path). The command line prints every line, exits with 2 and
+    writes nothing."""
+
+    def __init__(self, problems: list[str]) -> None:
+        self.problems = list(problems)
+        super().__init__("\n".join(self.problems))
+
+
+@dataclass
+class ImportResult:
+    """A lens in the TOML layout (``data``, validated) and what was not mapped
+    (``notes``: one line each, printed on stderr while the lens is written)."""
+
+    data: dict[str, Any]
+    notes: list[str] = field(default_factory=list)
+
+
+class Notes:
+    """Informational "not mapped" items, grouped by keyword and reason so that 24
+    wavelength lines make one line naming the first of them and the count."""
+
+    def __init__(self, label: str, sep: str = ":") -> None:
+        self.label = label
+        self.sep = sep  # ":" before a line number, ": " before a JSON path
+        self._items: dict[tuple[str, str], list[str]] = {}
+
+    def add(self, where: str, what: str, reason: str) -> None:
+        self._items.setdefault((what, reason), []).append(where)
+
+    def lines(self) -> list[str]:
+        out = []
+        for (what, reason), wheres in self._items.items():
+            more = f" (and {len(wheres) - 1} more)" if len(wheres) > 1 else ""
+            head = f"{self.label}{self.sep}{wheres[0]}"
+            out.append(f"{head}{more}: {reason}" if what == wheres[0]
+                       else f"{head}: {what}{more}: {reason}")
+        return out
+
+
+def finite(value: float) -> bool:
+    return isinstance(value, float) and math.isfinite(value)
+
+
+def resolve_glass(name: str, makers: list[str]) -> dict[str, Any]:
+    """The ``material`` keys of a glass named in an imported file, qualified by the
+    file's catalogs ``makers`` (Zemax GCAT, Optiland's reference), in order.
+
+    The project catalog (lensdb/glass/catalog.toml) comes first when it has the name
+    from one of ``makers`` (or when the file names no maker), so that a lens exported
+    from lensdb comes back with the same glass; then each maker's catalog in the file's
+    order (as OpticStudio searches GCAT); then the name unqualified. Raises
+    UnknownGlassError (AmbiguousGlassError is a subclass) when none resolves."""
+    wanted = [m.upper() for m in makers]
+    try:
+        g = catalog_glass(name)
+    except UnknownGlassError:
+        g = None
+    if g is not None and (not wanted or str(getattr(g, "maker", "")).upper() in wanted):
+        return {"material": g.name}
+    if _resolve_glass is not None:
+        for m in wanted:
+            if m in MANUFACTURERS:
+                try:
+                    medium = _resolve_glass(name, m)
+                except UnknownGlassError:
+                    continue
+                return {"material": str(getattr(medium, "reference", f"{m}:{name}"))}
+        medium = _resolve_glass(name)
+        return {"material": str(getattr(medium, "reference", medium.name))}
+    if g is not None:
+        return {"material": g.name}
+    raise UnknownGlassError(name, [])
+
+
+def glass_message(e: UnknownGlassError) -> str:
+    """An UnknownGlassError as a short phrase (its list of known glasses left out)."""
+    text = str(e)
+    if "; known glasses:" in text:
+        text = text.split("; known glasses:")[0]
+    return text.strip('"')
+
+
+def lens_table(*, lens_id: str, name: str, source: str, notes: list[str]) -> dict[str, Any]:
+    """The ``[lens]`` table of an imported file (maker and year are not in the formats:
+    "unknown" and 0)."""
+    info: dict[str, Any] = {"id": lens_id, "name": name or lens_id, "maker": "unknown",
+                            "year": 0, "source": source}
+    if notes:
+        info["notes"] = " ".join(n if n.endswith(".") else n + "." for n in notes)
+    return info
+
+
+def validate(data: dict[str, Any], label: str, where_surface: list[str]) -> None:
+    """Load the converted table as lensfit would (lens_from_dict) and turn a refusal into
+    an ImportProblems line that names the source line (or JSON path) of the surface."""
+    import numpy as np
+
+    from lensfit.prescription import lens_from_dict
+
+    try:
+        # Lengths near the float limit (1e308) overflow in the loader's sag checks; the
+        # overflow is an inf there, which the loader refuses, not a warning
+        with np.errstate(over="ignore", invalid="ignore"):
+            lens_from_dict(data, file=label)
+    except LensError as e:
+        where = ""
+        if e.surface is not None and 0 <= e.surface < len(where_surface):
+            where = where_surface[e.surface] + ": "
+        key = f"key '{e.key}': " if e.key else ""
+        raise ImportProblems([f"{label}:{where}{key}{e.detail} (lensfit's loader refuses "
+                              "the converted lens; nothing written)"]) from None
+
+
+def write_atomic(path: Path, text: str) -> None:
+    """Write ``text`` to ``path`` through a temporary file in the same folder and a
+    rename (lensfit.generate.write_folder): a reader never sees half a file."""
+    from lensfit.generate import write_folder
+
+    write_folder(path.absolute().parent, {path.name: text})
+
+
+D_LINE_NM = 587.5618
+
+
+def _medium(d: dict[str, Any]):
+    if "nd" in d:
+        return abbe_glass(float(d["nd"]), float(d["vd"]))
+    name = d.get("material", "air")
+    if name == "air":
+        return AIR
+    try:
+        return catalog_glass(name)
+    except UnknownGlassError:
+        if _resolve_glass is None:
+            raise
+        return _resolve_glass(name)
+
+
+def paraxial_semi_diameters(out: list[dict[str, Any]], missing: list[int], where: list[str],
+                            ap_type: str | None, ap_value: float | None, *,
+                            object_distance: float, half_field_deg: float,
+                            bad: Callable[[str, str], None],
+                            note: Callable[[str, float], None]) -> None:
+    """Fill in the semi-diameters a file does not give (``out[k]`` for k in ``missing``):
+    |y_marginal| + |y_chief| of a paraxial y-nu trace at the d line, rounded to 6
+    significant digits. The marginal ray comes from the system aperture ``ap_type``
+    (EPD: its diameter; imageFNO: EFL/F; float_by_stop_size: the stop's diameter) and
+    the axial object point (``object_distance`` in front of the first vertex, inf for
+    parallel light); the chief ray from the largest field angle through the entrance
+    pupil's centre. Both meridians are traced (a cylinder has power in one) and the
+    larger height taken. ``bad(where, message)`` reports a problem, ``note(where,
+    semi_diameter)`` each value filled in."""
+    if ap_type not in ("EPD", "imageFNO", "float_by_stop_size") or not ap_value or \
+            ap_value <= 0:
+        bad("", f"no semi-diameter on {', '.join(where[i] for i in missing)}, and the "
+            f"system aperture ({ap_type or 'none'}) does not give the paraxial marginal "
+            "ray to estimate them")
+        return
+    try:
+        media = [_medium(d) for d in out]
+    except (UnknownGlassError, ValueError) as e:
+        bad("", f"no semi-diameters, and no paraxial trace to estimate them: {e}")
+        return
+    n = [1.0] + [float(m.n(D_LINE_NM)) for m in media]
+    stop = next(i for i, d in enumerate(out) if d.get("stop"))
+    d_obj = object_distance
+    heights = [0.0] * len(out)
+    for meridian in ("y", "x"):
+        curv = []
+        for d in out:
+            shape = d["shape"]
+            power_here = (shape in ("sphere", "asphere")
+                          or (shape == "cylinder-x" and meridian == "y")
+                          or (shape == "cylinder-y" and meridian == "x"))
+            curv.append(1.0 / d["radius"] if power_here else 0.0)
+
+        def trace(y0: float, u0: float, curv=curv) -> list[float]:
+            """Heights at each vertex of a ray with height y0 and slope u0 at vertex 0."""
+            ys, y, nu = [], y0, u0
+            for k, d in enumerate(out):
+                ys.append(y)
+                nu = nu - y * curv[k] * (n[k + 1] - n[k])
+                y = y + d["thickness"] * nu / n[k + 1]
+            return ys
+
+        a = trace(1.0, 0.0)   # unit height, parallel
+        b = trace(0.0, 1.0)   # through vertex 0, unit slope
+        ha, hb = a[stop], b[stop]
+        if ha == 0.0:
+            bad("", "no semi-diameters, and the paraxial trace to estimate them failed "
+                "(the stop is imaged to infinity)")
+            return
+        z_ep = hb / ha  # entrance pupil position (the chief ray crosses the axis there)
+        # Marginal ray
+        if ap_type == "float_by_stop_size":
+            r_stop = ap_value / 2.0
+            if math.isinf(d_obj):
+                mr = [r_stop / ha * v for v in a]
+            else:  # from the axial object point (height 0 at z = -d_obj)
+                ray = [d_obj * u + w for u, w in zip(a, b, strict=True)]
+                if ray[stop] == 0.0:
+                    bad("", "no semi-diameters, and the object is imaged onto the stop")
+                    return
+                mr = [r_stop / ray[stop] * v for v in ray]
+        else:
+            epd = ap_value
+            if ap_type == "imageFNO":
+                # f-number = EFL / EPD with the EFL from the parallel ray's last slope
+                y, nu = 1.0, 0.0
+                for k, d in enumerate(out):
+                    nu = nu - y * curv[k] * (n[k + 1] - n[k])
+                    y = y + d["thickness"] * nu / n[k + 1]
+                if nu == 0.0:
+                    bad("", "no semi-diameters, and an image F/# on an afocal lens")
+                    return
+                epd = abs(-1.0 / nu) / ap_value
+            if math.isinf(d_obj):
+                mr = [epd / 2.0 * v for v in a]
+            else:
+                if z_ep + d_obj == 0.0:
+                    bad("", "no semi-diameters, and the entrance pupil is on the object")
+                    return
+                u = epd / 2.0 / (z_ep + d_obj)
+                mr = [u * (d_obj * av + bv) for av, bv in zip(a, b, strict=True)]
+        # Chief ray at the largest field angle, through the entrance pupil's centre
+        t = math.tan(math.radians(half_field_deg))
+        cr = [t * (bv - z_ep * av) for av, bv in zip(a, b, strict=True)]
+        for k in range(len(out)):
+            heights[k] = max(heights[k], abs(mr[k]) + abs(cr[k]))
+    for k in missing:
+        h = heights[k]
+        if not (math.isfinite(h) and h > 0):
+            bad(where[k], f"no semi-diameter, and a paraxial estimate of {h:g}: give "
+                "one")
+            continue
+        sd = float(f"{h:.6g}")
+        keys = list(out[k])
+        # keep the layout's key order: semi_diameter after the medium
+        ordered = {kk: out[k][kk] for kk in keys if kk != "semi_diameter"}
+        pos = [kk for kk in ("shape", "radius", "thickness", "material", "nd", "vd")
+               if kk in ordered]
+        res = {kk: ordered[kk] for kk in pos}
+        res["semi_diameter"] = sd
+        res.update({kk: v for kk, v in ordered.items() if kk not in res})
+        out[k].clear()
+        out[k].update(res)
+        note(where[k], sd)

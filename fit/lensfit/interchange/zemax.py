@@ -1,0 +1,896 @@
+"""Zemax OpticStudio sequential lens files (.zmx): import to lensfit's TOML, export from it.
+
+The .zmx file is line-oriented text, UTF-16 LE with a byte-order mark (OpticStudio) or
+plain ASCII/UTF-8 (older versions, other programs); both are read. Each line is a
+keyword and its values; a ``SURF n`` line opens surface n (0 is the object, the last
+is the image) and the indented lines after it describe that surface. Keyword meanings
+follow the OpticStudio manual (surface types, parameter columns) and the files it
+writes.
+
+Mapped (each value kept exactly as written; lengths in lens units, see UNIT):
+
+* ``SURF n`` (consecutive from 0), ``TYPE`` STANDARD, EVENASPH, TOROIDAL;
+  ``CURV c`` (1/length): ``radius = 1/c`` (``radius_for``), c = 0 is a ``plane``;
+  ``CONI k``: a non-zero conic makes a STANDARD surface an ``asphere``; ``DISZ``
+  (thickness; ``INFINITY`` only on the object); ``STOP``; ``DIAM`` (the
+  semi-diameter, despite its name);
+  ``CLAP 0 r`` / ``FLAP 0 r`` (a circular hard aperture: ``semi_diameter = r``, which
+  is lensfit's meaning of a semi-diameter: rays beyond it are blocked). A surface
+  without DIAM (or with DIAM 0: not computed) gets the paraxial estimate
+  |y_marginal| + |y_chief| from FLOA/ENPD/FNUM and the largest angle field, with a note
+  (``common.paraxial_semi_diameters``); without an aperture setting that is an error.
+* EVENASPH: ``PARM 1..8`` are alpha_1..alpha_8 on r^2..r^16. lensfit's asphere has no
+  r^2 term, so PARM 1 must be 0; PARM 2..8 become ``aspheric = [A4, ..., A16]``
+  (trailing zeros dropped), ``CONI`` the ``conic``.
+* TOROIDAL (a y-z curve rotated about an axis parallel to y at the radius of rotation
+  ``PARM 1``, 0 meaning infinite; PARM 2..8 polynomial terms on y^2..y^14; extra data
+  ``XDAT 1`` the number of Zernike terms). Only exact cylinders and spheres are mapped:
+  CURV c, PARM 1 = 0 -> ``cylinder-x`` (flat along x, power in y) of radius 1/c;
+  CURV 0, PARM 1 = R -> ``cylinder-y`` (power in x) of radius R; PARM 1 = 1/c -> a
+  ``sphere``; both zero -> ``plane``. A conic, a polynomial term or a Zernike term
+  is an error.
+* ``GLAS NAME ...``: a catalog glass, qualified by the ``GCAT`` catalogs in their
+  order (``lensfit.interchange.common.resolve_glass``); the nd/vd that follow a
+  catalog name are ignored (OpticStudio stores placeholders there).
+  ``GLAS ___BLANK 1 0 nd vd`` (a MODEL glass) -> ``nd``/``vd`` with lensfit's Abbe
+  model (lensdb/glass/README.md). ``MIRROR`` is an error (no mirrors in lensfit).
+* ``UNIT``: MM as is; CM, IN, METER are kept as written with ``[lens] scale`` = 10,
+  25.4, 1000 (lensfit multiplies every length and scales the aspheric terms by it at
+  load time: the exact conversion). Other units are an error.
+* ``NAME`` -> ``[lens] name``; ``NOTE`` -> ``[lens] notes``; ``FNUM F`` -> ``f_number``;
+  ``FTYP 0 ..`` (angles in degrees) with ``XFLN``/``YFLN`` (or ``XFLD``/``YFLD``) ->
+  ``field_of_view_deg``, twice the largest field angle from the axis,
+  atan(sqrt(tan^2 x + tan^2 y)); ``FLOA`` (aperture set by the stop size) is
+  lensfit's model: the stop surface's semi-diameter is the aperture.
+
+Errors (exit 2, nothing written, every problem listed, one line each naming the line
+number): an unsupported surface type (COORDBRK, ODDASPHE, BICONICX, PARAXIAL, ...); a
+mirror; non-sequential data (``MODE`` other than SEQ, ``NSOB``/``NSCT`` objects,
+TYPE NONSEQCO); an unknown glass or catalog; a term that lensfit cannot represent
+(see above); an aperture other than a centred circle (``SQAP``, ``ELAP``, ``OBSC``,
+``OBDC`` offsets, an annular ``CLAP``); a tilt or decenter (``SCBD``); a curved image
+surface; glass in front of the first surface; a malformed line (a bad number, a
+missing value, a truncated or misnumbered ``SURF``, a surface without ``DISZ``); an
+unknown keyword inside a surface (it may change the optics; one whose values are all
+zero is a note); a lens lensfit's loader refuses.
+
+Notes (printed on stderr, the lens is written): wavelengths (``WAVM``, ``WAVL``,
+``WWGT``, ``PWAV``), the object distance and object-surface curvature, the entrance
+pupil or NA (``ENPD``, ``OBNA``; lensfit's aperture is the stop size), field types
+other than angles, the image surface's size, comments (``COMM``), coatings (``COAT``:
+the lens is written uncoated, ``[coating] default = "none"``, as OpticStudio traces a
+surface without a coating), pickups and variable flags (``PZUP``, ``PPAR``, ``VPAR``:
+the values they resolved to are in the file), environment (``ENVD``), configurations
+(``MNUM``, ``MOFF``), unknown keywords outside surfaces.
+
+Ignored without a note: pure user-interface, drawing, analysis, tolerancing and
+optimiser settings (``IGNORED_TOP``, ``IGNORED_SURFACE``; a test keeps these lists and
+this docstring the same). At the top level: VERS PFIL GFAC RAIM PUSH SDMA ROPD PICB
+POLS GLRS GSTD NSCD COFN BLNK TOL OPDX LANG FWGN FWGT VANN VCXN VCYN VDXN VDYN ZVCX
+ZVCY ZVDX ZVDY ZVAN HYPR IWDP LUID OMMA TRAC EERA EFLY REAX REAY DBDT ACOS AUTH GLCB
+RCMF STUD WFNO DMFS EFFL SLAB MNCA MNEA MNCG MNEG MXCA MXCG RGLA TCMM PMAG TOTR POPS
+FIMP WWGN WAVN CONF TCED (vignetting factors and field weights aim the analysis rays,
+not the lens). In a surface: HIDE MIRR SLAB POPS MEMA OEMA FIMP SSID VDSZ TCED (hide
+flags, the drawing's mirror substrate, labels, physical-optics settings,
+mechanical semi-apertures of the drawing). ``NSCD`` is on the list: OpticStudio writes
+these non-sequential *ray-trace settings* into every sequential file; non-sequential
+*objects* (``NSOB``) are errors.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from lensfit.errors import regular_file_problem
+from lensfit.glass import UnknownGlassError
+from lensfit.interchange.common import (
+    ImportProblems,
+    ImportResult,
+    Notes,
+    glass_message,
+    lens_table,
+    paraxial_semi_diameters,
+    resolve_glass,
+    validate,
+)
+
+# Lens units: the factor to millimetres, written as [lens] scale (MM: none)
+UNITS = {"MM": None, "CM": 10.0, "IN": 25.4, "INCH": 25.4, "METER": 1000.0, "METR": 1000.0,
+         "M": 1000.0}
+
+# Top-level keywords that only set up the user interface, drawings, analyses, tolerancing
+# or the optimiser (and never the lens): ignored without a note.
+IGNORED_TOP = frozenset({
+    "VERS", "PFIL", "GFAC", "RAIM", "PUSH", "SDMA", "ROPD", "PICB", "POLS", "GLRS", "GSTD",
+    "NSCD", "COFN", "BLNK", "TOL", "OPDX", "LANG", "FWGN", "FWGT", "VANN", "VCXN", "VCYN",
+    "VDXN", "VDYN", "ZVCX", "ZVCY", "ZVDX", "ZVDY", "ZVAN", "HYPR", "IWDP", "LUID", "OMMA",
+    "TRAC", "EERA", "EFLY", "REAX", "REAY", "DBDT", "ACOS", "AUTH", "GLCB", "RCMF", "STUD",
+    "WFNO", "DMFS", "EFFL", "SLAB", "MNCA", "MNEA", "MNCG", "MNEG", "MXCA", "MXCG", "RGLA",
+    "TCMM", "PMAG", "TOTR", "POPS", "FIMP", "WWGN", "WAVN", "CONF", "TCED",
+})
+# Surface keywords of the same kind: hide flags, the drawing's mirror substrate and
+# label, physical-optics settings, mechanical (drawing) semi-apertures, import flags.
+IGNORED_SURFACE = frozenset({"HIDE", "MIRR", "SLAB", "POPS", "MEMA", "OEMA", "FIMP", "SSID",
+                             "VDSZ", "TCED"})
+
+NOTED_TOP = {
+    "WAVM": "wavelength not mapped (lensfit fits a wavelength range: lensfit fit "
+            "--wavelengths)",
+    "WAVL": "wavelengths not mapped (lensfit fits a wavelength range)",
+    "WWGT": "wavelength weights not mapped",
+    "PWAV": "primary wavelength not mapped (paraxial data are at the d line)",
+    "ENPD": "entrance pupil diameter not mapped (lensfit's aperture is the stop surface's "
+            "semi-diameter)",
+    "OBNA": "object-space NA not mapped (lensfit's aperture is the stop surface's "
+            "semi-diameter)",
+    "ENVD": "temperature and pressure not mapped (catalog indices at their reference)",
+    "MNUM": "configurations not mapped (the current configuration's values are used)",
+    "MOFF": "multi-configuration operand not mapped (the current configuration is used)",
+}
+NOTED_SURFACE = {
+    "COMM": "surface comment not mapped",
+    "COAT": "coating not mapped (the lens is written uncoated)",
+    "PZUP": "pickup not mapped (the value it resolved to is used)",
+    "PPAR": "parameter pickup not mapped (the value it resolved to is used)",
+    "VPAR": "variable flag not mapped (optimiser setting)",
+}
+ERROR_SURFACE = {
+    "SQAP": "rectangular aperture: unsupported (lensfit's apertures are centred circles)",
+    "ELAP": "elliptical aperture: unsupported (lensfit's apertures are centred circles)",
+    "OBSC": "obscuration: unsupported (lensfit's apertures are centred circles)",
+    "SCBD": "surface tilt or decenter: unsupported (lensfit's surfaces are centred)",
+}
+SURFACE_KEYWORDS = frozenset({"TYPE", "CURV", "CONI", "PARM", "XDAT", "DISZ", "GLAS",
+                              "DIAM", "STOP", "CLAP", "FLAP", "OBDC"})
+SUPPORTED_TYPES = ("STANDARD", "EVENASPH", "TOROIDAL")
+MODEL_GLASS = "___BLANK"
+
+
+@dataclass
+class _Surf:
+    """One SURF block as read: each value with the line it came from."""
+
+    number: int
+    line: int
+    values: dict[str, tuple[list[str], int]] = field(default_factory=dict)
+    parm: dict[int, tuple[float, int]] = field(default_factory=dict)
+    xdat: dict[int, tuple[float, int]] = field(default_factory=dict)
+
+    def where(self) -> str:
+        return f"{self.line}: SURF {self.number}"
+
+
+def decode(raw: bytes) -> str:
+    """The text of a .zmx file: UTF-16 (with its byte-order mark, as OpticStudio writes
+    it, or LE without one when every other byte is zero), else UTF-8, else Latin-1
+    (never fails: every byte is a Latin-1 character)."""
+    if raw[:2] in (b"\xff\xfe", b"\xfe\xff"):
+        try:
+            return raw.decode("utf-16")
+        except UnicodeDecodeError:
+            pass
+    elif len(raw) >= 4 and raw[1:4:2] == b"\0\0" and raw[0] and raw[2]:
+        try:
+            return raw.decode("utf-16-le")
+        except UnicodeDecodeError:
+            pass
+    if raw[:3] == b"\xef\xbb\xbf":
+        raw = raw[3:]
+    try:
+        return raw.decode("utf-8")
+    except UnicodeDecodeError:
+        return raw.decode("latin-1")
+
+
+def read_zmx(path: str | Path, *, lens_id: str | None = None) -> ImportResult:
+    """Read a .zmx file and convert it (see the module docstring); ImportProblems lists
+    everything that stops the import."""
+    p = Path(path)
+    label = str(path)
+    problem = regular_file_problem(p)
+    if problem:
+        raise ImportProblems([f"{label}: cannot read: {problem}"])
+    try:
+        raw = p.read_bytes()
+    except OSError as e:
+        raise ImportProblems([f"{label}: cannot read: {e.strerror or e}"]) from None
+    return parse_zmx(decode(raw), label=label, lens_id=lens_id or p.stem)
+
+
+def _number(tokens: list[str], i: int, lineno: int, problems: list[str], label: str,
+            *, allow_inf: bool = False, what: str | None = None) -> float | None:
+    """tokens[i] as a finite float, or None after listing the problem."""
+    kw = what or tokens[0]
+    if i >= len(tokens):
+        problems.append(f"{label}:{lineno}: {kw}: missing value {i}")
+        return None
+    t = tokens[i]
+    if allow_inf and t.upper() == "INFINITY":
+        return math.inf
+    try:
+        v = float(t)
+    except ValueError:
+        problems.append(f"{label}:{lineno}: {kw}: expected a number, found {t!r:.40}")
+        return None
+    if not math.isfinite(v):
+        problems.append(f"{label}:{lineno}: {kw}: expected a finite number, found {t!r:.40}")
+        return None
+    return v
+
+
+def _integer(tokens: list[str], i: int, lineno: int, problems: list[str], label: str
+             ) -> int | None:
+    v = _number(tokens, i, lineno, problems, label)
+    if v is None:
+        return None
+    if v != int(v) or abs(v) > 1e6:
+        problems.append(f"{label}:{lineno}: {tokens[0]}: expected an integer, found "
+                        f"{tokens[i]!r:.40}")
+        return None
+    return int(v)
+
+
+def parse_zmx(text: str, *, label: str = "<zmx>", lens_id: str = "import") -> ImportResult:
+    """Convert the text of a .zmx file to lensfit's TOML layout (validated by the loader).
+    Raises ImportProblems listing every problem, one per line."""
+    problems: list[str] = []
+    notes = Notes(label)
+    surfs: list[_Surf] = []
+    top: dict[str, tuple[list[str], int]] = {}
+    note_lines: list[str] = []
+    xfld: tuple[list[float], int] | None = None
+    yfld: tuple[list[float], int] | None = None
+    current: _Surf | None = None
+
+    for lineno, line in enumerate(text.splitlines(), start=1):
+        tokens = line.split()
+        if not tokens:
+            continue
+        kw = tokens[0]
+        indented = line[:1] in (" ", "\t")
+        if kw == "SURF":
+            n = _integer(tokens, 1, lineno, problems, label)
+            if n is not None and n != len(surfs):
+                problems.append(f"{label}:{lineno}: SURF {n}: expected SURF {len(surfs)} "
+                                "(surfaces are numbered in order from 0)")
+            # Read on as the next surface, so that one bad line makes one problem
+            current = _Surf(len(surfs), lineno)
+            surfs.append(current)
+            continue
+        if current is not None and (indented or kw in SURFACE_KEYWORDS):
+            _surface_line(current, kw, tokens, lineno, problems, notes, label)
+            continue
+        current = None
+        # Top level
+        if kw in IGNORED_TOP:
+            continue
+        if kw in NOTED_TOP:
+            notes.add(str(lineno), kw, NOTED_TOP[kw])
+            if kw == "ENPD":  # noted, and used to estimate missing semi-diameters
+                top.setdefault(kw, (tokens, lineno))
+            continue
+        if kw == "MODE":
+            if tokens[1:2] != ["SEQ"]:
+                problems.append(f"{label}:{lineno}: MODE {' '.join(tokens[1:2])}: "
+                                "non-sequential data: unsupported (only MODE SEQ is imported)")
+            continue
+        if kw in ("NSOB", "NSCT", "NSOA", "NSOD", "NSOO", "NSOP", "NSOQ", "NSOS", "NSOU",
+                  "NSOV", "NSOW"):
+            problems.append(f"{label}:{lineno}: {kw}: non-sequential object: unsupported "
+                            "(not imported)")
+            continue
+        if kw == "NOTE":
+            text_ = " ".join(tokens[2:] if len(tokens) > 2 and tokens[1].isdigit()
+                             else tokens[1:])
+            if text_:
+                note_lines.append(text_)
+            continue
+        if kw in ("XFLN", "XFLD", "YFLN", "YFLD"):
+            vals = [_number(tokens, i, lineno, problems, label) for i in range(1, len(tokens))]
+            if any(v is None for v in vals):
+                continue
+            if kw[0] == "X":
+                xfld = ([float(v) for v in vals if v is not None], lineno)
+            else:
+                yfld = ([float(v) for v in vals if v is not None], lineno)
+            continue
+        if kw in top:
+            problems.append(f"{label}:{lineno}: {kw}: given twice (first on line "
+                            f"{top[kw][1]})")
+            continue
+        if kw in ("NAME", "UNIT", "GCAT", "FTYP", "FNUM", "FLOA"):
+            top[kw] = (tokens, lineno)
+            continue
+        notes.add(str(lineno), kw, "unknown keyword not mapped")
+
+    scale = _unit(top, problems, label)
+    makers = top["GCAT"][0][1:] if "GCAT" in top else []
+    info_notes: list[str] = []
+    surfaces, where = _surfaces(surfs, makers, problems, notes, label, info_notes)
+    if not surfs:
+        problems.append(f"{label}: no SURF lines: not a sequential .zmx lens file")
+    if problems:
+        raise ImportProblems(_by_line(problems, label))
+
+    name = " ".join(top["NAME"][0][1:]) if "NAME" in top else ""
+    all_notes = [*note_lines, f"Imported by lensfit import from {Path(label).name}",
+                 *info_notes]
+    info = lens_table(lens_id=lens_id, name=name, source=f"Zemax file {Path(label).name}",
+                      notes=all_notes)
+    if scale is not None:
+        info["scale"] = scale
+    if "FNUM" in top:
+        tokens, lineno = top["FNUM"]
+        f = _number(tokens, 1, lineno, problems, label)
+        if f is not None and f > 0:
+            info["f_number"] = f
+    fov = _field_of_view(top, xfld, yfld, notes, problems, label)
+    if fov is not None:
+        info["field_of_view_deg"] = fov
+    if problems:
+        raise ImportProblems(_by_line(problems, label))
+    _estimate_semi_diameters(surfaces, where, surfs[0], top, fov, problems, notes, label)
+    if problems:
+        raise ImportProblems(_by_line(problems, label))
+    data = {
+        "schema_version": 1,
+        "lens": info,
+        "coating": {"default": "none", "design_wavelength_nm": 550.0},
+        "surface": surfaces,
+    }
+    validate(data, label, where)
+    return ImportResult(data, notes.lines())
+
+
+def _estimate_semi_diameters(surfaces: list[dict[str, Any]], where: list[str], obj: _Surf,
+                             top: dict[str, tuple[list[str], int]], fov: float | None,
+                             problems: list[str], notes: Notes, label: str) -> None:
+    """Surfaces without a DIAM (or with DIAM 0, not computed) get the paraxial estimate
+    |y_marginal| + |y_chief| from the aperture setting (FLOA: the stop's DIAM; ENPD;
+    FNUM) and the largest angle field, each with a note."""
+    missing = [k for k, d in enumerate(surfaces) if "semi_diameter" not in d]
+    if not missing:
+        return
+    ap_type, ap_value = None, None
+    stop = next((d for d in surfaces if d.get("stop")), {})
+    for kw, kind in (("FLOA", "float_by_stop_size"), ("ENPD", "EPD"), ("FNUM", "imageFNO")):
+        if kw not in top:
+            continue
+        if kw == "FLOA":
+            value = 2.0 * stop["semi_diameter"] if "semi_diameter" in stop else None
+        else:
+            tokens, lineno = top[kw]
+            value = _number(tokens, 1, lineno, problems, label)
+        ap_type, ap_value = kind, value
+        break
+    obj_d = _value(obj, "DISZ", [], label, default=math.inf, allow_inf=True)
+
+    def bad(w: str, msg: str) -> None:
+        problems.append(f"{label}:{w}: {msg}" if w else f"{label}: {msg}")
+
+    def note(w: str, sd: float) -> None:
+        notes.add(w.split(":")[0], w.split(": ", 1)[1] + " DIAM",
+                  f"no semi-diameter in the file: {sd:g} from the paraxial marginal and "
+                  "chief rays")
+
+    paraxial_semi_diameters(surfaces, missing, where, ap_type, ap_value,
+                            object_distance=math.inf if obj_d is None else obj_d,
+                            half_field_deg=(fov or 0.0) / 2.0, bad=bad, note=note)
+
+
+def _by_line(problems: list[str], label: str) -> list[str]:
+    """Problems in the order of their line numbers (file-wide ones first)."""
+    def key(p: str) -> int:
+        rest = p[len(label) + 1:]
+        num = rest.split(":", 1)[0]
+        return int(num) if num.isdigit() else 0
+    return sorted(problems, key=key)
+
+
+def _is_zero(token: str) -> bool:
+    try:
+        return float(token) == 0.0
+    except ValueError:
+        return token == '""'
+
+
+def _surface_line(s: _Surf, kw: str, tokens: list[str], lineno: int, problems: list[str],
+                  notes: Notes, label: str) -> None:
+    """File one line of a SURF block."""
+    where = f"{lineno}: SURF {s.number}"
+    if kw in IGNORED_SURFACE:
+        return
+    if kw in NOTED_SURFACE:
+        notes.add(str(lineno), kw, NOTED_SURFACE[kw])
+        return
+    if kw in ERROR_SURFACE:
+        problems.append(f"{label}:{where} {kw}: {ERROR_SURFACE[kw]} (not imported)")
+        return
+    if kw in ("PARM", "XDAT"):
+        i = _integer(tokens, 1, lineno, problems, label)
+        v = _number(tokens, 2, lineno, problems, label)
+        if i is None or v is None:
+            return
+        table = s.parm if kw == "PARM" else s.xdat
+        if i in table:
+            problems.append(f"{label}:{where} {kw} {i}: given twice (first on line "
+                            f"{table[i][1]})")
+            return
+        table[i] = (v, lineno)
+        return
+    if kw not in SURFACE_KEYWORDS:
+        if len(tokens) > 1 and all(_is_zero(t) for t in tokens[1:]):
+            # A setting whose values are all zero is off (MAZH 0 0 in OpticStudio files)
+            notes.add(str(lineno), f"SURF {s.number} {kw}", "unknown surface keyword with "
+                      "zero values not mapped")
+            return
+        problems.append(f"{label}:{where} {kw}: unknown surface keyword: it may change the "
+                        "optics (not imported)")
+        return
+    if kw in s.values:
+        problems.append(f"{label}:{where} {kw}: given twice (first on line "
+                        f"{s.values[kw][1]})")
+        return
+    s.values[kw] = (tokens, lineno)
+
+
+def _unit(top: dict[str, tuple[list[str], int]], problems: list[str], label: str
+          ) -> float | None:
+    if "UNIT" not in top:
+        return None
+    tokens, lineno = top["UNIT"]
+    unit = tokens[1].upper() if len(tokens) > 1 else ""
+    if unit not in UNITS:
+        problems.append(f"{label}:{lineno}: UNIT {unit or '(none)'}: unsupported lens unit "
+                        f"(known: {', '.join(UNITS)})")
+        return None
+    return UNITS[unit]
+
+
+def _surfaces(surfs: list[_Surf], makers: list[str], problems: list[str], notes: Notes,
+              label: str, info_notes: list[str]) -> tuple[list[dict[str, Any]], list[str]]:
+    """The lens surfaces (SURF 1 .. the one before the image) in the TOML layout, and for
+    each the place it came from ("41: SURF 5")."""
+    out: list[dict[str, Any]] = []
+    where: list[str] = []
+    if not surfs:
+        return out, where
+    if len(surfs) < 3:
+        problems.append(f"{label}:{surfs[-1].line}: SURF {surfs[-1].number}: a lens needs an "
+                        "object surface, at least one surface and an image surface (truncated "
+                        "file?)")
+        return out, where
+    for end in (surfs[0], surfs[-1]):  # OpticStudio writes DISZ on every surface
+        if "DISZ" not in end.values:
+            problems.append(f"{label}:{end.line}: SURF {end.number}: no DISZ line (a truncated "
+                            "file?)")
+    _object_surface(surfs[0], problems, notes, label)
+    _image_surface(surfs[-1], problems, notes, label)
+    stops = [s for s in surfs if "STOP" in s.values]
+    if not stops:
+        problems.append(f"{label}: no STOP line: the aperture stop is not marked")
+    for s in stops[1:]:
+        problems.append(f"{label}:{s.values['STOP'][1]}: SURF {s.number} STOP: a second stop "
+                        f"(the first is SURF {stops[0].number})")
+    for s in surfs[1:-1]:
+        d = _surface(s, makers, problems, notes, label, last=s is surfs[-2])
+        if d is not None:
+            out.append(d)
+            where.append(s.where())
+    return out, where
+
+
+def _value(s: _Surf, kw: str, problems: list[str], label: str, *, default: float | None = None,
+           allow_inf: bool = False) -> float | None:
+    if kw not in s.values:
+        return default
+    tokens, lineno = s.values[kw]
+    return _number(tokens, 1, lineno, problems, label, allow_inf=allow_inf,
+                   what=f"SURF {s.number} {kw}")
+
+
+def _object_surface(s: _Surf, problems: list[str], notes: Notes, label: str) -> None:
+    curv = _value(s, "CURV", problems, label, default=0.0)
+    disz = _value(s, "DISZ", problems, label, default=math.inf, allow_inf=True)
+    if curv:
+        notes.add(str(s.values["CURV"][1]), "SURF 0 CURV", "object surface curvature not "
+                  "mapped (the scene is set at fit time)")
+    if disz is not None and math.isfinite(disz):
+        notes.add(str(s.values["DISZ"][1]), "SURF 0 DISZ", f"object distance {disz:g} not "
+                  "mapped (lensfit's scene and focus are set at fit time)")
+    if "GLAS" in s.values:
+        name = s.values["GLAS"][0][1] if len(s.values["GLAS"][0]) > 1 else ""
+        problems.append(f"{label}:{s.values['GLAS'][1]}: SURF 0 GLAS {name}: object space in "
+                        "glass: unsupported (lensfit's object space is air)")
+    if "STOP" in s.values:
+        problems.append(f"{label}:{s.values['STOP'][1]}: SURF 0 STOP: the stop on the object "
+                        "surface: unsupported")
+    _check_type(s, problems, label, allowed=("STANDARD",))
+    for kw in ("DIAM", "CONI", "CLAP", "FLAP", "OBDC"):
+        tokens = s.values.get(kw, ([], 0))[0]
+        if kw in s.values and any(t not in ("0", "0.0", '""') for t in tokens[1:]):
+            notes.add(str(s.values[kw][1]), f"SURF 0 {kw}", "object surface setting not mapped")
+    for _, lineno in sorted(s.parm.values()):
+        notes.add(str(lineno), "SURF 0 PARM", "object surface setting not mapped")
+
+
+def _image_surface(s: _Surf, problems: list[str], notes: Notes, label: str) -> None:
+    n = s.number
+    curv = _value(s, "CURV", problems, label, default=0.0)
+    if curv:
+        problems.append(f"{label}:{s.values['CURV'][1]}: SURF {n} CURV: a curved image "
+                        "surface: unsupported (lensfit's sensor is a plane)")
+    coni = _value(s, "CONI", problems, label, default=0.0)
+    if coni and curv:
+        problems.append(f"{label}:{s.values['CONI'][1]}: SURF {n} CONI: a curved image "
+                        "surface: unsupported")
+    _check_type(s, problems, label, allowed=("STANDARD", "EVENASPH", "TOROIDAL"))
+    if "STOP" in s.values:
+        problems.append(f"{label}:{s.values['STOP'][1]}: SURF {n} STOP: the stop on the image "
+                        "surface: unsupported")
+    for kw, reason in (("DIAM", "image semi-diameter not mapped (lensfit fits a sensor disc: "
+                                "lensfit fit --image-circle)"),
+                       ("GLAS", "image surface glass not mapped (nothing follows)"),
+                       ("CLAP", "image aperture not mapped"),
+                       ("FLAP", "image aperture not mapped")):
+        if kw in s.values:
+            notes.add(str(s.values[kw][1]), f"SURF {n} {kw}", reason)
+    disz = _value(s, "DISZ", problems, label, default=0.0, allow_inf=True)
+    if disz:
+        notes.add(str(s.values["DISZ"][1]), f"SURF {n} DISZ", "image surface thickness not "
+                  "mapped (nothing follows)")
+    for v, lineno in sorted([*s.parm.values(), *s.xdat.values()]):
+        if v:
+            problems.append(f"{label}:{lineno}: SURF {n}: a shaped image surface: unsupported")
+
+
+def _check_type(s: _Surf, problems: list[str], label: str, allowed: tuple[str, ...]) -> str:
+    if "TYPE" not in s.values:
+        return "STANDARD"
+    tokens, lineno = s.values["TYPE"]
+    typ = tokens[1] if len(tokens) > 1 else ""
+    if typ not in allowed:
+        why = ("non-sequential component" if typ == "NONSEQCO"
+               else "unsupported surface type")
+        problems.append(f"{label}:{lineno}: SURF {s.number} TYPE {typ or '(none)'}: {why} "
+                        f"(not imported; supported: {', '.join(allowed)})")
+        return ""
+    return typ
+
+
+def _surface(s: _Surf, makers: list[str], problems: list[str], notes: Notes, label: str,
+             *, last: bool) -> dict[str, Any] | None:
+    """One lens surface in the TOML layout, or None after listing its problems."""
+    before = len(problems)
+    n = s.number
+    typ = _check_type(s, problems, label, SUPPORTED_TYPES)
+    if not typ:
+        return None  # an unsupported type: its other lines are not checked
+    curv = _value(s, "CURV", problems, label, default=0.0)
+    coni = _value(s, "CONI", problems, label, default=0.0)
+    disz = _value(s, "DISZ", problems, label, allow_inf=False)
+    if "DISZ" not in s.values:
+        problems.append(f"{label}:{s.line}: SURF {n}: no DISZ (thickness) line")
+    d: dict[str, Any] = {}
+
+    # Shape
+    if typ and curv is not None and coni is not None:
+        shape = _shape(s, typ, curv, coni, problems, label)
+        if shape is not None:
+            d.update(shape)
+    if disz is not None:
+        d["thickness"] = disz
+
+    # Medium behind the surface
+    if "GLAS" in s.values:
+        d.update(_glass(s, makers, problems, label))
+    else:
+        d["material"] = "air"
+
+    # Semi-diameter: a circular hard aperture if there is one, else DIAM
+    sd = _semi_diameter(s, problems, notes, label)
+    if sd is not None:
+        d["semi_diameter"] = sd
+    if "STOP" in s.values:
+        d["stop"] = True
+    if len(problems) > before or not d.get("shape"):
+        return None
+    # Keys in the order lensdb files use
+    order = ["shape", "radius", "thickness", "material", "nd", "vd", "glass_label",
+             "semi_diameter", "conic", "aspheric", "stop"]
+    return {k: d[k] for k in order if k in d}
+
+
+def _shape(s: _Surf, typ: str, curv: float, coni: float, problems: list[str], label: str
+           ) -> dict[str, Any] | None:
+    n = s.number
+    parm = {i: v for i, (v, _) in s.parm.items()}
+
+    def bad(i: int, why: str) -> None:
+        problems.append(f"{label}:{s.parm[i][1]}: SURF {n} {typ} PARM {i}: {why}")
+
+    radius = radius_for(curv) if curv else None
+    if typ == "STANDARD":
+        for i, (v, _) in sorted(s.parm.items()):
+            if v:
+                bad(i, "a parameter on a STANDARD surface: not mapped (not imported)")
+        if coni:
+            if radius is None:
+                # A plane with a conic is still a plane: the conic multiplies c = 0
+                return {"shape": "plane"}
+            return {"shape": "asphere", "radius": radius, "conic": coni, "aspheric": []}
+        return {"shape": "sphere", "radius": radius} if radius else {"shape": "plane"}
+    if typ == "EVENASPH":
+        for i in sorted(parm):
+            if not 1 <= i <= 8:
+                if parm[i]:
+                    bad(i, "not an even-asphere coefficient (PARM 1..8)")
+        if parm.get(1, 0.0):
+            bad(1, f"an r^2 coefficient {parm[1]:g}: lensfit's asphere has none (its terms "
+                   "start at r^4); not representable")
+        terms = [parm.get(i, 0.0) for i in range(2, 9)]
+        while terms and terms[-1] == 0.0:
+            terms.pop()
+        if radius is None and (coni or any(terms)):
+            if not any(terms):
+                return {"shape": "plane"}
+            problems.append(f"{label}:{s.line}: SURF {n} EVENASPH: a flat asphere (CURV 0 "
+                            "with aspheric terms): lensfit's asphere needs a radius; not "
+                            "representable")
+            return None
+        if radius is None:
+            return {"shape": "plane"}
+        return {"shape": "asphere", "radius": radius, "conic": coni, "aspheric": terms}
+    # TOROIDAL
+    for i in sorted(parm):
+        if i >= 2 and parm[i]:
+            bad(i, "a polynomial term on the toroid's y curve: not representable (lensfit's "
+                   "cylinders are circular)")
+    for i, (v, lineno) in sorted(s.xdat.items()):
+        if i == 1 and v:
+            problems.append(f"{label}:{lineno}: SURF {n} TOROIDAL XDAT 1: {v:g} Zernike terms: "
+                            "not representable")
+    rot = parm.get(1, 0.0)
+    if coni and radius is not None:
+        problems.append(f"{label}:{s.values['CONI'][1]}: SURF {n} TOROIDAL CONI: a conic "
+                        "y curve: not representable (lensfit's cylinders are circular)")
+        return None
+    if radius is not None and rot == 0.0:
+        return {"shape": "cylinder-x", "radius": radius}
+    if radius is None and rot != 0.0:
+        return {"shape": "cylinder-y", "radius": rot}
+    if radius is None:
+        return {"shape": "plane"}
+    if rot == radius:
+        return {"shape": "sphere", "radius": radius}
+    problems.append(f"{label}:{s.values['CURV'][1]}: SURF {n} TOROIDAL: a toroid with radius "
+                    f"{radius:g} in y and {rot:g} in x: not representable (lensfit has "
+                    "spheres and cylinders)")
+    return None
+
+
+def _glass(s: _Surf, makers: list[str], problems: list[str], label: str) -> dict[str, Any]:
+    tokens, lineno = s.values["GLAS"]
+    n = s.number
+    if len(tokens) < 2:
+        problems.append(f"{label}:{lineno}: SURF {n} GLAS: missing glass name")
+        return {}
+    name = tokens[1]
+    if name.upper() == "MIRROR":
+        problems.append(f"{label}:{lineno}: SURF {n} GLAS MIRROR: a mirror: unsupported "
+                        "(lensfit traces refracting lenses)")
+        return {}
+    if name == MODEL_GLASS:
+        nd = _number(tokens, 4, lineno, problems, label)
+        vd = _number(tokens, 5, lineno, problems, label)
+        if nd is None or vd is None:
+            return {}
+        if vd == 0.0:
+            problems.append(f"{label}:{lineno}: SURF {n} GLAS MODEL nd {nd:g} vd 0: a "
+                            "non-dispersive medium: not representable (lensfit's nd/vd "
+                            "glasses have 5 <= vd <= 150)")
+            return {}
+        return {"nd": nd, "vd": vd}
+    try:
+        return resolve_glass(name, makers)
+    except UnknownGlassError as e:
+        cats = f" (GCAT {' '.join(makers)})" if makers else ""
+        problems.append(f"{label}:{lineno}: SURF {n} GLAS {name}{cats}: {glass_message(e)} "
+                        "(not imported)")
+        return {}
+
+
+def _semi_diameter(s: _Surf, problems: list[str], notes: Notes, label: str) -> float | None:
+    n = s.number
+    hard = None
+    for kw in ("CLAP", "FLAP"):
+        if kw in s.values:
+            tokens, lineno = s.values[kw]
+            rmin = _number(tokens, 1, lineno, problems, label)
+            rmax = _number(tokens, 2, lineno, problems, label)
+            if rmin is None or rmax is None:
+                continue
+            if rmin != 0.0:
+                problems.append(f"{label}:{lineno}: SURF {n} {kw}: an annular aperture (inner "
+                                f"radius {rmin:g}): unsupported")
+                continue
+            if hard is not None and rmax != hard:
+                problems.append(f"{label}:{lineno}: SURF {n} {kw}: a second aperture of radius "
+                                f"{rmax:g} (the first is {hard:g})")
+                continue
+            hard = rmax
+    if "OBDC" in s.values:
+        tokens, lineno = s.values["OBDC"]
+        dx = _number(tokens, 1, lineno, problems, label)
+        dy = _number(tokens, 2, lineno, problems, label)
+        if dx or dy:
+            problems.append(f"{label}:{lineno}: SURF {n} OBDC: a decentered aperture: "
+                            "unsupported (lensfit's apertures are centred)")
+    diam = _value(s, "DIAM", problems, label)
+    if hard is not None:
+        if diam is not None and diam != hard:
+            notes.add(str(s.values["DIAM"][1]), f"SURF {n} DIAM",
+                      f"semi-diameter {diam:g} replaced by the hard aperture {hard:g}")
+        return hard
+    if diam is None or diam == 0.0:
+        return None  # none in the file (or not computed): estimated later, with a note
+    if diam < 0:
+        problems.append(f"{label}:{s.values['DIAM'][1]}: SURF {n} DIAM {diam:g}: expected a "
+                        "positive semi-diameter")
+        return None
+    return diam
+
+
+def _field_of_view(top: dict[str, tuple[list[str], int]], xfld, yfld, notes: Notes,
+                   problems: list[str], label: str) -> float | None:
+    """Twice the largest field angle (FTYP 0: angles in degrees), or None with a note."""
+    if yfld is None and xfld is None:
+        return None
+    ftype, count = 0, None
+    if "FTYP" in top:
+        tokens, lineno = top["FTYP"]
+        ftype = _integer(tokens, 1, lineno, problems, label)
+        if len(tokens) > 3:
+            count = _integer(tokens, 3, lineno, problems, label)
+        if ftype is None:
+            return None
+    line = (yfld or xfld)[1]  # type: ignore[index]
+    if ftype != 0:
+        kinds = {1: "object heights", 2: "paraxial image heights", 3: "real image heights",
+                 4: "theodolite angles"}
+        notes.add(str(line), "fields", f"{kinds.get(ftype, f'type {ftype}')} not mapped "
+                  "(lensfit's [lens] holds a field of view in degrees)")
+        return None
+    xs = xfld[0] if xfld else []
+    ys = yfld[0] if yfld else []
+    m = max(len(xs), len(ys))
+    if count is not None and count >= 0:
+        m = min(m, count)
+    xs = (xs + [0.0] * m)[:m]
+    ys = (ys + [0.0] * m)[:m]
+    if not m:
+        return None
+    if any(abs(v) >= 90.0 for v in xs + ys):
+        problems.append(f"{label}:{line}: fields: an angle of 90 degrees or more")
+        return None
+    worst = max(math.degrees(math.atan(math.hypot(math.tan(math.radians(x)),
+                                                  math.tan(math.radians(y)))))
+                for x, y in zip(xs, ys, strict=True))
+    return 2.0 * worst if worst > 0 else None
+
+
+# --- export --------------------------------------------------------------------------------
+
+def curvature_for(radius: float) -> float:
+    """A curvature c whose reciprocal is exactly ``radius`` in float64 when one exists
+    next to 1/radius (so that CURV -> 1/CURV gives the table's radius back bit for bit);
+    else 1/radius."""
+    c = 1.0 / radius
+    cands = [c]
+    lo = hi = c
+    for _ in range(4):
+        lo, hi = math.nextafter(lo, -math.inf), math.nextafter(hi, math.inf)
+        cands += [lo, hi]
+    for cand in cands:
+        if cand != 0.0 and 1.0 / cand == radius:
+            return cand
+    return c
+
+
+def radius_for(curv: float) -> float:
+    """The radius of a CURV value: 1/c, or among the floats within 4 ulp of it whose
+    curvature (``curvature_for``) is c, the one with the shortest decimal form. All of
+    them are 1/c to float64 rounding; the choice brings a typed radius (58.04, whose
+    reciprocal has no exact float inverse) back bit for bit from an exported file."""
+    r = 1.0 / curv
+    cands = [r]
+    lo = hi = r
+    for _ in range(4):
+        lo, hi = math.nextafter(lo, -math.inf), math.nextafter(hi, math.inf)
+        cands += [lo, hi]
+    same = [x for x in cands if curvature_for(x) == curv]
+    if not same:
+        return r
+    return min(same, key=lambda x: (len(repr(x)), abs(x - r)))
+
+
+def _num(v: float) -> str:
+    return repr(float(v))
+
+
+def write_zmx(lens: Any) -> tuple[str, list[str]]:
+    """The .zmx text (ASCII, sequential, lens units mm) of a loaded ``Lens``, and the
+    notes on what the format does not hold (coatings, glass labels, provenance). The
+    values are the loaded lens's own floats (scale applied), written with repr, so that
+    importing the file gives the same lens."""
+    from lensfit.glass import catalog_glass
+
+    notes: list[str] = []
+    makers: list[str] = []
+    coated: list[int] = []
+    info = lens.provenance
+    lines = ["MODE SEQ", f"NAME {lens.name}", "UNIT MM X W X CM MR CPMM", "FLOA"]
+    if "f_number" in info:
+        lines.append(f"FNUM {_num(info['f_number'])} 0")
+    if "field_of_view_deg" in info:
+        half = float(info["field_of_view_deg"]) / 2.0
+        lines += ["FTYP 0 0 2 1 0 0 0", "XFLN 0 0", f"YFLN 0 {_num(half)}"]
+    body = ["SURF 0", "  TYPE STANDARD", "  CURV 0.0", "  DISZ INFINITY"]
+    for i, s in enumerate(lens.surfaces):
+        body.append(f"SURF {i + 1}")
+        if s.stop:
+            body.append("  STOP")
+        if s.shape in ("sphere", "plane"):
+            c = _num(curvature_for(s.radius_mm)) if s.shape == "sphere" else "0.0"
+            body += ["  TYPE STANDARD", f"  CURV {c}"]
+        elif s.shape == "asphere":
+            if len(s.aspheric) > 7:
+                raise ValueError(f"surface {i}: {len(s.aspheric)} aspheric terms; EVENASPH "
+                                 "holds A4..A16 (7)")
+            body += ["  TYPE EVENASPH", f"  CURV {_num(curvature_for(s.radius_mm))}",
+                     f"  CONI {_num(s.conic)}", "  PARM 1 0"]
+            terms = list(s.aspheric) + [0.0] * (7 - len(s.aspheric))
+            body += [f"  PARM {j + 2} {_num(a)}" for j, a in enumerate(terms)]
+        elif s.shape == "cylinder-x":
+            body += ["  TYPE TOROIDAL", f"  CURV {_num(curvature_for(s.radius_mm))}",
+                     "  PARM 1 0"]
+        else:  # cylinder-y
+            body += ["  TYPE TOROIDAL", "  CURV 0.0", f"  PARM 1 {_num(s.radius_mm)}"]
+        body.append(f"  DISZ {_num(s.thickness_mm)}")
+        spec = s.material_spec
+        if "nd" in spec:
+            body.append(f"  GLAS {MODEL_GLASS} 1 0 {_num(spec['nd'])} {_num(spec['vd'])} 0 0 0 0 "
+                        "0 0")
+            if "glass_label" in spec:
+                notes.append(f"surface {i}: glass label {spec['glass_label']!r} not exported "
+                             "(a MODEL glass has no name)")
+        elif isinstance(spec.get("material"), dict):
+            raise ValueError(f"surface {i}: an inline dispersion table has no .zmx form "
+                             "(a catalog name or a MODEL glass)")
+        elif str(spec.get("material", "air")).lower() != "air":
+            ref = str(spec["material"])
+            maker, _, name = ref.rpartition(":")
+            if not maker:
+                try:
+                    maker = str(catalog_glass(ref).maker)
+                except UnknownGlassError:
+                    maker = str(getattr(s.medium, "maker", ""))
+            if maker and maker.upper() not in makers:
+                makers.append(maker.upper())
+            nd = getattr(s.medium, "nd", 1.5)
+            vd = getattr(s.medium, "vd", 40.0)
+            body.append(f"  GLAS {name} 0 0 {_num(nd)} {_num(vd)} 0 0 0 0 0 0")
+        sd = _num(s.semi_diameter_mm)
+        body += [f"  DIAM {sd} 1 0 0 1 \"\"", f"  CLAP 0 {sd} 0"]
+        if not s.coating.bare:
+            coated.append(i)
+    body += [f"SURF {len(lens.surfaces) + 1}", "  TYPE STANDARD", "  CURV 0.0", "  DISZ 0"]
+    if coated:
+        notes.append(f"coatings of surfaces {', '.join(map(str, coated))} not exported (a .zmx "
+                     "names coatings from OpticStudio's coating file)")
+    if makers:
+        lines.insert(3, "GCAT " + " ".join(makers))
+    return "\n".join(lines + body) + "\n", notes
