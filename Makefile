@@ -41,6 +41,10 @@ $(STAMP): fit/requirements.lock fit/pyproject.toml scripts/setup-system.sh
 	bash scripts/setup-system.sh
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --quiet --disable-pip-version-check -r fit/requirements.lock
+	@# The manufacturers' glass catalogs (lensfit.glass.manufacturers) are the data files
+	@# of opticalglass; --no-deps because its declared deps pull in PySide6 (a GUI of
+	@# hundreds of MB) and pandas, which lensfit does not use: xlrd and openpyxl are locked
+	$(PY) -m pip install --quiet --disable-pip-version-check --no-deps opticalglass==1.1.1
 	$(PY) -m pip install --quiet --disable-pip-version-check --no-deps -e fit
 	touch $@
 

@@ -139,7 +139,7 @@ def cmd_info(args: argparse.Namespace) -> int:
     from lensfit.paraxial import stop_radius_for_f_number, table
     from lensfit.prescription import load_lens
 
-    lens = load_lens(args.lens)
+    lens = _glass_policy(load_lens(args.lens), args)
     wavelengths = _info_wavelengths(args.wavelength, lens)
     stop = None
     if args.f_number is not None:  # the stop of f/N at the d line, at every wavelength
@@ -158,7 +158,31 @@ def cmd_info(args: argparse.Namespace) -> int:
             print()
         for label, value in _info_rows(t):
             print(f"  {label:20s}{value}")
+    _print_glass_ranges(lens, getattr(args, "wavelength", None))
     return 0
+
+
+def _glass_policy(lens, args: argparse.Namespace):
+    """The lens with glass extrapolation allowed when --allow-glass-extrapolation."""
+    from lensfit.glass.ranges import allow_extrapolation
+
+    return allow_extrapolation(lens) if args.allow_glass_extrapolation else lens
+
+
+def _print_glass_ranges(lens, wavelengths: list[str] | None) -> None:
+    """The glasses whose published range does not cover the default fit band (380-780
+    nm) and any --wavelength: extrapolated (allowed) or refused by `lensfit fit`."""
+    from lensfit.glass.ranges import allows_extrapolation, out_of_range
+
+    lams = [380.0, 780.0]
+    for text in wavelengths or []:
+        lams += [float(v) for v in text.split(",")]
+    allowed = allows_extrapolation(lens)
+    for o in out_of_range(lens, min(lams), max(lams)):
+        what = ("allowed (glass_extrapolation)" if allowed else
+                "refused by lensfit fit unless allowed (glass_extrapolation = \"allow\" "
+                "or --allow-glass-extrapolation) or fitted within it (--wavelengths)")
+        print(f"  {'glass range':20s}{o.describe()}: {what}")
 
 
 def cmd_draw(args: argparse.Namespace) -> int:
@@ -337,7 +361,7 @@ def cmd_fit(args: argparse.Namespace) -> int:
         _check_folder(args.generated, "--generated")
     if args.report:
         _check_folder(args.report, "--report")
-    lens = load_lens(args.lens)
+    lens = _glass_policy(load_lens(args.lens), args)
     gen = Path(args.generated) if args.generated else GENERATED_DIR
     if args.scene:
         from lensfit.scene import load_scene, scene_domain
@@ -381,7 +405,7 @@ def cmd_report(args: argparse.Namespace) -> int:
 
     if args.out:
         _check_folder(args.out, "-o")  # before the fit, not after it
-    lens = load_lens(args.lens)
+    lens = _glass_policy(load_lens(args.lens), args)
     domain, options = _domain_and_options(args, lens)
     report_dir = Path(args.out) if args.out else Path("build/report") / lens_folder_name(lens)
     _, fig = stage.run(lens, domain=domain, options=options, report_dir=report_dir,
@@ -469,6 +493,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("lens")
     p.add_argument("--json", action="store_true", help="print a JSON object")
     p.add_argument("--f-number", type=float, help="stop the lens down to this f-number")
+    p.add_argument("--allow-glass-extrapolation", action="store_true",
+                   help="use glasses outside their published range (as the lens file's "
+                        "glass_extrapolation = \"allow\"); each is listed")
     p.add_argument("--wavelength", action="append", metavar="NM",
                    help="first-order facts at this wavelength in nm instead of the d line "
                         "(repeatable or a comma list; the stop of --f-number stays that of "
@@ -536,6 +563,9 @@ def build_parser() -> argparse.ArgumentParser:
                        help="small budgets and samples (for tests and trials)")
         p.add_argument("--no-timing", action="store_true",
                        help="skip compiling and timing the generated C")
+        p.add_argument("--allow-glass-extrapolation", action="store_true",
+                       help="use glasses outside their published range (as the lens "
+                            "file's glass_extrapolation = \"allow\"); the report lists each")
         if name == "fit":
             p.add_argument("--generated", default=None, help="folder for generated code")
             p.add_argument("--report", default=None, help="folder for the report")

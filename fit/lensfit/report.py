@@ -240,6 +240,23 @@ def _fmt(v: float | None, spec: str = ".3g") -> str:
     return "-" if v is None or (isinstance(v, float) and not math.isfinite(v)) else format(v, spec)
 
 
+def _glass_range_markdown(lens: Lens, dom: dict[str, Any]) -> list[str]:
+    """The glasses used outside their published range (allowed by the lens or the
+    command line: otherwise the fit refuses them), one bullet each."""
+    from lensfit.glass.ranges import out_of_range
+
+    if "wavelength_min_nm" not in dom:
+        return []
+    bad = out_of_range(lens, dom["wavelength_min_nm"], dom["wavelength_max_nm"])
+    if not bad:
+        return []
+    return ["", "**Glass extrapolated**: these glasses were evaluated outside their "
+                "published range (catalog or lens file), as the lens allows "
+                "(glass_extrapolation = \"allow\"); their indices there are extrapolated, "
+                "not data.", "",
+            *(f"* {o.describe()}" for o in bad)]
+
+
 def _markdown(lens: Lens, fits: Sequence[SystemFit], fig: dict[str, Any]) -> str:
     dom = fits[0].system.info.get("domain", {})
     lines = [
@@ -260,6 +277,7 @@ def _markdown(lens: Lens, fits: Sequence[SystemFit], fig: dict[str, Any]) -> str
     if reason:
         lines += ["", f"The lens file declares this domain instead of the default "
                       f"(36 x 24 mm frame, f/2 or wide open): {reason}"]
+    lines += _glass_range_markdown(lens, fig.get("domain") or dom)
     lines += [
         "",
         "## Held-out error per output",

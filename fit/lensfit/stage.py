@@ -12,6 +12,7 @@ from typing import Any
 
 from lensfit.fitting import FitOptions, SystemFit, fit_lens
 from lensfit.generate import lens_files, lens_folder_name, write_folder
+from lensfit.glass.ranges import check_glass_ranges
 from lensfit.prescription.model import Lens
 from lensfit.report import measure, write_report
 from lensfit.sample.domain import Domain, default_domain
@@ -28,6 +29,9 @@ def run(lens: Lens, *, domain: Domain | None = None, options: FitOptions | None 
     ``report_dir`` when given. With ``scene`` (a scene fit) the PSF check uses the
     scene's lights, wavelengths and focus. ``glsl`` adds the GLSL source to the folder."""
     domain = domain or default_domain(lens)
+    # Glasses outside their published range: refused before any work unless the lens
+    # allows extrapolation (lensfit.glass.ranges; the report then lists them)
+    check_glass_ranges(lens, domain.wavelength_min_nm, domain.wavelength_max_nm)
     options = options or FitOptions()
     t0 = time.perf_counter()
     fits = fit_lens(lens, domain, options)

@@ -1,4 +1,5 @@
-"""Glass dispersion: catalog Sellmeier glasses, the nd/vd model and air."""
+"""Glass dispersion: the project catalog, the manufacturers' catalogs, inline glasses,
+the nd/vd model and air. ``resolve_glass`` turns a lens file's glass name into a medium."""
 
 from lensfit.glass.catalog import (
     AIR,
@@ -17,21 +18,33 @@ from lensfit.glass.catalog import (
     catalog_path,
     known_glass_names,
 )
+from lensfit.glass.formulas import FORMULAS, FormulaGlass
+from lensfit.glass.inline import InlineGlassError, TableGlass, inline_glass
+from lensfit.glass.manufacturers import MANUFACTURERS
+from lensfit.glass.resolve import AmbiguousGlassError, resolve_glass
 
 __all__ = [
     "AIR",
     "AbbeGlass",
     "Air",
+    "AmbiguousGlassError",
+    "FORMULAS",
+    "FormulaGlass",
+    "InlineGlassError",
     "LAMBDA_C_NM",
     "LAMBDA_D_NM",
     "LAMBDA_F_NM",
     "LAMBDA_G_NM",
+    "MANUFACTURERS",
     "Medium",
     "SellmeierGlass",
+    "TableGlass",
     "UnknownGlassError",
     "abbe_glass",
     "abbe_number",
     "catalog_glass",
     "catalog_path",
+    "inline_glass",
     "known_glass_names",
+    "resolve_glass",
 ]

@@ -103,6 +103,11 @@ class SellmeierGlass:
     range_nm: tuple[float, float]
     source: str
 
+    @property
+    def reference(self) -> str:
+        """What a lens file's ``material`` says to get this glass: its catalog name."""
+        return self.name
+
     def n(self, wavelength_nm: npt.ArrayLike) -> FloatArray:
         """Refractive index at ``wavelength_nm`` (nm), float64, same shape."""
         lam_um2 = (_wavelengths(wavelength_nm) * 1e-3) ** 2
@@ -177,12 +182,15 @@ def abbe_number(medium: Medium) -> float:
 class UnknownGlassError(KeyError):
     """Raised for a glass name that is not in the catalog; ``.name`` is the name asked for."""
 
-    def __init__(self, name: str, known: list[str]) -> None:
+    def __init__(self, name: str, known: list[str], message: str | None = None) -> None:
         super().__init__(name)
         self.name = name
         self.known = list(known)
+        self.message = message
 
     def __str__(self) -> str:
+        if self.message is not None:
+            return self.message
         hint = ""
         if _normalise(self.name) == "AIR":
             hint = " (air is not a catalog glass; use lensfit.glass.AIR)"

@@ -25,7 +25,15 @@ import jsonschema
 import numpy as np
 
 from lensfit.errors import LensError, regular_file_problem, toml_overflow
-from lensfit.glass import AIR, Medium, UnknownGlassError, abbe_glass, catalog_glass
+from lensfit.glass import (
+    AIR,
+    InlineGlassError,
+    Medium,
+    UnknownGlassError,
+    abbe_glass,
+    inline_glass,
+    resolve_glass,
+)
 from lensfit.prescription.model import BARE, Coating, Layer, Lens, Surface
 
 # Surfaces may touch (cemented doublets) but not overlap: 1 nm of slack for rounding.
@@ -385,10 +393,15 @@ def _medium(s: dict[str, Any], i: int, file: str) -> tuple[Medium, dict[str, Any
         raise LensError(
             "missing key (give 'material' or 'nd' and 'vd')", file=file, surface=i, key="material"
         )
+    if isinstance(name, dict):  # inline dispersion (lensfit.glass.inline)
+        try:
+            return inline_glass(name), {"material": copy.deepcopy(name)}
+        except InlineGlassError as e:
+            raise LensError(str(e), file=file, surface=i, key=f"material.{e.key}") from None
     if name.lower() == "air":
         return AIR, {"material": "air"}
-    try:
-        return catalog_glass(name), {"material": name}
+    try:  # the project catalog first, then the manufacturers' (lensfit.glass.resolve)
+        return resolve_glass(name), {"material": name}
     except UnknownGlassError as e:
         raise LensError(str(e).strip('"'), file=file, surface=i, key="material") from None
 
@@ -419,7 +432,7 @@ def _coating(
             raise LensError("give exactly one of 'material' or 'n'", file=file, surface=i, key=key)
         if "material" in layer:
             try:
-                medium: Medium = catalog_glass(layer["material"])
+                medium: Medium = resolve_glass(layer["material"])
             except UnknownGlassError as e:
                 raise LensError(
                     str(e).strip('"'), file=file, surface=i, key=key + ".material"

@@ -17,6 +17,7 @@ from enum import IntEnum
 
 import numpy as np
 
+from lensfit.glass.ranges import check_glass_ranges
 from lensfit.prescription.model import Lens
 from lensfit.trace import fresnel, surfaces
 
@@ -227,21 +228,11 @@ def trace(
 
 
 def _check_wavelengths(lens: Lens, lam: np.ndarray) -> None:
-    """Refuse wavelengths outside a catalog glass's published range (no silent
-    extrapolation of Sellmeier fits)."""
+    """Refuse wavelengths outside a glass's published range (no silent extrapolation of
+    dispersion formulas) unless the lens allows it: ``lensfit.glass.ranges`` decides."""
     if lam.size == 0:
         return
-    lo, hi = float(lam.min()), float(lam.max())
-    media = {s.medium for s in lens.surfaces} | {
-        layer.medium for s in lens.surfaces for layer in s.coating.layers
-    }
-    for m in media:
-        valid = getattr(m, "range_nm", None)
-        if valid is not None and (lo < valid[0] or hi > valid[1]):
-            raise ValueError(
-                f"{lens.source_file}: wavelengths {lo:g}-{hi:g} nm are outside the "
-                f"{valid[0]:g}-{valid[1]:g} nm range of glass {m.name}"
-            )
+    check_glass_ranges(lens, float(lam.min()), float(lam.max()))
 
 
 def _reflectance(n1, n2, cos_i, layers, lam) -> np.ndarray:
