@@ -70,17 +70,17 @@ demo: setup runtime
 	@# if the printed estimate were above), then the three side by side with scale bars
 	panels=; for fn in 2 8 32; do \
 		case $$fn in 2) size=0.2 n=131072;; 8) size=0.1 n=16384;; 32) size=0.16 n=4096;; esac; \
-		$(PSF) --lens $(DEMO_LENS) --light 6,4 --focus 0.2 --f-number $$fn --blades 7 \
+		$(PSF) --lens $(DEMO_LENS) --light -6,-4 --focus 0.2 --f-number $$fn --blades 7 \
 			--curvature 0.3 --rotation 10 --size $$size --resolution 256x256 \
 			--samples $$n --target-error 0.01 \
 			-o build/demo/psf/f$$fn.exr --png build/demo/psf/f$$fn.png || exit 1; \
 		panels="$$panels --panel build/demo/psf/f$$fn.png $$size f/$$fn"; \
 	done; \
 	$(PY) runtime/tools/psf_sheet.py -o build/demo/psf/sheet.png $$panels \
-		--title "lens $(DEMO_LENS), light at (6°, 4°), 7 curved blades, sensor 0.2 mm behind focus, 16 wavelengths"
+		--title "lens $(DEMO_LENS), light at (-6°, -4°), 7 curved blades, sensor 0.2 mm behind focus, 16 wavelengths"
 	@# The f/8 scene again on the GL device (OpenGL 4.3 compute shaders; llvmpipe on a
 	@# machine without a GPU, so smaller here); exit status 3 means no GL device
-	$(PSF) --lens $(DEMO_LENS) --light 6,4 --focus 0.2 --f-number 8 --blades 7 --curvature 0.3 \
+	$(PSF) --lens $(DEMO_LENS) --light -6,-4 --focus 0.2 --f-number 8 --blades 7 --curvature 0.3 \
 		--rotation 10 --size 0.1 --resolution 64x64 --wavelengths 8 --samples 16384 --device gl \
 		-o build/demo/psf/f8-gl.exr --png build/demo/psf/f8-gl.png \
 		|| { rc=$$?; [ $$rc -eq 3 ] && echo "demo: no GL device here, the CPU renders above stand"; [ $$rc -eq 3 ]; }

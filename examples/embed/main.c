@@ -362,8 +362,8 @@ int main(int argc, char **argv)
            lensrt_version_string(), info.name, info.f_number_min, 100.0 * info.psf_vs_exact);
     if (camera_rays(ctx, lens)) goto done;
     // A light 2 degrees off the axis, the window on its chief ray
-    light.field_x_deg = 2.0;
-    light.field_y_deg = 1.0;
+    light.field_x_deg = -2.0; /* field angles of the chief ray (lensrt.h, lensrt_light) */
+    light.field_y_deg = -1.0;
     if ((res = lensrt_lens_image_point(ctx, lens, &light, 550.0, 0.0, centre)) != LENSRT_SUCCESS) {
         fail(ctx, "image point", res);
         goto done;

@@ -78,7 +78,9 @@ def _fmt(v: float | None, unit: str = "", digits: int = 4) -> str:
 
 
 # The field-sign convention, printed by `lensfit info` (README.md: Conventions)
-CONVENTION_NOTE = "z is measured from the vertex of surface 0; light travels towards +z"
+CONVENTION_NOTE = ("conventions: z from surface 0's vertex towards the sensor; a light at "
+                   "field +θ has a rising chief ray (dy/dz > 0) and is imaged at +y, as in "
+                   "Zemax and Code V (README.md, Conventions)")
 
 
 def _info_wavelengths(texts: list[str] | None, lens) -> list[float]:

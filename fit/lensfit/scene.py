@@ -20,8 +20,8 @@ constant phase). Scene file (TOML)::
     transmittance = true
     flares = false
     [[light]]
-    field_x_deg = 0.0
-    field_y_deg = 5.0
+    field_x_deg = 0.0                # field angles, the designers' convention (README,
+    field_y_deg = 5.0                # "Conventions"): this light is imaged at +y
     distance_mm = "inf"              # or a number: distance from the first vertex
 """
 
@@ -46,14 +46,21 @@ class SceneError(ValueError):
 
 
 def light_direction(field_x_deg: float, field_y_deg: float) -> tuple[float, float]:
-    """Direction cosines (x_O, y_O) of a light in the direction (tan θx, tan θy, 1) seen
-    from the first vertex: x_O = tan θx / sqrt(1 + tan² θx + tan² θy), same for y."""
+    """P_o's (x_O, y_O) for a light at field angles (θx, θy) in degrees.
+
+    Field angles follow the lens designers' convention (Zemax, Code V, Optiland; README
+    "Conventions"): the light's chief ray travels along (tan θx, tan θy, 1), so +θy is a
+    ray rising towards the lens (dy/dz > 0), from a light *below* the axis, imaged at +y
+    by an ordinary lens. (x_O, y_O) are the direction cosines of the opposite direction:
+    from the first vertex towards the light, (-tan θx, -tan θy, 1) normalised, so
+    x_O = -tan θx / sqrt(1 + tan² θx + tan² θy), and the same for y. This is the one
+    place lensfit turns field angles into P_o's inputs (lensrt: lensrt_light_direction)."""
     for name, v in (("field_x_deg", field_x_deg), ("field_y_deg", field_y_deg)):
         if not (math.isfinite(v) and abs(v) < 90.0):
             raise ValueError(f"{name} = {v!r}: expected an angle in (-90, 90) degrees")
     tx, ty = math.tan(math.radians(field_x_deg)), math.tan(math.radians(field_y_deg))
     norm = math.sqrt(1.0 + tx * tx + ty * ty)
-    return tx / norm, ty / norm
+    return -tx / norm, -ty / norm
 
 
 @dataclass(frozen=True)

@@ -45,8 +45,10 @@ MIN_POINTS, MAX_POINTS = 512, 2048
 
 def corner_field(lens: Lens, domain: Domain, share: float = CORNER_SHARE
                  ) -> tuple[float, float]:
-    """(θx, θy) in degrees of a light imaged at ``share`` of the 36 x 24 mm frame's corner
-    (paraxially, per meridian), pulled inside the fitted field if it lies beyond it."""
+    """(θx, θy) in degrees of a light imaged at ``share`` of the 36 x 24 mm frame's
+    (-x, -y) corner (paraxially, per meridian), pulled inside the fitted field if it lies
+    beyond it. Both angles are negative (README, "Conventions"): the light is up and to
+    the right of the axis, the light of every committed fit's corner cell."""
     corner = np.array([18.0, 12.0]) * share * min(1.0, domain.sensor_radius_mm
                                                   / FULL_FRAME_HALF_DIAGONAL_MM)
     efl = [abs(paraxial(lens, meridian=m).efl_mm) for m in ("x", "y")]
@@ -57,7 +59,7 @@ def corner_field(lens: Lens, domain: Domain, share: float = CORNER_SHARE
         if (x_O / sx) ** 2 + (y_O / sy) ** 2 <= share**2:
             break
         theta *= 0.97
-    return float(theta[0]), float(theta[1])
+    return -float(theta[0]), -float(theta[1])
 
 
 def _f_number(lens: Lens, radius: float) -> float:

@@ -2,7 +2,7 @@
 
     python runtime/bench/error_vs_time.py --out build/bench [--lensrt-json build/bench/lensrt.json]
 
-For the default lens (0001) and the scene of lensrt-bench (light at field (6, 4) deg at
+For the default lens (0001) and the scene of lensrt-bench (light at field (-6, -4) deg at
 infinity, sensor shift 0.2 mm, window centred on the light's image point), at f/8 and f/2,
 64 x 64 pixels and 4 wavelengths: renders with the random, stratified and sobol samplers
 and 2^8 .. 2^16 samples per wavelength, each a fresh render, several seeds each. For each
@@ -47,7 +47,7 @@ from lensrt_ctypes import Lensrt  # noqa: E402
 
 TABLE = ROOT / "generated" / "0001-angenieux-double-gauss" / "lens0001.table"
 SAMPLERS = ("random", "stratified", "sobol")
-FIELD = (6.0, 4.0)
+FIELD = (-6.0, -4.0)
 FOCUS_MM = 0.2
 # Window per f-number: the PSF (defocus blur and Airy core) with a margin; mm
 WINDOW_MM = {2.0: 0.1, 8.0: 0.04}

@@ -7,7 +7,7 @@
  * A splat is one aperture sample evaluated at one pixel for one wavelength.
  *
  * The scene follows the paper's Figure 7: the default lens (0001), a point light off
- * the axis at infinity (field (6, 4) deg), a 1440 x 1080 frame over 0.3 x 0.225 mm centred
+ * the axis at infinity (field (-6, -4) deg), a 1440 x 1080 frame over 0.3 x 0.225 mm centred
  * on the light's image point, sensor shift 0.2 mm, 16 wavelengths, f/2, f/8 and f/32.
  *
  * This file: the options, the scene, the lensrt side and the report (the tables on
@@ -78,7 +78,7 @@ static void usage(FILE *f)
         "                         reported (default 3)\n"
         "  --f-numbers A,B,..     (default 2,8,32; the first 8 in the list, else the first, is the headline)\n"
         "  --wavelengths N        (default 16)\n"
-        "  --field X,Y            light direction in degrees (default 6,4), at infinity\n"
+        "  --field X,Y            the light's field angles in degrees (default -6,-4), at infinity\n"
         "  --focus Z              sensor shift z_S in mm (default 0.2)\n"
         "  --baseline-grid BxC    baseline pixels, a grid spread over the frame (default 8x8)\n"
         "  --baseline-seconds T   seconds of baseline per repetition, half right before and half right\n"
@@ -157,7 +157,7 @@ static void default_options(bench_options *o)
 {
     const bench_options d = {.table = DEFAULT_TABLE, .device_arg = "both", .width = 1440, .height = 1080,
                              .stride = DEFAULT_STRIDE, .gx = 8, .gy = 8, .n_wl = 16, .reps = 3, .size_x = 0.3,
-                             .size_y = 0.225, .field_x = 6.0, .field_y = 4.0, .focus = 0.2, .base_seconds = 1.0,
+                             .size_y = 0.225, .field_x = -6.0, .field_y = -4.0, .focus = 0.2, .base_seconds = 1.0,
                              .f_numbers = {2.0, 8.0, 32.0}, .n_f = 3, .head = -1, .samples = 16384, .seed = 1,
                              .do_cpu = 1, .do_gl = 1, .gl_stride = DEFAULT_GL_STRIDE, .tile_w = 32, .tile_h = 32,
                              .gl_samples = 16384, .gl_warmup = DEFAULT_GL_WARMUP,
@@ -397,11 +397,11 @@ int main(int argc, char **argv)
         fr->f_number = o.f_numbers[i];
         fr->reps = o.do_cpu ? (int)o.reps : 0;
         {
-            // Direction cosines along (tan x, tan y, 1), as lensrt turns field angles into P_o inputs
-            double tx = tan(o.field_x * PI / 180.0), ty = tan(o.field_y * PI / 180.0);
-            double n = sqrt(1.0 + tx * tx + ty * ty);
-            sc.light_x = tx / n;
-            sc.light_y = ty / n;
+            // P_o's inputs for the light, by lensrt's own conversion (checked above)
+            double xy[2];
+            lensrt_light_direction_cosines(ctx, &light, xy);
+            sc.light_x = xy[0];
+            sc.light_y = xy[1];
         }
         sc.focus_mm = o.focus;
         sc.stop_radius_mm = stop_f1 / o.f_numbers[i];

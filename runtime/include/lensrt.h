@@ -280,12 +280,20 @@ typedef struct lensrt_light lensrt_light;
 LENSRT_API lensrt_result lensrt_lens_image_point(lensrt_context ctx, lensrt_lens lens, const lensrt_light *light,
                                       double wavelength_nm, double focus_offset_mm, double xy_mm[2]);
 
+/* P_o's inputs (x_O, y_O) for a light (for a renderer's own P_o calls, lensrt_lens_eval):
+ * the direction cosines from the first vertex towards the light, (-tan field_x,
+ * -tan field_y, 1) normalised, since field angles are the chief ray's (lensrt_light).
+ * The one conversion every render and lensrt_lens_image_point use. Field angles that
+ * are not finite or not within +-90 deg are LENSRT_ERROR_INVALID_ARGUMENT. */
+LENSRT_API lensrt_result lensrt_light_direction_cosines(lensrt_context ctx, const lensrt_light *light, double xy[2]);
+
 /* ------------------------------------------------------- per-ray evaluation ----- */
 
 /* The fitted systems of a lens, for a renderer's own rays (camera rays through the
  * polynomials, as a path tracer does):
  *   P_o (object side): (x_O, y_O, u_O, x_a, y_a, lambda) -> (x_o, y_o, tau_o, phi_o)
- *     x_O, y_O direction cosines of the light, u_O = 1 / distance (1/mm, 0: infinity),
+ *     x_O, y_O direction cosines from the lens towards the light
+ *     (lensrt_light_direction_cosines), u_O = 1 / distance (1/mm, 0: infinity),
  *     x_a, y_a the point on the stop (mm), lambda (nm) -> outer pupil point (mm),
  *     power transmittance, optical path length from the light's reference to the stop
  *     (mm).
@@ -432,9 +440,14 @@ typedef struct lensrt_sensor {
     double focus_offset_mm;     /* z_S: sensor shift, + away from the lens */
 } lensrt_sensor;
 
+/* A point light. Field angles follow the lens designers' convention (Zemax, Code V;
+ * README.md, "Conventions"): the light's chief ray enters along (tan field_x,
+ * tan field_y, 1), z towards the sensor, so field_y_deg > 0 is a ray rising towards the
+ * lens (dy/dz > 0) from a light below the axis, imaged at sensor y > 0 (about
+ * f tan field_y). lensrt_light_direction_cosines gives P_o's (x_O, y_O). */
 struct lensrt_light {
     size_t struct_size;              /* sizeof(lensrt_light): LENSRT_LIGHT_INIT */
-    double field_x_deg, field_y_deg; /* direction of the light seen from the lens */
+    double field_x_deg, field_y_deg; /* the chief ray's field angles (above), degrees */
     double distance_mm;              /* from the first vertex; 0: infinity */
     double intensity;                /* 0: 1 */
 };

@@ -110,6 +110,9 @@ class Sensor(C.Structure):
 
 
 class Light(Versioned):
+    """(field_x_deg, field_y_deg, distance_mm, intensity): field angles of the chief ray,
+    the designers' convention (lensrt.h, lensrt_light): +field_y is imaged at +y."""
+
     _fields_ = [("struct_size", C.c_size_t), ("field_x_deg", C.c_double),
                 ("field_y_deg", C.c_double),
                 ("distance_mm", C.c_double), ("intensity", C.c_double)]
@@ -214,6 +217,9 @@ class Lensrt:
         lib.lensrt_lens_get_info.argtypes = [C.c_void_p, C.POINTER(LensInfo)]
         lib.lensrt_lens_image_point.argtypes = [C.c_void_p, C.c_void_p, C.POINTER(Light),
                                                 C.c_double, C.c_double, C.POINTER(C.c_double)]
+        if hasattr(lib, "lensrt_light_direction_cosines"):  # not in libraries before it
+            lib.lensrt_light_direction_cosines.argtypes = [C.c_void_p, C.POINTER(Light),
+                                                           C.POINTER(C.c_double)]
         lib.lensrt_render_create.argtypes = [C.c_void_p, C.POINTER(RenderDesc),
                                              C.POINTER(C.c_void_p)]
         lib.lensrt_render_destroy.argtypes = [C.c_void_p]
@@ -294,6 +300,13 @@ class Lensrt:
         lt = Light(*light)  # fields not given are zero
         self._check(self.lib.lensrt_lens_image_point(self.ctx, lens, C.byref(lt), wavelength_nm,
                                                      focus_offset_mm, xy))
+        return xy[0], xy[1]
+
+    def light_direction_cosines(self, light: Sequence[float]) -> tuple[float, float]:
+        """P_o's (x_O, y_O) for a light (field angles in degrees, as for image_point)."""
+        xy = (C.c_double * 2)()
+        lt = Light(*light)
+        self._check(self.lib.lensrt_light_direction_cosines(self.ctx, C.byref(lt), xy))
         return xy[0], xy[1]
 
     def create(self, lens: C.c_void_p, *, width: int, height: int, width_mm: float,

@@ -1,6 +1,6 @@
 /* lensrt-psf: render a point spread function through a fitted lens to EXR and PNG.
  *
- *   lensrt-psf --lens 0001 --f-number 8 --light 6,4 --samples 65536 -o psf.exr --png psf.png
+ *   lensrt-psf --lens 0001 --f-number 8 --light -6,-4 --samples 65536 -o psf.exr --png psf.png
  *
  * The samples are rendered as two independent halves (seeds S and S + HALF_SEED_STEP)
  * whose phasor sums are then added, so the image comes with an estimate of its own Monte
@@ -54,8 +54,9 @@ static void usage(FILE *f)
         "  --rotation DEG         blade rotation (default 0)\n"
         "  --wavelengths N|A,B,.. count uniform over the fitted range, or a list in nm (default 16)\n"
         "  --wavelength NM        one wavelength in nm (--wavelengths 550 is a count of 550)\n"
-        "  --light X,Y[,D[,I]]    field angles (deg), distance from the first vertex (mm, 0 or inf:\n"
-        "                         infinity) and intensity; repeat for several (default 0,0)\n"
+        "  --light X,Y[,D[,I]]    field angles of the chief ray (deg; +Y is imaged at +y, as in Zemax),\n"
+        "                         distance from the first vertex (mm, 0 or inf: infinity) and\n"
+        "                         intensity; repeat for several (default 0,0)\n"
         "  --samples N            aperture samples per wavelength (default 65536), rendered as two\n"
         "                         independent halves whose difference estimates the Monte Carlo error\n"
         "  --target-error E       double the samples until the estimated relative L2 error is <= E\n"

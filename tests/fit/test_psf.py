@@ -47,10 +47,12 @@ def f8(lens):
 # --- conventions -----------------------------------------------------------------------------
 
 
-def test_light_direction_is_the_normalised_tangent_vector():
+def test_light_direction_points_against_the_chief_ray():
+    """Designers' convention: the chief ray travels along (tan θx, tan θy, 1); (x_O, y_O)
+    point from the lens towards the light, the opposite way."""
     x, y = psf.light_direction(3.0, -2.0)
     t = np.array([math.tan(math.radians(3.0)), math.tan(math.radians(-2.0)), 1.0])
-    assert (x, y) == pytest.approx(tuple(t[:2] / np.linalg.norm(t)), rel=1e-15)
+    assert (x, y) == pytest.approx(tuple(-t[:2] / np.linalg.norm(t)), rel=1e-15)
     assert psf.light_direction(0.0, 0.0) == (0.0, 0.0)
     with pytest.raises(ValueError, match="field_y_deg = 90.0: expected an angle"):
         psf.light_direction(0.0, 90.0)
@@ -145,8 +147,9 @@ def test_poly_psf_is_the_sum_of_system_evaluate(lens, fit):
 
 def test_geometric_image_point_and_best_focus(lens, f8):
     assert psf.geometric_image_point(lens, (0.0, 0.0)) == pytest.approx((0.0, 0.0), abs=1e-12)
-    # A light up and to the right images down and to the left, at about f tan(theta)
-    x, y = psf.geometric_image_point(lens, (3.0, 2.0), math.inf, LAMBDA_NM, f8[1])
+    # A light up and to the right (negative field angles: the chief ray falls towards the
+    # lens) images down and to the left, at about f tan(theta)
+    x, y = psf.geometric_image_point(lens, (-3.0, -2.0), math.inf, LAMBDA_NM, f8[1])
     f = paraxial(lens).efl_mm
     assert x == pytest.approx(-f * math.tan(math.radians(3.0)), rel=0.02)
     assert y == pytest.approx(-f * math.tan(math.radians(2.0)) * math.hypot(1, 0), rel=0.02)

@@ -90,15 +90,16 @@ def test_defaults_and_the_committed_demo_scene():
     assert sc.lights[0].distance_mm == math.inf
     demo = load_scene(REPO / "scenes" / "demo.toml")
     assert demo.name == "demo" and demo.wavelengths_nm == (450.0, 550.0, 650.0)
-    assert demo.lights == (Light(6.0, 4.0, math.inf),)
+    assert demo.lights == (Light(-6.0, -4.0, math.inf),)
 
 
 def test_light_inputs_are_the_direction_cosines_of_its_field_angles():
     inp = Light(6.0, -4.0, 250.0).inputs()
     z = math.sqrt(1.0 - inp["x_O"] ** 2 - inp["y_O"] ** 2)
-    # Field angles are the angles of the direction's projections on the x-z, y-z planes
-    assert math.degrees(math.atan2(inp["x_O"], z)) == pytest.approx(6.0, rel=1e-13)
-    assert math.degrees(math.atan2(inp["y_O"], z)) == pytest.approx(-4.0, rel=1e-13)
+    # Field angles are the angles of the chief ray's projections on the x-z, y-z planes;
+    # (x_O, y_O) point the other way, from the lens to the light (designers' convention)
+    assert math.degrees(math.atan2(-inp["x_O"], z)) == pytest.approx(6.0, rel=1e-13)
+    assert math.degrees(math.atan2(-inp["y_O"], z)) == pytest.approx(-4.0, rel=1e-13)
     assert inp["u_O"] == 1.0 / 250.0
     assert Light(0.0, 0.0).inputs() == {"x_O": 0.0, "y_O": 0.0, "u_O": 0.0}
 
@@ -341,10 +342,10 @@ def test_elliptic_field_of_an_anamorphic_domain(general):
     sx, sy = math.sin(math.radians(20.0)), math.sin(math.radians(10.0))
     assert (p_o.inputs[0].hi, p_o.inputs[1].hi) == pytest.approx((sx, sy), rel=1e-15)
 
-    def light_at(x, y):  # field angles of the direction cosines (x, y)
+    def light_at(x, y):  # field angles of a light in the direction cosines (x, y)
         z = math.sqrt(1.0 - x * x - y * y)
-        return {"field_x_deg": math.degrees(math.atan(x / z)),
-                "field_y_deg": math.degrees(math.atan(y / z))}
+        return {"field_x_deg": math.degrees(math.atan(-x / z)),
+                "field_y_deg": math.degrees(math.atan(-y / z))}
 
     inside = Scene.from_dict(_with(light=[light_at(0.7 * sx, 0.7 * sy)]))  # r = 0.99
     special = specialise(systems, inside)

@@ -248,10 +248,10 @@ def test_committed_table_against_exact_rays(committed_fits, lens_id, stop, field
     f_number = lens_facts(lens).stop_radius_f1_mm / radius
     if field == "axis":
         light = (0.0, 0.0)
-    else:  # direction cosines (x, y, z) -> angles of the tangent vector
+    else:  # direction cosines (x, y, z) towards the light -> the chief ray's angles
         x, y = FIELD_SHARE * ins_o["x_O"].hi, -FIELD_SHARE * ins_o["y_O"].hi
         z = math.sqrt(1.0 - x * x - y * y)
-        light = (math.degrees(math.atan(x / z)), math.degrees(math.atan(y / z)))
+        light = (math.degrees(math.atan(-x / z)), math.degrees(math.atan(-y / z)))
         assert psf.light_direction(*light) == pytest.approx((x, y), rel=1e-12)
     focus = min(max(psf.best_focus_offset(lens, radius, LAMBDA_NM), ins_s["z_S"].lo),
                 ins_s["z_S"].hi)

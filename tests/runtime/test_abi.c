@@ -215,7 +215,7 @@ static void test_inputs_stop_at_struct_size(lensrt_context ctx, lensrt_lens lens
         const lensrt_light init = LENSRT_LIGHT_INIT;
         lights[0] = lights[1] = init;
     }
-    lights[0].field_x_deg = 0.002;
+    lights[0].field_x_deg = -0.002;
     d.lights = lights;
     d.n_lights = 1;
     CHECK(image_of(ctx, &d, ref, N) == LENSRT_SUCCESS, "one light: %s", lensrt_context_last_error(ctx));

@@ -288,10 +288,10 @@ static int fitted_desc(lensrt_context ctx, lensrt_lens lens, lensrt_render_desc 
     lensrt_result res;
     RESET(g_two_lights[0]);
     RESET(g_two_lights[1]);
-    g_two_lights[0].field_x_deg = 2.0;
-    g_two_lights[0].field_y_deg = 1.0;
-    g_two_lights[1].field_x_deg = 2.004;
-    g_two_lights[1].field_y_deg = 1.0;
+    g_two_lights[0].field_x_deg = -2.0;
+    g_two_lights[0].field_y_deg = -1.0;
+    g_two_lights[1].field_x_deg = -2.004;
+    g_two_lights[1].field_y_deg = -1.0;
     g_two_lights[1].intensity = 0.5;
     res = lensrt_lens_image_point(ctx, lens, &g_two_lights[0], 550.0, 0.0, xy);
     CHECK(res == LENSRT_SUCCESS && isfinite(xy[0]) && isfinite(xy[1]) && fabs(xy[0]) < 10 && fabs(xy[1]) < 10,
@@ -658,9 +658,9 @@ static void test_messages(void)
         d.sensor.center_x_mm = 40;
         EXPECT_CREATE_ERROR(&d, LENSRT_ERROR_OUT_OF_DOMAIN, "sensor");
         d = base;
-        g_two_lights[1].field_x_deg = 40;
+        g_two_lights[1].field_x_deg = -40;
         EXPECT_CREATE_ERROR(&d, LENSRT_ERROR_OUT_OF_DOMAIN, "light 1");
-        g_two_lights[1].field_x_deg = 2.004;
+        g_two_lights[1].field_x_deg = -2.004;
     }
 
     // run() with no samples

@@ -62,8 +62,8 @@ def test_light_at_infinity_still_means_infinity(tmp_path: Path) -> None:
     # file's last 16 x 16 pixels x 2 wavelengths x 2 doubles; the header before them
     # holds the render time.
     a, b = tmp_path / "a.phasors", tmp_path / "b.phasors"
-    ra = run("--light", "1,2,inf", "--save-phasors", str(a), "--no-estimate")
-    rb = run("--light", "1,2,0", "--save-phasors", str(b), "--no-estimate")
+    ra = run("--light", "-1,-2,inf", "--save-phasors", str(a), "--no-estimate")
+    rb = run("--light", "-1,-2,0", "--save-phasors", str(b), "--no-estimate")
     assert ra.returncode == 0 and rb.returncode == 0, ra.stderr + rb.stderr
     n = 16 * 16 * 2 * 2 * 8
     assert a.read_bytes()[-n:] == b.read_bytes()[-n:]

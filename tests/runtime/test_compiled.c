@@ -106,8 +106,8 @@ static int render_image(lensrt_context ctx, lensrt_lens lens, float *image)
     lensrt_render render = NULL;
     double xy[2];
     int ok;
-    light.field_x_deg = 2.0;
-    light.field_y_deg = 1.0;
+    light.field_x_deg = -2.0;
+    light.field_y_deg = -1.0;
     CHECK_RES(ctx, LENSRT_SUCCESS, lensrt_lens_image_point(ctx, lens, &light, 550.0, 0.0, xy));
     desc.lens = lens;
     desc.sensor.width = desc.sensor.height = PIX;

@@ -94,8 +94,8 @@ static lensrt_result make_render(lensrt_context ctx, lensrt_lens lens, uint64_t 
     double xy[2] = {0, 0};
     lensrt_result res;
     RESET(light);
-    light.field_x_deg = 2.0;
-    light.field_y_deg = 1.0;
+    light.field_x_deg = -2.0;
+    light.field_y_deg = -1.0;
     *out = NULL;
     if ((res = lensrt_lens_image_point(ctx, lens, &light, 550.0, 0.0, xy)) != LENSRT_SUCCESS) return res;
     RESET(d);

@@ -89,8 +89,8 @@ def test_device_reports_renderer_and_version(gl):
 # ------------------------------------------------------- agreement with the CPU -----
 
 SCENES = {
-    # f/2, 7 curved blades, light 6,4 deg, defocused: transmittance varies over the stop
-    "f2-blades-off-axis": dict(f_number=2.0, width_mm=0.2, light=(6.0, 4.0), focus=0.2,
+    # f/2, 7 curved blades, light -6,-4 deg, defocused: transmittance varies over the stop
+    "f2-blades-off-axis": dict(f_number=2.0, width_mm=0.2, light=(-6.0, -4.0), focus=0.2,
                                shape="blades", blades=7, blade_curvature=0.3, rotation_deg=10.0),
     # f/8 circle on the axis, in focus
     "f8-axis": dict(f_number=8.0, width_mm=0.03, light=(0.0, 0.0), focus=0.0, shape="circle"),

@@ -421,8 +421,8 @@ static void check_exr_file(const char *path, const float *spectral, const float 
     CHECK(exr_attr_get_int(f, 0, "lensrt/nLights", &nl) == EXR_ERR_SUCCESS && nl == 2,
           "lensrt/nLights is %d, expected 2", nl);
     CHECK(exr_attr_get_string(f, 0, "lensrt/lights", &len, &s) == EXR_ERR_SUCCESS &&
-              strstr(s, "2 lights: (field 0, 0 deg; distance infinity; intensity 1); (field 1.5, "
-                        "-2 deg; distance 1000 mm; intensity 3)") == s,
+              strstr(s, "2 lights (field angles of the chief ray: +y is imaged at +y): (field 0, 0 deg; distance infinity; intensity 1); (field -1.5, "
+                        "2 deg; distance 1000 mm; intensity 3)") == s,
           "lensrt/lights is '%s'", s ? s : "");
     CHECK(exr_attr_get_float(f, 0, "aperture", &fl) == EXR_ERR_SUCCESS && fl == 2.0f,
           "standard attribute aperture is %g, expected 2", (double)fl);
@@ -469,8 +469,8 @@ static void test_exr(void)
     lensrt_result r;
 
     memset(lights, 0, sizeof lights);
-    lights[1].field_x_deg = 1.5;
-    lights[1].field_y_deg = -2.0;
+    lights[1].field_x_deg = -1.5;
+    lights[1].field_y_deg = 2.0;
     lights[1].distance_mm = 1000.0;
     lights[1].intensity = 3.0;
     meta = make_meta(lights, 2);

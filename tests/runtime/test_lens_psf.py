@@ -41,7 +41,7 @@ from lensfit.stage import run
 ROOT = Path(__file__).resolve().parents[2]
 TABLE = ROOT / "generated" / "0001-angenieux-double-gauss" / "lens0001.table"
 LAMBDA = 550.0
-FIELD = (3.0, 2.0)
+FIELD = (-3.0, -2.0)
 
 
 def normalised(image: np.ndarray) -> np.ndarray:

@@ -442,8 +442,8 @@ static void test_exr_metadata(lensrt_context ctx, lensrt_lens lens0001)
     memset(&s, 0, sizeof s);
     s.lens = lens0001;
     s.light.struct_size = sizeof s.light;
-    s.light.field_x_deg = 6.5;
-    s.light.field_y_deg = 4.25;
+    s.light.field_x_deg = -6.5;
+    s.light.field_y_deg = -4.25;
     s.light.distance_mm = 1500.25;
     s.f_number = 8.5;
     s.width_mm = 0.03;
@@ -458,7 +458,7 @@ static void test_exr_metadata(lensrt_context ctx, lensrt_lens lens0001)
         res = lensrt_render_write_exr(r, path);
         if (LENSRT_TEST_EXR) {
             CHECK(res == LENSRT_SUCCESS, "write_exr: %s (%s)", lensrt_result_string(res), lensrt_context_last_error(ctx));
-            CHECK(file_contains(path, "(field 6.5, 4.25 deg; distance 1500.25 mm; intensity 1)"),
+            CHECK(file_contains(path, "(field -6.5, -4.25 deg; distance 1500.25 mm; intensity 1)"),
                   "%s: the lights attribute does not hold the light with points", path);
             CHECK(file_contains(path, "7 blades, curvature 0.3, rotation 12.5 deg"),
                   "%s: the aperture attribute does not hold the blades with points", path);
@@ -491,8 +491,8 @@ static void test_gl(lensrt_context ctx, lensrt_lens lens0001)
     memset(&s, 0, sizeof s);
     s.lens = lens0001;
     s.light.struct_size = sizeof s.light;
-    s.light.field_x_deg = 1.5;
-    s.light.field_y_deg = 0.75;
+    s.light.field_x_deg = -1.5;
+    s.light.field_y_deg = -0.75;
     s.f_number = 8.5;
     s.width_mm = 0.03;
     s.focus_mm = 0.125;
@@ -518,7 +518,7 @@ static int run_psf(const char *locale, const char *out_path, const char *exr_pat
     char cmd[8192];
     int status;
     snprintf(cmd, sizeof cmd,
-             "LC_ALL=%s LANG=%s '%s' --lens '%s' --light 1.5,0.75,1500.25 --focus 0.125 --f-number 8.5 "
+             "LC_ALL=%s LANG=%s '%s' --lens '%s' --light -1.5,-0.75,1500.25 --focus 0.125 --f-number 8.5 "
              "--blades 7 --curvature 0.3 --rotation 12.5 --size 0.0375 --resolution 8x8 "
              "--wavelengths 450.5,650.25 --samples 2048 --threads 2 --quiet -o '%s' > '%s'",
              locale, locale, g_psf, g_table, exr_path, out_path);

@@ -24,8 +24,8 @@ sys.path.insert(0, str(ROOT / "runtime" / "tools"))
 
 import psf_sheet  # noqa: E402  (needs the path above)
 
-# Small versions of the demo's scenes: light (6, 4) deg, 7 curved blades, defocused
-F8 = dict(light=(6.0, 4.0), focus=0.2, f_number=8.0, blades=7, curvature=0.3, rotation=10.0,
+# Small versions of the demo's scenes: light (-6, -4) deg, 7 curved blades, defocused
+F8 = dict(light=(-6.0, -4.0), focus=0.2, f_number=8.0, blades=7, curvature=0.3, rotation=10.0,
           size=0.1, pixels=32, wavelengths=4)
 F2 = dict(F8, f_number=2.0, size=0.2)
 SCENE = F8

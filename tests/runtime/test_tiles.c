@@ -235,10 +235,10 @@ static void scene_fitted(lensrt_context ctx, lensrt_lens lens, scene *s)
     lensrt_light l0 = LENSRT_LIGHT_INIT, l1 = LENSRT_LIGHT_INIT;
     lensrt_render_desc d = LENSRT_RENDER_DESC_INIT;
     s->name = "fitted lens, float";
-    l0.field_x_deg = 6.0;
-    l0.field_y_deg = 4.0;
-    l1.field_x_deg = 5.9;
-    l1.field_y_deg = 4.1;
+    l0.field_x_deg = -6.0;
+    l0.field_y_deg = -4.0;
+    l1.field_x_deg = -5.9;
+    l1.field_y_deg = -4.1;
     l1.distance_mm = 5000.0;
     l1.intensity = 0.5;
     s->lights[0] = l0;
@@ -293,7 +293,7 @@ static void scene_analytic(lensrt_lens lens, scene *s)
     lensrt_light l0 = LENSRT_LIGHT_INIT, l1 = LENSRT_LIGHT_INIT;
     lensrt_render_desc d = LENSRT_RENDER_DESC_INIT;
     s->name = "perfect lens, unbiased";
-    l1.field_x_deg = 0.01;
+    l1.field_x_deg = -0.01;
     l1.distance_mm = 2000.0;
     s->lights[0] = l0;
     s->lights[1] = l1;

@@ -75,12 +75,32 @@ lensrt_result lensrt_scene_check_desc(lensrt_context ctx, const lensrt_render_de
     return LENSRT_SUCCESS;
 }
 
+/* The one place lensrt turns field angles into P_o's (x_O, y_O) (lensfit's is
+ * lensfit.scene.light_direction). Field angles are the designers' (lensrt.h, lensrt_light):
+ * the chief ray travels along (tan x, tan y, 1), so the light lies the other way, along
+ * (-tan x, -tan y, 1), and x_O, y_O are that direction's cosines. */
 void lensrt_light_direction(const lensrt_light *l, double *x, double *y)
 {
     double tx = tan(l->field_x_deg * (PI / 180.0)), ty = tan(l->field_y_deg * (PI / 180.0));
     double n = sqrt(1.0 + tx * tx + ty * ty);
-    *x = tx / n;
-    *y = ty / n;
+    *x = -tx / n;
+    *y = -ty / n;
+}
+
+lensrt_result lensrt_light_direction_cosines(lensrt_context ctx, const lensrt_light *light, double xy[2])
+{
+    lensrt_light full;
+    lensrt_result res;
+    if (!ctx || !light || !xy) return lensrt_fail(ctx, LENSRT_ERROR_INVALID_ARGUMENT, "light_direction_cosines: NULL argument");
+    if ((res = lensrt_struct_in(ctx, "light_direction_cosines: lensrt_light", light, &full, sizeof full)) != LENSRT_SUCCESS)
+        return res;
+    // Beyond +-90 deg tan() wraps round: the light would be behind the lens
+    if (!(fabs(full.field_x_deg) < 90.0) || !(fabs(full.field_y_deg) < 90.0))
+        return lensrt_fail(ctx, LENSRT_ERROR_INVALID_ARGUMENT,
+                           "light_direction_cosines: field (%g, %g) deg: expected finite angles within +-90 deg",
+                           full.field_x_deg, full.field_y_deg);
+    lensrt_light_direction(&full, &xy[0], &xy[1]);
+    return LENSRT_SUCCESS;
 }
 
 /* The lights' direction cosines and distances (r->light_x, light_y, light_d), each

@@ -10,7 +10,8 @@ lensrt_result lensrt_scene_check_desc(lensrt_context ctx, const lensrt_render_de
 /* Pixel centres, lights, stop, the window's check, the sampled region and its measure,
  * for a render whose description, lights and wavelengths are copied in. */
 lensrt_result lensrt_scene_place(lensrt_render r, const lensrt_lens_info *info);
-/* Direction cosines of a light seen from the lens: along (tan x, tan y, 1). */
+/* P_o's (x_O, y_O) of a light: the direction cosines from the lens towards it, along
+ * (-tan x, -tan y, 1) (the field angles are the chief ray's; lensrt.h, lensrt_light). */
 void lensrt_light_direction(const lensrt_light *l, double *x, double *y);
 
 #endif /* LENSRT_SCENE_H */

@@ -185,12 +185,14 @@ static lensrt_result exr_map_result(exr_result_t rv)
 static char *exr_lights_text(const lensrt_allocator *allocator, const lensrt_image_meta *meta)
 {
     int n = meta->lights ? meta->n_lights : 0;
-    size_t size = 64 + (size_t)(n > 0 ? n : 0) * EXR_LIGHT_TEXT_SIZE, used;
+    size_t size = 128 + (size_t)(n > 0 ? n : 0) * EXR_LIGHT_TEXT_SIZE, used;
     char *text = (char *)allocator->alloc_fn(size, allocator->user_data);
     int i;
     if (!text)
         return NULL;
-    used = (size_t)snprintf(text, size, "%d light%s", meta->n_lights, meta->n_lights == 1 ? "" : "s");
+    // The field angles' sign convention travels with them (lensrt.h, lensrt_light)
+    used = (size_t)snprintf(text, size, "%d light%s (field angles of the chief ray: +y is imaged at +y)",
+                            meta->n_lights, meta->n_lights == 1 ? "" : "s");
     for (i = 0; i < n && used < size; ++i) {
         const lensrt_light *l = &meta->lights[i];
         char distance[48];

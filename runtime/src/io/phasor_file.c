@@ -107,8 +107,11 @@ static uint64_t scene_hash(const lensrt_render r)
     h = lens_hash(h, r->lens);
     h = fnv(h, r->wavelengths, sizeof(double) * (size_t)r->n_wl);
     for (i = 0; i < r->n_lights; i++) {
-        v[0] = r->lights[i].field_x_deg;
-        v[1] = r->lights[i].field_y_deg;
+        // The light as P_o sees it (direction cosines towards it), not its field angles:
+        // files written before the field angles took the designers' sign (issue 15) hold
+        // the mirrored light under the same angles, and are refused as another scene
+        v[0] = r->light_x[i];
+        v[1] = r->light_y[i];
         v[2] = r->lights[i].distance_mm;
         v[3] = r->lights[i].intensity;
         h = fnv(h, v, sizeof(double) * 4);
