@@ -353,6 +353,14 @@ def _print_trust(fig: dict) -> None:
           f"({cell_label(worst)}), {verdict} the target {target:.3%}")
 
 
+def _print_extrapolated(lens, domain: dict) -> None:
+    """The glasses the fit used outside their published range (allowed), one line each."""
+    from lensfit.glass.ranges import out_of_range
+
+    for o in out_of_range(lens, domain["wavelength_min_nm"], domain["wavelength_max_nm"]):
+        print(f"  glass extrapolated: {o.describe()}")
+
+
 def cmd_fit(args: argparse.Namespace) -> int:
     from lensfit import stage
     from lensfit.generate import GENERATED_DIR, lens_folder_name
@@ -397,6 +405,7 @@ def cmd_fit(args: argparse.Namespace) -> int:
         print(f"  {o['system']} {o['name']:6s} {o['terms']:5d} terms  RMS {o['rms']:.4g} "
               f"{o['unit']}{miss}")
     _print_trust(fig)
+    _print_extrapolated(lens, fig["domain"])
     return 0
 
 
@@ -417,6 +426,7 @@ def cmd_report(args: argparse.Namespace) -> int:
     else:
         print(f"wrote {report_dir / 'report.md'}")
         _print_trust(fig)
+        _print_extrapolated(lens, fig["domain"])
     return 0
 
 

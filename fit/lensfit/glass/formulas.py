@@ -15,7 +15,7 @@ the order the catalogs print them (see ``FORMULAS`` and ``lensdb/glass/README.md
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 import numpy.typing as npt
@@ -80,11 +80,12 @@ class FormulaGlass:
     formula: str
     coefficients: tuple[float, ...]
     range_nm: tuple[float, float]
-    nd: float = math.nan
-    ne: float = math.nan
-    vd: float = math.nan
-    ve: float = math.nan
-    source: str = ""
+    # Catalog values: kept for checks, not part of the medium's identity (NaN != NaN)
+    nd: float = field(default=math.nan, compare=False)
+    ne: float = field(default=math.nan, compare=False)
+    vd: float = field(default=math.nan, compare=False)
+    ve: float = field(default=math.nan, compare=False)
+    source: str = field(default="", compare=False)
     reference: str = ""
 
     def __post_init__(self) -> None:

@@ -142,6 +142,15 @@ def test_formulas_by_hand() -> None:
         FormulaGlass("x", "t", "schott", (1.0,), (400, 700))
 
 
+def test_formula_glass_identity_ignores_catalog_values() -> None:
+    """Equal formula, coefficients and range are the same medium, whatever the printed
+    values (a NaN nd made twice is not equal to itself: the lens loader compares media)."""
+    a = FormulaGlass("x", "t", "schott", (2.2, 0, 0, 0, 0, 0), (400, 700), nd=float("nan"))
+    b = FormulaGlass("x", "t", "schott", (2.2, 0, 0, 0, 0, 0), (400, 700), nd=float("nan"))
+    assert a == b and hash(a) == hash(b) and len({a, b}) == 1
+    assert a != FormulaGlass("x", "t", "schott", (2.3, 0, 0, 0, 0, 0), (400, 700))
+
+
 # --- names -----------------------------------------------------------------------------
 
 
@@ -390,3 +399,15 @@ def test_cli_fit_refuses_before_any_work(tmp_path: Path,
     assert err.count("\n") == 1 and "surface 0: key 'material': wavelengths 380-780 nm" in err
     assert "--wavelengths 400,700" in err
     assert not gen.exists() and not rep.exists()
+
+
+def test_cli_fit_lists_extrapolated_glasses(capsys: pytest.CaptureFixture[str]) -> None:
+    """What `lensfit fit` and `lensfit report` print after an allowed extrapolation."""
+    from lensfit.cli import _print_extrapolated
+
+    lens = lens_from_dict(_lens(SK16_INLINE, extrapolation="allow"), file="t.toml")
+    _print_extrapolated(lens, {"wavelength_min_nm": 380.0, "wavelength_max_nm": 700.0})
+    assert capsys.readouterr().out == ("  glass extrapolated: SK16 (surface 0): published "
+                                       "400-700 nm, extrapolated at 380-400 nm\n")
+    _print_extrapolated(lens, {"wavelength_min_nm": 400.0, "wavelength_max_nm": 700.0})
+    assert capsys.readouterr().out == ""
