@@ -225,7 +225,7 @@ def test_table_reads_back_as_the_fitted_systems(quick_run):
 
 
 def test_quick_fit_serves_the_demo_scene(quick_run):
-    """The committed demo scene (one light at (6, 4) degrees, three wavelengths, focus
+    """The committed demo scene (one light at (-6, -4) degrees, three wavelengths, focus
     at infinity) specialised from the quick fit equals it at the fixed inputs."""
     systems, meta = read_fit_json(quick_run.folder / "fit.json")
     assert Domain.from_dict(meta["domain"]) == quick_run.domain
