@@ -128,7 +128,9 @@ def paraxial(
         xp = Pupil(zs[s], r_stop)
     else:
         rear = system_matrix(lens, s + 1, n_surf - 1, meridian, wavelength_nm)
-        gap = np.array([[1.0, lens.surfaces[s].thickness_mm], [0.0, 1.0]])
+        # (y, n u): the gap behind the stop in reduced form (the stop may lie in glass)
+        n_stop = float(lens.surfaces[s].medium.n(wavelength_nm))
+        gap = np.array([[1.0, lens.surfaces[s].thickness_mm / n_stop], [0.0, 1.0]])
         (ra, rb), (rc, rd) = rear @ gap
         if rd != 0:
             xp = Pupil(z_last - rb / rd, abs(r_stop * (ra * rd - rb * rc) / rd))
@@ -225,8 +227,11 @@ def table(lens: Lens, *, stop_radius_mm: float | None = None,
     out: dict[str, Any] = {
         "name": lens.name,
         "file": lens.source_file,
-        "surfaces": len(lens.surfaces),
-        "stop_index": lens.stop_index,
+        # The file's numbering: a stop on a refracting surface is its vertex plane, which
+        # the loader inserts as a surface of its own (lensdb/README.md, The aperture stop)
+        "surfaces": sum(1 for s in lens.surfaces if not s.inserted),
+        "stop_index": lens.stop_file_index,
+        "stop_on_vertex_plane": bool(lens.surfaces[lens.stop_index].inserted),
         "total_track_mm": lens.sensor_z,
         "wavelength_nm": py.wavelength_nm,
         "anamorphic": lens.anamorphic,

@@ -247,13 +247,6 @@ def lens_from_dict(data: dict[str, Any], *, file: str = "<memory>") -> Lens:
             key="stop",
         )
     s_i = stops[0]
-    if s_i > 0 and surfaces[s_i - 1].medium.name != "air":
-        raise LensError(
-            "the aperture stop must be in air (found glass in front of it)",
-            file=file,
-            surface=s_i,
-            key="stop",
-        )
     if surfaces[-1].medium is not AIR and surfaces[-1].medium.name != "air":
         raise LensError(
             "the last surface must be followed by air (the sensor is in air)",
@@ -269,6 +262,8 @@ def lens_from_dict(data: dict[str, Any], *, file: str = "<memory>") -> Lens:
             key="thickness",
         )
     _check_crossing(surfaces, file)
+    surfaces = _stop_plane(surfaces, s_i)
+    _check_stop_plane(surfaces, file, s_i)
 
     name = info["name"]
     provenance = dict(info)
@@ -346,8 +341,6 @@ def _surface(s: dict[str, Any], i: int, file: str, scale: float) -> Surface:
     # Medium behind the surface
     medium, spec = _medium(s, i, file)
     stop = bool(s.get("stop", False))
-    if stop and medium.name != "air":
-        raise err("the aperture stop must be in air (air behind it)", "stop")
     surf = Surface(
         shape=shape,
         radius_mm=radius,
@@ -493,9 +486,75 @@ def first_crossing(a: Surface, b: Surface) -> tuple[float, float]:
     return worst, where
 
 
+def _same_medium(a: Medium, b: Medium) -> bool:
+    return a == b or (a.name == "air" and b.name == "air")
+
+
+def _is_stop_plane(surfaces: list[Surface], i: int) -> bool:
+    """Surface i of the file is a stop that is only a stop: a plane with the same medium
+    on both sides (air, or one glass: a stop inside glass)."""
+    s = surfaces[i]
+    before = AIR if i == 0 else surfaces[i - 1].medium
+    return s.stop and s.shape == "plane" and _same_medium(before, s.medium)
+
+
+def _stop_plane(surfaces: list[Surface], s_i: int) -> list[Surface]:
+    """The model's surfaces with the stop as a plane of its own (lensdb/README.md, The
+    aperture stop). A stop on a plane with the same medium on both sides is that plane.
+    On any other surface (curved, or bounding two media) the stop is the plane tangent to
+    the surface's vertex: a zero-thickness plane is inserted on the surface's air side
+    (behind it when only its back is air, so that a stop on the last surface leaves
+    nothing but air to the sensor; in front of it otherwise, so that a stop on the first
+    surface leaves nothing but air to the scene, and on a cemented surface it lies in
+    the front glass). Its clear radius is the surface's semi_diameter. The tracer crosses
+    the zero gap by the sequential convention (Lens.virtual_gap)."""
+    s = surfaces[s_i]
+    if _is_stop_plane(surfaces, s_i):
+        return surfaces
+    before = AIR if s_i == 0 else surfaces[s_i - 1].medium
+    plane = {"shape": "plane", "radius_mm": math.inf, "semi_diameter_mm": s.semi_diameter_mm,
+             "stop": True}
+    if before.name != "air" and s.medium.name == "air":
+        stop = Surface(**plane, thickness_mm=s.thickness_mm, medium=s.medium,
+                       material_spec=dict(s.material_spec), inserted="back")
+        return [*surfaces[:s_i], dataclasses.replace(s, stop=False, thickness_mm=0.0), stop,
+                *surfaces[s_i + 1:]]
+    spec = {"material": "air"} if s_i == 0 else dict(surfaces[s_i - 1].material_spec)
+    stop = Surface(**plane, thickness_mm=0.0, medium=before, material_spec=spec,
+                   inserted="front")
+    return [*surfaces[:s_i], stop, dataclasses.replace(s, stop=False), *surfaces[s_i + 1:]]
+
+
+def _check_stop_plane(surfaces: list[Surface], file: str, s_i: int) -> None:
+    """An inserted stop plane must not cross its other neighbour (the surface it does
+    not belong to): the plane is flat where the stop's surface curves."""
+    k = next(i for i, s in enumerate(surfaces) if s.stop)
+    if not surfaces[k].inserted:
+        return
+    other = (k - 1, k) if surfaces[k].inserted == "front" else (k, k + 1)
+    if not 0 <= other[0] < other[1] < len(surfaces):
+        return
+    gap, h = first_crossing(surfaces[other[0]], surfaces[other[1]])
+    if gap < -CROSSING_TOLERANCE_MM:
+        j = s_i - 1 if surfaces[k].inserted == "front" else s_i + 1
+        raise LensError(
+            f"the stop is the plane tangent to this surface's vertex, and surface {j} "
+            f"crosses that plane inside their clear aperture (gap {gap:.4g} mm at height "
+            f"{h:.4g} mm); put the stop on a plane surface of its own where the iris is",
+            file=file,
+            surface=s_i,
+            key="stop",
+        )
+
+
 def _check_crossing(surfaces: list[Surface], file: str) -> None:
-    """Neighbouring surfaces must not cross inside their clear aperture."""
+    """Neighbouring surfaces must not cross inside their clear aperture; a stop plane at
+    zero distance from a surface may (the stop on that surface's vertex plane, traced by
+    the sequential convention, Lens.virtual_gap)."""
     for i in range(len(surfaces) - 1):
+        if surfaces[i].thickness_mm == 0.0 and (_is_stop_plane(surfaces, i)
+                                               or _is_stop_plane(surfaces, i + 1)):
+            continue
         gap, h = first_crossing(surfaces[i], surfaces[i + 1])
         if gap < -CROSSING_TOLERANCE_MM:
             raise LensError(

@@ -65,6 +65,9 @@ class Surface:
     stop: bool = False
     coating: Coating = BARE
     material_spec: dict[str, Any] = field(default_factory=dict, compare=False)
+    inserted: str = ""  # "" for a surface of the file; "front" or "back" for the stop
+    #                     plane the loader put at the vertex of a refracting surface marked
+    #                     `stop = true`, in front of that surface (the next) or behind it
 
     @property
     def curvature(self) -> float:
@@ -147,6 +150,32 @@ class Lens:
     @property
     def stop_index(self) -> int:
         return next(i for i, s in enumerate(self.surfaces) if s.stop)
+
+    def file_index(self, k: int) -> int | None:
+        """The number surface ``k`` has in the lens file (None for an inserted stop plane):
+        messages and reports use the file's numbering."""
+        if self.surfaces[k].inserted:
+            return None
+        return k - sum(1 for s in self.surfaces[:k] if s.inserted)
+
+    @property
+    def stop_file_index(self) -> int:
+        """The file's surface marked ``stop = true`` (the refracting surface whose vertex
+        plane is the stop when the loader inserted one)."""
+        s = self.stop_index
+        k = {"": s, "front": s + 1, "back": s - 1}[self.surfaces[s].inserted]
+        return self.file_index(k)  # type: ignore[return-value]
+
+    def virtual_gap(self, k: int, from_front: bool = True) -> bool:
+        """The ray reaches surface ``k`` across a zero-thickness gap that borders the stop
+        plane (a stop on a vertex plane, inserted or written so): the sequential
+        convention then traces the straight line to the surface even where it lies behind
+        the ray (t < 0, the OPL counted negative), as design programs do."""
+        j = k - 1 if from_front else k + 1
+        if not 0 <= j < len(self.surfaces):
+            return False
+        gap = self.surfaces[min(j, k)].thickness_mm
+        return gap == 0.0 and (self.surfaces[j].stop or self.surfaces[k].stop)
 
     @property
     def stop_radius_max_mm(self) -> float:

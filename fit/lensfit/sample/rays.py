@@ -212,9 +212,11 @@ def _newton(residual, p0: np.ndarray, scale: float):
     return p, ~failed
 
 
-def _vignetting(lens: Lens, history: list[np.ndarray], path: list[Step]) -> np.ndarray:
-    """Largest radius / housing radius over the surfaces of the half path (not the stop)."""
-    v = np.zeros(len(history[0]))
+def _vignetting(lens: Lens, history: list[np.ndarray], path: list[Step],
+                n: int) -> np.ndarray:
+    """Largest radius / housing radius over the surfaces of the half path (not the stop);
+    0 for the n rays of a half path without surfaces (the stop is the last surface)."""
+    v = np.zeros(n)
     for pos, step in zip(history, path, strict=True):
         s = lens.surfaces[step.surface]
         if s.stop:
@@ -233,9 +235,6 @@ def sample_object_side(lens: Lens, domain: Domain, groups: int, per_group: int,
                        seed: int) -> Samples:
     """Samples for P_o: scene point -> stop point."""
     rng = np.random.default_rng(seed)
-    s = lens.stop_index
-    if s == 0:
-        raise SamplingError(f"{lens.name}: the stop is the first surface; P_o is trivial")
     n = groups * per_group
     gid, ap = _group_inputs(rng, groups, per_group, domain.stop_radius_mm)
 
@@ -282,9 +281,7 @@ def aim_object_side(lens: Lens, x_O: np.ndarray, y_O: np.ndarray, u_O: np.ndarra
     totally or do not converge have ``ok`` False. ``fd_scale_mm`` sets Newton's
     finite-difference step (default: the largest |stop point|, at least 1 mm); ``guess``
     (N, 2) where each ray crosses z = 0, NaN rows for the paraxial guess."""
-    s = lens.stop_index
-    if s == 0:
-        raise SamplingError(f"{lens.name}: the stop is the first surface; P_o is trivial")
+    s = lens.stop_index  # 0: P_o is the straight line to the stop plane, traced as any
     xo, yo, ug, xa, ya, lam = (np.array(v, dtype=np.float64) for v in np.broadcast_arrays(
         x_O, y_O, u_O, x_a, y_a, wavelength_nm))
     xo, yo, ug, xa, ya, lam = (v.reshape(-1) for v in (xo, yo, ug, xa, ya, lam))
@@ -328,7 +325,7 @@ def aim_object_side(lens: Lens, x_O: np.ndarray, y_O: np.ndarray, u_O: np.ndarra
         """The converged rays again, with Fresnel loss and the history."""
         hist: list[np.ndarray] = []
         r, valid, out, start = residual(idx, p, hist, fresnel=True)
-        vig = _vignetting(lens, hist, path)
+        vig = _vignetting(lens, hist, path, len(idx))
         # OPL relative to d_O, without cancellation
         ui = ug[idx, None]
         wi = w[idx]
@@ -363,7 +360,10 @@ def aim_object_side(lens: Lens, x_O: np.ndarray, y_O: np.ndarray, u_O: np.ndarra
 def _front_bulge(lens: Lens) -> float:
     """How far any surface before the stop reaches in front of z = 0 (mm, >= 0)."""
     reach = 0.0
-    for k in range(lens.stop_index + 1):
+    s = lens.stop_index
+    # With the stop on a surface's vertex plane, that surface too (it may bulge in front)
+    last = s + 1 if s + 1 < len(lens.surfaces) and lens.virtual_gap(s + 1) else s
+    for k in range(last + 1):
         surf = lens.surfaces[k]
         h = np.linspace(0.0, surf.semi_diameter_mm, 33)
         z = lens.vertex_z[k] + np.nan_to_num(surf.sag(h, np.zeros_like(h)))
@@ -445,26 +445,31 @@ def aim_sensor_side(lens: Lens, x_S: np.ndarray, y_S: np.ndarray, z_S: np.ndarra
         """The converged rays again, with Fresnel loss and the history."""
         hist: list[np.ndarray] | None = [] if vignetting else None
         r, valid, out, end = shoot(idx, q, hist, fresnel=True)
-        if hist is not None:
-            vig, last_pos = _vignetting(lens, hist, path), hist[-1]
+        if hist:
+            vig, last_pos = _vignetting(lens, hist, path, len(idx)), hist[-1]
+        elif hist is not None:  # the stop is the last surface: x_i, y_i are on it
+            vig, last_pos = np.zeros(len(idx)), out.pos
         else:  # the trace ends on the last surface: the same positions
             vig, last_pos = np.full(len(idx), np.nan), out.pos
         outputs = np.stack([last_pos[:, 0], last_pos[:, 1], out.transmittance, out.opl_mm],
                            axis=1)
         return r, valid, outputs, vig, end, out.dir
 
-    # Paraxial first guess from the transfer matrix stop -> sensor, per meridian
+    # Paraxial first guess from the transfer matrix stop -> sensor, per meridian; it acts
+    # on (y, n u), n the index at the stop (the stop may lie in glass)
+    n_stop = float(lens.surfaces[s].medium.n(D_LINE_NM))
     q0 = np.empty((n, 2))
     for j, mer in enumerate(("x", "y")):
         m = system_matrix(lens, s + 1, n_surf - 1, mer, D_LINE_NM)
-        gap = np.array([[1.0, lens.surfaces[s].thickness_mm], [0.0, 1.0]])
-        m = m @ gap
+        if s < n_surf - 1:  # else the stop is the last surface: its gap is `last` below
+            gap = np.array([[1.0, lens.surfaces[s].thickness_mm / n_stop], [0.0, 1.0]])
+            m = m @ gap
         last = z_sensor - lens.vertex_z[-1]
         a = m[0, 0] + last * m[1, 0]
         b = m[0, 1] + last * m[1, 1]
         target = sens[:, j]
         with np.errstate(divide="ignore", invalid="ignore"):
-            q0[:, j] = np.where(b != 0, (target - a * ap[:, j]) / b, 0.0)
+            q0[:, j] = np.where(b != 0, (target - a * ap[:, j]) / b, 0.0) / n_stop
     q0 = np.nan_to_num(q0)
     warm = guess is not None
     if warm:

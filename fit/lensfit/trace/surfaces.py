@@ -22,13 +22,16 @@ NEWTON_TOL_MM = 1e-13
 
 
 def quadric_intersect(
-    surface: Surface, q: np.ndarray, d: np.ndarray
+    surface: Surface, q: np.ndarray, d: np.ndarray, virtual: bool = False
 ) -> tuple[np.ndarray, np.ndarray]:
     """Intersect the base quadric c(x^2 + y^2) + c(1 + k) z^2 - 2z = 0 (planes included).
 
     The two roots are formed without cancellation (t1 = C/s, t2 = s/A with
     s = -h - sign(h) sqrt(h^2 - AC)); the root kept is the nearest one ahead of the ray
-    that lies on the sheet through the vertex (checked against the sag).
+    that lies on the sheet through the vertex (checked against the sag). With
+    ``virtual`` (a ray on a stop plane at the surface's vertex, the sequential
+    convention) the root may lie behind the ray: the one on the vertex sheet nearest to
+    it, t of either sign.
     """
     c, k = surface.curvature, surface.conic_k
     mx, my = surface.meridian_mask
@@ -38,7 +41,7 @@ def quadric_intersect(
         # Plane z = 0
         ok = dz != 0.0
         t = np.where(ok, -qz / np.where(ok, dz, 1.0), 0.0)
-        hit = ok & (t >= T_MIN_MM)
+        hit = ok if virtual else ok & (t >= T_MIN_MM)
         return np.where(hit, t, 0.0), hit
     a = c * (mx * dx * dx + my * dy * dy + (1.0 + k) * dz * dz)
     h = c * (mx * qx * dx + my * qy * dy + (1.0 + k) * qz * dz) - dz
@@ -58,15 +61,21 @@ def quadric_intersect(
     with np.errstate(invalid="ignore"):  # inf * 0 for a root at infinity: not on sheet
         for t in (t1, t2):
             on_sheet = ck * (qz + t * dz) < 1.0
-            valid = real & (t >= T_MIN_MM) & on_sheet & np.isfinite(t)
-            best = np.where(valid & (t < best), t, best)
+            if virtual:
+                valid = real & on_sheet & np.isfinite(t)
+                best = np.where(valid & (np.abs(t) < np.abs(best)), t, best)
+            else:
+                valid = real & (t >= T_MIN_MM) & on_sheet & np.isfinite(t)
+                best = np.where(valid & (t < best), t, best)
     hit = np.isfinite(best)
     return np.where(hit, best, 0.0), hit
 
 
-def intersect(surface: Surface, q: np.ndarray, d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Ray parameter t and hit flag for any supported surface shape."""
-    t, hit = quadric_intersect(surface, q, d)
+def intersect(surface: Surface, q: np.ndarray, d: np.ndarray,
+              virtual: bool = False) -> tuple[np.ndarray, np.ndarray]:
+    """Ray parameter t and hit flag for any supported surface shape; ``virtual`` as in
+    :func:`quadric_intersect` (t may be negative)."""
+    t, hit = quadric_intersect(surface, q, d, virtual)
     if surface.shape != "asphere" or not surface.aspheric:
         return t, hit
     # Refine on the full asphere by Newton's method on f(t) = z(t) - sag(x(t), y(t)),
@@ -86,7 +95,7 @@ def intersect(surface: Surface, q: np.ndarray, d: np.ndarray) -> tuple[np.ndarra
         t[idx] -= step
         active[idx[bad]] = False
         converged[idx[~bad & (np.abs(step) <= NEWTON_TOL_MM * (1.0 + np.abs(t[idx])))]] = True
-    hit = active & converged & (t >= T_MIN_MM)
+    hit = active & converged & (virtual | (t >= T_MIN_MM))
     return np.where(hit, t, 0.0), hit
 
 

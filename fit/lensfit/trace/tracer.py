@@ -163,9 +163,10 @@ def trace(
         n1 = (m_front if step.from_front else m_back).n(live.lam)
         n2 = (m_back if step.from_front else m_front).n(live.lam)
 
-        # Compute t at the surface, in its local frame
+        # Compute t at the surface, in its local frame (across a zero gap at the stop
+        # plane, the sequential convention: t may be negative, see Lens.virtual_gap)
         q = live.pos - np.array([0.0, 0.0, vz[k]])
-        t, hit = surfaces.intersect(surf, q, live.dir)
+        t, hit = surfaces.intersect(surf, q, live.dir, lens.virtual_gap(k, step.from_front))
         p = q + t[:, None] * live.dir
 
         # Clip at the housing, and at the stop opening

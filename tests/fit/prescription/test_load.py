@@ -144,14 +144,6 @@ BAD_CASES: list[tuple[str, str, str, int | None, str, tuple[str, ...]]] = [
         "stop",
         ("more than one",),
     ),
-    (
-        "stop-in-glass",
-        'material = "air"\nsemi_diameter = 8.0',
-        'material = "N-BK7"\nsemi_diameter = 8.0',
-        0,
-        "stop",
-        ("air",),
-    ),
     ("nd-without-vd", 'material = "N-BK7"', "nd = 1.5168", 1, "vd", ("missing",)),
     (
         "nd-and-material",

@@ -242,16 +242,19 @@ def test_domain_from_dict_rejects_unknown_keys():
         Domain.from_dict(d)
 
 
-def test_stop_as_first_surface_is_refused_for_p_o(build_lens):
+def test_stop_as_first_surface_samples_a_straight_p_o(build_lens):
+    """P_o of a stop in front of everything is the straight line to the stop (issue 15;
+    tests/fit/test_stop_placement.py checks its OPL against the closed form)."""
     lens = build_lens([
         {"shape": "plane", "thickness": 5.0, "material": "air", "semi_diameter": 10.0,
          "stop": True},
         {"shape": "plane", "thickness": 10.0, "material": "N-BK7", "semi_diameter": 20.0},
         {"shape": "plane", "thickness": 20.0, "material": "air", "semi_diameter": 20.0},
     ])
-    with pytest.raises(SamplingError, match="stop is the first surface"):
-        sample_object_side(lens, small_domain(), 4, 4, seed=0)
-    # P_s is still well defined
+    got = sample_object_side(lens, small_domain(), 4, 4, seed=0)
+    assert len(got) == 16
+    # x_o, y_o lie on the first surface, the stop: the stop point to Newton's tolerance
+    assert np.max(np.abs(got.outputs[:, :2] - got.inputs[:, 3:5])) <= 10 * NEWTON_TOL_MM
     assert len(sample_sensor_side(lens, small_domain(), 4, 4, seed=0)) == 16
 
 
