@@ -103,10 +103,11 @@ test: setup lint runtime
 	$(PY) -m pytest tests
 
 # The parsers under fuzzing for longer: the lens table and phasor readers (libFuzzer with
-# ASan/UBSan, build/fuzz/) and the TOML loaders (hypothesis)
+# ASan/UBSan, build/fuzz/), the TOML loaders and the .zmx/Optiland importers (hypothesis)
 fuzz: setup
 	bash tests/fuzz/run.sh $(FUZZ_SECONDS)
-	LENSFIT_FUZZ_EXAMPLES=$(FUZZ_EXAMPLES) $(PY) -m pytest tests/fit/test_fuzz_toml.py -q
+	LENSFIT_FUZZ_EXAMPLES=$(FUZZ_EXAMPLES) $(PY) -m pytest tests/fit/test_fuzz_toml.py \
+		tests/fit/interchange/test_fuzz_import.py -q
 
 bench: setup runtime
 	@mkdir -p build/bench

@@ -24,7 +24,9 @@ Mapped (each value kept exactly as written; lengths in lens units, see UNIT):
   (trailing zeros dropped), ``CONI`` the ``conic``.
 * TOROIDAL (a y-z curve rotated about an axis parallel to y at the radius of rotation
   ``PARM 1``, 0 meaning infinite; PARM 2..8 polynomial terms on y^2..y^14; extra data
-  ``XDAT 1`` the number of Zernike terms). Only exact cylinders and spheres are mapped:
+  ``XDAT 1`` the number of Zernike terms, ``XDAT 2`` their normalisation radius, ``PARM
+  0`` their extrapolation flag: all inert without terms). Only exact cylinders and
+  spheres are mapped:
   CURV c, PARM 1 = 0 -> ``cylinder-x`` (flat along x, power in y) of radius 1/c;
   CURV 0, PARM 1 = R -> ``cylinder-y`` (power in x) of radius R; PARM 1 = 1/c -> a
   ``sphere``; both zero -> ``plane``. A conic, a polynomial term or a Zernike term
@@ -578,7 +580,7 @@ def _surface(s: _Surf, makers: list[str], problems: list[str], notes: Notes, lab
 
     # Shape
     if typ and curv is not None and coni is not None:
-        shape = _shape(s, typ, curv, coni, problems, label)
+        shape = _shape(s, typ, curv, coni, problems, label, notes)
         if shape is not None:
             d.update(shape)
     if disz is not None:
@@ -604,8 +606,8 @@ def _surface(s: _Surf, makers: list[str], problems: list[str], notes: Notes, lab
     return {k: d[k] for k in order if k in d}
 
 
-def _shape(s: _Surf, typ: str, curv: float, coni: float, problems: list[str], label: str
-           ) -> dict[str, Any] | None:
+def _shape(s: _Surf, typ: str, curv: float, coni: float, problems: list[str], label: str,
+           notes: Notes) -> dict[str, Any] | None:
     n = s.number
     parm = {i: v for i, (v, _) in s.parm.items()}
 
@@ -613,6 +615,11 @@ def _shape(s: _Surf, typ: str, curv: float, coni: float, problems: list[str], la
         problems.append(f"{label}:{s.parm[i][1]}: SURF {n} {typ} PARM {i}: {why}")
 
     radius = radius_for(curv) if curv else None
+    if typ != "TOROIDAL":
+        for i, (v, lineno) in sorted(s.xdat.items()):
+            if v:
+                problems.append(f"{label}:{lineno}: SURF {n} {typ} XDAT {i}: extra data on "
+                                f"a {typ} surface: not mapped (not imported)")
     if typ == "STANDARD":
         for i, (v, _) in sorted(s.parm.items()):
             if v:
@@ -649,10 +656,14 @@ def _shape(s: _Surf, typ: str, curv: float, coni: float, problems: list[str], la
         if i >= 2 and parm[i]:
             bad(i, "a polynomial term on the toroid's y curve: not representable (lensfit's "
                    "cylinders are circular)")
+    zernike_terms = s.xdat.get(1, (0.0, 0))[0]
     for i, (v, lineno) in sorted(s.xdat.items()):
         if i == 1 and v:
             problems.append(f"{label}:{lineno}: SURF {n} TOROIDAL XDAT 1: {v:g} Zernike terms: "
                             "not representable")
+        elif i >= 3 and v and not zernike_terms:
+            notes.add(str(lineno), f"SURF {n} TOROIDAL XDAT {i}", "Zernike coefficient not "
+                      "mapped (unused: XDAT 1 sets 0 terms)")
     rot = parm.get(1, 0.0)
     if coni and radius is not None:
         problems.append(f"{label}:{s.values['CONI'][1]}: SURF {n} TOROIDAL CONI: a conic "

@@ -255,6 +255,10 @@ def _line_of(text: str, pattern: str) -> int:
     ("  MEMA 12.7 0 0 0 1 \"\"", "  ZZZZ 1",
      "SURF 2 ZZZZ: unknown surface keyword: it may change the optics"),
     ("  FLAP 0 12.7 0", "  CLAP 2 12.7 0", "SURF 4 CLAP: an annular aperture"),
+    ("  COAT THORC\n", "  COAT THORC\n  XDAT 1 5 0 0\n",
+     "SURF 2 STANDARD XDAT 1: extra data on a STANDARD surface"),
+    ("  COAT THORC\n", "  COAT THORC\n  PARM 3 0.5\n",
+     "SURF 2 STANDARD PARM 3: a parameter on a STANDARD surface"),
     ("  CURV -7.6335877862595417E-3 0 0 0 0 \"\"\n",
      "  CURV -7.6335877862595417E-3 0 0 0 0 \"\"\n  CURV 0\n", "SURF 4 CURV: given twice"),
 ])
@@ -328,3 +332,26 @@ def test_missing_semi_diameter_estimated_from_the_aperture():
     assert e.value.problems == [f"a.zmx: no semi-diameter on {n}: SURF 3, and the system "
                                 "aperture (none) does not give the paraxial marginal ray to "
                                 "estimate them"]
+
+
+CYL = (FIX / "cylinders.zmx").read_text(encoding="utf-8")
+
+
+@pytest.mark.parametrize(("old", "new", "words"), [
+    ("  PARM 2 0\n", "  PARM 2 1e-4\n", "SURF 2 TOROIDAL PARM 2: a polynomial term"),
+    ("  XDAT 1 0.000000000000E+000", "  XDAT 1 3.000000000000E+000",
+     "SURF 2 TOROIDAL XDAT 1: 3 Zernike terms: not representable"),
+    ("  PARM 1 -40\n", "  PARM 1 -45\n",
+     "SURF 5 TOROIDAL: a toroid with radius -40 in y and -45 in x: not representable"),
+    ("  CURV 0.02\n", "  CURV 0.02\n  CONI -1\n", "SURF 2 TOROIDAL CONI: a conic y curve"),
+])
+def test_toroids_that_are_not_cylinders(old, new, words):
+    assert CYL.count(old) == 1, old
+    text = CYL.replace(old, new)
+    n = next(i for i, (a, b) in enumerate(zip(CYL.splitlines(), text.splitlines(),
+                                              strict=False), start=1) if a != b)
+    with pytest.raises(ImportProblems) as e:
+        parse_zmx(text, label="c.zmx")
+    assert len(e.value.problems) == 1, e.value.problems
+    where = n if "toroid with" not in words else _line_of(text, r"CURV -0.025")
+    assert e.value.problems[0].startswith(f"c.zmx:{where}: {words}"), e.value.problems[0]

@@ -123,3 +123,31 @@ def test_export_refuses_what_a_zmx_cannot_hold(tmp_path, capsys):
     assert main(["export", "0001", "-o", str(tmp_path / "a.png")]) == 2
     assert "expected a .zmx file" in capsys.readouterr().err
     assert not list(tmp_path.iterdir())
+
+
+def test_round_trip_of_manufacturer_glasses():
+    # A glass asked from one manufacturer's catalog goes out as its name with the maker
+    # in GCAT and comes back as the same glass (the same dispersion data)
+    from lensfit.prescription import make_lens
+
+    rows = [
+        {"shape": "plane", "thickness": 1.0, "material": "air", "semi_diameter": 4.0,
+         "stop": True},
+        {"shape": "sphere", "radius": 20.0, "thickness": 3.0, "material": "schott:N-BAK1",
+         "semi_diameter": 4.0},
+        {"shape": "sphere", "radius": -20.0, "thickness": 2.0, "material": "Hikari:J-LAF3",
+         "semi_diameter": 4.0},
+        {"shape": "plane", "thickness": 30.0, "material": "air", "semi_diameter": 4.0},
+    ]
+    from lensfit.errors import LensError
+
+    try:
+        lens = make_lens(rows)
+    except LensError as e:  # the manufacturers' catalogs are not installed here
+        pytest.skip(f"manufacturer catalogs unavailable: {e}")
+    text, _ = write_zmx(lens)
+    assert "GCAT SCHOTT HIKARI" in text and "GLAS N-BAK1 " in text
+    back = round_trip(lens)
+    compare(lens, back, radius_ulps=0)
+    assert [s.material_spec.get("material") for s in back.surfaces] == \
+        ["air", "SCHOTT:N-BAK1", "HIKARI:J-LAF3", "air"]
