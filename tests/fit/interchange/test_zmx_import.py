@@ -355,3 +355,18 @@ def test_toroids_that_are_not_cylinders(old, new, words):
     assert len(e.value.problems) == 1, e.value.problems
     where = n if "toroid with" not in words else _line_of(text, r"CURV -0.025")
     assert e.value.problems[0].startswith(f"c.zmx:{where}: {words}"), e.value.problems[0]
+
+
+def test_older_field_keywords_and_unknown_file_kind(tmp_path, capsys):
+    # XFLD/YFLD (older files) hold the same fields as XFLN/YFLN
+    text = ACHROMAT.replace("XFLN 0 0 0 0 0 0 0 0 0 0 0 0", "XFLD 0 0 0").replace(
+        "YFLN 0 3 5 0 0 0 0 0 0 0 0 0", "YFLD 0 3 5")
+    assert parse_zmx(text, label="a.zmx").data["lens"]["field_of_view_deg"] == 10.0
+    # A file of another program: one line, exit 2, nothing written
+    src = tmp_path / "lens.seq"
+    src.write_text("RDM\n", encoding="utf-8")
+    assert main(["import", str(src), "-o", str(tmp_path / "x.toml")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == [f"lensfit: error: {src}: expected a Zemax .zmx file or a .json file "
+                   "(Optiland or lentil)"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["lens.seq"]
