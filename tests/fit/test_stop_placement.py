@@ -9,6 +9,7 @@ a straight line is the ray), so its figures are checked at rounding level.
 
 from __future__ import annotations
 
+import json
 import math
 import re
 from decimal import Decimal, getcontext
@@ -22,6 +23,7 @@ from lensfit.errors import LensError
 from lensfit.fitting import FitOptions, fit_lens
 from lensfit.paraxial import paraxial
 from lensfit.prescription import lens_from_dict, load_lens, make_lens
+from lensfit.prescription.lentil import to_toml
 from lensfit.psf import _rear_trace
 from lensfit.sample import default_domain
 from lensfit.sample.rays import aim_object_side, aim_sensor_side
@@ -127,10 +129,19 @@ def test_back_vertex_stop_is_a_zero_thickness_plane_behind():
     assert np.array_equal(a.pos, b.pos) and np.array_equal(a.opl_mm, b.opl_mm)
 
 
-def test_a_file_with_a_vertex_stop_round_trips_and_reports_its_own_numbering(tmp_path):
+def test_a_file_with_a_vertex_stop_round_trips_and_reports_its_own_numbering(tmp_path,
+                                                                            capsys):
     lens = make_lens(singlet("front"))
     assert lens_from_dict(lens.to_dict()) == lens  # the file keeps `stop` on surface 0
     assert lens.to_dict()["surface"][0]["stop"] is True and len(lens.to_dict()["surface"]) == 2
+    path = tmp_path / "front.toml"
+    path.write_text(to_toml(lens.to_dict()), encoding="utf-8")
+    assert main(["info", str(path), "--json"]) == 0
+    t = json.loads(capsys.readouterr().out)
+    assert (t["surfaces"], t["stop_index"], t["stop_on_vertex_plane"]) == (2, 0, True)
+    assert t["entrance_pupil"]["position_mm"] == 0.0
+    assert main(["info", str(path)]) == 0
+    assert "2 (stop at surface 0, its vertex plane)" in capsys.readouterr().out
 
 
 # --- trivial halves --------------------------------------------------------------------------
