@@ -832,6 +832,25 @@ def _num(v: float) -> str:
     return repr(float(v))
 
 
+def _file_surfaces(lens: Any) -> list[tuple[Any, bool, float]]:
+    """The surfaces as the lens file has them, with the stop flag and thickness of each:
+    a stop plane the loader inserted at a refracting surface's vertex (``inserted``
+    "front" or "back") is folded back into that surface, as a .zmx writes it (STOP on
+    the surface)."""
+    ss = lens.surfaces
+    out = []
+    for k, s in enumerate(ss):
+        if getattr(s, "inserted", ""):
+            continue
+        stop, thickness = s.stop, s.thickness_mm
+        if k + 1 < len(ss) and getattr(ss[k + 1], "inserted", "") == "back":
+            stop, thickness = True, ss[k + 1].thickness_mm  # the plane kept the gap
+        if k > 0 and getattr(ss[k - 1], "inserted", "") == "front":
+            stop = True
+        out.append((s, stop, thickness))
+    return out
+
+
 def write_zmx(lens: Any) -> tuple[str, list[str]]:
     """The .zmx text (ASCII, sequential, lens units mm) of a loaded ``Lens``, and the
     notes on what the format does not hold (coatings, glass labels, provenance). The
@@ -850,9 +869,9 @@ def write_zmx(lens: Any) -> tuple[str, list[str]]:
         half = float(info["field_of_view_deg"]) / 2.0
         lines += ["FTYP 0 0 2 1 0 0 0", "XFLN 0 0", f"YFLN 0 {_num(half)}"]
     body = ["SURF 0", "  TYPE STANDARD", "  CURV 0.0", "  DISZ INFINITY"]
-    for i, s in enumerate(lens.surfaces):
+    for i, (s, stop, thickness) in enumerate(_file_surfaces(lens)):
         body.append(f"SURF {i + 1}")
-        if s.stop:
+        if stop:
             body.append("  STOP")
         if s.shape in ("sphere", "plane"):
             c = _num(curvature_for(s.radius_mm)) if s.shape == "sphere" else "0.0"
@@ -870,7 +889,7 @@ def write_zmx(lens: Any) -> tuple[str, list[str]]:
                      "  PARM 1 0"]
         else:  # cylinder-y
             body += ["  TYPE TOROIDAL", "  CURV 0.0", f"  PARM 1 {_num(s.radius_mm)}"]
-        body.append(f"  DISZ {_num(s.thickness_mm)}")
+        body.append(f"  DISZ {_num(thickness)}")
         spec = s.material_spec
         if "nd" in spec:
             body.append(f"  GLAS {MODEL_GLASS} 1 0 {_num(spec['nd'])} {_num(spec['vd'])} 0 0 0 0 "
@@ -898,7 +917,8 @@ def write_zmx(lens: Any) -> tuple[str, list[str]]:
         body += [f"  DIAM {sd} 1 0 0 1 \"\"", f"  CLAP 0 {sd} 0"]
         if not s.coating.bare:
             coated.append(i)
-    body += [f"SURF {len(lens.surfaces) + 1}", "  TYPE STANDARD", "  CURV 0.0", "  DISZ 0"]
+    body += [f"SURF {len(_file_surfaces(lens)) + 1}", "  TYPE STANDARD", "  CURV 0.0",
+             "  DISZ 0"]
     if coated:
         notes.append(f"coatings of surfaces {', '.join(map(str, coated))} not exported (a .zmx "
                      "names coatings from OpticStudio's coating file)")

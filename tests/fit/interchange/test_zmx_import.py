@@ -149,31 +149,43 @@ def test_decode_forms():
     assert decode(b"NAME Objektiv \xe9\n") == "NAME Objektiv \xe9\n"  # Latin-1 fallback
 
 
-def _loader_takes_a_stop_in_glass() -> bool:
-    from lensfit.errors import LensError
-
-    try:
-        make_lens([
-            {"shape": "sphere", "radius": 50.0, "thickness": 5.0, "material": "N-BK7",
-             "semi_diameter": 10.0, "stop": True},
-            {"shape": "sphere", "radius": -50.0, "thickness": 47.5, "material": "air",
-             "semi_diameter": 10.0},
-        ])
-    except LensError:
-        return False
-    return True
-
-
-@pytest.mark.xfail(not _loader_takes_a_stop_in_glass(), strict=True,
-                   reason="lensfit's loader refuses a stop with glass behind it ('the "
-                          "aperture stop must be in air') until issue 15's stop placement "
-                          "lands in load.py")
 def test_stop_on_a_refracting_surface(tmp_path):
-    # The stop is written where the .zmx puts it: on the singlet's front surface
+    # The stop is written where the .zmx puts it: on the singlet's front surface (which
+    # lensfit's loader takes since 2444334: the stop on a refracting surface's vertex)
     result = read_zmx(FIX / "stop_on_lens.zmx")
     surf = result.data["surface"]
     assert surf[0]["stop"] is True and surf[0]["material"] == "N-BK7"
-    assert load_lens(_write(tmp_path, result)).stop_index == 0
+    lens = load_lens(_write(tmp_path, result))
+    assert lens.stop_file_index == 0
+    # Exported, the stop is again on that surface (not the loader's vertex plane), and
+    # importing the export gives the same lens, inserted plane included
+    from lensfit.interchange import write_zmx
+
+    text, _ = write_zmx(lens)
+    assert text.count("SURF ") == 4 and "SURF 1\n  STOP\n  TYPE STANDARD\n  CURV 0.02" in text
+    back = lens_from_dict(parse_zmx(text, label="b.zmx").data)
+    assert [(s.shape, s.radius_mm, s.thickness_mm, s.stop, s.inserted)
+            for s in back.surfaces] == [(s.shape, s.radius_mm, s.thickness_mm, s.stop,
+                                         s.inserted) for s in lens.surfaces]
+
+
+def test_export_of_a_stop_on_the_last_surface():
+    # A stop on the back of the last lens: the loader inserts the plane behind it, with
+    # the gap to the sensor; the export folds it back (STOP and DISZ on that surface)
+    from lensfit.interchange import write_zmx
+
+    lens = make_lens([
+        {"shape": "sphere", "radius": 50.0, "thickness": 5.0, "material": "N-BK7",
+         "semi_diameter": 10.0},
+        {"shape": "sphere", "radius": -50.0, "thickness": 47.5, "material": "air",
+         "semi_diameter": 10.0, "stop": True},
+    ])
+    assert [s.inserted for s in lens.surfaces] == ["", "", "back"]
+    text, _ = write_zmx(lens)
+    assert "SURF 2\n  STOP\n" in text and "  DISZ 47.5\n" in text and "SURF 4" not in text
+    back = lens_from_dict(parse_zmx(text, label="b.zmx").data)
+    assert [(s.radius_mm, s.thickness_mm, s.stop, s.inserted) for s in back.surfaces] == \
+        [(s.radius_mm, s.thickness_mm, s.stop, s.inserted) for s in lens.surfaces]
 
 
 def _write(tmp_path: Path, result) -> Path:
