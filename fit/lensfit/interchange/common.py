@@ -69,22 +69,26 @@ def finite(value: float) -> bool:
     return isinstance(value, float) and math.isfinite(value)
 
 
-def resolve_glass(name: str, makers: list[str]) -> dict[str, Any]:
+def resolve_glass(name: str, makers: list[str]) -> tuple[dict[str, Any], str | None]:
     """The ``material`` keys of a glass named in an imported file, qualified by the
-    file's catalogs ``makers`` (Zemax GCAT, Optiland's reference), in order.
+    file's catalogs ``makers`` (Zemax GCAT, Optiland's reference), in order, and a note
+    when the glass was found outside them (None otherwise).
 
     The project catalog (lensdb/glass/catalog.toml) comes first when it has the name
     from one of ``makers`` (or when the file names no maker), so that a lens exported
     from lensdb comes back with the same glass; then each maker's catalog in the file's
-    order (as OpticStudio searches GCAT); then the name unqualified. Raises
-    UnknownGlassError (AmbiguousGlassError is a subclass) when none resolves."""
-    wanted = [m.upper() for m in makers]
+    order (as OpticStudio searches GCAT); then the name unqualified, with the note.
+    Raises UnknownGlassError (AmbiguousGlassError is a subclass) when none resolves."""
+    # OpticStudio names some catalog files with a date (SUMITA_AUG2011): the maker
+    wanted = [m.upper().split("_")[0] for m in makers]
     try:
         g = catalog_glass(name)
     except UnknownGlassError:
         g = None
     if g is not None and (not wanted or str(getattr(g, "maker", "")).upper() in wanted):
-        return {"material": g.name}
+        return {"material": g.name}, None
+    outside = (f"glass {name} is not in the file's catalogs ({' '.join(makers)}): "
+               "found as {ref}")
     if _resolve_glass is not None:
         for m in wanted:
             if m in MANUFACTURERS:
@@ -92,11 +96,12 @@ def resolve_glass(name: str, makers: list[str]) -> dict[str, Any]:
                     medium = _resolve_glass(name, m)
                 except UnknownGlassError:
                     continue
-                return {"material": str(getattr(medium, "reference", f"{m}:{name}"))}
+                return {"material": str(getattr(medium, "reference", f"{m}:{name}"))}, None
         medium = _resolve_glass(name)
-        return {"material": str(getattr(medium, "reference", medium.name))}
+        ref = str(getattr(medium, "reference", medium.name))
+        return {"material": ref}, (outside.format(ref=ref) if wanted else None)
     if g is not None:
-        return {"material": g.name}
+        return {"material": g.name}, outside.format(ref=g.name)
     raise UnknownGlassError(name, [])
 
 

@@ -437,12 +437,15 @@ def _material(ctx: _Ctx, m: dict[str, Any], path: str) -> dict[str, Any]:
             except UnknownGlassError:
                 pass
         try:
-            return resolve_glass(name, makers)
+            spec, outside = resolve_glass(name, makers)
         except UnknownGlassError as e:
             ctx.bad(f"{path}.name", f"glass {name!r}"
                     f"{' (' + ref + ')' if isinstance(ref, str) and ref else ''}: "
                     f"{glass_message(e)} (not imported)")
             return {}
+        if outside:
+            ctx.notes.add(f"{path}.name", "glass", outside)
+        return spec
     ctx.bad(f"{path}.type", f"material {json.dumps(typ)[:40]}: unsupported (not imported)")
     return {}
 

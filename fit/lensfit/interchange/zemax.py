@@ -588,7 +588,7 @@ def _surface(s: _Surf, makers: list[str], problems: list[str], notes: Notes, lab
 
     # Medium behind the surface
     if "GLAS" in s.values:
-        d.update(_glass(s, makers, problems, label))
+        d.update(_glass(s, makers, problems, notes, label))
     else:
         d["material"] = "air"
 
@@ -683,7 +683,8 @@ def _shape(s: _Surf, typ: str, curv: float, coni: float, problems: list[str], la
     return None
 
 
-def _glass(s: _Surf, makers: list[str], problems: list[str], label: str) -> dict[str, Any]:
+def _glass(s: _Surf, makers: list[str], problems: list[str], notes: Notes, label: str
+           ) -> dict[str, Any]:
     tokens, lineno = s.values["GLAS"]
     n = s.number
     if len(tokens) < 2:
@@ -706,12 +707,15 @@ def _glass(s: _Surf, makers: list[str], problems: list[str], label: str) -> dict
             return {}
         return {"nd": nd, "vd": vd}
     try:
-        return resolve_glass(name, makers)
+        spec, outside = resolve_glass(name, makers)
     except UnknownGlassError as e:
         cats = f" (GCAT {' '.join(makers)})" if makers else ""
         problems.append(f"{label}:{lineno}: SURF {n} GLAS {name}{cats}: {glass_message(e)} "
                         "(not imported)")
         return {}
+    if outside:
+        notes.add(str(lineno), f"SURF {n} GLAS", outside)
+    return spec
 
 
 def _semi_diameter(s: _Surf, problems: list[str], notes: Notes, label: str) -> float | None:

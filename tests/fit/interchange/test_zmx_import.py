@@ -382,3 +382,21 @@ def test_older_field_keywords_and_unknown_file_kind(tmp_path, capsys):
     assert err == [f"lensfit: error: {src}: expected a Zemax .zmx file or a .json file "
                    "(Optiland or lentil)"]
     assert sorted(p.name for p in tmp_path.iterdir()) == ["lens.seq"]
+
+
+def test_glass_outside_the_gcat_catalogs_is_a_note():
+    # OpticStudio looks a name up in the GCAT catalogs only; lensfit also finds N-BK7
+    # when GCAT names OHARA alone, and says so
+    text = ACHROMAT.replace("GCAT SCHOTT", "GCAT OHARA")
+    result = parse_zmx(text, label="a.zmx")
+    assert result.data["surface"][1]["material"] == "N-BK7"
+    n = _line_of(text, r"GLAS N-BK7")
+    assert f"a.zmx:{n}: SURF 2 GLAS: glass N-BK7 is not in the file's catalogs (OHARA): " \
+           "found as N-BK7" in result.notes
+    # A dated catalog name qualifies by its maker (SUMITA_AUG2011 is SUMITA)
+    from lensfit.interchange.common import MANUFACTURERS, resolve_glass
+
+    if "SUMITA" not in MANUFACTURERS:
+        pytest.skip("no manufacturer catalogs in this lensfit.glass")
+    assert resolve_glass("K-LaF3", ["SCHOTT", "SUMITA_AUG2011"]) == \
+        ({"material": "SUMITA:K-LaF3"}, None)
