@@ -22,6 +22,7 @@ import argparse
 import json
 import math
 import os
+import re
 import sys
 from pathlib import Path
 
@@ -246,7 +247,8 @@ def _import_lens_file(args: argparse.Namespace, kind: str) -> int:
     out = _check_file(out, "-o")
     if out.suffix != ".toml":
         raise InputError(f"-o {out}: expected a .toml file or a folder")
-    lens_id = args.id[0] if args.id else src.stem
+    # The id names C symbols: the file stem with anything else turned into '_'
+    lens_id = args.id[0] if args.id else re.sub(r"[^A-Za-z0-9_]", "_", src.stem)
     try:
         result = (read_zmx if kind == "zmx" else read_optiland)(src, lens_id=lens_id)
     except ImportProblems as e:
