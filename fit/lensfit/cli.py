@@ -625,6 +625,11 @@ def main(argv: list[str] | None = None) -> int:
         # (a ValueError from numpy, say) is a bug and keeps its traceback.
         print(f"lensfit: error: {e}", file=sys.stderr)
         return 2
+    except BrokenPipeError:
+        # The reader went away (`lensfit info 0001 | head -3`): stop quietly, as Unix tools
+        # do; stdout goes to /dev/null so the flush at exit does not raise again
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 141  # 128 + SIGPIPE, what a shell reports for such a tool
 
 
 if __name__ == "__main__":

@@ -192,3 +192,16 @@ def test_a_bug_is_not_reported_as_bad_input(monkeypatch):
 ])
 def test_bad_options_are_still_bad_input(capsys, no_work, argv, words):
     refused(capsys, argv, *words)
+
+
+def test_a_closed_pipe_ends_quietly():
+    """`lensfit info 0001 | head -1`: the reader goes away before lensfit writes; lensfit
+    stops with 141 (128 + SIGPIPE) and no traceback on stderr."""
+    import subprocess
+    import sys as _sys
+
+    p = subprocess.Popen([_sys.executable, "-m", "lensfit.cli", "info", "0001"],
+                         stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    p.stdout.close()  # long before the interpreter has imported lensfit
+    _, err = p.communicate(timeout=120)
+    assert (p.returncode, err.decode()) == (141, "")

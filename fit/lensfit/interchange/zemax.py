@@ -43,7 +43,10 @@ Mapped (each value kept exactly as written; lengths in lens units, see UNIT):
   ``FTYP 0 ..`` (angles in degrees) with ``XFLN``/``YFLN`` (or ``XFLD``/``YFLD``) ->
   ``field_of_view_deg``, twice the largest field angle from the axis,
   atan(sqrt(tan^2 x + tan^2 y)); ``FLOA`` (aperture set by the stop size) is
-  lensfit's model: the stop surface's semi-diameter is the aperture.
+  lensfit's model: the stop surface's semi-diameter is the aperture. ``ENPD D`` (or,
+  without it, ``FNUM``) is the design's aperture: ``[fit] f_number`` = EFL / D at the d
+  line (or the FNUM value), the aperture ``lensfit fit`` fits by default, unless the
+  stop cannot open that wide (a note).
 
 Errors (exit 2, nothing written, every problem listed, one line each naming the line
 number): an unsupported surface type (COORDBRK, ODDASPHE, BICONICX, PARAXIAL, ...); a
@@ -58,7 +61,7 @@ zero is a note); a lens lensfit's loader refuses.
 
 Notes (printed on stderr, the lens is written): wavelengths (``WAVM``, ``WAVL``,
 ``WWGT``, ``PWAV``), the object distance and object-surface curvature, the entrance
-pupil or NA (``ENPD``, ``OBNA``; lensfit's aperture is the stop size), field types
+NA (``OBNA``; lensfit's aperture is the stop size), field types
 other than angles, the image surface's size, comments (``COMM``), coatings (``COAT``:
 the lens is written uncoated, ``[coating] default = "none"``, as OpticStudio traces a
 surface without a coating), pickups and variable flags (``PZUP``, ``PPAR``, ``VPAR``:
@@ -124,8 +127,6 @@ NOTED_TOP = {
     "WAVL": "wavelengths not mapped (lensfit fits a wavelength range)",
     "WWGT": "wavelength weights not mapped",
     "PWAV": "primary wavelength not mapped (paraxial data are at the d line)",
-    "ENPD": "entrance pupil diameter not mapped (lensfit's aperture is the stop surface's "
-            "semi-diameter)",
     "OBNA": "object-space NA not mapped (lensfit's aperture is the stop surface's "
             "semi-diameter)",
     "ENVD": "temperature and pressure not mapped (catalog indices at their reference)",
@@ -271,8 +272,6 @@ def parse_zmx(text: str, *, label: str = "<zmx>", lens_id: str = "import") -> Im
             continue
         if kw in NOTED_TOP:
             notes.add(str(lineno), kw, NOTED_TOP[kw])
-            if kw == "ENPD":  # noted, and used to estimate missing semi-diameters
-                top.setdefault(kw, (tokens, lineno))
             continue
         if kw == "MODE":
             if tokens[1:2] != ["SEQ"]:
@@ -303,7 +302,7 @@ def parse_zmx(text: str, *, label: str = "<zmx>", lens_id: str = "import") -> Im
             problems.append(f"{label}:{lineno}: {kw}: given twice (first on line "
                             f"{top[kw][1]})")
             continue
-        if kw in ("NAME", "UNIT", "GCAT", "FTYP", "FNUM", "FLOA"):
+        if kw in ("NAME", "UNIT", "GCAT", "FTYP", "FNUM", "FLOA", "ENPD"):
             top[kw] = (tokens, lineno)
             continue
         notes.add(str(lineno), kw, "unknown keyword not mapped")
@@ -344,7 +343,45 @@ def parse_zmx(text: str, *, label: str = "<zmx>", lens_id: str = "import") -> Im
         "surface": surfaces,
     }
     validate(data, label, where)
+    _design_aperture(data, top, notes, label)
     return ImportResult(data, notes.lines())
+
+
+def _design_aperture(data: dict[str, Any], top: dict[str, tuple[list[str], int]],
+                     notes: Notes, label: str) -> None:
+    """The design's aperture as the aperture ``lensfit fit`` fits by default: ``ENPD D``
+    (entrance pupil diameter, object at infinity) gives f/N = EFL / D at the d line,
+    ``FNUM N`` f/N itself; written as ``[fit] f_number`` with the reason. FLOA (the stop
+    size is the aperture) is lensfit's own model and needs nothing. An aperture wider
+    than the stop's semi-diameter allows is a note (the fit then takes its default)."""
+    from lensfit.paraxial import stop_radius_for_f_number
+    from lensfit.paraxial import table as paraxial_table
+    from lensfit.prescription import lens_from_dict
+
+    kw = next((k for k in ("ENPD", "FNUM") if k in top), None)
+    if kw is None or "FLOA" in top:
+        return
+    tokens, lineno = top[kw]
+    try:
+        value = float(tokens[1])
+    except (IndexError, ValueError):
+        value = math.nan
+    if not (math.isfinite(value) and value > 0):
+        notes.add(str(lineno), kw, "aperture not mapped (not a positive number)")
+        return
+    lens = lens_from_dict(data, file=label)
+    efl = float(paraxial_table(lens)["efl_mm"])
+    f_number = abs(efl) / value if kw == "ENPD" else value
+    try:
+        stop_radius_for_f_number(lens, f_number)
+    except ValueError as e:
+        notes.add(str(lineno), kw, f"aperture f/{f_number:.4g} not mapped ({e})")
+        return
+    given = f"ENPD {value:g} mm, EFL {efl:.6g} mm at the d line" if kw == "ENPD" else \
+        f"FNUM {value:g}"
+    data["fit"] = {"f_number": f_number,
+                   "reason": f"the design's aperture in {Path(label).name} line {lineno} "
+                             f"({given})"}
 
 
 def _estimate_semi_diameters(surfaces: list[dict[str, Any]], where: list[str], obj: _Surf,
@@ -867,6 +904,9 @@ def write_zmx(lens: Any) -> tuple[str, list[str]]:
     coated: list[int] = []
     info = lens.provenance
     lines = ["MODE SEQ", f"NAME {lens.name}", "UNIT MM X W X CM MR CPMM", "FLOA"]
+    if lens.raw and "fit" in lens.raw:
+        notes.append("[fit] (the domain lensfit fits by default) not exported: the file's "
+                     "aperture is FLOA, the stop's semi-diameter")
     if "f_number" in info:
         lines.append(f"FNUM {_num(info['f_number'])} 0")
     if "field_of_view_deg" in info:

@@ -267,13 +267,21 @@ def _toml_value(v: Any) -> str:
 
 def to_toml(data: dict[str, Any]) -> str:
     """Write lensdb data as TOML (deterministic: same data, same bytes)."""
+    tables = ("lens", "fit", "coating")
+    unknown = set(data) - {"schema_version", "surface", *tables} - {
+        k for k, v in data.items() if not isinstance(v, (dict, list))}
+    if unknown:
+        raise ValueError(f"to_toml: cannot place the tables {sorted(unknown)}")
     lines = [
         "# Lens prescription for lensfit; format: lensdb/README.md.",
         "# Lengths in mm, wavelengths in nm; surfaces from the scene to the sensor.",
         f"schema_version = {data['schema_version']}",
-        "",
     ]
-    for table in ("lens", "coating"):
+    # Top-level keys (glass_extrapolation) before the first table
+    lines += [f"{k} = {_toml_value(v)}" for k, v in data.items()
+              if k != "schema_version" and not isinstance(v, (dict, list))]
+    lines.append("")
+    for table in tables:
         if table in data:
             lines.append(f"[{table}]")
             lines += [f"{k} = {_toml_value(v)}" for k, v in data[table].items()]

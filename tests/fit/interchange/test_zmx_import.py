@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import math
 import re
+import tomllib
 from pathlib import Path
 
 import pytest
@@ -20,9 +21,12 @@ import pytest
 from lensfit.cli import main
 from lensfit.interchange import ImportProblems, parse_zmx, read_zmx
 from lensfit.interchange.zemax import decode
-from lensfit.paraxial import paraxial
+from lensfit.paraxial import paraxial, stop_radius_for_f_number
+from lensfit.paraxial import table as paraxial_table
 from lensfit.paraxial.paraxial import D_LINE_NM
 from lensfit.prescription import lens_from_dict, load_lens, make_lens
+from lensfit.prescription.lentil import to_toml
+from lensfit.sample import default_domain
 
 FIX = Path(__file__).resolve().parents[1] / "fixtures" / "zmx"
 ACHROMAT = (FIX / "achromat.zmx").read_text(encoding="utf-8")
@@ -66,10 +70,32 @@ def test_achromat_standard_surfaces_catalog_glasses(tmp_path):
     assert result.data["coating"]["default"] == "none"  # OpticStudio traces uncoated
     # The notes name what was not mapped, with line numbers; pure UI keywords are silent
     notes = "\n".join(result.notes)
-    for line, kw in ((7, "ENPD"), (18, "WAVM (and 2 more)"), (41, "COMM"), (49, "COAT")):
+    for line, kw in ((18, "WAVM (and 2 more)"), (41, "COMM"), (49, "COAT")):
         assert f"achromat.zmx:{line}: {kw}" in notes
     for kw in ("HIDE", "MIRR", "SLAB", "POPS", "MEMA", "NSCD", "VERS", "PFIL", "RAIM"):
         assert kw not in notes
+    # ENPD 20 (before FNUM) is the design's aperture: f/N = EFL / 20 mm at the d line, the
+    # aperture `lensfit fit` fits by default; mapped, so not a note
+    assert "ENPD" not in notes
+    efl = paraxial_table(lens)["efl_mm"]
+    assert result.data["fit"]["f_number"] == pytest.approx(efl / 20.0, rel=1e-15)
+    assert "achromat.zmx line 7 (ENPD 20 mm" in result.data["fit"]["reason"]
+    # ... and written to the TOML (to_toml places the [fit] table), read back the same
+    written = tomllib.loads(to_toml(result.data))
+    assert written["fit"] == result.data["fit"]
+    domain = default_domain(lens_from_dict(written))
+    assert domain.stop_radius_mm == pytest.approx(stop_radius_for_f_number(lens, efl / 20.0))
+
+
+def test_design_aperture_wider_than_the_stop_is_a_note(tmp_path):
+    """An ENPD the stop cannot open to is not fitted by default: a note says so."""
+    text = (FIX / "achromat.zmx").read_text().replace("ENPD 20", "ENPD 40")
+    src = tmp_path / "wide.zmx"
+    src.write_text(text)
+    result = read_zmx(src)
+    assert "fit" not in result.data
+    assert any("wide.zmx:7: ENPD: aperture f/" in n and "not mapped" in n
+               for n in result.notes), result.notes
 
 
 def test_even_asphere_conic_and_model_glass():
