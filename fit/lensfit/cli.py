@@ -2,6 +2,7 @@
 
     lensfit list                         lenses in lensdb with their paraxial focal length
     lensfit info LENS [--json]           paraxial table (--wavelength NM: not the d line)
+    lensfit ghosts LENS [--json]         ghosts ranked by peak relative to the PSF's
     lensfit draw LENS -o FILE.png        cross-section with ray fans
     lensfit import FILE [-o OUT]         convert a Zemax .zmx, an Optiland JSON or a lentil
                                          JSON lens table to lensfit's TOML
@@ -163,6 +164,67 @@ def cmd_info(args: argparse.Namespace) -> int:
         for label, value in _info_rows(t):
             print(f"  {label:20s}{value}")
     _print_glass_ranges(lens, getattr(args, "wavelength", None))
+    return 0
+
+
+def _light_arg(text: str) -> tuple[float, float]:
+    """``--light X,Y``: field angles in degrees (designers' sign, README Conventions)."""
+    parts = text.split(",")
+    try:
+        x, y = (float(v) for v in parts)
+    except ValueError:
+        raise InputError(f"--light {text!r}: expected two field angles X,Y in degrees") from None
+    return x, y
+
+
+def cmd_ghosts(args: argparse.Namespace) -> int:
+    """The ghosts of a lens ranked by peak irradiance relative to the direct PSF's
+    (lensfit.ghosts.enumerate): every check before the trace, the table or JSON after."""
+    from lensfit.ghosts.enumerate import check_light, enumerate_ghosts, select_ghosts
+    from lensfit.paraxial import stop_radius_for_f_number
+    from lensfit.prescription import load_lens
+
+    lens = load_lens(args.lens)
+    light = _light_arg(args.light)
+    if args.count is not None and args.count < 1:
+        raise InputError(f"--count {args.count}: expected a positive number of ghosts")
+    if not (math.isfinite(args.threshold) and args.threshold > 0):
+        raise InputError(f"--threshold {args.threshold}: expected a positive relative peak")
+    if not 100 <= args.rays <= 10**7:
+        raise InputError(f"--rays {args.rays}: expected 100 to 10^7 rays per wavelength")
+    if args.f_number is not None:
+        try:
+            stop_radius_for_f_number(lens, args.f_number)
+        except ValueError as e:
+            raise LensError(str(e), file=lens.source_file, key="--f-number") from None
+    check_light(lens, light, "--light")
+    ghosts = enumerate_ghosts(lens, f_number=args.f_number, light=light, rays=args.rays,
+                              fine_rays=max(100, args.rays // 5))
+    select_ghosts(ghosts, count=args.count, threshold=args.threshold)
+    info = ghosts[0].info
+    if args.json:
+        print(json.dumps({**info, "threshold": None if args.count else args.threshold,
+                          "count": args.count, "ghosts": [g.to_dict() for g in ghosts]},
+                         indent=2))
+        return 0
+    lams = info["wavelengths_nm"]
+    at = "/".join(f"{v:g}" for v in lams)
+    print(f"{lens.name}  ({lens.source_file})")
+    print(f"  f/{info['f_number']:.3g}, light ({light[0]:g}, {light[1]:g}) deg, "
+          f"{info['rays_per_wavelength']} rays per wavelength, {len(ghosts)} ghosts "
+          "(file's surface numbers i-j: reflect at j, then at i)")
+    strehl = " ".join(f"{s:.3g}" for s in info["strehl_estimate"])
+    print(f"  direct PSF peak: Airy x Strehl estimate {strehl} at {at} nm")
+    kept = "count " + str(args.count) if args.count else f"peak > {args.threshold:g}"
+    print(f"  {'ghost':>7s} case  {'energy / direct at ' + at + ' nm':36s}"
+          f"{'centre x,y mm':>17s} {'r mm':>7s} {'peak/PSF':>9s}  kept ({kept})")
+    for g in ghosts:
+        k = int(np.argmax(g.peak))  # footprint at the wavelength of the highest peak
+        c = g.centre_mm[k]
+        centre = "-" if c is None else f"{c[0]:+8.3f},{c[1]:+8.3f}"
+        energy = " ".join(f"{e:9.2e}" for e in g.energy)
+        print(f"  {g.name:>7s} {g.case:4s}  {energy:36s}{centre:>17s} {g.radius_mm[k]:7.3f} "
+              f"{g.relative_peak:9.2e}  {'yes' if g.kept else 'no'}")
     return 0
 
 
@@ -516,6 +578,25 @@ def build_parser() -> argparse.ArgumentParser:
                         "(repeatable or a comma list; the stop of --f-number stays that of "
                         "the d line)")
     p.set_defaults(func=cmd_info)
+
+    p = sub.add_parser("ghosts", help="ghosts of a lens ranked by their peak relative to "
+                       "the PSF's (issue 13)")
+    p.add_argument("lens")
+    p.add_argument("--f-number", type=float, default=None,
+                   help="stop the lens down to this f-number (default: wide open)")
+    p.add_argument("--light", default="0,0", metavar="X,Y",
+                   help="field angles of a light at infinity in degrees, designers' sign "
+                        "(README Conventions; default 0,0)")
+    p.add_argument("--json", action="store_true", help="print the estimates as JSON")
+    group = p.add_mutually_exclusive_group()
+    group.add_argument("--threshold", type=float, default=1e-5,
+                       help="keep ghosts whose peak is above this share of the PSF peak "
+                            "(default 1e-5)")
+    group.add_argument("--count", type=int, default=None, help="keep the K brightest ghosts")
+    p.add_argument("--rays", type=int, default=20000,
+                   help="rays per wavelength over the front (default 20000; a fifth of "
+                        "that per ghost in the second pass)")
+    p.set_defaults(func=cmd_ghosts)
 
     p = sub.add_parser("draw", help="draw the cross-section with ray fans")
     p.add_argument("lens")

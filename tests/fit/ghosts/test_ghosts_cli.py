@@ -1,0 +1,98 @@
+"""``lensfit ghosts``: the ranked table, its JSON, and bad input refused in one line with
+exit status 2 and nothing on stdout (issue 13, deliverable 1)."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from lensfit.cli import main
+from lensfit.ghosts import enumerate as ghost_enum
+from lensfit.prescription import load_lens
+
+# An uncoated N-BK7 singlet whose stop is on its front surface: the loader inserts the
+# stop's vertex plane as model surface 0, so the one ghost is (1, 2) in the model and
+# 0-1 in the file's numbering
+SINGLET = """schema_version = 1
+[lens]
+id = "singlet"
+name = "test singlet"
+maker = "lensfit"
+year = 2026
+source = "tests/fit/ghosts"
+[coating]
+default = "none"
+[[surface]]
+shape = "sphere"
+radius = 60.0
+thickness = 6.0
+material = "N-BK7"
+semi_diameter = 10.0
+stop = true
+[[surface]]
+shape = "sphere"
+radius = -60.0
+thickness = 56.0
+material = "air"
+semi_diameter = 10.0
+"""
+
+
+@pytest.fixture
+def singlet(tmp_path):
+    path = tmp_path / "singlet.toml"
+    path.write_text(SINGLET, encoding="utf-8")
+    return str(path)
+
+
+def test_table_and_json(singlet, capsys):
+    assert main(["ghosts", singlet, "--f-number", "8", "--rays", "2000",
+                 "--threshold", "1e-9"]) == 0
+    out = capsys.readouterr().out
+    row = [line for line in out.splitlines() if line.split()[:2] == ["0-1", "B"]]
+    assert len(row) == 1 and row[0].split()[-1] == "yes", out
+    assert main(["ghosts", singlet, "--f-number", "8", "--rays", "2000", "--json",
+                 "--count", "1"]) == 0
+    data = json.loads(capsys.readouterr().out)
+    (g,) = data["ghosts"]
+    assert (g["first"], g["second"], g["name"], g["kept"]) == (1, 2, "0-1", True)
+    assert data["f_number"] == pytest.approx(8.0) and data["count"] == 1
+    # Uncoated: the relative energy is R^2 of N-BK7 at normal incidence (f/8: incidence
+    # below 1/30 rad moves R by < 1e-3 relative; 1% is the closed-form tolerance)
+    lens = load_lens(singlet)
+    for lam, energy in zip(data["wavelengths_nm"], g["energy"], strict=True):
+        n = float(lens.surfaces[1].medium.n(lam))
+        assert energy == pytest.approx(((n - 1) / (n + 1)) ** 4, rel=0.01)
+
+
+@pytest.mark.parametrize("args, words", [
+    (["--f-number", "0.5"], ["--f-number", "f/0.5", "singlet.toml"]),
+    (["--light", "40,0"], ["--light 40,0", "outside the field", "test singlet"]),
+    (["--light", "1"], ["--light '1'", "X,Y"]),
+    (["--light", "1,nan"], ["--light 1,nan"]),
+    (["--count", "0"], ["--count 0"]),
+    (["--threshold", "-1"], ["--threshold -1"]),
+    (["--rays", "5"], ["--rays 5"]),
+])
+def test_bad_input_refused_before_work(singlet, capsys, monkeypatch, args, words):
+    def no_work(*a, **k):
+        raise AssertionError("the trace ran before the input was checked")
+
+    monkeypatch.setattr(ghost_enum, "enumerate_ghosts", no_work)
+    assert main(["ghosts", singlet, *args]) == 2
+    captured = capsys.readouterr()
+    err = captured.err.strip().splitlines()
+    assert len(err) == 1 and captured.out == "", captured
+    for w in words:
+        assert w in err[0], err[0]
+
+
+def test_no_ghost_above_threshold(singlet, capsys):
+    """The error names the lens file, the threshold and the brightest ghost's value."""
+    assert main(["ghosts", singlet, "--f-number", "8", "--rays", "2000",
+                 "--threshold", "0.5"]) == 2
+    captured = capsys.readouterr()
+    assert captured.out == ""
+    (err,) = captured.err.strip().splitlines()
+    assert "singlet.toml" in err and "threshold 0.5" in err and "ghost 0-1" in err
