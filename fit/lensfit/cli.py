@@ -198,7 +198,16 @@ def cmd_ghosts(args: argparse.Namespace) -> int:
         except ValueError as e:
             raise LensError(str(e), file=lens.source_file, key="--f-number") from None
     check_light(lens, light, "--light")
-    ghosts = enumerate_ghosts(lens, f_number=args.f_number, light=light, rays=args.rays,
+    try:  # a light inside the lens's front is refused before the trace
+        from lensfit.ghosts.enumerate import _launch
+
+        if not args.distance > 0:
+            raise InputError("expected a positive distance or inf")
+        _launch(lens, light, 100, np.array([550.0]), args.distance)
+    except InputError as e:
+        raise InputError(f"--distance {args.distance:g}: {e}") from None
+    ghosts = enumerate_ghosts(lens, f_number=args.f_number, light=light,
+                              distance_mm=args.distance, rays=args.rays,
                               fine_rays=max(100, args.rays // 5))
     select_ghosts(ghosts, count=args.count, threshold=args.threshold)
     info = ghosts[0].info
@@ -210,7 +219,8 @@ def cmd_ghosts(args: argparse.Namespace) -> int:
     lams = info["wavelengths_nm"]
     at = "/".join(f"{v:g}" for v in lams)
     print(f"{lens.name}  ({lens.source_file})")
-    print(f"  f/{info['f_number']:.3g}, light ({light[0]:g}, {light[1]:g}) deg, "
+    print(f"  f/{info['f_number']:.3g}, light ({light[0]:g}, {light[1]:g}) deg at "
+          f"{args.distance:g} mm, "
           f"{info['rays_per_wavelength']} rays per wavelength, {len(ghosts)} ghosts "
           "(file's surface numbers i-j: reflect at j, then at i)")
     strehl = " ".join(f"{s:.3g}" for s in info["strehl_estimate"])
@@ -587,6 +597,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--light", default="0,0", metavar="X,Y",
                    help="field angles of a light at infinity in degrees, designers' sign "
                         "(README Conventions; default 0,0)")
+    p.add_argument("--distance", type=float, default=math.inf, metavar="MM",
+                   help="the light's distance from the first vertex in mm (default inf)")
     p.add_argument("--json", action="store_true", help="print the estimates as JSON")
     group = p.add_mutually_exclusive_group()
     group.add_argument("--threshold", type=float, default=1e-5,

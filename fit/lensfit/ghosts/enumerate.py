@@ -7,12 +7,15 @@ surfaces of the model except stop planes is a ghost (/work/notes/ghost-design.md
 Each ghost is estimated from a quick exact trace with the lens's coatings, the stop at
 the chosen f-number and every housing clipping at every crossing:
 
-* **Bundle, pass 1.** A square grid of parallel rays from a light at infinity (``rays``
-  per wavelength), on a plane 1 mm in front of surface 0, over a disc that holds every
-  ray that can meet surface 0 inside its housing. The paths share prefixes: the forward
-  states before every surface are traced once, and for each j the reflected bundle is
-  carried back one surface at a time, branching into the ghost (i, j) at each i. This
-  pass only finds, per path, which launch points reach the sensor.
+* **Bundle, pass 1.** A square grid of rays (``rays`` per wavelength) on a plane 1 mm
+  in front of surface 0, over a disc that holds every ray of the light that can meet
+  surface 0 inside its housing: parallel rays from a light at infinity, or rays from a
+  point at ``distance_mm`` from the first vertex, each then weighted by the point's
+  irradiance on the plane (cos / r^2, relative to the chief ray's). The paths share
+  prefixes: the forward states before every surface are traced once, and for each j
+  the reflected bundle is carried back one surface at a time, branching into the ghost
+  (i, j) at each i. This pass only finds, per path, which launch points reach the
+  sensor.
 * **Bundle, pass 2.** Each path (the direct one and every ghost) is traced again with
   ``ghost_path`` / ``forward_path`` on a grid of ``fine_rays`` points per wavelength
   over the box of its pass-1 survivors grown by one pass-1 step (a path whose rays all
@@ -163,14 +166,41 @@ def check_light(lens: Lens, light: tuple[float, float], option: str = "light") -
                          f"{fy:.4g} in y")
 
 
-def _launch(lens: Lens, light: tuple[float, float], rays: int,
-            wavelengths: np.ndarray) -> tuple[Rays, float]:
-    """The grid of parallel rays over the disc that holds every ray meeting surface 0
-    inside its housing, all wavelengths; returns the rays and the grid step h (mm)."""
+def _source(light: tuple[float, float], distance_mm: float) -> tuple[np.ndarray, np.ndarray | None]:
+    """The chief direction (unit, towards the lens) and the source point (None at
+    infinity): a light at distance L from the first vertex lies at -L times that
+    direction (its chief ray passes the first vertex)."""
     x_o, y_o = light_direction(*light)
     # The light travels opposite to (x_O, y_O, z_O): along (-x_O, -y_O, z_O)
     d = np.array([-x_o, -y_o, math.sqrt(max(0.0, 1.0 - x_o * x_o - y_o * y_o))])
-    tx, ty = d[0] / d[2], d[1] / d[2]
+    return d, (None if math.isinf(distance_mm) else -distance_mm * d)
+
+
+def _rays_at(px: np.ndarray, py: np.ndarray, z0: float, lams: np.ndarray, chief: np.ndarray,
+             src: np.ndarray | None) -> Rays:
+    """Rays through the launch points (px, py, z0), every wavelength, from a light at
+    infinity along ``chief`` or from the point ``src``. The initial transmittance is the
+    light's irradiance on the launch plane relative to the chief's (1 at infinity; an
+    isotropic point: cos / r^2), so every sum of transmittances times the grid cell is
+    a power in the same unit."""
+    n_lam = len(lams)
+    pos = np.column_stack([np.tile(px, n_lam), np.tile(py, n_lam), np.full(px.size * n_lam, z0)])
+    lam = np.repeat(lams, px.size)
+    if src is None:
+        return Rays(pos, np.broadcast_to(chief, pos.shape), lam)
+    v = pos - src
+    r2 = np.einsum("ij,ij->i", v, v)
+    dz = v[:, 2] / np.sqrt(r2)
+    weight = (dz / chief[2]) * float(np.dot(src, src)) / r2
+    return Rays(pos, v, lam, transmittance=weight)
+
+
+def _launch(lens: Lens, light: tuple[float, float], rays: int, wavelengths: np.ndarray,
+            distance_mm: float = math.inf) -> tuple[Rays, float]:
+    """The grid of rays over the disc (on a plane 1 mm in front of surface 0) that holds
+    every ray of the light meeting surface 0 inside its housing, all wavelengths;
+    returns the rays and the grid step h (mm)."""
+    d, src = _source(light, distance_mm)
     s0 = lens.surfaces[0]
     sd = s0.semi_diameter_mm
     # The z range of surface 0 inside its housing (rim and vertex)
@@ -178,20 +208,31 @@ def _launch(lens: Lens, light: tuple[float, float], rays: int,
     rim = np.concatenate([[0.0], np.nan_to_num(s0.sag(sd * np.cos(phi), sd * np.sin(phi)))])
     z_lo, z_hi = float(min(0.0, rim.min())), float(max(0.0, rim.max()))
     z0 = z_lo - 1.0
-    # A ray meeting surface 0 at (x, y, z) crossed z0 at (x, y) - t (z - z0)
-    t = math.hypot(tx, ty)
-    cx, cy = -tx * (0.5 * (z_lo + z_hi) - z0), -ty * (0.5 * (z_lo + z_hi) - z0)
-    radius = sd + t * 0.5 * (z_hi - z_lo) + 1e-6 * sd
+    if src is None:
+        # A ray meeting surface 0 at (x, y, z) crossed z0 at (x, y) - t (z - z0)
+        tx, ty = d[0] / d[2], d[1] / d[2]
+        t = math.hypot(tx, ty)
+        cx, cy = -tx * (0.5 * (z_lo + z_hi) - z0), -ty * (0.5 * (z_lo + z_hi) - z0)
+        radius = sd + t * 0.5 * (z_hi - z_lo) + 1e-6 * sd
+    else:
+        if not src[2] < z0:
+            raise InputError(f"light distance {distance_mm:g} mm: the light must lie in "
+                             f"front of surface 0 (more than {-z0 / d[2]:.6g} mm from its "
+                             "vertex)")
+        # Seen from the source, the housing's circle at depth z shrinks onto the launch
+        # plane by k(z) about the source's foot; the disc holding both extreme circles
+        # holds every one between (centres and radii are affine in k)
+        ks = [(z0 - src[2]) / (z - src[2]) for z in (z_lo, z_hi)]
+        cs = [src[:2] * (1.0 - k) for k in ks]
+        cx, cy = 0.5 * (cs[0] + cs[1])
+        radius = max(math.hypot(c[0] - cx, c[1] - cy) + sd * k for c, k in zip(cs, ks, strict=True))
+        radius *= 1 + 1e-6
     h = radius * math.sqrt(math.pi / rays)
     m = int(math.ceil(radius / h))
     g = np.arange(-m, m + 1) * h  # symmetric about the disc's centre
     gx, gy = np.meshgrid(g, g)
     inside = gx * gx + gy * gy <= radius * radius
-    px, py = gx[inside] + cx, gy[inside] + cy
-    n_lam = len(wavelengths)
-    pos = np.column_stack([np.tile(px, n_lam), np.tile(py, n_lam), np.full(px.size * n_lam, z0)])
-    lam = np.repeat(wavelengths, px.size)
-    return Rays(pos, np.broadcast_to(d, pos.shape), lam), h
+    return _rays_at(gx[inside] + cx, gy[inside] + cy, z0, wavelengths, d, src), h
 
 
 def _alive(r: Rays) -> Rays:
@@ -256,6 +297,7 @@ def enumerate_ghosts(
     *,
     f_number: float | None = None,
     light: tuple[float, float] = (0.0, 0.0),
+    distance_mm: float = math.inf,
     wavelengths_nm=DEFAULT_WAVELENGTHS_NM,
     rays: int = DEFAULT_RAYS,
     fine_rays: int = DEFAULT_FINE_RAYS,
@@ -266,7 +308,9 @@ def enumerate_ghosts(
 
     ``f_number``: the stop (default: the widest the housing allows); ``light``: field
     angles (x, y) in degrees, designers' sign (``lensfit.scene.light_direction``), at
-    infinity; ``rays``: rays per wavelength over the launch disc. See the module's
+    ``distance_mm`` from the first vertex (default infinity); ``rays``: rays per
+    wavelength over the launch disc (pass 1), ``fine_rays`` per path (pass 2). The
+    direct peak's Airy term uses the f-number for infinity also for a near light. See the module's
     docstring for the estimators."""
     lams = np.array([float(v) for v in wavelengths_nm], dtype=np.float64)
     if lams.size == 0 or not np.all(np.isfinite(lams) & (lams > 0)):
@@ -288,7 +332,11 @@ def enumerate_ghosts(
 
     # Working f-numbers of the stop in both meridians, for the Airy peak
     n_xy = [abs(paraxial(lens, meridian=m, stop_radius_mm=stop).f_number) for m in "xy"]
-    launch, h = _launch(lens, light, int(rays), lams)
+    if not (distance_mm > 0):
+        raise InputError(f"light distance {distance_mm!r} mm: expected a positive distance "
+                         "or inf")
+    launch, h = _launch(lens, light, int(rays), lams, float(distance_mm))
+    chief, src = _source(light, float(distance_mm))
     n = len(lens.surfaces)
     opts = {"stop_radius_mm": stop, "clip": True, "fresnel_loss": True}
 
@@ -304,7 +352,10 @@ def enumerate_ghosts(
     fwd = [(launch, np.arange(len(launch)))]
     for k in range(n):
         fwd.append(step(*fwd[-1], [Step(k)]))
-    entering = np.array([np.count_nonzero(fwd[1][0].wavelength_nm == lam) for lam in lams])
+    # The light entering: what arrives inside surface 0's housing (before its loss)
+    w0 = launch.transmittance[fwd[1][1]]
+    lam1 = launch.wavelength_nm[fwd[1][1]]
+    entering_power = np.array([w0[lam1 == lam].sum() for lam in lams]) * h * h
     found: dict[tuple[int, int], np.ndarray] = {}
     for j in ghost_surfaces(lens):
         if not any(pj == j for _, pj in want):
@@ -333,10 +384,7 @@ def enumerate_ghosts(
         gx = np.arange(lo[0] + 0.5 * h2, hi[0], h2)
         gy = np.arange(lo[1] + 0.5 * h2, hi[1], h2)
         px, py = (a.ravel() for a in np.meshgrid(gx, gy))
-        m = len(px)
-        pos = np.column_stack([np.tile(px, len(lams)), np.tile(py, len(lams)),
-                               np.full(m * len(lams), launch.pos[0, 2])])
-        r = Rays(pos, np.broadcast_to(launch.dir[0], pos.shape), np.repeat(lams, m))
+        r = _rays_at(px, py, float(launch.pos[0, 2]), lams, chief, src)
         return _alive(trace(lens, r, path, end_z=lens.sensor_z, **opts)), h2 * h2
 
     direct, d_cell = refine(forward_path(lens), fwd[n][1])
@@ -365,11 +413,10 @@ def enumerate_ghosts(
         d_power.append(p)
         d_peak.append(airy * s)
         strehl.append(s)
-    # Light entering: the rays inside surface 0's housing, in the coarse grid's units
-    entering_power = entering * h * h
 
     info = {"lens": lens.name, "file": lens.source_file, "f_number": n_xy[1],
             "f_number_x": n_xy[0], "stop_radius_mm": stop, "light_deg": list(light),
+            "distance_mm": None if math.isinf(distance_mm) else float(distance_mm),
             "wavelengths_nm": lams.tolist(), "rays_per_wavelength": int(rays),
             "fine_rays_per_wavelength": int(fine_rays),
             "grid_step_mm": h, "direct_power": d_power, "direct_peak": d_peak,

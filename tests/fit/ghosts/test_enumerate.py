@@ -95,6 +95,35 @@ def test_singlet_ghost_energy_position_size_closed_form():
         assert g.radius_mm[k] <= abs(a) * STOP_MM * (1 + 2 / 60)
 
 
+def test_singlet_ghost_of_a_near_light_closed_form():
+    """A light 50 mm from the first vertex (the stop plane): a ray through the stop at
+    height y0 has slope y0 / (L cos) + tan(theta), so the footprint keeps its centre
+    B tan(theta) and its blur radius becomes |A + B / (L cos)| r; the relative energy stays
+    R^2. Tolerances as for the light at infinity: slopes up to 0.04 rad make third-order
+    errors ~2e-3, and the source's cos / r^2 weights vary by < 1e-3 over the stop. A
+    light 1e12 mm away is the light at infinity (its launch grid, weights and directions
+    differ by < 1e-9)."""
+    lens = singlet()
+    light, dist = (0.6, 1.0), 50.0
+    (g,) = enumerate_ghosts(lens, light=light, distance_mm=dist, wavelengths_nm=(550.0,),
+                            rays=4000, fine_rays=40000)
+    tx, ty = (math.tan(math.radians(v)) for v in light)
+    cos = 1.0 / math.sqrt(1.0 + tx * tx + ty * ty)
+    n = float(lens.surfaces[1].medium.n(550.0))
+    (a, b), _ = paraxial_ghost(n)
+    assert g.energy[0] == pytest.approx(bare_r(n) ** 2, rel=0.01)
+    assert g.centre_mm[0] == pytest.approx((b * tx, b * ty), rel=0.01)
+    near = abs(a + b / (dist * cos)) * STOP_MM
+    assert g.extent_mm[0] == pytest.approx(near, rel=0.01)
+    assert abs(near / (abs(a) * STOP_MM) - 1) > 0.05  # the distance is seen
+    (far,) = enumerate_ghosts(lens, light=light, distance_mm=1e12, wavelengths_nm=(550.0,),
+                              rays=4000, fine_rays=4000)
+    (inf,) = enumerate_ghosts(lens, light=light, wavelengths_nm=(550.0,), rays=4000,
+                              fine_rays=4000)
+    assert far.energy == pytest.approx(inf.energy, rel=1e-6)
+    assert far.extent_mm == pytest.approx(inf.extent_mm, rel=1e-6)
+
+
 def test_singlet_on_axis():
     """On axis the same closed form holds, and the ghost sits on the axis (its centre
     within 1e-3 of its blur radius: the grid is symmetric about the axis to rounding)."""

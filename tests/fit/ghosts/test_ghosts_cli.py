@@ -74,6 +74,8 @@ def test_table_and_json(singlet, capsys):
     (["--count", "0"], ["--count 0"]),
     (["--threshold", "-1"], ["--threshold -1"]),
     (["--rays", "5"], ["--rays 5"]),
+    (["--distance", "0.5"], ["--distance 0.5", "in front of surface 0"]),
+    (["--distance", "-3"], ["--distance -3"]),
 ])
 def test_bad_input_refused_before_work(singlet, capsys, monkeypatch, args, words):
     def no_work(*a, **k):
