@@ -85,30 +85,36 @@ class Aimed:
     #                       P_s its slopes dx/dz, dy/dz leaving the stop
     pos: np.ndarray  # (N, 3) where the ray ends: P_o on the stop, P_s on the sensor (mm)
     dir: np.ndarray  # (N, 3) its unit direction there
+    # (N, steps, 3) where the ray is after each step of its path (mm), when asked for
+    # (``history=True`` of the aiming functions); NaN where not ok
+    history: np.ndarray | None = None
 
     @classmethod
-    def empty(cls, n: int) -> Aimed:
+    def empty(cls, n: int, steps: int | None = None) -> Aimed:
         nan = np.full((n, 3), np.nan)
+        hist = None if steps is None else np.full((n, steps, 3), np.nan)
         return cls(np.full((n, 4), np.nan), np.full(n, np.nan), np.zeros(n, dtype=bool),
-                   np.full((n, 2), np.nan), nan, nan.copy())
+                   np.full((n, 2), np.nan), nan, nan.copy(), hist)
 
 
 def _converge(aimed: Aimed, residual, final, p0: np.ndarray, scale: float,
               warm: bool, features: np.ndarray | None = None) -> Aimed:
     """Newton on every row from ``p0``, then the final trace of the converged rows into
     ``aimed``. ``final(idx, p)`` returns (miss (n, 2), valid, outputs, vignetting, pos,
-    dir). With ``warm`` (a first guess that may already be the solution) the final trace
-    is tried at ``p0`` first, with the acceptance Newton's rays get in the final trace
-    (a miss of at most 10 NEWTON_TOL_MM), and Newton runs only for the rows it does not
-    settle."""
+    dir, history (n, steps, 3) or None). With ``warm`` (a first guess that may already
+    be the solution) the final trace is tried at ``p0`` first, with the acceptance
+    Newton's rays get in the final trace (a miss of at most 10 NEWTON_TOL_MM), and
+    Newton runs only for the rows it does not settle."""
     todo = np.arange(len(p0))
 
-    def keep(idx, q, r, valid, outputs, vig, pos, dirs):
+    def keep(idx, q, r, valid, outputs, vig, pos, dirs, hist):
         good = (valid & (np.hypot(r[:, 0], r[:, 1]) <= 10 * NEWTON_TOL_MM)
                 & np.all(np.isfinite(outputs), 1))
         i = idx[good]
         aimed.outputs[i], aimed.vignetting[i], aimed.ok[i] = outputs[good], vig[good], True
         aimed.unknowns[i], aimed.pos[i], aimed.dir[i] = q[good], pos[good], dirs[good]
+        if aimed.history is not None:
+            aimed.history[i] = hist[good]
         return good
 
     if warm:
@@ -271,7 +277,8 @@ def sample_object_side(lens: Lens, domain: Domain, groups: int, per_group: int,
 def aim_object_side(lens: Lens, x_O: np.ndarray, y_O: np.ndarray, u_O: np.ndarray,
                     x_a: np.ndarray, y_a: np.ndarray, wavelength_nm: np.ndarray, *,
                     fd_scale_mm: float | None = None,
-                    guess: np.ndarray | None = None) -> Aimed:
+                    guess: np.ndarray | None = None, path: list[Step] | None = None,
+                    history: bool = False) -> Aimed:
     """P_o exactly, one row per ray: the ray from the scene point (direction cosines x_O,
     y_O from the first vertex, inverse distance u_O in 1/mm, 0 = infinity) through the
     stop point (x_a, y_a) (mm) at ``wavelength_nm``. Inputs broadcast to one length.
@@ -280,13 +287,20 @@ def aim_object_side(lens: Lens, x_O: np.ndarray, y_O: np.ndarray, u_O: np.ndarra
     coatings), phi_o = OPL(scene point -> stop point) - d_O (mm). Rays that miss, reflect
     totally or do not converge have ``ok`` False. ``fd_scale_mm`` sets Newton's
     finite-difference step (default: the largest |stop point|, at least 1 mm); ``guess``
-    (N, 2) where each ray crosses z = 0, NaN rows for the paraxial guess."""
+    (N, 2) where each ray crosses z = 0, NaN rows for the paraxial guess.
+
+    ``path`` (default: every surface up to the stop) is the list of steps the ray takes
+    from the start plane to the stop plane, e.g. a ghost's half that reflects twice
+    before it reaches the stop (:mod:`lensfit.ghosts.sample`); the start plane, the
+    paraxial guess and the retry are those of the direct path. With ``history``,
+    ``Aimed.history`` holds the ray's position after each step."""
     s = lens.stop_index  # 0: P_o is the straight line to the stop plane, traced as any
     xo, yo, ug, xa, ya, lam = (np.array(v, dtype=np.float64) for v in np.broadcast_arrays(
         x_O, y_O, u_O, x_a, y_a, wavelength_nm))
     xo, yo, ug, xa, ya, lam = (v.reshape(-1) for v in (xo, yo, ug, xa, ya, lam))
     n = len(xo)
-    aimed = Aimed.empty(n)
+    path = [Step(k) for k in range(s + 1)] if path is None else list(path)
+    aimed = Aimed.empty(n, len(path) if history else None)
     if n == 0:
         return aimed
     ap = np.stack([xa, ya], axis=1)
@@ -304,7 +318,6 @@ def aim_object_side(lens: Lens, x_O: np.ndarray, y_O: np.ndarray, u_O: np.ndarra
             f"{lens.source_file or lens.name}: P_o: u_O = {ug[bad]:g} 1/mm puts the scene "
             f"point at z = {scene_z[bad]:g} mm, not in front of the lens (scene points "
             f"must lie before z = {front:g} mm)")
-    path = [Step(k) for k in range(s + 1)]
 
     def launch(idx, p):
         """Ray from the scene point through (p, 0), started on the plane z = front."""
@@ -334,7 +347,8 @@ def aim_object_side(lens: Lens, x_O: np.ndarray, y_O: np.ndarray, u_O: np.ndarra
         rel /= np.linalg.norm(ui * start - wi, axis=1) + 1.0
         phi = out.opl_mm + rel
         outputs = np.stack([hist[0][:, 0], hist[0][:, 1], out.transmittance, phi], axis=1)
-        return r, valid, outputs, vig, out.pos, out.dir
+        steps = np.stack(hist, axis=1) if history else None
+        return r, valid, outputs, vig, out.pos, out.dir, steps
 
     # Paraxial first guess: the ray through the image of the stop point in the
     # entrance pupil (per meridian, at the d line)
@@ -397,7 +411,8 @@ def sample_sensor_side(lens: Lens, domain: Domain, groups: int, per_group: int,
 def aim_sensor_side(lens: Lens, x_S: np.ndarray, y_S: np.ndarray, z_S: np.ndarray,
                     x_a: np.ndarray, y_a: np.ndarray, wavelength_nm: np.ndarray, *,
                     fd_scale: float = 1.0, guess: np.ndarray | None = None,
-                    vignetting: bool = True) -> Aimed:
+                    vignetting: bool = True, path: list[Step] | None = None,
+                    history: bool = False) -> Aimed:
     """P_s exactly, one row per ray: the ray from the stop point (x_a, y_a) (mm) to the
     sensor point (x_S, y_S) (mm) of the sensor shifted by z_S (mm, + away from the lens)
     at ``wavelength_nm``. Inputs broadcast to one length.
@@ -407,7 +422,13 @@ def aim_sensor_side(lens: Lens, x_S: np.ndarray, y_S: np.ndarray, z_S: np.ndarra
     totally or do not converge have ``ok`` False. ``fd_scale`` sets Newton's
     finite-difference step in slope; ``guess`` (N, 2) the slopes dx/dz, dy/dz leaving
     the stop, NaN rows for the paraxial guess. Without ``vignetting`` the rays' history
-    is not kept (faster) and ``Aimed.vignetting`` is NaN."""
+    is not kept (faster) and ``Aimed.vignetting`` is NaN.
+
+    ``path`` (default: every surface after the stop) is the list of steps the ray takes
+    from the stop plane to the last surface, e.g. a ghost's half that reflects twice
+    behind the stop (:mod:`lensfit.ghosts.sample`); the paraxial guess and the retry are
+    those of the direct path. With ``history`` (which implies ``vignetting``),
+    ``Aimed.history`` holds the ray's position after each step."""
     s = lens.stop_index
     n_surf = len(lens.surfaces)
     z_stop = float(lens.vertex_z[s])
@@ -415,7 +436,9 @@ def aim_sensor_side(lens: Lens, x_S: np.ndarray, y_S: np.ndarray, z_S: np.ndarra
                                for v in np.broadcast_arrays(x_S, y_S, z_S, x_a, y_a,
                                                             wavelength_nm))
     n = len(xs)
-    aimed = Aimed.empty(n)
+    path = [Step(k) for k in range(s + 1, n_surf)] if path is None else list(path)
+    vignetting = vignetting or history
+    aimed = Aimed.empty(n, len(path) if history else None)
     if n == 0:
         return aimed
     ap = np.stack([xa, ya], axis=1)
@@ -426,7 +449,6 @@ def aim_sensor_side(lens: Lens, x_S: np.ndarray, y_S: np.ndarray, z_S: np.ndarra
         raise SamplingError(
             f"{lens.source_file or lens.name}: z_S = {bad:g} mm puts the sensor in front "
             f"of the last surface (it is {lens.sensor_z - lens.vertex_z[-1]:g} mm behind it)")
-    path = [Step(k) for k in range(s + 1, n_surf)]
 
     def shoot(idx, slope, hist=None, fresnel=False):
         """Ray from the stop point with slopes (dx/dz, dy/dz), to the sensor plane."""
@@ -453,7 +475,9 @@ def aim_sensor_side(lens: Lens, x_S: np.ndarray, y_S: np.ndarray, z_S: np.ndarra
             vig, last_pos = np.full(len(idx), np.nan), out.pos
         outputs = np.stack([last_pos[:, 0], last_pos[:, 1], out.transmittance, out.opl_mm],
                            axis=1)
-        return r, valid, outputs, vig, end, out.dir
+        steps = np.stack(hist, axis=1) if history and hist else (
+            np.zeros((len(idx), 0, 3)) if history else None)
+        return r, valid, outputs, vig, end, out.dir, steps
 
     # Paraxial first guess from the transfer matrix stop -> sensor, per meridian; it acts
     # on (y, n u), n the index at the stop (the stop may lie in glass)
