@@ -8,6 +8,7 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
+
 from lensfit.ghosts.fit import GHOST_OPTIONS, fit_ghost, select_housings
 from lensfit.ghosts.sample import aim_ghost, ghost_half
 from lensfit.prescription import load_lens
