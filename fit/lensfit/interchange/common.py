@@ -123,9 +123,10 @@ def lens_table(*, lens_id: str, name: str, source: str, notes: list[str]) -> dic
     return info
 
 
-def validate(data: dict[str, Any], label: str, where_surface: list[str]) -> None:
-    """Load the converted table as lensfit would (lens_from_dict) and turn a refusal into
-    an ImportProblems line that names the source line (or JSON path) of the surface."""
+def validate(data: dict[str, Any], label: str, where_surface: list[str]) -> Any:
+    """Load the converted table as lensfit would (lens_from_dict) and return the Lens;
+    turn a refusal into an ImportProblems line that names the source line (or JSON path)
+    of the surface."""
     import numpy as np
 
     from lensfit.prescription import lens_from_dict
@@ -134,7 +135,7 @@ def validate(data: dict[str, Any], label: str, where_surface: list[str]) -> None
         # Lengths near the float limit (1e308) overflow in the loader's sag checks; the
         # overflow is an inf there, which the loader refuses, not a warning
         with np.errstate(over="ignore", invalid="ignore"):
-            lens_from_dict(data, file=label)
+            return lens_from_dict(data, file=label)
     except LensError as e:
         where = ""
         if e.surface is not None and 0 <= e.surface < len(where_surface):

@@ -342,22 +342,21 @@ def parse_zmx(text: str, *, label: str = "<zmx>", lens_id: str = "import") -> Im
         "coating": {"default": "none", "design_wavelength_nm": 550.0},
         "surface": surfaces,
     }
-    validate(data, label, where)
-    _design_aperture(data, top, notes, label)
+    lens = validate(data, label, where)
+    _design_aperture(data, lens, top, notes, label)
     return ImportResult(data, notes.lines())
 
 
-def _design_aperture(data: dict[str, Any], top: dict[str, tuple[list[str], int]],
+def _design_aperture(data: dict[str, Any], lens: Any, top: dict[str, tuple[list[str], int]],
                      notes: Notes, label: str) -> None:
     """The design's aperture as the aperture ``lensfit fit`` fits by default: ``ENPD D``
     (entrance pupil diameter, object at infinity) gives f/N = EFL / D at the d line,
-    ``FNUM N`` f/N itself; written as ``[fit] f_number`` with the reason. FLOA (the stop
+    ``FNUM N`` f/N itself (``lens``: the validated lens of ``data``); written as ``[fit]
+    f_number`` with the reason. FLOA (the stop
     size is the aperture) is lensfit's own model and needs nothing. An aperture wider
     than the stop's semi-diameter allows is a note (the fit then takes its default)."""
     from lensfit.paraxial import stop_radius_for_f_number
     from lensfit.paraxial import table as paraxial_table
-    from lensfit.prescription import lens_from_dict
-
     kw = next((k for k in ("ENPD", "FNUM") if k in top), None)
     if kw is None or "FLOA" in top:
         return
@@ -369,7 +368,6 @@ def _design_aperture(data: dict[str, Any], top: dict[str, tuple[list[str], int]]
     if not (math.isfinite(value) and value > 0):
         notes.add(str(lineno), kw, "aperture not mapped (not a positive number)")
         return
-    lens = lens_from_dict(data, file=label)
     efl = float(paraxial_table(lens)["efl_mm"])
     f_number = abs(efl) / value if kw == "ENPD" else value
     try:
@@ -836,17 +834,22 @@ def _field_of_view(top: dict[str, tuple[list[str], int]], xfld, yfld, notes: Not
 
 # --- export --------------------------------------------------------------------------------
 
+def _near(x: float, ulps: int = 4) -> list[float]:
+    """x, then the floats 1, 2, ... ``ulps`` steps below and above it, nearest first."""
+    out = [x]
+    lo = hi = x
+    for _ in range(ulps):
+        lo, hi = math.nextafter(lo, -math.inf), math.nextafter(hi, math.inf)
+        out += [lo, hi]
+    return out
+
+
 def curvature_for(radius: float) -> float:
     """A curvature c whose reciprocal is exactly ``radius`` in float64 when one exists
     next to 1/radius (so that CURV -> 1/CURV gives the table's radius back bit for bit);
     else 1/radius."""
     c = 1.0 / radius
-    cands = [c]
-    lo = hi = c
-    for _ in range(4):
-        lo, hi = math.nextafter(lo, -math.inf), math.nextafter(hi, math.inf)
-        cands += [lo, hi]
-    for cand in cands:
+    for cand in _near(c):
         if cand != 0.0 and 1.0 / cand == radius:
             return cand
     return c
@@ -858,12 +861,7 @@ def radius_for(curv: float) -> float:
     them are 1/c to float64 rounding; the choice brings a typed radius (58.04, whose
     reciprocal has no exact float inverse) back bit for bit from an exported file."""
     r = 1.0 / curv
-    cands = [r]
-    lo = hi = r
-    for _ in range(4):
-        lo, hi = math.nextafter(lo, -math.inf), math.nextafter(hi, math.inf)
-        cands += [lo, hi]
-    same = [x for x in cands if curvature_for(x) == curv]
+    same = [x for x in _near(r) if curvature_for(x) == curv]
     if not same:
         return r
     return min(same, key=lambda x: (len(repr(x)), abs(x - r)))

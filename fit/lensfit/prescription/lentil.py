@@ -268,8 +268,9 @@ def _toml_value(v: Any) -> str:
 def to_toml(data: dict[str, Any]) -> str:
     """Write lensdb data as TOML (deterministic: same data, same bytes)."""
     tables = ("lens", "fit", "coating")
-    unknown = set(data) - {"schema_version", "surface", *tables} - {
-        k for k, v in data.items() if not isinstance(v, (dict, list))}
+    # Scalars go before the first table; a table or list must be one of those written
+    unknown = [k for k, v in data.items() if isinstance(v, (dict, list))
+               and k not in ("surface", *tables)]
     if unknown:
         raise ValueError(f"to_toml: cannot place the tables {sorted(unknown)}")
     lines = [
