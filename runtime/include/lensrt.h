@@ -265,8 +265,19 @@ typedef struct lensrt_lens_info {
     double psf_vs_exact;
     double psf_target;
     const char *psf_vs_exact_cell;
+    /* Ghost tables (issue 13: `ghost` lines, generated/<lens>/ghosts/ghost_<i>_<j>.table):
+     * ghost 1, the model surface indices of the first and second reflection (i < j), the
+     * file's label (e.g. "4-8"; valid while the lens lives) and the clip pairs of its
+     * P_clip system (0..4). A ghost renders as any lens, with its own phasor sums: a
+     * light's image with flares is the direct image plus each ghost's (intensities add).
+     * Direct tables and analytic lenses: 0, 0, 0, "" and 0. */
+    int32_t ghost;
+    int32_t ghost_first, ghost_second;
+    const char *ghost_label;
+    int32_t ghost_clip_pairs;
 } lensrt_lens_info;
-#define LENSRT_LENS_INFO_INIT {sizeof(lensrt_lens_info), NULL, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, NULL}
+#define LENSRT_LENS_INFO_INIT {sizeof(lensrt_lens_info), NULL, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, NULL, \
+                               0, 0, 0, NULL, 0}
 
 LENSRT_API lensrt_result lensrt_lens_get_info(lensrt_lens lens, lensrt_lens_info *out);
 

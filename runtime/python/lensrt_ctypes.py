@@ -93,7 +93,10 @@ class LensInfo(Versioned):
                 ("field_x", C.c_double), ("field_y", C.c_double),
                 ("distance_min_mm", C.c_double), ("sensor_radius_mm", C.c_double),
                 ("psf_vs_exact", C.c_double), ("psf_target", C.c_double),
-                ("psf_vs_exact_cell", C.c_char_p)]
+                ("psf_vs_exact_cell", C.c_char_p),
+                # ghost tables (issue 13); a library before them leaves these zero
+                ("ghost", C.c_int32), ("ghost_first", C.c_int32), ("ghost_second", C.c_int32),
+                ("ghost_label", C.c_char_p), ("ghost_clip_pairs", C.c_int32)]
 
 
 class Aperture(C.Structure):
@@ -292,6 +295,7 @@ class Lensrt:
         d = {name: getattr(info, name) for name, _ in LensInfo._fields_}
         d["name"] = d["name"].decode()
         d["psf_vs_exact_cell"] = (d["psf_vs_exact_cell"] or b"").decode()
+        d["ghost_label"] = (d["ghost_label"] or b"").decode()
         return d
 
     def image_point(self, lens: C.c_void_p, light: Sequence[float], wavelength_nm: float,

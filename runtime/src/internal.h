@@ -56,6 +56,7 @@ typedef struct lensrt_input {
 
 typedef struct lensrt_poly {
     char name[32];
+    char unit[32];            /* decoded, as the table writes it */
     int n_terms;
     unsigned char *exponents; /* n_terms * n_inputs */
     double *coefficients;     /* n_terms */
@@ -67,6 +68,9 @@ typedef struct lensrt_system {
     lensrt_input inputs[8];
     lensrt_poly outputs[8];
 } lensrt_system;
+
+/* P_clip's pairs (K <= 4: at most 8 outputs, as any system). */
+#define LENSRT_MAX_CLIP_PAIRS 4
 
 typedef struct lensrt_lens_s {
     lensrt_context ctx;       /* the context that owns the lens's memory */
@@ -83,6 +87,17 @@ typedef struct lensrt_lens_s {
     double psf_vs_exact, psf_target;
     char psf_vs_exact_cell[256];
     lensrt_lens_info info;
+    /* ghost tables (issue 13, /work/notes/ghost-table.md): the two reflecting surfaces,
+     * the file's label, which system is the ghost half (LENSRT_SYSTEM_OBJECT or _SENSOR),
+     * and P_clip: the same inputs as that half, outputs in pairs (x, y), pair q passing
+     * when x^2 + y^2 <= 1 (clip_stop[q] 0: a housing crossing over its radius) or when
+     * (x, y) in mm lies inside the render's aperture (clip_stop[q] 1: a stop crossing).
+     * n_clip_pairs 0: no P_clip (direct tables, and ghosts without clip outputs). */
+    int ghost, ghost_first, ghost_second, ghost_side;
+    char ghost_label[256];
+    lensrt_system p_clip;
+    int n_clip_pairs, n_stop_pairs;
+    int clip_stop[LENSRT_MAX_CLIP_PAIRS];
     /* compiled-in lenses (lensrt_lens_load_compiled): the generated Horner evaluators;
      * NULL for lenses read from a table */
     const lensrt_compiled_lens *compiled;

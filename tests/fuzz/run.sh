@@ -25,6 +25,8 @@ mkdir -p "$build/corpus/table" "$build/corpus/phasors" "$build/artifacts"
 for t in "$root"/generated/*/lens*.table "$root"/generated/0001-angenieux-double-gauss/scene-fits/demo/*.table; do
   cp "$t" "$build/corpus/table/$(echo "${t#"$root"/generated/}" | tr / _)"
 done
+# ... and small hand-made tables (a ghost table with its ghost lines and P_clip, issue 13)
+cp "$root"/tests/fuzz/seeds/table/*.table "$build/corpus/table/"
 ASAN_OPTIONS=detect_leaks=1 "$build/fuzz_seed" "$build/corpus/phasors/run.phasors" "$build/corpus/phasors/empty.phasors"
 
 # 3. Known crashers stay fixed: every input in tests/fuzz/regressions/<target>/ runs once
@@ -41,7 +43,9 @@ done
 # 4. Fuzz each target for SECONDS; libFuzzer exits non-zero on any finding
 for target in table phasors; do
   echo "fuzz: $target for ${seconds}s" >&2
-  if ! "$build/fuzz_$target" -max_total_time="$seconds" -rss_limit_mb=2048 -timeout=10 \
+  dict=()
+  if [ -f "$root/tests/fuzz/$target.dict" ]; then dict=("-dict=$root/tests/fuzz/$target.dict"); fi
+  if ! "$build/fuzz_$target" "${dict[@]}" -max_total_time="$seconds" -rss_limit_mb=2048 -timeout=10 \
        -max_len=2097152 -artifact_prefix="$build/artifacts/$target-" -print_final_stats=1 \
        "$build/corpus/$target" >"$build/$target.log" 2>&1; then
     tail -n 60 "$build/$target.log" >&2

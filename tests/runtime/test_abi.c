@@ -118,6 +118,15 @@ static void test_outputs_stop_at_struct_size(lensrt_context ctx, lensrt_lens len
     CHECK(((lensrt_lens_info *)(void *)b.bytes)->analytic == 1 && b.size == old_info,
           "older lens info: analytic %d, struct_size %zu", ((lensrt_lens_info *)(void *)b.bytes)->analytic, b.size);
 
+    // lensrt_lens_info before the ghost fields (0.2.0): nothing written past psf_vs_exact_cell
+    old_info = offsetof(lensrt_lens_info, ghost);
+    memset(&b, SENTINEL, sizeof b);
+    b.size = old_info;
+    CHECK(lensrt_lens_get_info(lens, (lensrt_lens_info *)(void *)b.bytes) == LENSRT_SUCCESS, "get_info (no ghost fields)");
+    at = first_written(&b, old_info, sizeof b.bytes);
+    CHECK(at < 0, "lensrt_lens_get_info wrote byte %ld past the caller's struct_size %zu (before the ghost fields)", at,
+          old_info);
+
     fill_desc(&d, lens);
     CHECK(lensrt_render_create(ctx, &d, &render) == LENSRT_SUCCESS, "render: %s", lensrt_context_last_error(ctx));
     if (!render) return;

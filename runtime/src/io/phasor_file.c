@@ -94,6 +94,8 @@ static uint64_t lens_hash(uint64_t h, const lensrt_lens_s *l)
     if (!l->analytic) {
         h = system_hash(h, &l->p_o);
         h = system_hash(h, &l->p_s);
+        /* a ghost's clip system (absent in direct tables, whose hash is unchanged) */
+        if (l->p_clip.n_outputs) h = system_hash(h, &l->p_clip);
     }
     return h;
 }

@@ -157,6 +157,7 @@ lensrt_result lensrt_lens_create_analytic(lensrt_context ctx, const lensrt_analy
     lens->info.name = lens->name;
     lens->info.analytic = 1;
     lens->info.psf_vs_exact_cell = lens->psf_vs_exact_cell; /* "": no trust figures */
+    lens->info.ghost_label = lens->ghost_label;             /* "": not a ghost */
     lens->info.focal_length_mm = desc->focal_length_mm;
     lens->info.wavelength_min_nm = 1.0;
     lens->info.wavelength_max_nm = 1e6;

@@ -23,6 +23,7 @@ void lensrt_lens_destroy(lensrt_context ctx, lensrt_lens lens)
     ctx = lens->ctx; /* the context that allocated it */
     free_system(ctx, &lens->p_o);
     free_system(ctx, &lens->p_s);
+    free_system(ctx, &lens->p_clip);
     lensrt_free(ctx, lens);
 }
 

@@ -168,7 +168,8 @@ static lensrt_result check_input(reader *r, const char *sys, const lensrt_input 
  * tau_i, output 2, below LENSRT_MAX_TRANSMITTANCE_SUM). */
 static lensrt_result check_output(reader *r, const char *sys, const lensrt_poly *p, int k, int line)
 {
-    const double bound = k == 2 ? LENSRT_MAX_TRANSMITTANCE_SUM : LENSRT_MAX_COEFFICIENT_SUM;
+    /* P_clip's outputs are all positions (ratios or mm): no transmittance among them */
+    const double bound = k == 2 && strcmp(sys, "P_clip") != 0 ? LENSRT_MAX_TRANSMITTANCE_SUM : LENSRT_MAX_COEFFICIENT_SUM;
     double total = 0.0;
     int t;
     for (t = 0; t < p->n_terms; t++) total += fabs(p->coefficients[t]);
@@ -213,6 +214,9 @@ static lensrt_result read_system(reader *r, lensrt_system *sys)
             !parse_int(r->tok[3], 0, LENSRT_MAX_TERMS, &p->n_terms))
             return parse_fail(r, "expected 'output NAME UNIT N_TERMS'%s", "");
         snprintf(p->name, sizeof p->name, "%s", r->tok[1]);
+        if (strcmp(r->tok[2], "-") == 0) r->tok[2][0] = '\0'; /* an empty text field */
+        decode_field(r->tok[2]);
+        snprintf(p->unit, sizeof p->unit, "%s", r->tok[2]);
         line = r->line;
         p->exponents = lensrt_calloc(r->ctx, (size_t)p->n_terms * (size_t)sys->n_inputs + 1, 1);
         p->coefficients = lensrt_calloc(r->ctx, (size_t)p->n_terms + 1, sizeof(double));
@@ -365,6 +369,134 @@ static lensrt_result read_trust_line(reader *r, lensrt_lens lens, int n_lens, in
     return LENSRT_SUCCESS;
 }
 
+/* `ghost KEY VALUE` lines (ghost tables, issue 13): after the trust lines, before the
+ * first system, each key once in this order. *n_ghost counts the lines read so far. */
+#define GHOST_LINES 4
+static const char *const GHOST_KEYS[GHOST_LINES] = {"first", "second", "label", "side"};
+static const char *const GHOST_FORMS[GHOST_LINES] = {"ghost first <i>", "ghost second <j>", "ghost label <text>",
+                                                     "ghost side <P_o|P_s>"};
+#define GHOST_ORDER "keys come in the order first, second, label, side, after the trust lines and " \
+                    "before the first system"
+
+static lensrt_result read_ghost_line(reader *r, lensrt_lens lens, int n_trust, int n_systems, int *n_ghost)
+{
+    const char *key = r->n_tok > 1 ? r->tok[1] : "";
+    const char *value = r->n_tok > 2 ? r->tok[2] : "";
+    int i;
+    if (n_systems)
+        return parse_failf(r, "ghost %s '%s' after a system: the ghost lines come before the first system", key,
+                           value);
+    if (n_trust < TRUST_LINES)
+        return parse_failf(r, "ghost %s '%s' before the trust lines end: the ghost lines follow them", key, value);
+    for (i = 0; i < *n_ghost; i++)
+        if (strcmp(key, GHOST_KEYS[i]) == 0)
+            return parse_failf(r, "ghost %s '%s' appears twice (each ghost key once: " GHOST_ORDER ")", key, value);
+    if (*n_ghost == GHOST_LINES)
+        return parse_failf(r, "unknown ghost key '%s' (value '%s') after the %d ghost lines (" GHOST_ORDER ")", key,
+                           value, GHOST_LINES);
+    if (strcmp(key, GHOST_KEYS[*n_ghost]) != 0)
+        return parse_failf(r, "expected '%s' (ghost line %d of %d: " GHOST_ORDER "), found ghost %s '%s'",
+                           GHOST_FORMS[*n_ghost], *n_ghost + 1, GHOST_LINES, key, value);
+    if (r->n_tok != 3)
+        return parse_failf(r, "expected '%s' (3 fields), found %d fields", GHOST_FORMS[*n_ghost], r->n_tok);
+    switch (*n_ghost) {
+    case 0: /* a model surface index */
+        if (!parse_int(value, 0, 1000000, &lens->ghost_first))
+            return parse_failf(r, "ghost first '%s' is not a surface index (an integer >= 0)", value);
+        break;
+    case 1: /* the second reflection lies behind the first */
+        if (!parse_int(value, 0, 1000000, &lens->ghost_second))
+            return parse_failf(r, "ghost second '%s' is not a surface index (an integer >= 0)", value);
+        if (lens->ghost_second <= lens->ghost_first)
+            return parse_failf(r, "ghost second '%s' is not after ghost first %d (a ghost (i, j) needs i < j)", value,
+                               lens->ghost_first);
+        break;
+    case 2:
+        if (strcmp(r->tok[2], "-") == 0) r->tok[2][0] = '\0';
+        decode_field(r->tok[2]);
+        snprintf(lens->ghost_label, sizeof lens->ghost_label, "%s", r->tok[2]);
+        break;
+    default:
+        if (strcmp(value, "P_o") == 0) lens->ghost_side = LENSRT_SYSTEM_OBJECT;
+        else if (strcmp(value, "P_s") == 0) lens->ghost_side = LENSRT_SYSTEM_SENSOR;
+        else return parse_failf(r, "ghost side '%s' is neither P_o nor P_s (the system that is the ghost half)", value);
+        lens->ghost = 1;
+        break;
+    }
+    ++*n_ghost;
+    return LENSRT_SUCCESS;
+}
+
+/* P_clip (ghost tables): the ghost side's inputs exactly (names, domains, transforms),
+ * then pairs x_h<k> y_h<k> (unit 1: a housing crossing over its radius) or x_s<c> y_s<c>
+ * (unit mm: a crossing of the stop plane). A unit may carry a description after a space
+ * ("1 (over the radius)"), as the inputs' units do. */
+static int unit_is(const char *unit, const char *want)
+{
+    size_t n = strlen(want);
+    return strncmp(unit, want, n) == 0 && (unit[n] == '\0' || unit[n] == ' ');
+}
+
+static int pair_name(const char *name, char axis, char kind, char *index, size_t size)
+{
+    const char *d = name + 3;
+    if (name[0] != axis || name[1] != '_' || name[2] != kind || *d == '\0') return 0;
+    for (; *d; d++)
+        if (*d < '0' || *d > '9') return 0;
+    snprintf(index, size, "%s", name + 3);
+    return 1;
+}
+
+static lensrt_result check_clip(lensrt_context ctx, const char *file, lensrt_lens lens)
+{
+    const lensrt_system *c = &lens->p_clip;
+    const lensrt_system *g = lens->ghost_side == LENSRT_SYSTEM_OBJECT ? &lens->p_o : &lens->p_s;
+    const char *gname = lens->ghost_side == LENSRT_SYSTEM_OBJECT ? "P_o" : "P_s";
+    int i, q;
+    if (c->n_inputs != g->n_inputs)
+        return lensrt_fail(ctx, LENSRT_ERROR_PARSE,
+                           "%s: system P_clip: %d inputs, the ghost side %s has %d (P_clip takes exactly its inputs)",
+                           file, c->n_inputs, gname, g->n_inputs);
+    for (i = 0; i < c->n_inputs; i++) {
+        const lensrt_input *a = &c->inputs[i], *b = &g->inputs[i];
+        if (strcmp(a->name, b->name) != 0 || a->lo != b->lo || a->hi != b->hi || a->transform != b->transform ||
+            a->c != b->c || a->s != b->s)
+            return lensrt_fail(ctx, LENSRT_ERROR_PARSE,
+                               "%s: system P_clip: input %d '%s' [%.17g, %.17g] (transform %d, c %.17g, s %.17g) "
+                               "differs from the ghost side %s's '%s' [%.17g, %.17g] (transform %d, c %.17g, s %.17g)",
+                               file, i, a->name, a->lo, a->hi, a->transform, a->c, a->s, gname, b->name, b->lo,
+                               b->hi, b->transform, b->c, b->s);
+    }
+    if (c->n_outputs % 2 != 0)
+        return lensrt_fail(ctx, LENSRT_ERROR_PARSE,
+                           "%s: system P_clip: %d outputs, an odd count (outputs come in pairs x, y)", file,
+                           c->n_outputs);
+    for (q = 0; q < c->n_outputs / 2; q++) {
+        const lensrt_poly *x = &c->outputs[2 * q], *y = &c->outputs[2 * q + 1];
+        char ix[32], iy[32];
+        int stop;
+        if (pair_name(x->name, 'x', 'h', ix, sizeof ix)) stop = 0;
+        else if (pair_name(x->name, 'x', 's', ix, sizeof ix)) stop = 1;
+        else
+            return lensrt_fail(ctx, LENSRT_ERROR_PARSE,
+                               "%s: system P_clip: output %d '%s' (unit '%s'): expected x_h<k> (a housing, unit 1) or "
+                               "x_s<c> (a stop crossing, unit mm)", file, 2 * q, x->name, x->unit);
+        if (!pair_name(y->name, 'y', stop ? 's' : 'h', iy, sizeof iy) || strcmp(ix, iy) != 0)
+            return lensrt_fail(ctx, LENSRT_ERROR_PARSE,
+                               "%s: system P_clip: output %d '%s' follows '%s': expected its pair y_%c%s", file,
+                               2 * q + 1, y->name, x->name, stop ? 's' : 'h', ix);
+        if (!unit_is(x->unit, stop ? "mm" : "1") || !unit_is(y->unit, stop ? "mm" : "1"))
+            return lensrt_fail(ctx, LENSRT_ERROR_PARSE,
+                               "%s: system P_clip: pair %s, %s has units '%s', '%s': expected '%s' (%s)", file,
+                               x->name, y->name, x->unit, y->unit, stop ? "mm" : "1",
+                               stop ? "a stop crossing in mm" : "a housing crossing over its radius");
+        lens->clip_stop[q] = stop;
+        lens->n_stop_pairs += stop;
+    }
+    lens->n_clip_pairs = c->n_outputs / 2;
+    return LENSRT_SUCCESS;
+}
+
 /* What to pass to `lensfit fit` for a table file: the ID of lens<ID>.table, else LENS. */
 static void lens_id_of(const char *file, char *id, size_t size)
 {
@@ -419,6 +551,11 @@ static void fill_info(lensrt_lens lens)
     info->psf_vs_exact = lens->psf_vs_exact;
     info->psf_target = lens->psf_target;
     info->psf_vs_exact_cell = lens->psf_vs_exact_cell;
+    info->ghost = lens->ghost;
+    info->ghost_first = lens->ghost_first;
+    info->ghost_second = lens->ghost_second;
+    info->ghost_label = lens->ghost_label;
+    info->ghost_clip_pairs = lens->n_clip_pairs;
 }
 
 lensrt_result lensrt_lens_load_text(lensrt_context ctx, const char *text, size_t size,
@@ -428,7 +565,7 @@ lensrt_result lensrt_lens_load_text(lensrt_context ctx, const char *text, size_t
     lensrt_lens lens;
     lensrt_result res;
     unsigned seen = 0;
-    int version, n_lens = 0, n_trust = 0, n_systems = 0;
+    int version, n_lens = 0, n_trust = 0, n_ghost = 0, n_systems = 0;
     char id[64];
     if (!ctx || !text || !out) return lensrt_fail(ctx, LENSRT_ERROR_INVALID_ARGUMENT, "lensrt_lens_load_text: NULL argument");
     *out = NULL;
@@ -470,7 +607,14 @@ lensrt_result lensrt_lens_load_text(lensrt_context ctx, const char *text, size_t
             n_lens++;
             res = read_lens_line(&r, lens, &seen);
         } else if (strcmp(r.tok[0], "trust") == 0) {
+            if (n_ghost) {
+                res = parse_failf(&r, "trust %s '%s' after the ghost lines: the trust lines come first",
+                                  r.n_tok > 1 ? r.tok[1] : "", r.n_tok > 2 ? r.tok[2] : "");
+                break;
+            }
             res = read_trust_line(&r, lens, n_lens, n_systems, &n_trust);
+        } else if (strcmp(r.tok[0], "ghost") == 0) {
+            res = read_ghost_line(&r, lens, n_trust, n_systems, &n_ghost);
         } else if (strcmp(r.tok[0], "system") == 0) {
             lensrt_system *sys;
             if (n_trust < TRUST_LINES) {
@@ -479,11 +623,38 @@ lensrt_result lensrt_lens_load_text(lensrt_context ctx, const char *text, size_t
                                   r.tok[0], r.n_tok > 1 ? r.tok[1] : "");
                 break;
             }
+            if (n_ghost && n_ghost < GHOST_LINES) {
+                res = parse_failf(&r, "missing ghost line: expected '%s' (ghost line %d of %d: " GHOST_ORDER
+                                      "), found '%s %s'", GHOST_FORMS[n_ghost], n_ghost + 1, GHOST_LINES,
+                                  r.tok[0], r.n_tok > 1 ? r.tok[1] : "");
+                break;
+            }
             n_systems++;
             if (r.n_tok > 1 && strcmp(r.tok[1], "P_o") == 0) sys = &lens->p_o;
             else if (r.n_tok > 1 && strcmp(r.tok[1], "P_s") == 0) sys = &lens->p_s;
-            else { res = parse_fail(&r, "unknown system '%s' (P_o or P_s)", r.n_tok > 1 ? r.tok[1] : ""); break; }
-            if (sys->n_inputs) { res = parse_fail(&r, "system %s appears twice", sys == &lens->p_o ? "P_o" : "P_s"); break; }
+            else if (r.n_tok > 1 && strcmp(r.tok[1], "P_clip") == 0) sys = &lens->p_clip;
+            else { res = parse_fail(&r, "unknown system '%s' (P_o, P_s, or P_clip in a ghost table)", r.n_tok > 1 ? r.tok[1] : ""); break; }
+            if (sys->n_inputs) { res = parse_fail(&r, "system %s appears twice", sys->name); break; }
+            if (sys == &lens->p_clip) {
+                // Only a ghost table clips, after its two systems, with 1..4 pairs
+                int n_out = 0;
+                if (!lens->ghost) {
+                    res = parse_failf(&r, "system P_clip '%s' in a table without ghost lines (P_clip belongs to a "
+                                          "ghost table: ghost first, second, label and side before the systems)",
+                                      r.n_tok > 3 ? r.tok[3] : "");
+                    break;
+                }
+                if (!lens->p_o.n_inputs || !lens->p_s.n_inputs) {
+                    res = parse_failf(&r, "system P_clip before system %s: P_clip comes third, after P_o and P_s",
+                                      !lens->p_o.n_inputs ? "P_o" : "P_s");
+                    break;
+                }
+                if (r.n_tok == 4 && parse_int(r.tok[3], 0, 1000000, &n_out) && (n_out > 2 * LENSRT_MAX_CLIP_PAIRS || n_out % 2)) {
+                    res = parse_failf(&r, "system P_clip: %d outputs: expected an even count of 2..%d (pairs x, y; "
+                                          "at most %d clip tests)", n_out, 2 * LENSRT_MAX_CLIP_PAIRS, LENSRT_MAX_CLIP_PAIRS);
+                    break;
+                }
+            }
             res = read_system(&r, sys);
         } else {
             res = parse_fail(&r, "unexpected line starting with '%s'", r.tok[0]);
@@ -495,6 +666,10 @@ lensrt_result lensrt_lens_load_text(lensrt_context ctx, const char *text, size_t
     if (res == LENSRT_SUCCESS) res = check_system(ctx, r.name, &lens->p_o, P_O_INPUTS, P_O_OUTPUTS);
     if (res == LENSRT_SUCCESS) res = check_system(ctx, r.name, &lens->p_s, P_S_INPUTS, P_S_OUTPUTS);
     if (res == LENSRT_SUCCESS) res = check_shared_inputs(ctx, r.name, lens);
+    if (res == LENSRT_SUCCESS && n_ghost && n_ghost < GHOST_LINES)
+        res = lensrt_fail(ctx, LENSRT_ERROR_PARSE, "%s: missing ghost line '%s' (ghost line %d of %d: " GHOST_ORDER ")",
+                          r.name, GHOST_FORMS[n_ghost], n_ghost + 1, GHOST_LINES);
+    if (res == LENSRT_SUCCESS && lens->p_clip.n_inputs) res = check_clip(ctx, r.name, lens);
     if (res == LENSRT_SUCCESS && (seen & 0x1f) != 0x1f)
         res = lensrt_fail(ctx, LENSRT_ERROR_PARSE,
                           "%s: missing lens line(s): focal_length_mm, stop_radius_max_mm, "
