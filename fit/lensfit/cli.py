@@ -177,6 +177,78 @@ def _light_arg(text: str) -> tuple[float, float]:
     return x, y
 
 
+def _direct_fit(lens, args: argparse.Namespace):
+    """For `lensfit ghosts --fit`: the lens folder, its direct table and domain, read
+    before any work (the ghosts are fitted over the direct fit's domain)."""
+    from lensfit.generate import lens_folder_name, read_fit_json
+    from lensfit.sample.domain import Domain
+
+    folder = Path(args.generated) / lens_folder_name(lens)
+    fit_file = folder / "fit.json"
+    if not fit_file.is_file():
+        raise InputError(f"{fit_file}: not found: the ghosts are fitted over the direct "
+                         f"fit's domain; run `lensfit fit {args.lens} --generated "
+                         f"{args.generated}` first")
+    direct, meta = read_fit_json(fit_file)
+    try:
+        domain = Domain.from_dict(meta["domain"])
+    except (KeyError, TypeError, ValueError) as e:
+        raise InputError(f"{fit_file}: key 'domain': {e}") from None
+    return folder, direct, domain
+
+
+def _fit_ghosts(lens, ghosts, info: dict, light: tuple[float, float],
+                args: argparse.Namespace, source) -> int:
+    """`lensfit ghosts LENS --fit`: fit every kept ghost over the direct fit's domain, and
+    write its table (and Horner C) with ghosts.json under <generated>/<lens folder>/ghosts/."""
+    from lensfit.codegen import emit_c
+    from lensfit.codegen.table import write_table
+    from lensfit.generate import header_comment, lens_prefix, write_folder
+    from lensfit.ghosts.fit import fit_ghost
+    from lensfit.ghosts.tables import ghost_report, ghost_table, ghost_trust, trust_lines
+
+    folder, direct, domain = source
+    kept = [g for g in ghosts if g.kept]
+    files: dict[str, str] = {}
+    report = []
+    for g in kept:
+        k = int(np.argmax(g.peak))  # footprint at the wavelength of its highest peak
+        fit = fit_ghost(lens, g.first, g.second, domain)
+        table = ghost_table(fit, direct, g.name)
+        cells = ghost_trust(lens, table, fit.half, f_number=info["f_number"],
+                            centre_mm=tuple(g.centre_mm[k] or (0.0, 0.0)),
+                            radius_mm=g.radius_mm[k], field_deg=light)
+        table = ghost_table(fit, direct, g.name, trust_lines(cells))
+        stem = f"ghost_{g.first}_{g.second}"
+        comment = header_comment(lens, f"Ghost {g.name} (reflect at surface {g.second_file}, "
+                                       f"then {g.first_file}): `lensfit ghosts --fit`.")
+        files[f"{stem}.table"] = write_table(table, comment=comment)
+        files.update(emit_c(list(table), f"{lens_prefix(lens)}{stem}", header_comment=comment,
+                            which="horner"))
+        entry = ghost_report(fit, g.name, cells, g.to_dict())
+        report.append(entry)
+        worst = max(cells, key=lambda c: c.rel_l2)
+        print(f"ghost {g.name} ({g.case}, side {fit.half.system}): {fit.seconds:.1f} s, "
+              f"converged {fit.converged_test:.1%}, clip agreement "
+              f"{fit.agreement_housings:.2%} ({len(fit.clip_housings.outputs) // 2} pairs), "
+              f"PSF vs exact {worst.rel_l2:.2%} (f/{worst.f_number:g} "
+              f"{worst.wavelength_nm:g} nm), energy {worst.energy_ratio:.4f}, without "
+              f"P_clip {worst.energy_ratio_no_clip:.4f}")
+    files["ghosts.json"] = json.dumps(
+        {"format": "lensfit-ghosts 1", "settings": {**info, "light_deg": list(light),
+                                                   "count": args.count,
+                                                   "threshold": None if args.count
+                                                   else args.threshold},
+         "ghosts": report}, indent=1, sort_keys=True, allow_nan=False) + "\n"
+    out = folder / "ghosts"
+    write_folder(out, files)
+    for old in out.glob("ghost_*"):  # ghosts no longer kept
+        if old.name not in files:
+            old.unlink()
+    print(f"wrote {len(kept)} ghost table(s) and ghosts.json to {out}")
+    return 0
+
+
 def cmd_ghosts(args: argparse.Namespace) -> int:
     """The ghosts of a lens ranked by peak irradiance relative to the direct PSF's
     (lensfit.ghosts.enumerate): every check before the trace, the table or JSON after."""
@@ -206,11 +278,14 @@ def cmd_ghosts(args: argparse.Namespace) -> int:
         _launch(lens, light, 100, np.array([550.0]), args.distance)
     except InputError as e:
         raise InputError(f"--distance {args.distance:g}: {e}") from None
+    source = _direct_fit(lens, args) if args.fit else None
     ghosts = enumerate_ghosts(lens, f_number=args.f_number, light=light,
                               distance_mm=args.distance, rays=args.rays,
                               fine_rays=max(100, args.rays // 5))
     select_ghosts(ghosts, count=args.count, threshold=args.threshold)
     info = ghosts[0].info
+    if args.fit:
+        return _fit_ghosts(lens, ghosts, info, light, args, source)
     if args.json:
         print(json.dumps({**info, "threshold": None if args.count else args.threshold,
                           "count": args.count, "ghosts": [g.to_dict() for g in ghosts]},
@@ -608,6 +683,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--rays", type=int, default=20000,
                    help="rays per wavelength over the front (default 20000; a fifth of "
                         "that per ghost in the second pass)")
+    p.add_argument("--fit", action="store_true",
+                   help="fit the kept ghosts over the direct fit's domain and write their "
+                        "tables to <generated>/<lens folder>/ghosts/")
+    p.add_argument("--generated", default="generated", help="where the lens folders are "
+                   "(with --fit; default generated)")
     p.set_defaults(func=cmd_ghosts)
 
     p = sub.add_parser("draw", help="draw the cross-section with ray fans")

@@ -56,6 +56,7 @@ import numpy as np
 from scipy.optimize import minimize_scalar
 
 from lensfit.facts import LensFacts, lens_facts
+from lensfit.ghosts.sample import GhostHalf, aim_ghost
 from lensfit.paraxial.paraxial import image_distance, paraxial
 from lensfit.poly import System, design_matrix
 from lensfit.prescription.model import Lens
@@ -253,7 +254,8 @@ def exact_psf(lens: Lens, *, stop_radius_mm: float, aperture_xy_mm: np.ndarray,
               wavelength_nm: float, focus_offset_mm: float = 0.0, width: int, height: int,
               width_mm: float, height_mm: float = 0.0, center_x_mm: float = 0.0,
               center_y_mm: float = 0.0, clip: str = "pupils", workers: int | None = None,
-              batch_pairs: int = BATCH_PAIRS, nodes: int = 0) -> np.ndarray:
+              batch_pairs: int = BATCH_PAIRS, nodes: int = 0,
+              ghost: GhostHalf | None = None) -> np.ndarray:
     """U (height, width), complex: the sum of the module doc over ``aperture_xy_mm``
     (N, 2) stop points, with phi, tau and the pupil positions of exactly traced rays.
 
@@ -264,7 +266,14 @@ def exact_psf(lens: Lens, *, stop_radius_mm: float, aperture_xy_mm: np.ndarray,
 
     ``nodes`` > 0 traces, per stop point, only the rays to a ``nodes`` x ``nodes``
     Chebyshev grid over the window and interpolates the sensor-side outputs to the
-    pixels (:func:`exact_psf_nodes`; "pupils" clipping only)."""
+    pixels (:func:`exact_psf_nodes`; "pupils" clipping only).
+
+    ``ghost`` (:func:`lensfit.ghosts.sample.ghost_half`) sums the ghost's image instead:
+    its half is traced by :func:`lensfit.ghosts.sample.aim_ghost` and always clipped
+    exactly (every housing it crosses and, in case C, a round stop of ``stop_radius_mm``
+    at its further stop crossings); ``clip`` then applies to the direct half."""
+    if nodes and ghost is not None:
+        raise ValueError("nodes: the interpolated sensor side is for the direct path only")
     if nodes:
         return exact_psf_nodes(lens, stop_radius_mm=stop_radius_mm,
                                aperture_xy_mm=aperture_xy_mm, field_deg=field_deg,
@@ -283,23 +292,35 @@ def exact_psf(lens: Lens, *, stop_radius_mm: float, aperture_xy_mm: np.ndarray,
 
     # Object side: one exact ray per aperture point in the stop disc
     pts = ap[inside]
-    obj = aim_object_side(lens, x_O, y_O, u_O, pts[:, 0], pts[:, 1], lam)
-    pass_o = _passes(obj, facts.housing_first_mm, clip)
+    ghost_o = ghost is not None and ghost.system == "P_o"
+    ghost_s = ghost is not None and ghost.system == "P_s"
+    if ghost_o:
+        obj = aim_ghost(lens, ghost, x_O, y_O, u_O, pts[:, 0], pts[:, 1], lam,
+                        fd_scale=max(stop_radius_mm, 1.0))
+        pass_o = obj.passes(stop_radius_mm)
+    else:
+        obj = aim_object_side(lens, x_O, y_O, u_O, pts[:, 0], pts[:, 1], lam)
+        pass_o = _passes(obj, facts.housing_first_mm, clip)
     pts, phi_o, tau_o = pts[pass_o], obj.outputs[pass_o, 3], obj.outputs[pass_o, 2]
     n_pix = width * height
     if len(pts) == 0:
         return np.zeros((height, width), dtype=np.complex128)
 
     # Sensor side: one exact ray per (point, pixel), warm-started from a grid per point
-    guess = _sensor_guess(lens, xs, ys, z_s, pts, lam)
+    guess = None if ghost_s else _sensor_guess(lens, xs, ys, z_s, pts, lam)
     k_wave = 2.0 * math.pi / (lam * 1e-6)  # 1/mm
 
     def phasors(k: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         j, p = k // n_pix, k % n_pix
-        sen = aim_sensor_side(lens, xs[p % width], ys[p // width], z_s, pts[j, 0],
-                              pts[j, 1], lam, guess=guess(j, p),
-                              vignetting=clip == "housings")
-        ok = _passes(sen, facts.housing_last_mm, clip)
+        if ghost_s:
+            sen = aim_ghost(lens, ghost, xs[p % width], ys[p // width], z_s, pts[j, 0],
+                            pts[j, 1], lam)
+            ok = sen.passes(stop_radius_mm)
+        else:
+            sen = aim_sensor_side(lens, xs[p % width], ys[p // width], z_s, pts[j, 0],
+                                  pts[j, 1], lam, guess=guess(j, p),
+                                  vignetting=clip == "housings")
+            ok = _passes(sen, facts.housing_last_mm, clip)
         amp = np.sqrt(tau_o[j[ok]] * sen.outputs[ok, 2])
         return p[ok], amp * np.exp(1j * (k_wave * (phi_o[j[ok]] + sen.outputs[ok, 3])))
 
@@ -433,7 +454,8 @@ def poly_psf(systems: Sequence[System], *, facts: LensFacts | None = None,
              center_y_mm: float = 0.0, batch_pairs: int = BATCH_PAIRS) -> np.ndarray:
     """:func:`exact_psf` with the fitted polynomials: ``systems`` holds the general P_o
     and P_s (``read_fit_json`` or ``read_table``); ``facts`` gives the housing radii
-    (default: ``systems.lens`` of a version-2 table). Clipping is the "pupils" test.
+    (default: ``systems.lens`` of a version-2 table). Clipping is the "pupils" test, and
+    for a ghost table (``read_table`` of one) its P_clip tests too (:func:`clip_passes`).
     Inputs outside the fitted domain raise ValueError.
 
     The polynomials are those of ``System.evaluate``; P_s is evaluated on the grid of
@@ -456,6 +478,11 @@ def poly_psf(systems: Sequence[System], *, facts: LensFacts | None = None,
     o = _evaluate(p_o.specialise(light), {"x_a": pts[:, 0], "y_a": pts[:, 1]})
     x_o, y_o, tau_o, phi_o = (o[p_o.output_names.index(n)] for n, _ in OUTPUTS_O)
     pass_o = x_o**2 + y_o**2 <= facts.housing_first_mm**2
+    ghost = getattr(systems, "ghost", None)
+    clip = next((s for s in systems if s.name == "P_clip"), None)
+    if clip is not None and ghost.side == "P_o":
+        c = _evaluate(clip.specialise(light), {"x_a": pts[:, 0], "y_a": pts[:, 1]})
+        pass_o &= clip_passes(clip, c, stop_radius_mm)
     pts, tau_o, phi_o = pts[pass_o], tau_o[pass_o], phi_o[pass_o]
     cols = [p_s.output_names.index(n) for n, _ in OUTPUTS_S]  # x_i, y_i, tau_i, phi_i
 
@@ -468,15 +495,29 @@ def poly_psf(systems: Sequence[System], *, facts: LensFacts | None = None,
     # Fold z_S and lambda in first: a tensor fit's terms then merge ~15-fold
     _check_domain(p_s, {"z_S": z_s, "lambda": lam})
     p_s = p_s.specialise({"z_S": z_s, "lambda": lam})
+    clip_s = (clip.specialise({"z_S": z_s, "lambda": lam})
+              if clip is not None and ghost.side == "P_s" else None)
     for a in range(0, len(pts), chunk):
         sl = slice(a, a + chunk)
-        x_i, y_i, tau_i, phi_i = _separable(p_s, {}, pix, {
-            "x_a": pts[sl, 0], "y_a": pts[sl, 1]})[cols]  # each (pixels, points)
+        ap_cols = {"x_a": pts[sl, 0], "y_a": pts[sl, 1]}
+        x_i, y_i, tau_i, phi_i = _separable(p_s, {}, pix, ap_cols)[cols]  # (pixels, points)
         ok = x_i**2 + y_i**2 <= facts.housing_last_mm**2
+        if clip_s is not None:
+            ok &= clip_passes(clip_s, _separable(clip_s, {}, pix, ap_cols), stop_radius_mm)
         amp = np.sqrt(np.maximum(tau_o[sl] * tau_i, 0.0))  # a fit may dip below 0
         phase = k_wave * (phi_o[sl] + phi_i)
         u += np.where(ok, amp * np.exp(1j * phase), 0.0).sum(axis=1)
     return u.reshape(height, width)
+
+
+def clip_passes(clip: System, values: np.ndarray, stop_radius_mm: float) -> np.ndarray:
+    """The verdict of a ghost table's P_clip outputs ``values`` (2K, ...): every pair
+    passes (x_h, y_h: norm <= 1, a housing; x_s, y_s: inside the round stop)."""
+    ok = np.ones(values.shape[1:], dtype=bool)
+    for k in range(0, len(clip.outputs), 2):
+        limit = stop_radius_mm if clip.outputs[k].output.startswith("x_s") else 1.0
+        ok &= values[k] ** 2 + values[k + 1] ** 2 <= limit * limit
+    return ok
 
 
 def _evaluate(system: System, values: dict[str, np.ndarray | float]) -> np.ndarray:

@@ -64,6 +64,23 @@ The two numbers are finite and non-negative. The writer emits version 3 when it 
 trust figures, version 2 with lens facts only, version 1 with neither; lensrt reads
 version 3 only.
 
+A ghost table (issue 13: one two-reflection path of the lens, rendered as its own lens)
+is a version-3 table with ghost lines after the trust lines, exactly these keys in this
+order, and a third system ``P_clip``:
+
+    ghost first <i>          model surface index of the first reflection (in path order,
+                             the surface reflected at last; integer >= 0)
+    ghost second <j>         the surface reflected at first (integer > i)
+    ghost label <text>       the lens file's numbering, e.g. 4-8 (a text field)
+    ghost side <P_o|P_s>     which system is the ghost half (the other is the direct one)
+
+``P_clip`` has exactly the inputs of the ghost side's system and outputs in pairs, each
+one clip test (a path passes when every test passes): ``x_h<k> y_h<k>`` (unit ``1``), a
+housing crossing over that housing's radius, passes when x^2 + y^2 <= 1; ``x_s<c>
+y_s<c>`` (unit ``mm``), a further crossing of the stop plane, passes inside the render's
+aperture. The ghost side's own x, y outputs keep their clip against the housing lens
+line. :class:`GhostLines` holds the ghost lines (``Table.ghost``; None in a direct table).
+
 A system's ``info`` (provenance) is not stored. ``read_table(write_table(s))`` gives back
 the names, units, domains, transforms, exponents and coefficients bit for bit, terms in
 their order, and the lens facts exactly (:class:`Table`). Malformed text raises ValueError
@@ -75,6 +92,7 @@ from __future__ import annotations
 import math
 import re
 from collections.abc import Sequence
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -87,6 +105,8 @@ FORMAT = "lensfit-poly-table"
 VERSION = 3  # what the writer emits when given lens facts and trust figures
 READS = (1, 2, 3)  # versions the reader accepts
 TRUST_KEYS = ("psf_vs_exact", "psf_vs_exact_cell", "psf_target")
+GHOST_KEYS = ("first", "second", "label", "side")
+CLIP_SYSTEM = "P_clip"
 _INT = re.compile(r"[0-9]+")
 _REAL = re.compile(r"[-+]?([0-9]+\.?[0-9]*|\.[0-9]+)([eE][-+]?[0-9]+)?")
 _BLANKS = re.compile(r"[ \t]+")
@@ -130,17 +150,37 @@ def fmt_real(x: float) -> str:
     return format(float(x), ".17g")
 
 
+@dataclass(frozen=True)
+class GhostLines:
+    """The ghost lines of a ghost table (module doc)."""
+
+    first: int
+    second: int
+    label: str
+    side: str  # "P_o" or "P_s"
+
+    def check(self) -> None:
+        if not 0 <= self.first < self.second:
+            raise ValueError(f"ghost first {self.first}, second {self.second}: expected "
+                             f"0 <= first < second")
+        if self.side not in ("P_o", "P_s"):
+            raise ValueError(f"ghost side {self.side!r}: expected P_o or P_s")
+
+
 class Table(list[System]):
     """What :func:`read_table` returns: the systems (it is a list of them), plus the
-    table's format ``version``, its ``lens`` facts (None in a version-1 table) and its
-    ``trust`` figures (a dict of TRUST_KEYS; None before version 3)."""
+    table's format ``version``, its ``lens`` facts (None in a version-1 table), its
+    ``trust`` figures (a dict of TRUST_KEYS; None before version 3) and its ``ghost``
+    lines (None in a direct table)."""
 
     def __init__(self, systems: Sequence[System], lens: LensFacts | None = None,
-                 version: int = VERSION, trust: dict[str, Any] | None = None) -> None:
+                 version: int = VERSION, trust: dict[str, Any] | None = None,
+                 ghost: GhostLines | None = None) -> None:
         super().__init__(systems)
         self.lens = lens
         self.version = version
         self.trust = trust
+        self.ghost = ghost
 
 
 def check_trust(trust: dict[str, Any]) -> dict[str, Any]:
@@ -158,18 +198,27 @@ def check_trust(trust: dict[str, Any]) -> dict[str, Any]:
 
 
 def write_table(systems: Sequence[System], comment: str = "",
-                lens: LensFacts | None = None, trust: dict[str, Any] | None = None) -> str:
+                lens: LensFacts | None = None, trust: dict[str, Any] | None = None,
+                ghost: GhostLines | None = None) -> str:
     """The systems as one ``lensfit-poly-table`` text (``comment`` lines become '# ...').
 
     With ``lens`` and ``trust`` (defaults: ``systems.lens`` and ``systems.trust`` when
     ``systems`` is a :class:`Table`) the text is version 3 with the lens and trust
-    lines; with ``lens`` only, version 2; without, version 1."""
+    lines; with ``lens`` only, version 2; without, version 1. With ``ghost`` (default
+    ``systems.ghost``) it is a ghost table (version 3, module doc)."""
     if lens is None:
         lens = getattr(systems, "lens", None)
     if trust is None:
         trust = getattr(systems, "trust", None)
+    if ghost is None:
+        ghost = getattr(systems, "ghost", None)
     if trust is not None and lens is None:
         raise ValueError("write_table: trust figures need the lens facts (version 3)")
+    if ghost is not None:
+        if trust is None:
+            raise ValueError("write_table: a ghost table needs the lens facts and trust "
+                             "figures (version 3)")
+        _check_ghost_systems(ghost, list(systems))
     version = 1 if lens is None else 2 if trust is None else 3
     lines = [f"{FORMAT} {version}"]
     lines += [f"# {line}".rstrip() for line in comment.splitlines()]
@@ -183,6 +232,9 @@ def write_table(systems: Sequence[System], comment: str = "",
         lines.append(f"trust psf_vs_exact {fmt_real(trust['psf_vs_exact'])}")
         lines.append(f"trust psf_vs_exact_cell {encode_field(trust['psf_vs_exact_cell'])}")
         lines.append(f"trust psf_target {fmt_real(trust['psf_target'])}")
+    if ghost is not None:
+        lines += [f"ghost first {ghost.first}", f"ghost second {ghost.second}",
+                  f"ghost label {encode_field(ghost.label)}", f"ghost side {ghost.side}"]
     for s in systems:
         n = len(s.inputs)
         lines.append(f"system {encode_field(s.name)} {n} {len(s.outputs)}")
@@ -335,6 +387,56 @@ def _trust(lines: _Lines) -> dict[str, Any]:
     return out
 
 
+def _ghost(lines: _Lines) -> GhostLines | None:
+    """The ghost lines, if the next line starts them: every key once, in order."""
+    if lines.done() or lines.rows[lines.pos][1][0] != "ghost":
+        return None
+    values: list[Any] = []
+    for i, key in enumerate(GHOST_KEYS):
+        form = f"ghost {key} <value>"
+        n, f = lines.next(f"'{form}' (ghost line {i + 1} of {len(GHOST_KEYS)})")
+        if len(f) != 3 or f[0] != "ghost" or f[1] != key:
+            raise _fail(n, f"expected '{form}' (ghost line {i + 1} of {len(GHOST_KEYS)}: "
+                           f"keys come in the order {', '.join(GHOST_KEYS)}), found "
+                           f"{' '.join(f)!r}")
+        values.append(_count(f[2], n, f"ghost {key}") if key in ("first", "second")
+                      else decode_field(f[2], f"table line {n}"))
+        if key == "side" and values[-1] not in ("P_o", "P_s"):
+            raise _fail(n, f"ghost side {f[2]!r}: expected P_o or P_s")
+        if key == "second" and values[1] <= values[0]:
+            raise _fail(n, f"ghost second {values[1]}: expected more than ghost first "
+                           f"{values[0]}")
+    return GhostLines(*values)
+
+
+def _check_ghost_systems(ghost: GhostLines, systems: list[System]) -> None:
+    """A ghost table's systems: P_o, P_s and P_clip, P_clip with the ghost side's inputs
+    and (x, y) pairs named and united as the module doc says."""
+    names = [s.name for s in systems]
+    if sorted(names) not in (["P_clip", "P_o", "P_s"], ["P_o", "P_s"]):
+        raise ValueError(f"ghost table: expected systems P_o, P_s and {CLIP_SYSTEM}, found "
+                         f"{', '.join(names)}")
+    by = {s.name: s for s in systems}
+    clip = by.get(CLIP_SYSTEM)
+    if clip is None:
+        return
+    if clip.inputs != by[ghost.side].inputs:
+        raise ValueError(f"ghost table: {CLIP_SYSTEM}'s inputs differ from those of "
+                         f"{ghost.side}, the ghost side")
+    outs = clip.outputs
+    if not outs or len(outs) % 2 or len(outs) > 8:
+        raise ValueError(f"ghost table: {CLIP_SYSTEM} has {len(outs)} outputs; expected "
+                         f"2 to 8 in (x, y) pairs")
+    for px, py in zip(outs[::2], outs[1::2], strict=True):
+        m = re.fullmatch(r"x_([hs])([0-9]+)", px.output)
+        ok = (m is not None and py.output == f"y_{m[1]}{m[2]}" and px.unit == py.unit
+              == ("1" if m[1] == "h" else "mm"))
+        if not ok:
+            raise ValueError(f"ghost table: {CLIP_SYSTEM} outputs {px.output!r} "
+                             f"({px.unit}), {py.output!r} ({py.unit}): expected a pair "
+                             f"x_h<k>, y_h<k> (unit 1) or x_s<c>, y_s<c> (unit mm)")
+
+
 def read_table(text: str) -> Table:
     """Parse a ``lensfit-poly-table`` text (see the module doc) into systems (a
     :class:`Table`: a list of the systems, with the lens facts as ``.lens``)."""
@@ -348,6 +450,7 @@ def read_table(text: str) -> Table:
     version = int(f[1])
     lens = _lens(lines) if version >= 2 else None
     trust = _trust(lines) if version >= 3 else None
+    ghost = _ghost(lines) if version >= 3 else None
     systems = []
     while not lines.done():
         n, f = lines.next("'system'")
@@ -364,4 +467,11 @@ def read_table(text: str) -> Table:
         systems.append(System(name, inputs, outputs))
     if not systems:
         raise _fail(lines.last, "no system in the table")
-    return Table(systems, lens, version, trust)
+    if ghost is not None:
+        try:
+            _check_ghost_systems(ghost, systems)
+        except ValueError as e:
+            raise _fail(lines.last, str(e)) from None
+    elif CLIP_SYSTEM in (s.name for s in systems):
+        raise _fail(lines.last, f"system {CLIP_SYSTEM} in a table without ghost lines")
+    return Table(systems, lens, version, trust, ghost)

@@ -76,6 +76,8 @@ def test_table_and_json(singlet, capsys):
     (["--rays", "5"], ["--rays 5"]),
     (["--distance", "0.5"], ["--distance 0.5", "in front of surface 0"]),
     (["--distance", "-3"], ["--distance -3"]),
+    (["--fit", "--generated", "/nonexistent-folder"],
+     ["/nonexistent-folder/singlet/fit.json", "not found", "lensfit fit"]),
 ])
 def test_bad_input_refused_before_work(singlet, capsys, monkeypatch, args, words):
     def no_work(*a, **k):

@@ -1,0 +1,153 @@
+"""Ghost tables (issue 13, parts 3 and 5): the table format's ghost lines and P_clip,
+and the committed ghost tables of 0001 against exactly traced ghost rays: the Huygens
+image (relative L2), its energy and footprint, and the paper's Figure 6 failure (the
+same ghost without P_clip) shown to be caught."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from lensfit.codegen.table import CLIP_SYSTEM, GhostLines, Table, read_table, write_table
+from lensfit.ghosts.sample import ghost_half
+from lensfit.poly import Input, Polynomial, System
+from lensfit.prescription import load_lens
+from lensfit.psf import exact_psf, poly_psf, sunflower_points
+
+ROOT = Path(__file__).resolve().parents[3]
+FOLDER = ROOT / "generated" / "0001-angenieux-double-gauss"
+GHOSTS = FOLDER / "ghosts"
+
+
+def _system(name: str, outputs: list[tuple[str, str]], inputs=("x_a", "y_a")) -> System:
+    ins = tuple(Input(n, "mm", -2.0, 2.0) for n in inputs)
+    outs = tuple(Polynomial(o, unit, np.array([[1, 0], [0, 1]], dtype=np.int32),
+                            np.array([0.5, -0.25])) for o, unit in outputs)
+    return System(name, ins, outs)
+
+
+@pytest.fixture(scope="module")
+def direct() -> Table:
+    return read_table((FOLDER / "lens0001.table").read_text())
+
+
+def _ghost_text(direct: Table, clip: System | None, ghost=GhostLines(4, 8, "4-8", "P_s")) -> str:
+    systems = [s for s in direct] + ([clip] if clip else [])
+    return write_table(Table(systems, direct.lens, 3, direct.trust, ghost))
+
+
+def test_ghost_lines_and_p_clip_round_trip(direct):
+    p_s = next(s for s in direct if s.name == "P_s")
+    pairs = [("x_h3", "1"), ("y_h3", "1"), ("x_s1", "mm"), ("y_s1", "mm")]
+    clip = System(CLIP_SYSTEM, p_s.inputs, _system("c", pairs).outputs[:0] + tuple(
+        Polynomial(n, u, np.zeros((1, 6), dtype=np.int32), np.array([0.1]))
+        for n, u in pairs))
+    back = read_table(_ghost_text(direct, clip))
+    assert back.ghost == GhostLines(4, 8, "4-8", "P_s")
+    assert [s.name for s in back] == ["P_o", "P_s", CLIP_SYSTEM]
+    assert back[2].inputs == p_s.inputs
+    assert [p.output for p in back[2].outputs] == [n for n, _ in pairs]
+    # A direct table has no ghost lines
+    assert read_table((FOLDER / "lens0001.table").read_text()).ghost is None
+
+
+@pytest.mark.parametrize("edit, message", [
+    (lambda t: t.replace("ghost second 8", "ghost second 3"), "more than ghost first"),
+    (lambda t: t.replace("ghost side P_s", "ghost side P_x"), "expected P_o or P_s"),
+    (lambda t: t.replace("ghost label 4-8\n", ""), "ghost line 3 of 4"),
+    (lambda t: t.replace("ghost first 4\nghost second 8", "ghost second 8\nghost first 4"),
+     "keys come in the order"),
+    (lambda t: t.replace("output x_s1 mm", "output x_s1 1"), "expected a pair"),
+    (lambda t: t.replace("output y_s1 mm", "output y_q1 mm"), "expected a pair"),
+    (lambda t: t.replace("ghost first 4\nghost second 8\nghost label 4-8\nghost side P_s\n",
+                         ""), "without ghost lines"),
+])
+def test_malformed_ghost_tables_name_the_line(direct, edit, message):
+    p_s = next(s for s in direct if s.name == "P_s")
+    clip = System(CLIP_SYSTEM, p_s.inputs, tuple(
+        Polynomial(n, u, np.zeros((1, 6), dtype=np.int32), np.array([0.1]))
+        for n, u in [("x_s1", "mm"), ("y_s1", "mm")]))
+    text = _ghost_text(direct, clip)
+    assert read_table(text).ghost is not None  # the unedited text is valid
+    with pytest.raises(ValueError, match=message):
+        read_table(edit(text))
+
+
+def test_p_clip_inputs_must_be_the_ghost_sides(direct):
+    p_o = next(s for s in direct if s.name == "P_o")
+    clip = System(CLIP_SYSTEM, p_o.inputs, tuple(
+        Polynomial(n, "1", np.zeros((1, 6), dtype=np.int32), np.array([0.1]))
+        for n in ("x_h2", "y_h2")))
+    with pytest.raises(ValueError, match="inputs differ"):
+        _ghost_text(direct, clip)  # the ghost side is P_s
+    text = _ghost_text(direct, clip, GhostLines(0, 2, "0-2", "P_o"))
+    assert read_table(text).ghost.side == "P_o"
+
+
+# --- the committed ghost tables of 0001 against exact ghost rays --------------------------
+
+@pytest.fixture(scope="module")
+def report() -> dict:
+    return json.loads((GHOSTS / "ghosts.json").read_text())
+
+
+def test_committed_ghost_tables_share_the_direct_fit(direct, report):
+    """Each ghost table's other half is the committed direct system, bit for bit (a refit
+    of the lens without `lensfit ghosts --fit` would break this), and its lens lines are
+    the direct table's."""
+    assert {g["label"] for g in report["ghosts"]} == {"0-2", "4-8"}
+    for g in report["ghosts"]:
+        t = read_table((GHOSTS / f"ghost_{g['first']}_{g['second']}.table").read_text())
+        assert t.ghost == GhostLines(g["first"], g["second"], g["label"], g["side"])
+        assert t.lens == direct.lens
+        other = "P_s" if g["side"] == "P_o" else "P_o"
+        mine, theirs = (next(s for s in x if s.name == other) for x in (t, direct))
+        assert write_table([mine]) == write_table([theirs])  # every coefficient's 17 digits
+        # The report's figures meet the issue's targets
+        assert g["clip_agreement"] >= 0.995
+        assert g["psf_vs_exact"] <= 0.03
+        assert t.trust["psf_vs_exact"] == pytest.approx(g["psf_vs_exact"], rel=1e-15)
+
+
+def _footprint(image: np.ndarray) -> int:
+    """Pixels whose irradiance is above 1% of the window's mean (the issue's footprint)."""
+    return int(np.sum(image > 0.01 * image.mean()))
+
+
+@pytest.mark.parametrize("first, second, clip_matters", [(0, 2, False), (4, 8, True)])
+def test_fitted_ghost_against_exact_ghost_rays(direct, report, first, second, clip_matters):
+    """At f/8, 550 nm, on axis, on a 32 x 32 window around the ghost, with the same 1000
+    sunflower stop points: the Huygens image of the fitted ghost table against that of
+    exactly traced ghost rays. Bounds (issue 13): relative L2 <= 3%, energy and
+    footprint within 2%. Measured: 0-2 0.04%, 4-8 0.9% L2, energies within 0.3%.
+    Without P_clip, 4-8 (its stop crossings clip 9% of its rays over the domain) comes
+    out 15% too bright; the test asks for more than 5%."""
+    lens = load_lens("0001")
+    g = next(x for x in report["ghosts"] if (x["first"], x["second"]) == (first, second))
+    cell = next(c for c in g["trust"] if c["wavelength_nm"] == 550.0)
+    cx, cy, width = cell["window"]
+    table = read_table((GHOSTS / f"ghost_{first}_{second}.table").read_text())
+    r = table.lens.stop_radius_f1_mm / 8.0
+    kw = dict(stop_radius_mm=r, aperture_xy_mm=sunflower_points(1000, r),
+              wavelength_nm=550.0, width=32, height=32, width_mm=width, center_x_mm=cx,
+              center_y_mm=cy)
+    exact = np.abs(exact_psf(lens, ghost=ghost_half(lens, first, second), **kw)) ** 2
+    fitted = np.abs(poly_psf(table, **kw)) ** 2
+    assert np.linalg.norm(fitted - exact) / np.linalg.norm(exact) <= 0.03
+    assert fitted.sum() / exact.sum() == pytest.approx(1.0, abs=0.02)
+    assert _footprint(fitted) == pytest.approx(_footprint(exact), rel=0.02)
+    # The ghost is that dim next to the direct image (the enumeration's estimate, 1.1e-5
+    # of the direct power at 550 nm, counts the whole ghost; the window holds most of it)
+    direct_power = np.abs(poly_psf(direct, **kw)) ** 2
+    assert 1e-6 < fitted.sum() / direct_power.sum() < 1e-4
+    # Figure 6: the same ghost without P_clip
+    no_clip = Table([s for s in table if s.name != CLIP_SYSTEM], table.lens, 3, table.trust,
+                    table.ghost)
+    loose = np.abs(poly_psf(no_clip, **kw)) ** 2
+    if clip_matters:
+        assert loose.sum() / exact.sum() > 1.05
+    else:
+        assert CLIP_SYSTEM not in [s.name for s in table]
