@@ -485,7 +485,12 @@ typedef struct lensrt_render_desc {
 
 typedef struct lensrt_render_s *lensrt_render;
 
-/* Check the scene against the lens's fitted domain and allocate the phasor sums. */
+/* Check the scene against the lens's fitted domain and allocate the phasor sums.
+ * A ghost table (lensrt_lens_info.ghost) renders as any lens, its P_clip tests applied
+ * to every sample (side P_o) or splat (side P_s): a pair x_h, y_h passes when
+ * x^2 + y^2 <= 1, a stop crossing x_s, y_s (mm) when it lies within the render's stop
+ * radius. A ghost with stop crossings needs LENSRT_APERTURE_CIRCLE (else
+ * LENSRT_ERROR_UNSUPPORTED naming the table and the ghost). */
 LENSRT_API lensrt_result lensrt_render_create(lensrt_context ctx, const lensrt_render_desc *desc,
                                    lensrt_render *out);
 LENSRT_API void lensrt_render_destroy(lensrt_render render);
@@ -550,7 +555,7 @@ LENSRT_API lensrt_result lensrt_render_tiles_begin(lensrt_render render, uint64_
  * time: runtime/README.md gives the measured costs) in one pass's buffers (up to 16384
  * samples per wavelength). Memory comes from the context's allocator hooks, which must
  * therefore be thread-safe (malloc is); a tile uses about 170 KB of the calling thread's
- * stack. */
+ * stack (about 450 KB for a ghost table whose P_clip takes P_s's inputs). */
 LENSRT_API lensrt_result lensrt_render_tile(lensrt_render render, int x0, int y0, int width, int height);
 
 /* End the session on the caller's thread once every tile call has returned: checks that
@@ -604,6 +609,17 @@ LENSRT_API lensrt_result lensrt_render_merge(lensrt_render render, const char *p
  * over `decades` of intensity below the peak (0: 5). */
 LENSRT_API lensrt_result lensrt_render_write_exr(lensrt_render render, const char *path);
 LENSRT_API lensrt_result lensrt_render_write_png(lensrt_render render, const char *path, double decades);
+
+/* Images that add: a light's direct image plus its ghosts' (each ghost its own render,
+ * its own phasor sums; intensities add, never phasors). The sum of the renders' images
+ * (lensrt_render_image each, summed in double), as an image, an EXR (the first render's
+ * metadata) or a PNG. The renders must share the window (resolution, pitch, centre) and
+ * the wavelengths: otherwise LENSRT_ERROR_INCOMPATIBLE naming the first that differs
+ * (its lens file) and how. One render gives exactly its own image. */
+LENSRT_API lensrt_result lensrt_renders_image(const lensrt_render *renders, int n_renders, float *out, size_t count);
+LENSRT_API lensrt_result lensrt_renders_write_exr(const lensrt_render *renders, int n_renders, const char *path);
+LENSRT_API lensrt_result lensrt_renders_write_png(const lensrt_render *renders, int n_renders, const char *path,
+                                                 double decades);
 
 #ifdef __cplusplus
 }

@@ -73,8 +73,12 @@ static void usage(FILE *f)
         "  --save-phasors FILE    write the phasor sums (to resume or merge later)\n"
         "  --resume FILE          start from saved phasor sums of the same scene\n"
         "  --merge FILE           add phasor sums of the same scene rendered with another seed\n"
+        "  --ghost TABLE          also render this ghost table of the same lens (repeatable)\n"
+        "  --flares DIR           also render every ghost_*.table in DIR (sorted by name)\n"
+        "                         with ghosts: -o OUT.exr is the direct image, OUT.flare.exr the\n"
+        "                         ghosts' sum, OUT.total.exr both; --png shows the total\n"
         "  --quiet                no progress (the error estimate is still printed on stdout)\n"
-        "exit status: 0 done, 1 failed, 2 bad input, 3 no GL device (--device gl)\n",
+        "exit status: 0 done, 1 failed, 2 bad input, 3 no GL device (--device gl) or unsupported\n",
         LENSRT_GENERATED_DIR);
 }
 
@@ -299,6 +303,45 @@ static double mc_error_estimate(const float *i1, const float *i2, const float *a
     return sqrt((0.25 * d2 + (paper ? b2 : 0.0)) / a2);
 }
 
+#define MAX_GHOSTS 256
+
+/* Append to paths[*n] (malloc'd copies) every ghost_*.table in dir, sorted by name; 0 and
+ * a message when the folder cannot be read or there are too many. */
+static int collect_flares(const char *dir, char **paths, int *n)
+{
+    struct dirent **list = NULL;
+    int count = scandir(dir, &list, NULL, alphasort), k, ok = 1;
+    if (count < 0) {
+        fprintf(stderr, "lensrt-psf: --flares: cannot read folder '%s': %s\n", dir, strerror(errno));
+        return 0;
+    }
+    for (k = 0; k < count; k++) {
+        const char *name = list[k]->d_name;
+        size_t len = strlen(name);
+        char path[4096];
+        if (ok && len > 12 && strncmp(name, "ghost_", 6) == 0 && strcmp(name + len - 6, ".table") == 0 &&
+            snprintf(path, sizeof path, "%s/%s", dir, name) < (int)sizeof path && file_exists(path)) {
+            if (*n >= MAX_GHOSTS) {
+                fprintf(stderr, "lensrt-psf: --flares: more than %d ghost tables in '%s'\n", MAX_GHOSTS, dir);
+                ok = 0;
+            } else if (!(paths[(*n)++] = strdup(path))) {
+                ok = 0;
+            }
+        }
+        free(list[k]);
+    }
+    free(list);
+    return ok;
+}
+
+/* OUT.exr -> OUT.<what>.exr (the stem is OUT without a trailing ".exr"). */
+static int sibling_name(const char *out, const char *what, char *buf, size_t size)
+{
+    size_t n = strlen(out);
+    if (n > 4 && strcmp(out + n - 4, ".exr") == 0) n -= 4;
+    return snprintf(buf, size, "%.*s.%s.exr", (int)n, out, what) < (int)size;
+}
+
 static void on_log(lensrt_log_level level, const char *message, void *user)
 {
     progress_state *ps = user;
@@ -338,7 +381,17 @@ int main(int argc, char **argv)
     lensrt_result res;
     progress_state ps = {0};
     char table[4096];
+    /* Ghosts (--ghost, --flares): their tables, lenses and renders; renders[0] is the
+     * direct render, renders[1 ..] the ghosts' (what the image sums take) */
+    char *ghost_paths[MAX_GHOSTS];
+    const char *flares_dir = NULL;
+    lensrt_lens ghost_lens[MAX_GHOSTS];
+    lensrt_render renders[MAX_GHOSTS + 1];
+    int n_ghosts = 0, n_ghost_args = 0;
+    char flare_out[4200] = "", total_out[4200] = "";
     if (!gen) gen = LENSRT_GENERATED_DIR;
+    memset(ghost_lens, 0, sizeof ghost_lens);
+    memset(renders, 0, sizeof renders);
 
     // Options
     for (i = 1; i < argc; i++) {
@@ -358,6 +411,10 @@ int main(int argc, char **argv)
         else if (strcmp(a, "--save-phasors") == 0) save = v;
         else if (strcmp(a, "--resume") == 0) resume = v;
         else if (strcmp(a, "--merge") == 0) merge = v;
+        else if (strcmp(a, "--ghost") == 0) {
+            if (n_ghosts >= MAX_GHOSTS) return bad(a, v, "at most 256 ghost tables");
+            ghost_paths[n_ghosts++] = (char *)v; /* not freed: only --flares paths are copies */
+        } else if (strcmp(a, "--flares") == 0) flares_dir = v;
         else if (strcmp(a, "--decades") == 0) { if (!parse_double(v, &decades) || decades <= 0) return bad(a, v, "expected a positive number"); }
         else if (strcmp(a, "--focus") == 0) { if (!parse_double(v, &focus)) return bad(a, v, "expected a number (mm)"); }
         else if (strcmp(a, "--f-number") == 0) { if (!parse_double(v, &fnum) || fnum <= 0) return bad(a, v, "expected a positive f-number"); }
@@ -455,19 +512,45 @@ int main(int argc, char **argv)
         return 2;
     }
     ps.quiet = quiet;
+    // Ghosts: the tables (--ghost, then --flares' folder sorted), one render each
+    n_ghost_args = n_ghosts;
+    if (flares_dir && !collect_flares(flares_dir, ghost_paths, &n_ghosts)) {
+        rc = 2;
+        goto done_args;
+    }
+    if (flares_dir && n_ghosts == n_ghost_args) {
+        fprintf(stderr, "lensrt-psf: --flares: no ghost_*.table in '%s'\n", flares_dir);
+        rc = 2;
+        goto done_args;
+    }
+    if (n_ghosts && (save || resume || merge)) {
+        fprintf(stderr, "lensrt-psf: --save-phasors, --resume and --merge keep one render's sums: not with --ghost "
+                "or --flares\n");
+        rc = 2;
+        goto done_args;
+    }
+    if (n_ghosts && out &&
+        (!sibling_name(out, "flare", flare_out, sizeof flare_out) || !sibling_name(out, "total", total_out, sizeof total_out))) {
+        fprintf(stderr, "lensrt-psf: -o: '%s' is too long a name\n", out);
+        rc = 2;
+        goto done_args;
+    }
     {
-        const char *outs[3];
+        const char *outs[5];
         int k;
         outs[0] = out;
         outs[1] = png;
         outs[2] = save;
-        for (k = 0; k < 3; k++)
+        outs[3] = flare_out[0] ? flare_out : NULL;
+        outs[4] = total_out[0] ? total_out : NULL;
+        for (k = 0; k < 5; k++)
             if (outs[k] && !writable(outs[k])) {
                 fprintf(stderr, "lensrt-psf: cannot write '%s': %s\n", outs[k],
                         errno == ELOOP ? "it is a symbolic link (give the link's target)"
                         : errno == EEXIST ? "it exists and is not a regular file"
                                           : strerror(errno));
-                return 2;
+                rc = 2;
+                goto done_args;
             }
     }
 
@@ -479,25 +562,51 @@ int main(int argc, char **argv)
     init.gl_platform = gl_platform;
     if ((res = lensrt_context_create(&init, &ctx)) != LENSRT_SUCCESS) {
         fprintf(stderr, "lensrt-psf: %s\n", lensrt_result_string(res));
-        return 1;
+        rc = 1;
+        goto done_args;
     }
     if (strstr(lens_arg, ".table")) {
         // A regular file only: a FIFO would block, a folder is no table
         struct stat lst;
         if (stat(lens_arg, &lst) == 0 && !S_ISREG(lst.st_mode)) {
             fprintf(stderr, "lensrt-psf: --lens: '%s' is not a regular file\n", lens_arg);
-            lensrt_context_destroy(ctx);
-            return 2;
+            rc = 2;
+            goto done;
         }
         snprintf(table, sizeof table, "%s", lens_arg);
     }
     else if (!find_table(gen, lens_arg, table, sizeof table)) {
         fprintf(stderr, "lensrt-psf: --lens: unknown lens '%s': no %s/%s-*/lens%s.table (see --generated)\n",
                 lens_arg, gen, lens_arg, lens_arg);
-        lensrt_context_destroy(ctx);
-        return 2;
+        rc = 2;
+        goto done;
     }
     if ((res = lensrt_lens_load(ctx, table, &lens)) != LENSRT_SUCCESS) goto fail_input;
+    // Each ghost: a ghost table of this lens (the same lens name and focal length)
+    for (i = 0; i < n_ghosts; i++) {
+        lensrt_lens_info li = LENSRT_LENS_INFO_INIT, gi = LENSRT_LENS_INFO_INIT;
+        struct stat gst;
+        if (stat(ghost_paths[i], &gst) == 0 && !S_ISREG(gst.st_mode)) {
+            fprintf(stderr, "lensrt-psf: --ghost: '%s' is not a regular file\n", ghost_paths[i]);
+            rc = 2;
+            goto done;
+        }
+        if ((res = lensrt_lens_load(ctx, ghost_paths[i], &ghost_lens[i])) != LENSRT_SUCCESS) goto fail_input;
+        lensrt_lens_get_info(lens, &li);
+        lensrt_lens_get_info(ghost_lens[i], &gi);
+        if (!gi.ghost) {
+            fprintf(stderr, "lensrt-psf: --ghost: '%s' is not a ghost table (it has no ghost lines)\n", ghost_paths[i]);
+            rc = 2;
+            goto done;
+        }
+        if (strcmp(gi.name, li.name) != 0 || gi.focal_length_mm != li.focal_length_mm) {
+            fprintf(stderr, "lensrt-psf: --ghost: '%s' (lens '%s', focal length %.17g mm) is a ghost of another lens "
+                    "than '%s' (lens '%s', focal length %.17g mm)\n", ghost_paths[i], gi.name, gi.focal_length_mm,
+                    table, li.name, li.focal_length_mm);
+            rc = 2;
+            goto done;
+        }
+    }
 
     // Scene
     { const lensrt_render_desc zero_desc = LENSRT_RENDER_DESC_INIT; desc = zero_desc; }
@@ -552,6 +661,14 @@ int main(int argc, char **argv)
         lensrt_render_desc half = desc;
         half.seed = (uint64_t)seed + HALF_SEED_STEP;
         if ((res = lensrt_render_create(ctx, &half, &render_b)) != LENSRT_SUCCESS) goto fail_input;
+    }
+    // The ghosts' renders: the same scene through each ghost table (made now, so that a
+    // scene a ghost cannot render is refused before any work)
+    renders[0] = render;
+    for (i = 0; i < n_ghosts; i++) {
+        lensrt_render_desc gd = desc;
+        gd.lens = ghost_lens[i];
+        if ((res = lensrt_render_create(ctx, &gd, &renders[1 + i])) != LENSRT_SUCCESS) goto fail_input;
     }
     if (resume && (res = lensrt_render_load(render, resume)) != LENSRT_SUCCESS) goto fail_input;
     if (merge && (res = lensrt_render_merge(render, merge)) != LENSRT_SUCCESS) goto fail_input;
@@ -631,11 +748,58 @@ int main(int argc, char **argv)
     if (!quiet)
         fprintf(stderr, "lensrt-psf: %.2f s, %.3g splats/s, f/%.3g, stop radius %.4g mm\n", st.seconds,
                 st.splats_per_second, st.f_number, st.stop_radius_mm);
+    // Ghosts: as many samples per wavelength as the direct image has, one sequence each
+    if (n_ghosts) {
+        const size_t n = (size_t)st.n_wavelengths * (size_t)st.width * (size_t)st.height;
+        const uint64_t ghost_samples = st.samples_per_wavelength;
+        float *direct_img = malloc(n * sizeof *direct_img), *ghost_img = malloc(n * sizeof *ghost_img);
+        double direct_power = 0.0;
+        size_t k;
+        char label[600];
+        if (!direct_img || !ghost_img || lensrt_render_image(render, direct_img, n) != LENSRT_SUCCESS) {
+            free(direct_img);
+            free(ghost_img);
+            fprintf(stderr, "lensrt-psf: %s\n", lensrt_context_last_error(ctx)[0] ? lensrt_context_last_error(ctx) : "out of memory");
+            goto done;
+        }
+        for (k = 0; k < n; k++) direct_power += direct_img[k];
+        for (i = 0; i < n_ghosts; i++) {
+            lensrt_lens_info gi = LENSRT_LENS_INFO_INIT;
+            lensrt_render_stats gs = LENSRT_RENDER_STATS_INIT;
+            double power = 0.0;
+            lensrt_lens_get_info(ghost_lens[i], &gi);
+            snprintf(label, sizeof label, "ghost %s (%d of %d)", gi.ghost_label, i + 1, n_ghosts);
+            ps.label = label;
+            ps.round_start = now_seconds();
+            ps.base = 0.0;
+            ps.span = 1.0;
+            res = lensrt_render_run(renders[1 + i], ghost_samples, on_progress, &ps);
+            if (!quiet) fprintf(stderr, "\n");
+            if (res == LENSRT_SUCCESS) res = lensrt_render_image(renders[1 + i], ghost_img, n);
+            if (res != LENSRT_SUCCESS) {
+                free(direct_img);
+                free(ghost_img);
+                goto fail;
+            }
+            for (k = 0; k < n; k++) power += ghost_img[k];
+            lensrt_render_get_stats(renders[1 + i], &gs);
+            if (!quiet)
+                fprintf(stderr, "lensrt-psf: ghost %s (surfaces %d, %d; %s): %.2f s, power in the window %.3g of the "
+                        "direct image's\n", gi.ghost_label, gi.ghost_first, gi.ghost_second, ghost_paths[i], gs.seconds,
+                        direct_power > 0 ? power / direct_power : 0.0);
+        }
+        free(direct_img);
+        free(ghost_img);
+    }
 
-    // Outputs, each written atomically
+    // Outputs, each written atomically; with ghosts, the flare (their sum) and the total
     if (save && (res = lensrt_render_save(render, save)) != LENSRT_SUCCESS) goto fail;
     if (out && (res = lensrt_render_write_exr(render, out)) != LENSRT_SUCCESS) goto fail;
-    if (png && (res = lensrt_render_write_png(render, png, decades)) != LENSRT_SUCCESS) goto fail;
+    if (out && n_ghosts &&
+        ((res = lensrt_renders_write_exr(renders + 1, n_ghosts, flare_out)) != LENSRT_SUCCESS ||
+         (res = lensrt_renders_write_exr(renders, n_ghosts + 1, total_out)) != LENSRT_SUCCESS))
+        goto fail;
+    if (png && (res = lensrt_renders_write_png(renders, n_ghosts + 1, png, decades)) != LENSRT_SUCCESS) goto fail;
     if (estimate && mc_error >= 0)
         printf("Monte Carlo error estimate: %.3g%% relative L2 (two independent halves, %llu samples per wavelength)\n",
                100.0 * mc_error, (unsigned long long)mc_samples);
@@ -654,9 +818,15 @@ done:
     free(img_a);
     free(img_b);
     free(img_all);
+    for (i = 0; i < n_ghosts; i++) {
+        lensrt_render_destroy(renders[1 + i]);
+        lensrt_lens_destroy(ctx, ghost_lens[i]);
+    }
     lensrt_render_destroy(render_b);
     lensrt_render_destroy(render);
     lensrt_lens_destroy(ctx, lens);
     lensrt_context_destroy(ctx);
+done_args:
+    for (i = n_ghost_args; i < n_ghosts; i++) free(ghost_paths[i]);
     return rc;
 }

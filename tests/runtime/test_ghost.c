@@ -314,6 +314,362 @@ static void test_reader(lensrt_context ctx)
     }
 }
 
+/* ---------------------------------------------------------------- renders ----- */
+
+#define RES 20              /* pixels per side of the test window */
+#define R_STOP 7.0          /* the ghost's stop radius (mm; lens 0001 opens to 14.5) */
+#define R_SMALL 4.5         /* the stop P_clip makes (mm) */
+#define N_POINTS 2048
+
+/* A lens from table text (NUL-terminated; freed here). */
+static lensrt_lens load(lensrt_context ctx, const char *what, char *text)
+{
+    lensrt_lens lens = NULL;
+    lensrt_result res = lensrt_lens_load_text(ctx, text, strlen(text), "ghost_test.table", &lens);
+    CHECK(res == LENSRT_SUCCESS, "%s: load: %s", what, lensrt_context_last_error(ctx));
+    free(text);
+    return lens;
+}
+
+/* A render of the test scene: light (-6, -4) deg at infinity, a window of RES x RES
+ * pixels (0.05 mm) on its image point, 0.2 mm of defocus, one wavelength (550 nm) or
+ * three, stop radius `radius`. NULL (and a failed check) when creation fails. */
+static lensrt_render make_render(lensrt_context ctx, lensrt_lens lens, double radius, int precision, int n_wl,
+                                 int shape)
+{
+    static const double wl[3] = {480.0, 550.0, 620.0};
+    lensrt_render_desc d = LENSRT_RENDER_DESC_INIT;
+    lensrt_light light = LENSRT_LIGHT_INIT;
+    lensrt_render r = NULL;
+    double centre[2] = {0, 0};
+    lensrt_result res;
+    light.field_x_deg = -6.0;
+    light.field_y_deg = -4.0;
+    CHECK_OK(ctx, lensrt_lens_image_point(ctx, lens, &light, 550.0, 0.2, centre));
+    d.lens = lens;
+    d.sensor.width = d.sensor.height = RES;
+    d.sensor.width_mm = 0.05;
+    d.sensor.center_x_mm = centre[0];
+    d.sensor.center_y_mm = centre[1];
+    d.sensor.focus_offset_mm = 0.2;
+    d.aperture.radius_mm = radius;
+    d.aperture.shape = shape;
+    d.aperture.blades = shape == LENSRT_APERTURE_BLADES ? 7 : 0;
+    d.lights = &light;
+    d.n_lights = 1;
+    d.wavelengths_nm = n_wl == 1 ? wl + 1 : wl;
+    d.n_wavelengths = n_wl;
+    d.precision = precision;
+    d.seed = 11;
+    res = lensrt_render_create(ctx, &d, &r);
+    if (shape == LENSRT_APERTURE_CIRCLE)
+        CHECK(res == LENSRT_SUCCESS, "render create: %s", lensrt_context_last_error(ctx));
+    return res == LENSRT_SUCCESS ? r : NULL;
+}
+
+static float *image_of(lensrt_context ctx, lensrt_render r, int n_wl)
+{
+    float *img = calloc((size_t)n_wl * RES * RES, sizeof(float));
+    if (!img) abort();
+    if (r) CHECK_OK(ctx, lensrt_render_image(r, img, (size_t)n_wl * RES * RES));
+    return img;
+}
+
+static double total(const float *a, size_t n)
+{
+    double s = 0;
+    size_t i;
+    for (i = 0; i < n; i++) s += a[i];
+    return s;
+}
+
+/* Relative L2 distance of a from b * scale. */
+static double rel_l2(const float *a, const float *b, double scale, size_t n)
+{
+    double num = 0, den = 0;
+    size_t i;
+    for (i = 0; i < n; i++) {
+        double d = (double)a[i] - scale * (double)b[i];
+        num += d * d;
+        den += scale * scale * (double)b[i] * (double)b[i];
+    }
+    return sqrt(num / den);
+}
+
+/* N_POINTS points uniform over the disc of radius R_STOP (a fixed LCG), none within 1e-6
+ * of the radius R_SMALL (relative): there a test in float and one in double could differ
+ * by rounding, which is not what these tests are about. */
+static void disc_points(double *xy)
+{
+    unsigned long long s = 0x9E3779B97F4A7C15ull;
+    int j = 0;
+    while (j < N_POINTS) {
+        double u, v, rr;
+        s = s * 6364136223846793005ull + 1442695040888963407ull;
+        u = (double)(s >> 11) / 9007199254740992.0 * 2.0 - 1.0;
+        s = s * 6364136223846793005ull + 1442695040888963407ull;
+        v = (double)(s >> 11) / 9007199254740992.0 * 2.0 - 1.0;
+        rr = sqrt(u * u + v * v) * R_STOP;
+        if (u * u + v * v > 1.0 || fabs(rr - R_SMALL) < 1e-6 * R_SMALL) continue;
+        xy[2 * j] = u * R_STOP;
+        xy[2 * j + 1] = v * R_STOP;
+        j++;
+    }
+}
+
+/* A ghost table whose P_clip is a smaller stop of radius R_SMALL:
+ *   side P_o: x_h0 = x_a / R_SMALL, y_h0 = y_a / R_SMALL (a housing pair, unit 1);
+ *   side P_s: a housing pair that never blocks (1e-6 x_a / R_SMALL) and a stop pair
+ *             x_s1 = (R_STOP / R_SMALL) x_a in mm, which the render tests against its stop
+ *             radius R_STOP: it passes where |a| <= R_SMALL.
+ * Raw x_a = s xhat_a, so x_a / r is the term (0 0 0 1 0 0) with coefficient s / r. */
+static char *smaller_stop_table(int side, size_t *n)
+{
+    char t[4][64];
+    clip_out o[4];
+    snprintf(t[0], sizeof t[0], "0 0 0 1 0 0 %.17g", g_xa_s / R_SMALL);
+    snprintf(t[1], sizeof t[1], "0 0 0 0 1 0 %.17g", g_xa_s / R_SMALL);
+    if (side == 0) {
+        o[0].name = "x_h0"; o[0].unit = "1"; o[0].terms = t[0];
+        o[1].name = "y_h0"; o[1].unit = "1"; o[1].terms = t[1];
+        return ghost_table(GHOST_P_O, 0, o, 2, NULL, n);
+    }
+    snprintf(t[2], sizeof t[2], "0 0 0 1 0 0 %.17g", 1e-6 * g_xa_s / R_SMALL);
+    snprintf(t[3], sizeof t[3], "0 0 0 0 1 0 %.17g", 1e-6 * g_xa_s / R_SMALL);
+    snprintf(t[0], sizeof t[0], "0 0 0 1 0 0 %.17g", g_xa_s * R_STOP / R_SMALL);
+    snprintf(t[1], sizeof t[1], "0 0 0 0 1 0 %.17g", g_xa_s * R_STOP / R_SMALL);
+    o[0].name = "x_h0"; o[0].unit = "1"; o[0].terms = t[2];
+    o[1].name = "y_h0"; o[1].unit = "1"; o[1].terms = t[3];
+    o[2].name = "x_s1"; o[2].unit = "mm"; o[2].terms = t[0];
+    o[3].name = "y_s1"; o[3].unit = "mm"; o[3].terms = t[1];
+    return ghost_table(GHOST_P_S, 1, o, 4, NULL, n);
+}
+
+/* 2. A P_clip that is a smaller stop (radius R_SMALL) inside a render of stop R_STOP, on
+ *    side P_o (evaluated per sample on the host, in double) and on side P_s (per pixel
+ *    and splat in the kernel: SIMD float, or the scalar kernel in a LENSRT_SCALAR_KERNEL
+ *    build, and double), with the same points splatted:
+ *    a. against the direct table at stop R_STOP splatting the same points, those beyond
+ *       R_SMALL moved far outside the aperture (each still counts as a sample, with zero
+ *       contribution): the same image bit for bit. Both renders have the same stop, so
+ *       the same monomials, bases, pruning and pixel set-up; a clipped sample and an
+ *       outside one both contribute exactly 0 to the block sums; the points keep 1e-6 from
+ *       the radius R_SMALL, where the float test and the host's double test could differ.
+ *    b. (precision double) against the direct table rendered with stop radius R_SMALL,
+ *       the same points: the same sums up to rounding, and an image (R_STOP / R_SMALL)^4
+ *       times as large (the Monte Carlo measure is the stop's area: pi R^2 per sample, in
+ *       the image squared). The monomials u = x / R differ in their last bits between the
+ *       two stops, and the phase reaches ~1e5 waves before its constant is dropped, so
+ *       rounding moves phases by ~1e-11 waves; the images are floats (6e-8 relative per
+ *       pixel: 2.8e-8 relative L2 measured), so 1e-6 relative L2 is far above rounding
+ *       and far below any real difference (a clip that is off by one sample in 2048
+ *       moves the image by ~1e-3). */
+static void test_smaller_stop(lensrt_context ctx, lensrt_lens direct)
+{
+    double *xy = malloc(sizeof(double) * 2 * N_POINTS), *xy_in = malloc(sizeof(double) * 2 * N_POINTS);
+    int side, prec, j, outside = 0;
+    if (!xy || !xy_in) abort();
+    disc_points(xy);
+    for (j = 0; j < N_POINTS; j++) {
+        int in = xy[2 * j] * xy[2 * j] + xy[2 * j + 1] * xy[2 * j + 1] <= R_SMALL * R_SMALL;
+        xy_in[2 * j] = in ? xy[2 * j] : 1e3;
+        xy_in[2 * j + 1] = in ? xy[2 * j + 1] : 0.0;
+        outside += !in;
+    }
+    CHECK(outside > N_POINTS / 3, "only %d of %d points beyond R_SMALL", outside, N_POINTS);
+    for (side = 0; side < 2; side++) {
+        size_t n;
+        char *text = smaller_stop_table(side, &n);
+        lensrt_lens ghost = load(ctx, side ? "smaller stop, side P_s" : "smaller stop, side P_o", text);
+        for (prec = 0; ghost && prec < 2; prec++) {
+            const int precision = prec ? LENSRT_PRECISION_DOUBLE : LENSRT_PRECISION_DEFAULT;
+            const char *what = prec ? "double" : "float";
+            lensrt_render rg = make_render(ctx, ghost, R_STOP, precision, 1, LENSRT_APERTURE_CIRCLE);
+            lensrt_render rd = make_render(ctx, direct, R_STOP, precision, 1, LENSRT_APERTURE_CIRCLE);
+            lensrt_render rall = make_render(ctx, direct, R_STOP, precision, 1, LENSRT_APERTURE_CIRCLE);
+            float *ig, *id, *iall;
+            if (rg) CHECK_OK(ctx, lensrt_render_splat_points(rg, 0, xy, N_POINTS));
+            if (rd) CHECK_OK(ctx, lensrt_render_splat_points(rd, 0, xy_in, N_POINTS));
+            if (rall) CHECK_OK(ctx, lensrt_render_splat_points(rall, 0, xy, N_POINTS));
+            ig = image_of(ctx, rg, 1);
+            id = image_of(ctx, rd, 1);
+            iall = image_of(ctx, rall, 1);
+            CHECK(memcmp(ig, id, sizeof(float) * RES * RES) == 0,
+                  "side %s, %s: the ghost's image differs from the direct one with the same points inside R_SMALL "
+                  "(relative L2 %.3g)", side ? "P_s" : "P_o", what, rel_l2(ig, id, 1.0, RES * RES));
+            // The clip blocked something: the whole stop gives another image
+            CHECK(total(id, RES * RES) > 0 && rel_l2(iall, id, 1.0, RES * RES) > 0.1,
+                  "side %s, %s: the clip changed nothing (relative L2 to the full stop %.3g)", side ? "P_s" : "P_o",
+                  what, rel_l2(iall, id, 1.0, RES * RES));
+            if (prec) {
+                // b. The direct table at stop R_SMALL, the same points
+                lensrt_render rs = make_render(ctx, direct, R_SMALL, precision, 1, LENSRT_APERTURE_CIRCLE);
+                float *is;
+                const double scale = pow(R_STOP / R_SMALL, 4.0);
+                double e;
+                if (rs) CHECK_OK(ctx, lensrt_render_splat_points(rs, 0, xy, N_POINTS));
+                is = image_of(ctx, rs, 1);
+                e = rel_l2(ig, is, scale, RES * RES);
+                CHECK(e < 1e-6, "side %s, double: ghost against the direct table at stop %g mm: relative L2 %.3g",
+                      side ? "P_s" : "P_o", R_SMALL, e);
+                free(is);
+                lensrt_render_destroy(rs);
+            }
+            free(ig);
+            free(id);
+            free(iall);
+            lensrt_render_destroy(rg);
+            lensrt_render_destroy(rd);
+            lensrt_render_destroy(rall);
+        }
+        lensrt_lens_destroy(ctx, ghost);
+    }
+    free(xy);
+    free(xy_in);
+}
+
+/* 3. P_clip that never blocks (tiny coefficients: the bounds show every pair passes) gives
+ *    the direct image of the same P_o and P_s bit for bit (run() with the same seed, three
+ *    wavelengths, float and double); one that always blocks (x_h0 = 2) gives zeros, every
+ *    pixel dark on side P_s. */
+static void test_never_always(lensrt_context ctx, lensrt_lens direct)
+{
+    const clip_out never[2] = {{"x_h0", "1", "0 0 0 1 0 0 1e-6;1 0 0 0 0 0 1e-7"}, {"y_h0", "1", "0 0 0 0 1 0 1e-6"}};
+    const clip_out always[2] = {{"x_h0", "1", "0 0 0 0 0 0 2;0 0 0 1 0 0 0.1"}, {"y_h0", "1", "0 0 0 0 1 0 0.1"}};
+    int side, prec;
+    for (side = 0; side < 2; side++)
+        for (prec = 0; prec < 2; prec++) {
+            const int precision = prec ? LENSRT_PRECISION_DOUBLE : LENSRT_PRECISION_DEFAULT;
+            size_t n;
+            lensrt_lens gn = load(ctx, "never", ghost_table(side ? GHOST_P_S : GHOST_P_O, side, never, 2, NULL, &n));
+            lensrt_lens ga = load(ctx, "always", ghost_table(side ? GHOST_P_S : GHOST_P_O, side, always, 2, NULL, &n));
+            lensrt_render rn = make_render(ctx, gn, R_STOP, precision, 3, LENSRT_APERTURE_CIRCLE);
+            lensrt_render ra = make_render(ctx, ga, R_STOP, precision, 3, LENSRT_APERTURE_CIRCLE);
+            lensrt_render rd = make_render(ctx, direct, R_STOP, precision, 3, LENSRT_APERTURE_CIRCLE);
+            lensrt_render_stats st = LENSRT_RENDER_STATS_INIT;
+            float *in, *ia, *id;
+            if (rn) CHECK_OK(ctx, lensrt_render_run(rn, 1024, NULL, NULL));
+            if (ra) CHECK_OK(ctx, lensrt_render_run(ra, 1024, NULL, NULL));
+            if (rd) CHECK_OK(ctx, lensrt_render_run(rd, 1024, NULL, NULL));
+            in = image_of(ctx, rn, 3);
+            ia = image_of(ctx, ra, 3);
+            id = image_of(ctx, rd, 3);
+            CHECK(total(id, 3 * RES * RES) > 0 && memcmp(in, id, sizeof(float) * 3 * RES * RES) == 0,
+                  "side %s, %s: a P_clip that never blocks changed the image (relative L2 %.3g)", side ? "P_s" : "P_o",
+                  prec ? "double" : "float", rel_l2(in, id, 1.0, 3 * RES * RES));
+            CHECK(total(ia, 3 * RES * RES) == 0.0, "side %s, %s: a P_clip that always blocks left %g",
+                  side ? "P_s" : "P_o", prec ? "double" : "float", total(ia, 3 * RES * RES));
+            if (ra && side) {
+                CHECK_OK(ctx, lensrt_render_get_stats(ra, &st));
+                CHECK(st.dark_fraction == 1.0, "side P_s: always blocking: dark fraction %g, expected 1 (decided from "
+                                               "the bounds)", st.dark_fraction);
+            }
+            free(in);
+            free(ia);
+            free(id);
+            lensrt_render_destroy(rn);
+            lensrt_render_destroy(ra);
+            lensrt_render_destroy(rd);
+            lensrt_lens_destroy(ctx, gn);
+            lensrt_lens_destroy(ctx, ga);
+        }
+}
+
+/* 4. Stop-crossing pairs need a circular aperture: blades are refused (UNSUPPORTED, the
+ *    message naming the table and the ghost), while a ghost with housing pairs only
+ *    renders with blades. Host-scheduled tiles of a side-P_s ghost equal run() bit for bit. */
+static void test_shapes_and_tiles(lensrt_context ctx)
+{
+    const clip_out housing[2] = {{"x_h0", "1", "0 0 0 1 0 0 0.9"}, {"y_h0", "1", "0 0 0 0 1 0 0.9"}};
+    size_t n;
+    char *text = smaller_stop_table(1, &n);
+    lensrt_lens stop = load(ctx, "stop pair", text);
+    lensrt_lens hous = load(ctx, "housing pair", ghost_table(GHOST_P_S, 1, housing, 2, NULL, &n));
+    lensrt_render r;
+    if (!stop || !hous) return;
+    r = make_render(ctx, stop, R_STOP, LENSRT_PRECISION_DEFAULT, 1, LENSRT_APERTURE_BLADES);
+    CHECK(r == NULL, "blades with a stop-crossing pair: accepted");
+    lensrt_render_destroy(r);
+    CHECK(strstr(lensrt_context_last_error(ctx), "ghost_test.table") && strstr(lensrt_context_last_error(ctx), "ghost 4-8") &&
+              strstr(lensrt_context_last_error(ctx), "blades"),
+          "blades with a stop pair: message '%s'", lensrt_context_last_error(ctx));
+    r = make_render(ctx, hous, R_STOP, LENSRT_PRECISION_DEFAULT, 1, LENSRT_APERTURE_BLADES);
+    CHECK(r != NULL, "blades with housing pairs only: %s", lensrt_context_last_error(ctx));
+    lensrt_render_destroy(r);
+    {
+        // Tiles of 7 x 7 (uneven at the edges) against run()
+        lensrt_render a = make_render(ctx, stop, R_STOP, LENSRT_PRECISION_DEFAULT, 3, LENSRT_APERTURE_CIRCLE);
+        lensrt_render b = make_render(ctx, stop, R_STOP, LENSRT_PRECISION_DEFAULT, 3, LENSRT_APERTURE_CIRCLE);
+        float *ia, *ib;
+        int x, y;
+        if (a) CHECK_OK(ctx, lensrt_render_run(a, 512, NULL, NULL));
+        if (b) {
+            CHECK_OK(ctx, lensrt_render_tiles_begin(b, 512));
+            for (y = 0; y < RES; y += 7)
+                for (x = 0; x < RES; x += 7)
+                    CHECK_OK(ctx, lensrt_render_tile(b, x, y, x + 7 <= RES ? 7 : RES - x, y + 7 <= RES ? 7 : RES - y));
+            CHECK_OK(ctx, lensrt_render_tiles_end(b));
+        }
+        ia = image_of(ctx, a, 3);
+        ib = image_of(ctx, b, 3);
+        CHECK(total(ia, 3 * RES * RES) > 0 && memcmp(ia, ib, sizeof(float) * 3 * RES * RES) == 0,
+              "tiles of a ghost differ from run() (relative L2 %.3g)", rel_l2(ib, ia, 1.0, 3 * RES * RES));
+        free(ia);
+        free(ib);
+        lensrt_render_destroy(a);
+        lensrt_render_destroy(b);
+    }
+    lensrt_lens_destroy(ctx, stop);
+    lensrt_lens_destroy(ctx, hous);
+}
+
+/* 5. lensrt_renders_image: the sum of renders' images (a direct image plus a ghost's) is
+ *    each image summed (in double, then rounded to float: exactly a + b when a and b are
+ *    floats whose sum is representable to rounding; checked to 1 float ulp); one render
+ *    gives its own image bit for bit; another window or other wavelengths are refused
+ *    (LENSRT_ERROR_INCOMPATIBLE naming the render's lens file). */
+static void test_image_sum(lensrt_context ctx, lensrt_lens direct)
+{
+    const clip_out housing[2] = {{"x_h0", "1", "0 0 0 1 0 0 0.9"}, {"y_h0", "1", "0 0 0 0 1 0 0.9"}};
+    size_t n, k;
+    lensrt_lens g = load(ctx, "sum", ghost_table(GHOST_P_S, 1, housing, 2, NULL, &n));
+    lensrt_render rs[3];
+    float *a, *b, *sum = calloc(3 * RES * RES, sizeof(float)), *one = calloc(3 * RES * RES, sizeof(float));
+    int worst_ok = 1;
+    if (!g || !sum || !one) abort();
+    rs[0] = make_render(ctx, direct, R_STOP, LENSRT_PRECISION_DEFAULT, 3, LENSRT_APERTURE_CIRCLE);
+    rs[1] = make_render(ctx, g, R_STOP, LENSRT_PRECISION_DEFAULT, 3, LENSRT_APERTURE_CIRCLE);
+    rs[2] = make_render(ctx, g, R_STOP, LENSRT_PRECISION_DEFAULT, 1, LENSRT_APERTURE_CIRCLE);
+    if (rs[0] && rs[1] && rs[2]) {
+        CHECK_OK(ctx, lensrt_render_run(rs[0], 256, NULL, NULL));
+        CHECK_OK(ctx, lensrt_render_run(rs[1], 256, NULL, NULL));
+        CHECK_OK(ctx, lensrt_render_run(rs[2], 256, NULL, NULL));
+        a = image_of(ctx, rs[0], 3);
+        b = image_of(ctx, rs[1], 3);
+        CHECK_OK(ctx, lensrt_renders_image(rs, 2, sum, 3 * RES * RES));
+        for (k = 0; k < 3 * RES * RES; k++)
+            if (fabs((double)sum[k] - ((double)a[k] + (double)b[k])) > 1.2e-7 * ((double)a[k] + (double)b[k])) worst_ok = 0;
+        CHECK(worst_ok && total(b, 3 * RES * RES) > 0, "renders_image: not the sum of the images");
+        CHECK_OK(ctx, lensrt_renders_image(rs, 1, one, 3 * RES * RES));
+        CHECK(memcmp(one, a, sizeof(float) * 3 * RES * RES) == 0, "renders_image of one render: not its image");
+        {
+            lensrt_render pair[2];
+            pair[0] = rs[0];
+            pair[1] = rs[2];
+            CHECK_RES(ctx, LENSRT_ERROR_INCOMPATIBLE, lensrt_renders_image(pair, 2, sum, 3 * RES * RES));
+            CHECK_MSG(ctx, "render 1 (ghost_test.table) has 1 wavelengths");
+        }
+        free(a);
+        free(b);
+    }
+    lensrt_render_destroy(rs[0]);
+    lensrt_render_destroy(rs[1]);
+    lensrt_render_destroy(rs[2]);
+    lensrt_lens_destroy(ctx, g);
+    free(sum);
+    free(one);
+}
+
 int main(int argc, char **argv)
 {
     lensrt_context_init init = LENSRT_CONTEXT_INIT;
@@ -331,6 +687,17 @@ int main(int argc, char **argv)
     }
     if (lensrt_context_create(&init, &ctx) != LENSRT_SUCCESS) return 1;
     test_reader(ctx);
+    {
+        lensrt_lens direct = NULL;
+        CHECK_OK(ctx, lensrt_lens_load_text(ctx, g_text, g_size, "lens0001.table", &direct));
+        if (direct) {
+            test_smaller_stop(ctx, direct);
+            test_never_always(ctx, direct);
+            test_shapes_and_tiles(ctx);
+            test_image_sum(ctx, direct);
+            lensrt_lens_destroy(ctx, direct);
+        }
+    }
     lensrt_context_destroy(ctx);
     free(text);
     printf("test_ghost: %d checks, %d failures\n", g_checks, g_failures);

@@ -40,6 +40,15 @@ static void free_render(lensrt_render r)
         }
     lensrt_free(ctx, r->ps);
     lensrt_free(ctx, r->po);
+    if (r->clip_s)
+        for (i = 0; i < r->n_wl * 2 * r->n_clip_pairs; i++) {
+            lensrt_free(ctx, r->clip_s[i].ix);
+            lensrt_free(ctx, r->clip_s[i].iy);
+            lensrt_free(ctx, r->clip_s[i].slot);
+            lensrt_free(ctx, r->clip_s[i].coef);
+        }
+    lensrt_free(ctx, r->clip_s);
+    lensrt_free(ctx, r->clip_o);
     lensrt_free(ctx, r->basis);
     lensrt_free(ctx, r->basis_rank);
     lensrt_free(ctx, r->lights);

@@ -63,6 +63,15 @@ struct lensrt_render_s {
     lensrt_pixel_poly *ps;        /* [w * 4 + o] */
     double *po;                   /* [((l * n_wl + w) * 4 + o) * n_slots + slot] */
     double *light_x, *light_y, *light_d; /* direction cosines and distance (mm, 0: inf) */
+    /* ghost tables (issue 13): P_clip's pairs, on the ghost side (clip_side: 0 P_o, 1 P_s).
+     * Pair q passes when x^2 + y^2 <= clip_limit[q]^2 (1 for a housing, the stop radius
+     * for a stop crossing). Side P_o: clip_o per light, wavelength, output and slot like
+     * po; side P_s: clip_s per wavelength and output like ps. n_clip_pairs 0: none (every
+     * direct render), and nothing below is allocated. */
+    int n_clip_pairs, clip_side;
+    double clip_limit[LENSRT_MAX_CLIP_PAIRS];
+    double *clip_o;               /* [((l * n_wl + w) * 2 n_clip_pairs + o) * n_slots + slot] */
+    lensrt_pixel_poly *clip_s;    /* [w * 2 n_clip_pairs + o] */
     /* phasor sums: [((l * n_wl + w) * npix + p) * 2 + re/im]; sum of |X|^2 per
      * (l, w, p) when the estimator needs it */
     double *sum, *sumsq;

@@ -100,22 +100,23 @@ lensrt_result lensrt_specialise_scene(lensrt_render r)
 {
     lensrt_lens lens = r->lens;
     const lensrt_input *xa = &lens->p_s.inputs[3];
-    int w, o, l, t, k;
+    int w, o, l, t, k, n_clip;
     lensrt_result res;
     // The stop inputs must be centred so that monomials of u = x_a / R stay monomials
     if (lens->p_s.inputs[3].c != 0 || lens->p_s.inputs[4].c != 0 || lens->p_o.inputs[3].c != 0 ||
         lens->p_o.inputs[4].c != 0 || xa->s != lens->p_s.inputs[4].s || xa->s != lens->p_o.inputs[3].s)
         return lensrt_fail(r->ctx, LENSRT_ERROR_PARSE,
                            "%s: the stop inputs x_a, y_a must be normalised symmetrically (c = 0, equal s)", lens->file);
-    // Highest stop degree in either system
+    // Highest stop degree in either system (and a ghost's P_clip)
     r->degree = 0;
-    for (o = 0; o < 4; o++) {
-        const lensrt_poly *ps[2];
+    for (o = 0; o < 8; o++) {
+        const lensrt_poly *ps[3];
         int q;
-        ps[0] = &lens->p_o.outputs[o];
-        ps[1] = &lens->p_s.outputs[o];
-        for (q = 0; q < 2; q++)
-            for (t = 0; t < ps[q]->n_terms; t++) {
+        ps[0] = o < 4 ? &lens->p_o.outputs[o] : NULL;
+        ps[1] = o < 4 ? &lens->p_s.outputs[o] : NULL;
+        ps[2] = o < lens->p_clip.n_outputs ? &lens->p_clip.outputs[o] : NULL;
+        for (q = 0; q < 3; q++)
+            for (t = 0; ps[q] && t < ps[q]->n_terms; t++) {
                 const unsigned char *e = ps[q]->exponents + (size_t)t * 6;
                 if (e[3] + e[4] > r->degree) r->degree = e[3] + e[4];
             }
@@ -133,6 +134,17 @@ lensrt_result lensrt_specialise_scene(lensrt_render r)
     r->ps = lensrt_calloc(r->ctx, (size_t)r->n_wl * 4, sizeof *r->ps);
     r->po = lensrt_calloc(r->ctx, (size_t)r->n_lights * (size_t)r->n_wl * 4 * (size_t)r->n_slots, sizeof(double));
     if (!r->ps || !r->po) return lensrt_fail(r->ctx, LENSRT_ERROR_OUT_OF_MEMORY, "render: out of memory");
+    // A ghost's P_clip, specialised as the system whose inputs it takes
+    n_clip = 2 * lens->n_clip_pairs;
+    r->n_clip_pairs = lens->n_clip_pairs;
+    r->clip_side = lens->ghost_side == LENSRT_SYSTEM_SENSOR;
+    for (k = 0; k < lens->n_clip_pairs; k++) r->clip_limit[k] = lens->clip_stop[k] ? r->stop_radius : 1.0;
+    if (n_clip && r->clip_side)
+        r->clip_s = lensrt_calloc(r->ctx, (size_t)r->n_wl * (size_t)n_clip, sizeof *r->clip_s);
+    else if (n_clip)
+        r->clip_o = lensrt_calloc(r->ctx, (size_t)r->n_lights * (size_t)r->n_wl * (size_t)n_clip * (size_t)r->n_slots,
+                                  sizeof(double));
+    if (n_clip && !r->clip_s && !r->clip_o) return lensrt_fail(r->ctx, LENSRT_ERROR_OUT_OF_MEMORY, "render: out of memory");
     for (w = 0; w < r->n_wl; w++) {
         double xhat[6] = {0, 0, 0, 0, 0, 0};
         // P_s with z_S and lambda fixed: a polynomial in x_S, y_S and the stop
@@ -140,6 +152,10 @@ lensrt_result lensrt_specialise_scene(lensrt_render r)
         xhat[5] = lensrt_normalise(&lens->p_s.inputs[5], r->wavelengths[w]);
         for (o = 0; o < 4; o++) {
             res = specialise(r, &lens->p_s, o, xhat, 1, &r->ps[w * 4 + o], NULL);
+            if (res != LENSRT_SUCCESS) return res;
+        }
+        for (o = 0; r->clip_s && o < n_clip; o++) {
+            res = specialise(r, &lens->p_clip, o, xhat, 1, &r->clip_s[w * n_clip + o], NULL);
             if (res != LENSRT_SUCCESS) return res;
         }
         // P_o with the light and lambda fixed: a polynomial in the stop only
@@ -151,6 +167,8 @@ lensrt_result lensrt_specialise_scene(lensrt_render r)
             xhat[5] = lensrt_normalise(&lens->p_o.inputs[5], r->wavelengths[w]);
             for (o = 0; o < 4; o++)
                 specialise(r, &lens->p_o, o, xhat, 0, NULL, lensrt_po_slots(r, l, w, o));
+            for (o = 0; r->clip_o && o < n_clip; o++)
+                specialise(r, &lens->p_clip, o, xhat, 0, NULL, lensrt_clip_o_slots(r, l, w, o));
         }
     }
     return LENSRT_SUCCESS;

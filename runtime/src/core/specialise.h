@@ -24,8 +24,16 @@ static inline double *lensrt_po_slots(const lensrt_render r, int l, int w, int o
     return r->po + ((size_t)(l * r->n_wl + w) * 4 + (size_t)o) * (size_t)r->n_slots;
 }
 
+/* P_clip (ghost tables, side P_o) of light l, wavelength w, output o, as coefficients of
+ * the stop monomials. */
+static inline double *lensrt_clip_o_slots(const lensrt_render r, int l, int w, int o)
+{
+    return r->clip_o + ((size_t)(l * r->n_wl + w) * (size_t)(2 * r->n_clip_pairs) + (size_t)o) * (size_t)r->n_slots;
+}
+
 /* The stop degree, slots, P_s per wavelength with z_S and lambda fixed (a polynomial in
- * x_S, y_S and the stop: r->ps) and P_o per light and wavelength (stop only: r->po). */
+ * x_S, y_S and the stop: r->ps) and P_o per light and wavelength (stop only: r->po); a
+ * ghost's P_clip like the system whose inputs it takes (r->clip_s or r->clip_o). */
 lensrt_result lensrt_specialise_scene(lensrt_render r);
 
 /* Powers 0..15 of the normalised sensor coordinates of (x, y), for the P_s terms. */

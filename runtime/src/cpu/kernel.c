@@ -89,7 +89,7 @@ void lensrt_kernel_f(const float *mono, int n_lights, const float *sphase, const
                      const lensrt_pixel_f *px, double *acc)
 {
     vf re[64], im[64], sq[64];
-    int jc, l, h;
+    int jc, l, h, q;
     for (l = 0; l < n_lights; l++) re[l] = im[l] = sq[l] = vsplat(0.0f);
     for (jc = 0; jc < B; jc += CH) {
         vf ph[NV], w[NV], x[NV], y[NV];
@@ -102,6 +102,13 @@ void lensrt_kernel_f(const float *mono, int n_lights, const float *sphase, const
             vdot(mono, &px->yi, 0.0f, jc, y);
             for (h = 0; h < NV; h++)
                 w[h] = -__builtin_convertvector(x[h] * x[h] + y[h] * y[h] <= px->housing2, vf);
+        }
+        // A ghost's clip pairs (none in a direct render): 0 where any pair fails
+        for (q = 0; q < px->n_clip; q++) {
+            vdot(mono, &px->clip_x[q], 0.0f, jc, x);
+            vdot(mono, &px->clip_y[q], 0.0f, jc, y);
+            for (h = 0; h < NV; h++)
+                w[h] *= -__builtin_convertvector(x[h] * x[h] + y[h] * y[h] <= px->clip_r2[q], vf);
         }
         // Amplitude transmittance: the square root of the power transmittance
         if (px->tau.n > 0) {
@@ -167,13 +174,19 @@ void lensrt_kernel_f(const float *mono, int n_lights, const float *sphase, const
                      const lensrt_pixel_f *px, double *acc)
 {
     float phase[B], weight[B], x[B], y[B], c[B], s[B];
-    int j, l;
+    int j, l, q;
     dot_f(mono, &px->phase, px->phase0, phase);
     for (j = 0; j < B; j++) weight[j] = 1.0f;
     if (px->clip) {
         dot_f(mono, &px->xi, 0.0f, x);
         dot_f(mono, &px->yi, 0.0f, y);
         for (j = 0; j < B; j++) weight[j] = (x[j] * x[j] + y[j] * y[j] <= px->housing2) ? 1.0f : 0.0f;
+    }
+    for (q = 0; q < px->n_clip; q++) {
+        dot_f(mono, &px->clip_x[q], 0.0f, x);
+        dot_f(mono, &px->clip_y[q], 0.0f, y);
+        for (j = 0; j < B; j++)
+            weight[j] *= (x[j] * x[j] + y[j] * y[j] <= px->clip_r2[q]) ? 1.0f : 0.0f;
     }
     if (px->tau.n > 0) {
         dot_f(mono, &px->tau, 0.0f, x);
@@ -211,13 +224,19 @@ void lensrt_kernel_d(const double *mono, int n_lights, const double *sphase,
                      const double *samp, const lensrt_pixel_d *px, double *acc)
 {
     double phase[B], weight[B], x[B], y[B];
-    int j, l;
+    int j, l, q;
     dot_d(mono, &px->phase, 0.0, phase); /* the constant phase is dropped */
     for (j = 0; j < B; j++) weight[j] = 1.0;
     if (px->clip) {
         dot_d(mono, &px->xi, 0.0, x);
         dot_d(mono, &px->yi, 0.0, y);
         for (j = 0; j < B; j++) weight[j] = (x[j] * x[j] + y[j] * y[j] <= px->housing2) ? 1.0 : 0.0;
+    }
+    for (q = 0; q < px->n_clip; q++) {
+        dot_d(mono, &px->clip_x[q], 0.0, x);
+        dot_d(mono, &px->clip_y[q], 0.0, y);
+        for (j = 0; j < B; j++)
+            weight[j] *= (x[j] * x[j] + y[j] * y[j] <= px->clip_r2[q]) ? 1.0 : 0.0;
     }
     if (px->tau.n > 0) {
         dot_d(mono, &px->tau, 0.0, x);

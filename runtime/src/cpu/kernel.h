@@ -31,12 +31,20 @@ typedef struct lensrt_pixel_f {
     float phase0;
     float housing2;        /* housing radius squared (mm^2) */
     int clip;
+    /* A ghost's P_clip pairs tested per splat (side P_s; 0 for every direct render): a
+     * sample passes pair q when x^2 + y^2 <= clip_r2[q] (x, y with their constant terms) */
+    int n_clip;
+    lensrt_terms_f clip_x[LENSRT_MAX_CLIP_PAIRS], clip_y[LENSRT_MAX_CLIP_PAIRS];
+    float clip_r2[LENSRT_MAX_CLIP_PAIRS];
 } lensrt_pixel_f;
 
 typedef struct lensrt_pixel_d {
     lensrt_terms_d phase, xi, yi, tau; /* phase without its constant term */
     double housing2;
     int clip;
+    int n_clip;
+    lensrt_terms_d clip_x[LENSRT_MAX_CLIP_PAIRS], clip_y[LENSRT_MAX_CLIP_PAIRS];
+    double clip_r2[LENSRT_MAX_CLIP_PAIRS];
 } lensrt_pixel_d;
 
 /* Accumulate acc[3 l + 0..2] += (sum re, sum im, sum |X|^2) over the block for every

@@ -60,7 +60,18 @@ typedef struct lensrt_cpu_pixel {
     lensrt_pixel_d d;
 } lensrt_cpu_pixel;
 
-int lensrt_cpu_setup_pixel(const lensrt_render r, int w, double x, double y, lensrt_cpu_pixel *px);
+/* The terms of a ghost's P_clip pairs at a pixel (side P_s): x of pair q in row 2 q, y
+ * in row 2 q + 1. Kept apart from lensrt_cpu_pixel (17 KB each), so that only renders
+ * of such ghosts carry them on the stack. */
+typedef struct lensrt_cpu_clip {
+    int slot[2 * LENSRT_MAX_CLIP_PAIRS][136];
+    float coef_f[2 * LENSRT_MAX_CLIP_PAIRS][136];
+    double coef_d[2 * LENSRT_MAX_CLIP_PAIRS][136];
+} lensrt_cpu_clip;
+
+/* clip: where a ghost's P_clip terms go (NULL when the render has none on side P_s). */
+int lensrt_cpu_setup_pixel(const lensrt_render r, int w, double x, double y, lensrt_cpu_pixel *px,
+                           lensrt_cpu_clip *clip);
 
 /* The CPU device's host-scheduled tile (cpu/tiles.c; lensrt_device_ops.tile). */
 lensrt_result lensrt_cpu_tile(lensrt_render r, int x0, int y0, int width, int height);

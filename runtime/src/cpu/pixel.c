@@ -2,7 +2,8 @@
  * (stop-monomial coefficients in double), the inner-pupil clip decided from bounds, the
  * phase in waves with its constant dropped (it cannot change the pixel's intensity),
  * negligible terms pruned, phase and transmittance moved into the window's bases where
- * that needs fewer terms, and the Huygens amplitude. */
+ * that needs fewer terms, and the Huygens amplitude; for a ghost, its P_clip pairs
+ * (side P_s) likewise decided from bounds or kept for the kernel's per-splat test. */
 #include "pass.h"
 
 #include "../core/basis.h"
@@ -11,9 +12,79 @@
 #include <math.h>
 #include <string.h>
 
+/* A ghost's P_clip pairs at the pixel (side P_s), decided from bounds as the inner-pupil
+ * clip is: over the sampled region every stop monomial is at most 1, so a pair whose
+ * largest possible x^2 + y^2 is within its limit always passes (no test), one whose
+ * smallest possible is beyond it never does (the pixel is dark: returns 0), and the
+ * others are tested per splat with their terms pruned as x_i, y_i are (dropped terms
+ * sum to at most 1e-4 of the limit; none in precision DOUBLE). */
+static int setup_clip(const lensrt_render r, int w, const double *px, const double *py, lensrt_cpu_pixel *pt,
+                      lensrt_cpu_clip *cl)
+{
+    const int ns = r->n_slots, n_out = 2 * r->n_clip_pairs;
+    const int dbl = r->desc.precision == LENSRT_PRECISION_DOUBLE;
+    double c[2][136], bound[2];
+    int q, a, k, n_test = 0;
+    for (q = 0; q < r->n_clip_pairs; q++) {
+        const double lim = r->clip_limit[q];
+        double hi, lo_x, lo_y;
+        for (a = 0; a < 2; a++) {
+            lensrt_slot_coefficients(&r->clip_s[w * n_out + 2 * q + a], px, py, c[a], ns);
+            bound[a] = 0.0;
+            for (k = 1; k < ns; k++) bound[a] += fabs(c[a][k]);
+        }
+        hi = hypot(fabs(c[0][0]) + bound[0], fabs(c[1][0]) + bound[1]);
+        lo_x = fabs(c[0][0]) - bound[0];
+        lo_y = fabs(c[1][0]) - bound[1];
+        if (lo_x > lim || lo_y > lim || (lo_x > 0 && lo_y > 0 && hypot(lo_x, lo_y) > lim)) return 0;
+        if (hi <= lim) continue;
+        // Tested: the terms by increasing size, the smallest dropped within the tolerance
+        for (a = 0; a < 2; a++) {
+            const int row = 2 * n_test + a;
+            int order[136], n = 0, i, j;
+            double dropped = 0.0;
+            unsigned char kept[136];
+            for (k = 1; k < ns; k++) {
+                double v = fabs(c[a][k]);
+                if (v == 0.0) continue;
+                for (j = n; j > 0 && fabs(c[a][order[j - 1]]) > v; j--) order[j] = order[j - 1];
+                order[j] = k;
+                n++;
+            }
+            i = 0;
+            if (!dbl)
+                while (i < n && dropped + fabs(c[a][order[i]]) <= 1e-4 * lim) dropped += fabs(c[a][order[i++]]);
+            memset(kept, 0, sizeof kept);
+            kept[0] = 1; /* the constant term (row 0 is the monomial 1) */
+            for (j = i; j < n; j++) kept[order[j]] = 1;
+            for (j = 0, k = 0; k < ns; k++) {
+                if (!kept[k]) continue;
+                cl->slot[row][j] = k;
+                cl->coef_f[row][j] = (float)c[a][k];
+                cl->coef_d[row][j] = c[a][k];
+                j++;
+            }
+            {
+                lensrt_terms_f *tf = a ? &pt->f.clip_y[n_test] : &pt->f.clip_x[n_test];
+                lensrt_terms_d *td = a ? &pt->d.clip_y[n_test] : &pt->d.clip_x[n_test];
+                tf->n = td->n = j;
+                tf->slot = td->slot = cl->slot[row];
+                tf->coef = cl->coef_f[row];
+                td->coef = cl->coef_d[row];
+            }
+        }
+        pt->f.clip_r2[n_test] = (float)(lim * lim);
+        pt->d.clip_r2[n_test] = lim * lim;
+        n_test++;
+    }
+    pt->f.n_clip = pt->d.n_clip = n_test;
+    return 1;
+}
+
 /* Build the kernel's view of pixel (x, y) for wavelength w; returns 0 when every path
  * through the pixel is clipped. */
-int lensrt_cpu_setup_pixel(const lensrt_render r, int w, double x, double y, lensrt_cpu_pixel *pt)
+int lensrt_cpu_setup_pixel(const lensrt_render r, int w, double x, double y, lensrt_cpu_pixel *pt,
+                           lensrt_cpu_clip *clip)
 {
     lensrt_pixel_f *pf = &pt->f;
     lensrt_pixel_d *pdb = &pt->d;
@@ -38,6 +109,9 @@ int lensrt_cpu_setup_pixel(const lensrt_render r, int w, double x, double y, len
         if (lo_x > h || lo_y > h || (lo_x > 0 && lo_y > 0 && hypot(lo_x, lo_y) > h)) return 0;
         pf->clip = pdb->clip = hi > h;
     }
+    // A ghost's P_clip pairs (side P_s) likewise
+    pf->n_clip = pdb->n_clip = 0;
+    if (clip && !setup_clip(r, w, px, py, pt, clip)) return 0;
     // Phase in waves; the constant part is kept only by the naive mode
     for (k = 0; k < ns; k++) c[3][k] *= 1.0 / lambda_mm;
     // Prune: drop the smallest terms while the sum of their bounds stays under the

@@ -29,8 +29,10 @@ static void add_sums(lensrt_render r, int w, size_t p, const double *acc, double
 }
 
 /* Polynomial transport: P_s specialised to each pixel of the group, then the float (or
- * double) kernel per block and pixel. */
-static void group_polynomial(lensrt_render r, int w, const lensrt_cpu_pass *pd, long p0, long p1, lensrt_cpu_stats *st)
+ * double) kernel per block and pixel; clip holds a ghost's P_clip terms per pixel (NULL
+ * when the render has none on side P_s). */
+static void group_pixels(lensrt_render r, int w, const lensrt_cpu_pass *pd, long p0, long p1, lensrt_cpu_stats *st,
+                         lensrt_cpu_clip *clip)
 {
     const int nl = r->n_lights, nb = pd->n_blocks;
     const int dbl = r->desc.precision == LENSRT_PRECISION_DOUBLE;
@@ -40,7 +42,8 @@ static void group_polynomial(lensrt_render r, int w, const lensrt_cpu_pass *pd, 
     long p;
     int b;
     for (p = p0; p < p1; p++) {
-        live[p - p0] = lensrt_cpu_setup_pixel(r, w, r->xs[p % r->width], r->ys[p / r->width], &px[p - p0]);
+        live[p - p0] = lensrt_cpu_setup_pixel(r, w, r->xs[p % r->width], r->ys[p / r->width], &px[p - p0],
+                                              clip ? &clip[p - p0] : NULL);
         if (!live[p - p0]) {
             st->dark += 1;
             continue;
@@ -63,6 +66,20 @@ static void group_polynomial(lensrt_render r, int w, const lensrt_cpu_pass *pd, 
                                 pd->amp_f + (size_t)b * nl * LENSRT_BLOCK, &px[p - p0].f, acc);
             add_sums(r, w, (size_t)p, acc, px[p - p0].amp);
         }
+}
+
+/* A ghost with P_clip pairs on side P_s: its terms on this frame's stack (279 KB for the
+ * group), so that direct renders keep the stack they had. */
+static void group_clipped(lensrt_render r, int w, const lensrt_cpu_pass *pd, long p0, long p1, lensrt_cpu_stats *st)
+{
+    lensrt_cpu_clip clip[LENSRT_CPU_GROUP];
+    group_pixels(r, w, pd, p0, p1, st, clip);
+}
+
+static void group_polynomial(lensrt_render r, int w, const lensrt_cpu_pass *pd, long p0, long p1, lensrt_cpu_stats *st)
+{
+    if (r->clip_s) group_clipped(r, w, pd, p0, p1, st);
+    else group_pixels(r, w, pd, p0, p1, st, NULL);
 }
 
 /* Free space: the Rayleigh-Sommerfeld kernel from each sample's x, y (in double). */

@@ -276,6 +276,13 @@ static lensrt_result gl_create(lensrt_render r)
         if (r->lens->p_s.inputs[0].transform != LENSRT_TRANSFORM_AFFINE ||
             r->lens->p_s.inputs[1].transform != LENSRT_TRANSFORM_AFFINE)
             return lensrt_fail(r->ctx, LENSRT_ERROR_UNSUPPORTED, "device gl: %s: sensor inputs must be affine", r->lens->file);
+        // A ghost's clip tests (P_clip) are the CPU device's only, so far
+        if (r->n_clip_pairs)
+            return lensrt_fail(r->ctx, LENSRT_ERROR_UNSUPPORTED,
+                               "device gl: %s: ghost %s (surfaces %d, %d) has %d P_clip test(s), which the GL path "
+                               "does not evaluate yet; render it on the CPU device",
+                               r->lens->file, r->lens->ghost_label, r->lens->ghost_first, r->lens->ghost_second,
+                               r->n_clip_pairs);
     }
     if ((res = lensrt_gl_get(r->ctx, &gl)) != LENSRT_SUCCESS) return res;
     g = lensrt_calloc(r->ctx, 1, sizeof *g);

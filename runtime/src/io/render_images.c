@@ -9,14 +9,84 @@
 #include <stdio.h>
 #include <string.h>
 
-static lensrt_result spectral_and_rgb(lensrt_render r, float **spectral, float **rgb)
+/* Renders whose images add (a light's direct image and its ghosts'): the same window
+ * (resolution, pixel centres) and the same wavelengths as the first. */
+static lensrt_result check_same_frame(const lensrt_render *rs, int n)
 {
+    const lensrt_render a = rs[0];
+    int i, k;
+    for (i = 1; i < n; i++) {
+        const lensrt_render b = rs[i];
+        if (!b) return lensrt_fail(a->ctx, LENSRT_ERROR_INVALID_ARGUMENT, "image sum: render %d is NULL", i);
+        if (b->width != a->width || b->height != a->height || b->xs[0] != a->xs[0] || b->ys[0] != a->ys[0] ||
+            b->pitch_x != a->pitch_x || b->pitch_y != a->pitch_y)
+            return lensrt_fail(a->ctx, LENSRT_ERROR_INCOMPATIBLE,
+                               "image sum: render %d (%s) has a %d x %d window of pitch %.17g x %.17g mm from (%.17g, "
+                               "%.17g) mm, render 0 (%s) %d x %d of %.17g x %.17g mm from (%.17g, %.17g) mm: images "
+                               "add only over the same pixels", i, b->lens->file, b->width, b->height, b->pitch_x,
+                               b->pitch_y, b->xs[0], b->ys[0], a->lens->file, a->width, a->height, a->pitch_x,
+                               a->pitch_y, a->xs[0], a->ys[0]);
+        if (b->n_wl != a->n_wl)
+            return lensrt_fail(a->ctx, LENSRT_ERROR_INCOMPATIBLE,
+                               "image sum: render %d (%s) has %d wavelengths, render 0 (%s) %d", i, b->lens->file,
+                               b->n_wl, a->lens->file, a->n_wl);
+        for (k = 0; k < a->n_wl; k++)
+            if (b->wavelengths[k] != a->wavelengths[k])
+                return lensrt_fail(a->ctx, LENSRT_ERROR_INCOMPATIBLE,
+                                   "image sum: render %d (%s): wavelength %d is %.17g nm, render 0's %.17g nm", i,
+                                   b->lens->file, k, b->wavelengths[k], a->wavelengths[k]);
+    }
+    return LENSRT_SUCCESS;
+}
+
+/* The sum of the renders' images into out (count: wavelengths x pixels), summed in double. */
+static lensrt_result image_sum(const lensrt_render *rs, int n, float *out, size_t count)
+{
+    const lensrt_render a = rs[0];
+    double *acc;
+    size_t k;
+    int i;
+    lensrt_result res = LENSRT_SUCCESS;
+    if (n == 1) return lensrt_render_image(a, out, count);
+    acc = lensrt_calloc(a->ctx, count + 1, sizeof(double));
+    if (!acc) return lensrt_fail(a->ctx, LENSRT_ERROR_OUT_OF_MEMORY, "image sum: out of memory");
+    for (i = 0; i < n && res == LENSRT_SUCCESS; i++) {
+        // Each render's image (its own checks and messages, in its own context)
+        res = lensrt_render_image(rs[i], out, count);
+        if (res != LENSRT_SUCCESS && rs[i]->ctx != a->ctx)
+            lensrt_fail(a->ctx, res, "image sum: render %d (%s): %s", i, rs[i]->lens->file, lensrt_context_last_error(rs[i]->ctx));
+        for (k = 0; res == LENSRT_SUCCESS && k < count; k++) acc[k] += (double)out[k];
+    }
+    for (k = 0; res == LENSRT_SUCCESS && k < count; k++) {
+        out[k] = (float)acc[k];
+        if (!isfinite(out[k]))
+            res = lensrt_fail(a->ctx, LENSRT_ERROR_OUT_OF_DOMAIN, "image sum: value %zu is %g, not a finite float", k, acc[k]);
+    }
+    lensrt_free(a->ctx, acc);
+    return res;
+}
+
+lensrt_result lensrt_renders_image(const lensrt_render *renders, int n_renders, float *out, size_t count)
+{
+    lensrt_result res;
+    if (!renders || n_renders < 1 || !renders[0] || !out) return LENSRT_ERROR_INVALID_ARGUMENT;
+    if ((res = check_same_frame(renders, n_renders)) != LENSRT_SUCCESS) return res;
+    if (count != (size_t)renders[0]->width * (size_t)renders[0]->height * (size_t)renders[0]->n_wl)
+        return lensrt_fail(renders[0]->ctx, LENSRT_ERROR_INVALID_ARGUMENT,
+                           "image sum: count must be %zu (wavelengths x pixels), got %zu",
+                           (size_t)renders[0]->width * (size_t)renders[0]->height * (size_t)renders[0]->n_wl, count);
+    return image_sum(renders, n_renders, out, count);
+}
+
+static lensrt_result spectral_and_rgb_of(const lensrt_render *rs, int n, float **spectral, float **rgb)
+{
+    const lensrt_render r = rs[0];
     size_t npix = (size_t)r->width * (size_t)r->height, p;
     lensrt_result res;
     *spectral = lensrt_alloc(r->ctx, sizeof(float) * npix * (size_t)r->n_wl);
     *rgb = lensrt_alloc(r->ctx, sizeof(float) * npix * 3);
     if (!*spectral || !*rgb) return lensrt_fail(r->ctx, LENSRT_ERROR_OUT_OF_MEMORY, "image: out of memory");
-    if ((res = lensrt_render_image(r, *spectral, npix * (size_t)r->n_wl)) != LENSRT_SUCCESS) return res;
+    if ((res = image_sum(rs, n, *spectral, npix * (size_t)r->n_wl)) != LENSRT_SUCCESS) return res;
     lensrt_spectrum_to_rgb(r->n_wl, r->wavelengths, *spectral, npix, *rgb);
     // Finite spectra near FLT_MAX can still add up to inf in a colour channel
     for (p = 0; p < 3 * npix; p++)
@@ -25,6 +95,11 @@ static lensrt_result spectral_and_rgb(lensrt_render r, float **spectral, float *
                                (int)(p / 3 % (size_t)r->width), (int)(p / 3 / (size_t)r->width), (int)(p % 3),
                                (double)(*rgb)[p]);
     return LENSRT_SUCCESS;
+}
+
+static lensrt_result spectral_and_rgb(lensrt_render r, float **spectral, float **rgb)
+{
+    return spectral_and_rgb_of(&r, 1, spectral, rgb);
 }
 
 lensrt_result lensrt_render_rgb(lensrt_render r, float *out, size_t count)
@@ -55,13 +130,17 @@ static void describe_aperture(const lensrt_render r, char *buf, size_t size)
         snprintf(buf, size, "circle");
 }
 
-static lensrt_result write_image(lensrt_render r, const char *path, int exr, double decades)
+/* The image (the sum of the renders' images) as EXR, with the first render's metadata,
+ * or PNG. */
+static lensrt_result write_image(const lensrt_render *rs, int n, const char *path, int exr, double decades)
 {
     float *spectral = NULL, *rgb = NULL;
+    lensrt_render r = rs ? rs[0] : NULL;
     lensrt_result res;
     char err[LENSRT_ERROR_SIZE] = "", aperture[128];
-    if (!r || !path) return LENSRT_ERROR_INVALID_ARGUMENT;
-    res = spectral_and_rgb(r, &spectral, &rgb);
+    if (!r || !path || n < 1) return LENSRT_ERROR_INVALID_ARGUMENT;
+    if ((res = check_same_frame(rs, n)) != LENSRT_SUCCESS) return res;
+    res = spectral_and_rgb_of(rs, n, &spectral, &rgb);
     if (res == LENSRT_SUCCESS && exr) {
         lensrt_image_meta meta;
         memset(&meta, 0, sizeof meta);
@@ -96,9 +175,19 @@ static lensrt_result write_image(lensrt_render r, const char *path, int exr, dou
     return res;
 }
 
-lensrt_result lensrt_render_write_exr(lensrt_render r, const char *path) { return write_image(r, path, 1, 0.0); }
+lensrt_result lensrt_render_write_exr(lensrt_render r, const char *path) { return write_image(&r, 1, path, 1, 0.0); }
 
 lensrt_result lensrt_render_write_png(lensrt_render r, const char *path, double decades)
 {
-    return write_image(r, path, 0, decades);
+    return write_image(&r, 1, path, 0, decades);
+}
+
+lensrt_result lensrt_renders_write_exr(const lensrt_render *renders, int n_renders, const char *path)
+{
+    return write_image(renders, n_renders, path, 1, 0.0);
+}
+
+lensrt_result lensrt_renders_write_png(const lensrt_render *renders, int n_renders, const char *path, double decades)
+{
+    return write_image(renders, n_renders, path, 0, decades);
 }

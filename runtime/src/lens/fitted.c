@@ -5,7 +5,9 @@
  * (core/specialise.c), and the window's bases are found (core/basis.c). Per sample, the
  * stop monomials (and the basis functions) are the rows of the sample block, and P_o
  * gives the outer-pupil clip, the front group's transmittance and the phase. Devices
- * then specialise P_s per pixel (LENSRT_TRANSPORT_POLYNOMIAL). */
+ * then specialise P_s per pixel (LENSRT_TRANSPORT_POLYNOMIAL). A ghost table's P_clip
+ * is evaluated per sample here when it takes P_o's inputs (side P_o), per pixel and
+ * splat by the devices when it takes P_s's. */
 #include "lens.h"
 
 #include "../core/basis.h"
@@ -83,9 +85,28 @@ static lensrt_result check_window(lensrt_render r, const lensrt_lens_info *info)
     return LENSRT_SUCCESS;
 }
 
+/* A ghost whose P_clip tests stop crossings is rendered with a circular stop only: the
+ * crossings are tested against a circle of the render's stop radius (a blade or slit
+ * test of the crossing points is not there yet). */
+static const char *const SHAPE_NAMES[3] = {"circle", "blades", "slit"};
+
+static lensrt_result check_ghost(lensrt_render r)
+{
+    const lensrt_lens lens = r->lens;
+    if (lens->n_stop_pairs && r->desc.aperture.shape != LENSRT_APERTURE_CIRCLE)
+        return lensrt_fail(r->ctx, LENSRT_ERROR_UNSUPPORTED,
+                           "%s: ghost %s (surfaces %d, %d): its P_clip tests %d crossing(s) of the stop plane, which "
+                           "lensrt tests against a circular stop only; aperture shape %s is not supported for this "
+                           "ghost (render it with a circular aperture)",
+                           lens->file, lens->ghost_label, lens->ghost_first, lens->ghost_second, lens->n_stop_pairs,
+                           SHAPE_NAMES[r->desc.aperture.shape]);
+    return LENSRT_SUCCESS;
+}
+
 static lensrt_result prepare(lensrt_render r)
 {
     lensrt_result res;
+    if ((res = check_ghost(r)) != LENSRT_SUCCESS) return res;
     r->double_rows = r->desc.precision == LENSRT_PRECISION_DOUBLE;
     if ((res = lensrt_specialise_scene(r)) != LENSRT_SUCCESS) return res;
     return lensrt_prepare_basis(r);
@@ -141,6 +162,19 @@ static void sample_wave(const lensrt_render r, int w, int l, double x, double y,
         opl += cp[k] * mono[k];
     }
     if (xo * xo + yo * yo > lens->housing_first_mm * lens->housing_first_mm) *amp = 0.0;
+    // A ghost's P_clip on this side: every pair must pass (x^2 + y^2 <= its limit^2)
+    if (r->clip_o) {
+        int q;
+        for (q = 0; q < r->n_clip_pairs; q++) {
+            const double *qx = lensrt_clip_o_slots(r, l, w, 2 * q), *qy = lensrt_clip_o_slots(r, l, w, 2 * q + 1);
+            double hx = 0.0, hy = 0.0;
+            for (k = 0; k < ns; k++) {
+                hx += qx[k] * mono[k];
+                hy += qy[k] * mono[k];
+            }
+            if (hx * hx + hy * hy > r->clip_limit[q] * r->clip_limit[q]) *amp = 0.0;
+        }
+    }
     *amp *= sqrt(tau > 0 ? tau : 0.0);
     if (r->desc.precision == LENSRT_PRECISION_NAIVE_FLOAT) opl += r->light_d[l];
     *opl_out = opl;
