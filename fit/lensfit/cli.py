@@ -252,7 +252,12 @@ def _fit_ghosts(lens, ghosts, info: dict, light: tuple[float, float],
 def cmd_ghosts(args: argparse.Namespace) -> int:
     """The ghosts of a lens ranked by peak irradiance relative to the direct PSF's
     (lensfit.ghosts.enumerate): every check before the trace, the table or JSON after."""
-    from lensfit.ghosts.enumerate import check_light, enumerate_ghosts, select_ghosts
+    from lensfit.ghosts.enumerate import (
+        check_light,
+        enumerate_ghosts,
+        parse_ghost,
+        select_ghosts,
+    )
     from lensfit.paraxial import stop_radius_for_f_number
     from lensfit.prescription import load_lens
 
@@ -278,8 +283,10 @@ def cmd_ghosts(args: argparse.Namespace) -> int:
         _launch(lens, light, 100, np.array([550.0]), args.distance)
     except InputError as e:
         raise InputError(f"--distance {args.distance:g}: {e}") from None
+    pairs = ([parse_ghost(lens, name, "--ghost") for arg in args.ghost
+              for name in arg.split(",")] if args.ghost else None)
     source = _direct_fit(lens, args) if args.fit else None
-    ghosts = enumerate_ghosts(lens, f_number=args.f_number, light=light,
+    ghosts = enumerate_ghosts(lens, f_number=args.f_number, light=light, pairs=pairs,
                               distance_mm=args.distance, rays=args.rays,
                               fine_rays=max(100, args.rays // 5))
     select_ghosts(ghosts, count=args.count, threshold=args.threshold)
@@ -607,7 +614,23 @@ def cmd_scene(args: argparse.Namespace) -> int:
     files = scene_files(lens, special, scene.name, args.scene, systems.trust)
     c_files = {name: text for name, text in files.items() if name.endswith((".c", ".h"))}
     out = Path(args.out) if args.out else gen / "scenes" / scene.name
+    ghost_files: dict[str, str] = {}
+    if scene.flares:
+        # The fitted ghosts the scene keeps, each specialised as the direct systems are
+        from lensfit.ghosts.scene import choose_ghosts, fitted_ghosts
+
+        fitted = fitted_ghosts(gen, args.lens)
+        chosen = choose_ghosts(lens, scene, fitted)
+        for label in chosen:
+            table = fitted[label]
+            ghost_files |= scene_files(lens, sc.specialise(table, scene), scene.name,
+                                       args.scene, table.trust, table.ghost)
     write_folder(out, files)
+    if ghost_files or (out / "ghosts").exists():
+        write_folder(out / "ghosts", ghost_files)
+        for old in (out / "ghosts").iterdir():  # ghosts the scene no longer keeps
+            if old.name not in ghost_files:
+                old.unlink()
     general = emit_c(systems, lens_prefix(lens))
     rows = {
         "general_terms": sc.terms(systems),
@@ -615,6 +638,7 @@ def cmd_scene(args: argparse.Namespace) -> int:
         "general_c_bytes": sum(len(t) for t in general.values()),
         "scene_c_bytes": sum(len(t) for t in c_files.values()),
         "systems": [],
+        "ghosts": chosen if scene.flares else [],
     }
     if not args.no_timing:
         by = {s.name: s for s in systems}
@@ -630,6 +654,8 @@ def cmd_scene(args: argparse.Namespace) -> int:
     print(f"wrote {out}/")
     print(f"  terms  {rows['general_terms']} general -> {rows['scene_terms']} for this scene")
     print(f"  C      {rows['general_c_bytes']} bytes -> {rows['scene_c_bytes']} bytes")
+    if scene.flares:
+        print(f"  flares ghosts {', '.join(chosen)} in {out / 'ghosts'}/")
     for r in rows["systems"]:
         print(f"  {r['system']:10s} {r['general_terms']:4d} -> {r['terms']:4d} terms, "
               f"{r['ns_general']:.0f} -> {r['ns_scene']:.0f} ns per evaluation (double)")
@@ -683,6 +709,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--rays", type=int, default=20000,
                    help="rays per wavelength over the front (default 20000; a fifth of "
                         "that per ghost in the second pass)")
+    p.add_argument("--ghost", action="append", default=[], metavar="I-J",
+                   help="only these ghosts, in the lens file's numbering (repeatable or a "
+                        "comma list)")
     p.add_argument("--fit", action="store_true",
                    help="fit the kept ghosts over the direct fit's domain and write their "
                         "tables to <generated>/<lens folder>/ghosts/")

@@ -32,7 +32,7 @@ from typing import Any
 
 from lensfit.codegen import emit_c, emit_glsl, write_table
 from lensfit.codegen.c_horner import file_stem
-from lensfit.codegen.table import Table, read_table
+from lensfit.codegen.table import GhostLines, Table, read_table
 from lensfit.errors import InputError
 from lensfit.facts import LensFacts, lens_facts
 from lensfit.poly import System
@@ -78,11 +78,12 @@ def sources_for(systems: Sequence[System], prefix: str, comment: str, *,
 
 
 def table_file(systems: Sequence[System], prefix: str, comment: str,
-               facts: LensFacts | None, trust: dict[str, Any] | None = None
-               ) -> dict[str, str]:
-    """The coefficient table the runtime loads, ``{"<stem>.table": text}``."""
+               facts: LensFacts | None, trust: dict[str, Any] | None = None,
+               ghost: GhostLines | None = None) -> dict[str, str]:
+    """The coefficient table the runtime loads, ``{"<stem>.table": text}`` (a ghost
+    table with ``ghost``)."""
     return {f"{file_stem(prefix)}.table": write_table(systems, comment=comment, lens=facts,
-                                                      trust=trust)}
+                                                      trust=trust, ghost=ghost)}
 
 
 def lens_files(lens: Lens, systems: Sequence[System], meta: dict[str, Any],
@@ -127,14 +128,20 @@ def regenerate(folder: Path) -> tuple[Lens, list[str]]:
 
 
 def scene_files(lens: Lens, special: Sequence[System], scene_name: str,
-                scene_file: str, trust: dict[str, Any]) -> dict[str, str]:
+                scene_file: str, trust: dict[str, Any],
+                ghost: GhostLines | None = None) -> dict[str, str]:
     """The files of ``scenes/<name>/`` for the specialised systems ``special``: Horner C
     and the table, which carries the lens's facts and ``trust`` like the lens folder's
-    (a specialisation is the same polynomials with inputs folded in)."""
+    (a specialisation is the same polynomials with inputs folded in). With ``ghost``, the
+    files of that ghost (for ``scenes/<name>/ghosts/``)."""
     prefix = f"{lens_prefix(lens)}{scene_name.replace('-', '_')}_"
-    comment = header_comment(lens, f"Specialised for scene {Path(scene_file).name}.")
+    extra = f"Specialised for scene {Path(scene_file).name}."
+    if ghost is not None:
+        prefix += f"ghost_{ghost.first}_{ghost.second}_"
+        extra = f"Ghost {ghost.label}, specialised for scene {Path(scene_file).name}."
+    comment = header_comment(lens, extra)
     return emit_c(special, prefix, header_comment=comment) | table_file(
-        special, prefix, comment, lens_facts(lens), trust)
+        special, prefix, comment, lens_facts(lens), trust, ghost)
 
 
 def header_comment(lens: Lens, extra: str = "") -> str:

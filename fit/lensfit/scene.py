@@ -18,7 +18,11 @@ constant phase). Scene file (TOML)::
     f_number = 8.0                   # the stop a scene fit covers (lensfit fit --scene)
     clip = true
     transmittance = true
-    flares = false
+    flares = false                   # true: the lens's fitted ghosts too (below)
+    ghosts = ["0-2", "4-8"]          # with flares: these ghosts (the lens file's numbers),
+    # or ghost_count = 2             #   the K brightest for the scene's lights,
+    # or ghost_threshold = 1e-5      #   or those peaking above this share of the PSF
+    #                                #   peak (the default when none of the three is given)
     [[light]]
     field_x_deg = 0.0                # field angles, the designers' convention (README,
     field_y_deg = 5.0                # "Conventions"): this light is imaged at +y
@@ -90,6 +94,9 @@ class Scene:
     flares: bool = False
     source_file: str = field(default="<memory>", compare=False)
     f_number: float | None = None  # the stop a scene fit covers (default: the lens's)
+    ghosts: tuple[str, ...] | None = None  # flares: these ghosts ("i-j", file numbering)
+    ghost_count: int | None = None  # flares: the K brightest for the scene's lights
+    ghost_threshold: float | None = None  # flares: relative PSF peak (default 1e-5)
 
     @classmethod
     def from_dict(cls, d: dict[str, Any], source: str = "<memory>") -> Scene:
@@ -97,7 +104,8 @@ class Scene:
             return SceneError(f"{source}: key '{key}': {want}, found {value!r}")
 
         known = {"name", "wavelengths_nm", "light", "focus_offset_mm", "clip",
-                 "transmittance", "flares", "f_number"}
+                 "transmittance", "flares", "f_number", "ghosts", "ghost_count",
+                 "ghost_threshold"}
         for k in d:
             if k not in known:
                 raise fail(k, d[k], f"unknown key (known: {', '.join(sorted(known))})")
@@ -156,9 +164,40 @@ class Scene:
             if not isinstance(v, bool):
                 raise fail(k, v, "expected true or false")
             flags[k] = v
+        choice = _ghost_choice(d, flags["flares"], fail)
         return cls(name, tuple(float(v) for v in lam), tuple(lights),
                    None if focus is None else float(focus), source_file=source,
-                   f_number=None if f_number is None else float(f_number), **flags)
+                   f_number=None if f_number is None else float(f_number), **flags,
+                   **choice)
+
+
+def _ghost_choice(d: dict[str, Any], flares: bool, fail) -> dict[str, Any]:
+    """The scene's ghost choice: at most one of ghosts, ghost_count and ghost_threshold,
+    and only with flares = true."""
+    keys = [k for k in ("ghosts", "ghost_count", "ghost_threshold") if k in d]
+    if keys and not flares:
+        raise fail(keys[0], d[keys[0]], "chooses ghosts, which needs flares = true")
+    if len(keys) > 1:
+        raise fail(keys[1], d[keys[1]], f"expected one of ghosts, ghost_count and "
+                                        f"ghost_threshold, found {' and '.join(keys)}")
+    out: dict[str, Any] = {}
+    if "ghosts" in d:
+        v = d["ghosts"]
+        if not (isinstance(v, list) and v and all(isinstance(g, str) for g in v)):
+            raise fail("ghosts", v, 'expected a non-empty list of ghosts like ["4-8"]')
+        out["ghosts"] = tuple(v)
+    if "ghost_count" in d:
+        v = d["ghost_count"]
+        if isinstance(v, bool) or not isinstance(v, int) or v < 1:
+            raise fail("ghost_count", v, "expected a positive number of ghosts")
+        out["ghost_count"] = v
+    if "ghost_threshold" in d:
+        v = d["ghost_threshold"]
+        if (isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v)
+                or not 0 < v < 1):
+            raise fail("ghost_threshold", v, "expected a share of the PSF peak in (0, 1)")
+        out["ghost_threshold"] = float(v)
+    return out
 
 
 def load_scene(path: str | Path) -> Scene:
@@ -225,10 +264,10 @@ def _finish(scene: Scene, system: System, fixed: dict[str, float], name: str,
 
 
 def specialise(systems: list[System], scene: Scene) -> list[System]:
-    """The systems ``scene`` needs, folded and trimmed (see the module doc)."""
-    if scene.flares:
-        raise SceneError(f"{scene.source_file}: key 'flares': flare paths are not fitted "
-                         "yet; set flares = false")
+    """The systems ``scene`` needs, folded and trimmed (see the module doc): for a
+    direct table P_o per light and P_s; for a ghost table (``systems.ghost``) also
+    P_clip, folded as its ghost side is. The ghosts of a scene with flares are chosen
+    and specialised by :mod:`lensfit.ghosts.scene`."""
     by_name = {s.name: s for s in systems}
     if "P_o" not in by_name or "P_s" not in by_name:
         raise SceneError(f"{scene.source_file}: the lens has no fitted P_o and P_s")
@@ -243,6 +282,15 @@ def specialise(systems: list[System], scene: Scene) -> list[System]:
     if scene.focus_offset_mm is not None:
         fixed_s["z_S"] = scene.focus_offset_mm
     out.append(_finish(scene, by_name["P_s"], fixed_s, "P_s", "focus_offset_mm"))
+    ghost = getattr(systems, "ghost", None)
+    if ghost is not None and "P_clip" in by_name and scene.clip:
+        clip = by_name["P_clip"]
+        if ghost.side == "P_s":
+            out.append(_finish(scene, clip, fixed_s, "P_clip", "focus_offset_mm"))
+        else:
+            for i, light in enumerate(scene.lights):
+                out.append(_finish(scene, clip, {**light.inputs(), **lam},
+                                   f"P_clip_light{i}", f"light[{i}]"))
     return out
 
 

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import re
 from pathlib import Path
 
 import numpy as np
@@ -326,9 +327,24 @@ def test_scene_outside_the_fitted_domain_is_refused(general, changes, where, wha
     assert "outside the fitted" in msg
 
 
-def test_flares_and_missing_systems_are_refused(general):
-    with pytest.raises(SceneError, match=r"flare.toml: key 'flares': .*set flares = false"):
-        specialise(general, Scene.from_dict(_with(flares=True), "flare.toml"))
+@pytest.mark.parametrize("changes, key, what", [
+    ({"ghosts": ["4-8"]}, "ghosts", "needs flares = true"),
+    ({"flares": True, "ghosts": ["4-8"], "ghost_count": 2}, "ghost_count", "one of ghosts"),
+    ({"flares": True, "ghosts": []}, "ghosts", "non-empty list"),
+    ({"flares": True, "ghosts": [4]}, "ghosts", "non-empty list"),
+    ({"flares": True, "ghost_count": 0}, "ghost_count", "positive number"),
+    ({"flares": True, "ghost_count": True}, "ghost_count", "positive number"),
+    ({"flares": True, "ghost_threshold": 2.0}, "ghost_threshold", "in (0, 1)"),
+    ({"flares": True, "ghost_threshold": "1e-5"}, "ghost_threshold", "in (0, 1)"),
+])
+def test_ghost_choice_is_checked(changes, key, what):
+    with pytest.raises(SceneError, match=rf"flare.toml: key '{key}': .*{re.escape(what)}"):
+        Scene.from_dict(_with(**changes), "flare.toml")
+    sc = Scene.from_dict(_with(flares=True, ghost_count=3), "flare.toml")
+    assert (sc.flares, sc.ghost_count, sc.ghosts, sc.ghost_threshold) == (True, 3, None, None)
+
+
+def test_missing_systems_are_refused(general):
     with pytest.raises(SceneError, match="no fitted P_o and P_s"):
         specialise(general[:1], Scene.from_dict(VALID))
 

@@ -411,30 +411,34 @@ def _ghost(lines: _Lines) -> GhostLines | None:
 
 def _check_ghost_systems(ghost: GhostLines, systems: list[System]) -> None:
     """A ghost table's systems: P_o, P_s and P_clip, P_clip with the ghost side's inputs
-    and (x, y) pairs named and united as the module doc says."""
+    and (x, y) pairs named and united as the module doc says. A scene's specialisation
+    (``lensfit scene``) has P_o_light<i> (and P_clip_light<i> on side P_o) instead."""
     names = [s.name for s in systems]
-    if sorted(names) not in (["P_clip", "P_o", "P_s"], ["P_o", "P_s"]):
+    general = sorted(names) in (["P_clip", "P_o", "P_s"], ["P_o", "P_s"])
+    if not general and not all(re.fullmatch(r"(P_o|P_s|P_clip)(_light[0-9]+)?", n)
+                               for n in names):
         raise ValueError(f"ghost table: expected systems P_o, P_s and {CLIP_SYSTEM}, found "
                          f"{', '.join(names)}")
     by = {s.name: s for s in systems}
     clip = by.get(CLIP_SYSTEM)
-    if clip is None:
-        return
-    if clip.inputs != by[ghost.side].inputs:
+    if general and clip is not None and clip.inputs != by[ghost.side].inputs:
         raise ValueError(f"ghost table: {CLIP_SYSTEM}'s inputs differ from those of "
                          f"{ghost.side}, the ghost side")
-    outs = clip.outputs
-    if not outs or len(outs) % 2 or len(outs) > 8:
-        raise ValueError(f"ghost table: {CLIP_SYSTEM} has {len(outs)} outputs; expected "
-                         f"2 to 8 in (x, y) pairs")
-    for px, py in zip(outs[::2], outs[1::2], strict=True):
-        m = re.fullmatch(r"x_([hs])([0-9]+)", px.output)
-        ok = (m is not None and py.output == f"y_{m[1]}{m[2]}" and px.unit == py.unit
-              == ("1" if m[1] == "h" else "mm"))
-        if not ok:
-            raise ValueError(f"ghost table: {CLIP_SYSTEM} outputs {px.output!r} "
-                             f"({px.unit}), {py.output!r} ({py.unit}): expected a pair "
-                             f"x_h<k>, y_h<k> (unit 1) or x_s<c>, y_s<c> (unit mm)")
+    for c in systems:
+        if not c.name.startswith(CLIP_SYSTEM):
+            continue
+        outs = c.outputs
+        if not outs or len(outs) % 2 or len(outs) > 8:
+            raise ValueError(f"ghost table: {c.name} has {len(outs)} outputs; expected "
+                             f"2 to 8 in (x, y) pairs")
+        for px, py in zip(outs[::2], outs[1::2], strict=True):
+            m = re.fullmatch(r"x_([hs])([0-9]+)", px.output)
+            ok = (m is not None and py.output == f"y_{m[1]}{m[2]}" and px.unit == py.unit
+                  == ("1" if m[1] == "h" else "mm"))
+            if not ok:
+                raise ValueError(f"ghost table: {c.name} outputs {px.output!r} "
+                                 f"({px.unit}), {py.output!r} ({py.unit}): expected a pair "
+                                 f"x_h<k>, y_h<k> (unit 1) or x_s<c>, y_s<c> (unit mm)")
 
 
 def read_table(text: str) -> Table:

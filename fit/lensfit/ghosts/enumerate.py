@@ -60,6 +60,7 @@ the chosen f-number and every housing clipping at every crossing:
 from __future__ import annotations
 
 import math
+import re
 from dataclasses import asdict, dataclass, field
 
 import numpy as np
@@ -142,6 +143,31 @@ def ghost_pairs(lens: Lens) -> list[tuple[int, int]]:
     """Every ghost (i, j), i < j, of the model's surfaces: n (n - 1) / 2 of them."""
     ks = ghost_surfaces(lens)
     return [(i, j) for a, i in enumerate(ks) for j in ks[a + 1:]]
+
+
+def parse_ghost(lens: Lens, name: str, where: str) -> tuple[int, int]:
+    """Model indices (i, j) of a ghost named "i-j" in the lens file's numbering (as
+    ``lensfit ghosts`` prints it). ``where`` starts the error message (the file and key,
+    or the option)."""
+    m = re.fullmatch(r"\s*([0-9]+)\s*-\s*([0-9]+)\s*", str(name))
+    if not m:
+        raise InputError(f"{where} {name!r}: expected a ghost as i-j, the lens file's "
+                         f"surface numbers (as `lensfit ghosts` prints them)")
+    by_file = {lens.file_index(k): k for k in ghost_surfaces(lens)}
+    n_file = max(lens.file_index(k) or 0 for k in range(len(lens.surfaces))) + 1
+    out = []
+    for v in (int(m[1]), int(m[2])):
+        if v >= n_file:
+            raise InputError(f"{where} {name!r}: surface {v} is out of range: {lens.name} "
+                             f"has surfaces 0..{n_file - 1}")
+        if v not in by_file:
+            raise InputError(f"{where} {name!r}: surface {v} is the stop, which reflects "
+                             f"no ghost")
+        out.append(by_file[v])
+    i, j = out
+    if not i < j:
+        raise InputError(f"{where} {name!r}: expected i < j (reflect at j, then at i)")
+    return i, j
 
 
 def _case(lens: Lens, i: int, j: int) -> str:

@@ -91,14 +91,14 @@ def ghost_trust(lens: Lens, table: Table, half: GhostHalf, *, f_number: float,
     no_clip = Table([s for s in table if s.name != CLIP_SYSTEM], table.lens, 3, table.trust,
                     table.ghost)
     p_s = next(s for s in table if s.name == "P_s")
-    box = [next(i for i in p_s.inputs if i.name == n) for n in ("x_S", "y_S")]
+    disc = next(i for i in p_s.inputs if i.name == "x_S").hi  # the fitted sensor disc
     cells = []
     for lam in wavelengths_nm:
-        # The window: around the ghost, inside the sensor region the fit covers
+        # The window: around the ghost, its corners inside the sensor disc the fit
+        # sampled (the box's corners beyond it are extrapolation)
         half_width = max(WINDOW_RADII * radius_mm, WINDOW_AIRY * lam * 1e-6 * f_number)
-        half_width = min(half_width, *(0.5 * (b.hi - b.lo) for b in box))
-        cx, cy = (min(max(c, b.lo + half_width), b.hi - half_width)
-                  for c, b in zip(centre_mm, box, strict=True))
+        half_width = min(half_width, disc / math.sqrt(2.0))
+        cx, cy = _inside_disc(centre_mm, half_width, disc)
         kw = dict(stop_radius_mm=r, aperture_xy_mm=ap, wavelength_nm=lam, width=pixels,
                   height=pixels, width_mm=2 * half_width, center_x_mm=cx, center_y_mm=cy,
                   field_deg=field_deg)
@@ -115,6 +115,22 @@ def ghost_trust(lens: Lens, table: Table, half: GhostHalf, *, f_number: float,
                                float(np.linalg.norm(ip - ie) / np.linalg.norm(ie)),
                                float(ip.sum()) / e, float(inn.sum()) / e, seconds))
     return cells
+
+
+def _inside_disc(centre: tuple[float, float], half_width: float, radius: float
+                 ) -> tuple[float, float]:
+    """The centre moved towards the axis (if need be) until every corner of the square
+    window of ``half_width`` around it lies in the disc of ``radius``."""
+    def fits(t: float) -> bool:
+        return math.hypot(abs(t * centre[0]) + half_width,
+                          abs(t * centre[1]) + half_width) <= radius * (1 + 1e-12)
+    if fits(1.0):
+        return centre
+    lo, hi = 0.0, 1.0  # fits(0) holds: half_width <= radius / sqrt(2)
+    for _ in range(60):
+        mid = 0.5 * (lo + hi)
+        lo, hi = (mid, hi) if fits(mid) else (lo, mid)
+    return lo * centre[0], lo * centre[1]
 
 
 def trust_lines(cells: list[TrustCell]) -> dict[str, Any]:

@@ -34,8 +34,11 @@ def direct() -> Table:
     return read_table((FOLDER / "lens0001.table").read_text())
 
 
-def _ghost_text(direct: Table, clip: System | None, ghost=GhostLines(4, 8, "4-8", "P_s")) -> str:
-    systems = [s for s in direct] + ([clip] if clip else [])
+GHOST_4_8 = GhostLines(4, 8, "4-8", "P_s")
+
+
+def _ghost_text(direct: Table, clip: System | None, ghost: GhostLines = GHOST_4_8) -> str:
+    systems = [*direct] + ([clip] if clip else [])
     return write_table(Table(systems, direct.lens, 3, direct.trust, ghost))
 
 

@@ -76,6 +76,9 @@ def test_table_and_json(singlet, capsys):
     (["--rays", "5"], ["--rays 5"]),
     (["--distance", "0.5"], ["--distance 0.5", "in front of surface 0"]),
     (["--distance", "-3"], ["--distance -3"]),
+    (["--ghost", "0-5"], ["--ghost '0-5'", "surface 5 is out of range", "surfaces 0..1"]),
+    (["--ghost", "1-0"], ["--ghost '1-0'", "expected i < j"]),
+    (["--ghost", "0:1"], ["--ghost '0:1'", "expected a ghost as i-j"]),
     (["--fit", "--generated", "/nonexistent-folder"],
      ["/nonexistent-folder/singlet/fit.json", "not found", "lensfit fit"]),
 ])

@@ -1,0 +1,86 @@
+"""A scene's flares: which of the lens's fitted ghosts it keeps, and their systems.
+
+``lensfit ghosts LENS --fit`` writes the fitted ghosts to ``generated/<lens>/ghosts/``
+(ghosts.json and one table per ghost). A scene with ``flares = true`` keeps:
+
+* ``ghosts = ["i-j", ...]``: exactly these (the lens file's numbering);
+* ``ghost_count = K``: the K brightest for the scene's own lights and stop;
+* ``ghost_threshold = T`` (default 1e-5 when none of the three is given): those whose
+  peak is above T of the direct PSF's peak for at least one of the scene's lights.
+
+Brightness is the enumeration's exact-ray estimate (:func:`lensfit.ghosts.enumerate.
+enumerate_ghosts`) for each light at the scene's f-number (wide open without one),
+restricted to the fitted ghosts. Each kept ghost is then specialised as the direct
+systems are (:func:`lensfit.scene.specialise`, P_clip folded with its ghost side).
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+from lensfit.codegen.table import Table, read_table
+from lensfit.errors import InputError
+from lensfit.ghosts.enumerate import DEFAULT_THRESHOLD, enumerate_ghosts, parse_ghost
+from lensfit.prescription.model import Lens
+from lensfit.scene import Scene, SceneError
+
+
+def fitted_ghosts(folder: Path, lens_arg: str) -> dict[str, Table]:
+    """The fitted ghost tables of a lens folder, by label ("4-8"), in ghosts.json's
+    order; an error naming the file when there are none or one is unreadable."""
+    index = folder / "ghosts" / "ghosts.json"
+    if not index.is_file():
+        raise InputError(f"{index}: not found: the lens has no fitted ghosts; run "
+                         f"`lensfit ghosts {lens_arg} --fit` (with --count or --ghost)")
+    try:
+        doc = json.loads(index.read_text(encoding="utf-8"))
+        entries = [(g["label"], g["first"], g["second"]) for g in doc["ghosts"]]
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError, KeyError, TypeError) as e:
+        raise InputError(f"{index}: cannot read the fitted ghosts: {e}") from None
+    out = {}
+    for label, i, j in entries:
+        path = index.parent / f"ghost_{i}_{j}.table"
+        try:
+            table = read_table(path.read_text(encoding="utf-8"))
+        except (OSError, UnicodeDecodeError, ValueError) as e:
+            raise InputError(f"{path}: {e}") from None
+        if table.ghost is None or table.ghost.label != label:
+            raise InputError(f"{path}: expected the ghost table of {label}")
+        out[label] = table
+    return out
+
+
+def choose_ghosts(lens: Lens, scene: Scene, fitted: dict[str, Table]) -> list[str]:
+    """The labels of the fitted ghosts ``scene`` keeps (module doc), brightest first for
+    a count or threshold."""
+    where = f"{scene.source_file}: key 'ghosts':"
+    if scene.ghosts is not None:
+        for name in scene.ghosts:
+            i, j = parse_ghost(lens, name, where)
+            label = f"{lens.file_index(i)}-{lens.file_index(j)}"
+            if label not in fitted:
+                raise SceneError(f"{where} ghost {name!r} is not fitted for {lens.name} "
+                                 f"(fitted: {', '.join(fitted) or 'none'}); run `lensfit "
+                                 f"ghosts LENS --fit --ghost {label}`")
+        return [f"{lens.file_index(i)}-{lens.file_index(j)}" for i, j in
+                (parse_ghost(lens, n, where) for n in scene.ghosts)]
+    pairs = [(t.ghost.first, t.ghost.second) for t in fitted.values()]
+    peak = dict.fromkeys(fitted, 0.0)
+    for light in scene.lights:
+        for g in enumerate_ghosts(lens, f_number=scene.f_number,
+                                  light=(light.field_x_deg, light.field_y_deg),
+                                  distance_mm=light.distance_mm, pairs=pairs):
+            peak[g.name] = max(peak[g.name], g.relative_peak)
+    ranked = sorted(peak, key=lambda k: -peak[k])
+    if scene.ghost_count is not None:
+        return ranked[:scene.ghost_count]
+    threshold = scene.ghost_threshold or DEFAULT_THRESHOLD
+    keep = [k for k in ranked if peak[k] > threshold]
+    if not keep:
+        key = "ghost_threshold" if scene.ghost_threshold else "flares"
+        raise SceneError(f"{scene.source_file}: key '{key}': no fitted ghost of {lens.name} "
+                         f"peaks above {threshold:g} of the PSF peak for this scene's "
+                         f"lights (the brightest, {ranked[0]}, peaks at "
+                         f"{peak[ranked[0]]:.3g}); set ghost_count or ghosts instead")
+    return keep
