@@ -47,6 +47,9 @@ struct lensrt_gl_render_s {
     int *k;                /* [w][4]: basis terms per output (-1: not yet known) */
     int nb;                /* basis functions per output (n_slots - 1) */
     long npix, chunk;      /* pixels, pixels per chunk */
+    /* A ghost's P_clip pairs on side P_s: per pixel record, per pair a flag (tested) and
+     * both outputs' stop-monomial coefficients; 0 floats for every other render */
+    int clip_rec;
     char defines[4096];    /* the scene's constants, for every shader */
     float *inside;         /* [LENSRT_PASS] aperture-shape mask of the pass */
 };
@@ -123,11 +126,44 @@ static void set_ivec4(lensrt_gl *gl, GLuint program, const char *name, const int
     if (at >= 0) gl->Uniform4i(at, v[0], v[1], v[2], v[3]);
 }
 
+/* A ghost's P_clip tests on side P_s for splat.comp, as straight-line code (a macro
+ * the shader expands in clip_weight(b, s)): per pair q, when the pixel's record says it
+ * is tested, x and y as dot products of its coefficients (records[b + ...]) with the
+ * sample's stop monomials (rows after the basis rows), and w = 0 when x^2 + y^2 exceeds
+ * the pair's limit. No loop: llvmpipe ends an invocation after 65,535 loop iterations in
+ * all, and the splat loop over a pass's samples already takes 16,384 of them. The text,
+ * allocated through the context; NULL when out of memory. */
+static char *clip_code(lensrt_render r)
+{
+    const int ns = r->n_slots, nb = r->n_slots - 1, K = r->n_clip_pairs;
+    const size_t size = 256 + (size_t)K * (2 * (size_t)ns * 48 + 256);
+    char *t = lensrt_alloc(r->ctx, size);
+    size_t used;
+    int q, a, k;
+    if (!t) return NULL;
+    used = (size_t)snprintf(t, size, "#define CLIP_WEIGHT_BODY ");
+    for (q = 0; q < K; q++) {
+        const int at = q * (1 + 2 * ns);
+        used += (size_t)snprintf(t + used, size - used, "if (records[b + %du] != 0.0) { ", at);
+        for (a = 0; a < 2; a++) {
+            used += (size_t)snprintf(t + used, size - used, "%s = 0.0", a ? "hy" : "hx");
+            for (k = 0; k < ns; k++)
+                used += (size_t)snprintf(t + used, size - used, " + records[b + %du] * rows[%luu + s]",
+                                         at + 1 + a * ns + k, (unsigned long)(4 * nb + k) * LENSRT_PASS);
+            used += (size_t)snprintf(t + used, size - used, "; ");
+        }
+        used += (size_t)snprintf(t + used, size - used, "if (hx * hx + hy * hy > float(CLIP_LIMIT2_%d)) w = 0.0; } ", q);
+    }
+    snprintf(t + used, size - used, "\n");
+    return t;
+}
+
 /* The splat program for basis term counts k (per output), compiled on first use. */
 static lensrt_result splat_program(lensrt_render r, const int k[4], GLuint *out)
 {
     lensrt_gl_render_s *g = GLR(r);
-    char extra[256];
+    char defines[256], *extra, *clip = NULL;
+    size_t n;
     lensrt_result res;
     int i;
     for (i = 0; i < g->n_variants; i++)
@@ -137,8 +173,18 @@ static lensrt_result splat_program(lensrt_render r, const int k[4], GLuint *out)
         }
     if (g->n_variants == MAX_VARIANTS)
         return lensrt_fail(r->ctx, LENSRT_ERROR_DEVICE, "GL: more than %d splat programs", MAX_VARIANTS);
-    snprintf(extra, sizeof extra, "#define KX %d\n#define KY %d\n#define KT %d\n#define KP %d\n", k[0], k[1], k[2], k[3]);
-    if ((res = compile(r, "splat.comp", lensrt_splat_comp, extra, out)) != LENSRT_SUCCESS) return res;
+    snprintf(defines, sizeof defines, "#define KX %d\n#define KY %d\n#define KT %d\n#define KP %d\n", k[0], k[1], k[2], k[3]);
+    if (g->clip_rec && !(clip = clip_code(r))) return lensrt_fail(r->ctx, LENSRT_ERROR_OUT_OF_MEMORY, "GL: out of memory");
+    n = strlen(defines) + (clip ? strlen(clip) : 0) + 1;
+    if (!(extra = lensrt_alloc(r->ctx, n))) {
+        lensrt_free(r->ctx, clip);
+        return lensrt_fail(r->ctx, LENSRT_ERROR_OUT_OF_MEMORY, "GL: out of memory");
+    }
+    snprintf(extra, n, "%s%s", defines, clip ? clip : "");
+    lensrt_free(r->ctx, clip);
+    res = compile(r, "splat.comp", lensrt_splat_comp, extra, out);
+    lensrt_free(r->ctx, extra);
+    if (res != LENSRT_SUCCESS) return res;
     memcpy(g->variants[g->n_variants].k, k, sizeof g->variants[0].k);
     g->variants[g->n_variants++].program = *out;
     return LENSRT_SUCCESS;
@@ -169,32 +215,44 @@ static lensrt_result upload_polynomials(lensrt_render r)
     double *coef;
     GLuint *code, *off;
     int t;
-    for (i = 0; i < (size_t)r->n_wl * 4; i++) n += (size_t)r->ps[i].n;
+    // Entries (w, o) of P_s, then those of a ghost's P_clip on side P_s (w, o < 2K), one
+    // list: entry e's terms are [off[e], off[e + 1])
+    const size_t n_ps = (size_t)r->n_wl * 4, n_clip = r->clip_s ? (size_t)r->n_wl * 2 * (size_t)r->n_clip_pairs : 0;
+    const size_t n_po = (size_t)r->n_lights * (size_t)r->n_wl * 4 * (size_t)r->n_slots;
+    const size_t n_clip_o = r->clip_o ? (size_t)r->n_lights * (size_t)r->n_wl * 2 * (size_t)r->n_clip_pairs * (size_t)r->n_slots : 0;
+    double *po;
+    for (i = 0; i < n_ps + n_clip; i++) n += (size_t)(i < n_ps ? r->ps[i].n : r->clip_s[i - n_ps].n);
     coef = lensrt_calloc(r->ctx, n + 1, sizeof *coef);
     code = lensrt_calloc(r->ctx, n + 1, sizeof *code);
-    off = lensrt_calloc(r->ctx, (size_t)r->n_wl * 4 + 1, sizeof *off);
-    if (!coef || !code || !off) {
+    off = lensrt_calloc(r->ctx, n_ps + n_clip + 1, sizeof *off);
+    po = lensrt_calloc(r->ctx, n_po + n_clip_o + 1, sizeof *po);
+    if (!coef || !code || !off || !po) {
         lensrt_free(r->ctx, coef);
         lensrt_free(r->ctx, code);
         lensrt_free(r->ctx, off);
+        lensrt_free(r->ctx, po);
         return lensrt_fail(r->ctx, LENSRT_ERROR_OUT_OF_MEMORY, "GL: out of memory");
     }
-    for (i = 0; i < (size_t)r->n_wl * 4; i++) {
-        const lensrt_pixel_poly *p = &r->ps[i];
+    for (i = 0; i < n_ps + n_clip; i++) {
+        const lensrt_pixel_poly *p = i < n_ps ? &r->ps[i] : &r->clip_s[i - n_ps];
         off[i] = (GLuint)at;
         for (t = 0; t < p->n; t++, at++) {
             coef[at] = p->coef[t];
             code[at] = (GLuint)p->ix[t] | (GLuint)p->iy[t] << 8 | (GLuint)p->slot[t] << 16;
         }
     }
-    off[(size_t)r->n_wl * 4] = (GLuint)at;
+    off[n_ps + n_clip] = (GLuint)at;
     upload(gl, GLR(r)->buffers[B_PSCOEF], n * sizeof *coef, coef);
     upload(gl, GLR(r)->buffers[B_PSCODE], n * sizeof *code, code);
-    upload(gl, GLR(r)->buffers[B_PSOFF], ((size_t)r->n_wl * 4 + 1) * sizeof *off, off);
+    upload(gl, GLR(r)->buffers[B_PSOFF], (n_ps + n_clip + 1) * sizeof *off, off);
     lensrt_free(r->ctx, coef);
     lensrt_free(r->ctx, code);
     lensrt_free(r->ctx, off);
-    upload(gl, GLR(r)->buffers[B_PO], (size_t)r->n_lights * (size_t)r->n_wl * 4 * (size_t)r->n_slots * sizeof(double), r->po);
+    // P_o per light and wavelength, then a ghost's P_clip on side P_o likewise
+    memcpy(po, r->po, n_po * sizeof *po);
+    if (n_clip_o) memcpy(po + n_po, r->clip_o, n_clip_o * sizeof *po);
+    upload(gl, GLR(r)->buffers[B_PO], (n_po + n_clip_o) * sizeof *po, po);
+    lensrt_free(r->ctx, po);
     upload(gl, GLR(r)->buffers[B_BASIS], (size_t)r->n_wl * 4 * (size_t)GLR(r)->nb * (size_t)GLR(r)->nb * sizeof(double), r->basis);
     // l1 norms of the basis vectors: |V_j|_1 bounds how much a dropped u_j can change
     {
@@ -227,6 +285,8 @@ static void scene_defines(lensrt_render r)
     append_int(d, size, "NAIVE", r->desc.precision == LENSRT_PRECISION_NAIVE_FLOAT);
     append_int(d, size, "UNBIASED", r->desc.estimator == LENSRT_ESTIMATOR_UNBIASED);
     append_int(d, size, "ANALYTIC", free_space(r));
+    append_int(d, size, "NCLIP_O", r->clip_o ? r->n_clip_pairs : 0);
+    append_int(d, size, "NCLIP_S", r->clip_s ? r->n_clip_pairs : 0);
     if (free_space(r)) {
         // Placeholders keep the fitted-lens declarations valid
         append_int(d, size, "NS", 2);
@@ -255,6 +315,18 @@ static void scene_defines(lensrt_render r)
     append_double(d, size, "TOL_PHASE", lensrt_output_limit(r, 3, 0.0));
     // The Huygens amplitude's finite-difference step, as on the CPU
     append_double(d, size, "STEP_MM", lensrt_huygens_step(r));
+    // A ghost's P_clip pairs (NCLIP_O, NCLIP_S above; none for direct renders: the code
+    // is compiled out): on side P_o tested per sample (samples.comp), on side P_s decided
+    // per pixel and tested per splat (pixels.comp, splat.comp); pair q passes when
+    // x^2 + y^2 <= CLIP_LIMIT2_q
+    {
+        int q;
+        char name[32];
+        for (q = 0; q < LENSRT_MAX_CLIP_PAIRS; q++) {
+            snprintf(name, sizeof name, "CLIP_LIMIT2_%d", q);
+            append_double(d, size, name, q < r->n_clip_pairs ? r->clip_limit[q] * r->clip_limit[q] : 1.0);
+        }
+    }
 }
 
 static lensrt_result gl_create(lensrt_render r)
@@ -276,13 +348,6 @@ static lensrt_result gl_create(lensrt_render r)
         if (r->lens->p_s.inputs[0].transform != LENSRT_TRANSFORM_AFFINE ||
             r->lens->p_s.inputs[1].transform != LENSRT_TRANSFORM_AFFINE)
             return lensrt_fail(r->ctx, LENSRT_ERROR_UNSUPPORTED, "device gl: %s: sensor inputs must be affine", r->lens->file);
-        // A ghost's clip tests (P_clip) are the CPU device's only, so far
-        if (r->n_clip_pairs)
-            return lensrt_fail(r->ctx, LENSRT_ERROR_UNSUPPORTED,
-                               "device gl: %s: ghost %s (surfaces %d, %d) has %d P_clip test(s), which the GL path "
-                               "does not evaluate yet; render it on the CPU device",
-                               r->lens->file, r->lens->ghost_label, r->lens->ghost_first, r->lens->ghost_second,
-                               r->n_clip_pairs);
     }
     if ((res = lensrt_gl_get(r->ctx, &gl)) != LENSRT_SUCCESS) return res;
     g = lensrt_calloc(r->ctx, 1, sizeof *g);
@@ -291,8 +356,9 @@ static lensrt_result gl_create(lensrt_render r)
     g->gl = gl;
     g->nb = free_space(r) ? 1 : r->n_slots - 1;
     g->npix = (long)r->width * r->height;
+    g->clip_rec = r->clip_s ? r->n_clip_pairs * (1 + 2 * r->n_slots) : 0;
     // Chunks: records of at most RECORD_BYTES, and a dispatch within the group limit
-    g->chunk = (long)(RECORD_BYTES / ((6u + 4u * (unsigned)g->nb) * sizeof(float)));
+    g->chunk = (long)(RECORD_BYTES / ((6u + 4u * (unsigned)g->nb + (unsigned)g->clip_rec) * sizeof(float)));
     if (g->chunk > (long)gl->max_groups_x * GROUP) g->chunk = (long)gl->max_groups_x * GROUP;
     if (g->chunk > g->npix) g->chunk = g->npix;
     g->k = lensrt_calloc(r->ctx, (size_t)r->n_wl * 4, sizeof(int));
@@ -336,8 +402,12 @@ static lensrt_result gl_create(lensrt_render r)
         upload(gl, g->buffers[B_SUMS], nsum * 2 * sizeof(double), NULL);
         upload(gl, g->buffers[B_SUMSQ], r->sumsq ? nsum * sizeof(double) : 0, NULL);
         if (!free_space(r)) {
-            upload(gl, g->buffers[B_ROWS], 4 * (size_t)g->nb * LENSRT_PASS * sizeof(float), NULL);
-            upload(gl, g->buffers[B_RECORDS], (size_t)g->chunk * (6 + 4 * (size_t)g->nb) * sizeof(float), NULL);
+            // Rows: the basis functions of the four outputs, then (a ghost's P_clip on side
+            // P_s) the stop monomials themselves
+            upload(gl, g->buffers[B_ROWS],
+                   (4 * (size_t)g->nb + (r->clip_s ? (size_t)r->n_slots : 0)) * LENSRT_PASS * sizeof(float), NULL);
+            upload(gl, g->buffers[B_RECORDS], (size_t)g->chunk * (6 + 4 * (size_t)g->nb + (size_t)g->clip_rec) * sizeof(float),
+                   NULL);
             upload(gl, g->buffers[B_RANKS], ((size_t)r->n_wl * 4 + 3) * sizeof(GLuint), NULL);
             res = upload_polynomials(r);
         }
@@ -382,7 +452,7 @@ static void dispatch_pixels(lensrt_render r, int w, long first, long count, cons
     set_uint(gl, g->pixels, "u_nw", (unsigned)r->n_wl);
     set_uint(gl, g->pixels, "u_first", (unsigned)first);
     set_uint(gl, g->pixels, "u_count", (unsigned)count);
-    set_uint(gl, g->pixels, "u_stride", (unsigned)(6 + k[0] + k[1] + k[2] + k[3]));
+    set_uint(gl, g->pixels, "u_stride", (unsigned)(6 + k[0] + k[1] + k[2] + k[3] + g->clip_rec));
     set_ivec4(gl, g->pixels, "u_k", k);
     gl->DispatchCompute((GLuint)((count + GROUP - 1) / GROUP), 1, 1);
     gl->MemoryBarrier(GL_SHADER_STORAGE_BARRIER_BIT);
@@ -477,7 +547,7 @@ static lensrt_result gl_pass(lensrt_render r, int w, const double *xy, int n)
         set_uint(gl, splat, "u_n", (unsigned)n);
         set_uint(gl, splat, "u_first", (unsigned)first);
         set_uint(gl, splat, "u_count", (unsigned)count);
-        set_uint(gl, splat, "u_stride", (unsigned)(6 + k[0] + k[1] + k[2] + k[3]));
+        set_uint(gl, splat, "u_stride", (unsigned)(6 + k[0] + k[1] + k[2] + k[3] + g->clip_rec));
         set_uint(gl, splat, "u_npix", (unsigned)g->npix);
         gl->DispatchCompute((GLuint)((count + GROUP - 1) / GROUP), 1, 1);
         gl->MemoryBarrier(GL_SHADER_STORAGE_BARRIER_BIT);

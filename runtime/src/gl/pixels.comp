@@ -14,7 +14,8 @@
 // The host prepends the scene's constants: NS, NB, W (pixels per row), SENSOR_CX,
 // SENSOR_SX, SENSOR_CY, SENSOR_SY (normalisation of x_S, y_S), HOUSING_LAST (mm),
 // LIMIT_PUPIL (mm), LIMIT_TAU_REL, TOL_PHASE (waves): the l1 norm each output may drop
-// (render.c, lensrt_output_limit), STEP_MM, MONO_RADIUS (mm), NAIVE.
+// (render.c, lensrt_output_limit), STEP_MM, MONO_RADIUS (mm), NAIVE, NCLIP_S and
+// CLIP_LIMIT2_0..3 (a ghost's P_clip pairs on side P_s; 0 for direct renders).
 layout(local_size_x = 64) in;
 
 layout(std430, binding = 3) readonly buffer Basis { double basis[]; };  // [(w 4 + o) NB NB + (slot - 1) NB + j]
@@ -32,8 +33,10 @@ uniform uint u_w, u_first, u_count, u_stride;
 uniform ivec4 u_k;  // coefficients written per output (the ranks found so far)
 uniform uint u_nw;
 
-// Coefficients of the stop monomials of output o at normalised sensor point (xh, yh)
-void slot_coefficients(uint o, double xh, double yh, inout double c[NS])
+// Coefficients of the stop monomials of entry e of the term list (e = w 4 + o for P_s,
+// NW 4 + w 2 NCLIP_S + o for a ghost's P_clip on side P_s) at normalised sensor point
+// (xh, yh)
+void entry_coefficients(uint e, double xh, double yh, inout double c[NS])
 {
     double px[16], py[16];
     px[0] = 1.0LF;
@@ -43,10 +46,16 @@ void slot_coefficients(uint o, double xh, double yh, inout double c[NS])
         py[e] = py[e - 1] * yh;
     }
     for (int k = 0; k < NS; k++) c[k] = 0.0LF;
-    for (uint t = ps_off[u_w * 4u + o]; t < ps_off[u_w * 4u + o + 1u]; t++) {
+    for (uint t = ps_off[e]; t < ps_off[e + 1u]; t++) {
         uint code = ps_code[t];
         c[code >> 16] += ps_coef[t] * px[code & 255u] * py[(code >> 8) & 255u];
     }
+}
+
+// Coefficients of the stop monomials of output o at normalised sensor point (xh, yh)
+void slot_coefficients(uint o, double xh, double yh, inout double c[NS])
+{
+    entry_coefficients(u_w * 4u + o, xh, yh, c);
 }
 
 // d phi / d u and d phi / d v at the stop centre (slots 1 and 2), phi in mm
@@ -94,6 +103,36 @@ void main()
         return;  // amplitude 0: dark
     }
     bool clip = hi > h;
+#if NCLIP_S > 0
+    // A ghost's P_clip pairs, decided from bounds as the inner pupil is: a pair that
+    // always passes is not tested (flag 0), one that never does darkens the pixel, the
+    // others are tested per splat with their full coefficients (after the basis ones)
+    {
+        uint cat = at + 6u + uint(u_k[0] + u_k[1] + u_k[2] + u_k[3]);
+        for (int q = 0; q < NCLIP_S; q++) {
+            double lim = sqrt(q == 0 ? CLIP_LIMIT2_0 : q == 1 ? CLIP_LIMIT2_1 : q == 2 ? CLIP_LIMIT2_2 : CLIP_LIMIT2_3);
+            double cx[NS], cy[NS], bx = 0.0LF, by = 0.0LF;
+            entry_coefficients(u_nw * 4u + u_w * uint(2 * NCLIP_S) + uint(2 * q), xh, yh, cx);
+            entry_coefficients(u_nw * 4u + u_w * uint(2 * NCLIP_S) + uint(2 * q + 1), xh, yh, cy);
+            for (int k = 1; k < NS; k++) {
+                bx += abs(cx[k]);
+                by += abs(cy[k]);
+            }
+            double cl_x = abs(cx[0]) - bx, cl_y = abs(cy[0]) - by;
+            if (cl_x > lim || cl_y > lim || (cl_x > 0.0LF && cl_y > 0.0LF && length(dvec2(cl_x, cl_y)) > lim)) {
+                atomicAdd(ranks[u_nw * 4u], 1u);
+                return;  // amplitude 0: dark
+            }
+            uint qat = cat + uint(q * (1 + 2 * NS));
+            if (length(dvec2(abs(cx[0]) + bx, abs(cy[0]) + by)) <= lim) continue;  // flag 0: always passes
+            records[qat] = 1.0;
+            for (int k = 0; k < NS; k++) {
+                records[qat + 1u + uint(k)] = float(cx[k]);
+                records[qat + 1u + uint(NS + k)] = float(cy[k]);
+            }
+        }
+    }
+#endif
     // Each output in the window's basis, and the leading vectors it needs (the phase
     // in waves; its constant part is kept only by the naive mode)
     double limit[4] = double[4](LIMIT_PUPIL, LIMIT_PUPIL, LIMIT_TAU_REL * abs(c0[2]), TOL_PHASE);

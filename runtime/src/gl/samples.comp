@@ -11,7 +11,9 @@
 // NL lights, NW wavelengths, NS stop monomials (slots), NB = NS - 1 basis functions,
 // DEGREE, PASS (samples per buffer), MONO_RADIUS (mm), HOUSING_FIRST (mm),
 // ANALYTIC with FOCAL_MM_SET and FOCAL_MM (a perfect lens; else free space), NAIVE
-// (total phase kept unreduced and rounded to float, to show why the default does not).
+// (total phase kept unreduced and rounded to float, to show why the default does not),
+// NCLIP_O and NCLIP_S (a ghost's P_clip pairs on side P_o or P_s; 0 for direct renders)
+// and CLIP_LIMIT2_0..3.
 layout(local_size_x = 64) in;
 
 layout(std430, binding = 0) readonly buffer SampleXY { dvec2 sample_xy[]; };      // mm on the stop
@@ -89,6 +91,19 @@ void main()
         }
         double amp = inside * lights[l].x;
         if (xo * xo + yo * yo > HOUSING_FIRST * HOUSING_FIRST) amp = 0.0LF;
+#if NCLIP_O > 0
+        // A ghost's P_clip on this side (after P_o in the buffer): every pair must pass
+        for (int q = 0; q < NCLIP_O; q++) {
+            uint cat = uint(NL * NW * 4 * NS) + ((uint(l) * uint(NW) + u_w) * uint(2 * NCLIP_O) + uint(2 * q)) * uint(NS);
+            double hx = 0.0LF, hy = 0.0LF;
+            for (int k = 0; k < NS; k++) {
+                hx += po[cat + uint(k)] * mono[k];
+                hy += po[cat + uint(NS + k)] * mono[k];
+            }
+            double lim2 = q == 0 ? CLIP_LIMIT2_0 : q == 1 ? CLIP_LIMIT2_1 : q == 2 ? CLIP_LIMIT2_2 : CLIP_LIMIT2_3;
+            if (hx * hx + hy * hy > lim2) amp = 0.0LF;
+        }
+#endif
         amp *= sqrt(max(tau, 0.0LF));
         if (NAIVE != 0) opl += lights[l].y;
         double waves = opl / lambda;
@@ -104,5 +119,9 @@ void main()
             rows[uint(o * NB + j) * uint(PASS) + s] = float(g);
         }
     }
+#if NCLIP_S > 0
+    // A ghost's P_clip on side P_s: the stop monomials themselves, after the basis rows
+    for (int k = 0; k < NS; k++) rows[uint(4 * NB + k) * uint(PASS) + s] = float(mono[k]);
+#endif
 #endif
 }

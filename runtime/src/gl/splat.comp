@@ -12,7 +12,8 @@
 //
 // The host prepends the scene's constants: NL, NW, NB, PASS, W, BLOCK, KX, KY, KT, KP
 // (basis terms per output for this wavelength), HOUSING_LAST (mm), UNBIASED, NAIVE,
-// ANALYTIC with ONE_D and SENSOR_Z_MM.
+// ANALYTIC with ONE_D and SENSOR_Z_MM, NCLIP_S and CLIP_LIMIT2_0..3 (a ghost's P_clip
+// pairs on side P_s; 0 for direct renders).
 layout(local_size_x = 64) in;
 
 layout(std430, binding = 0) readonly buffer SampleXY { dvec2 sample_xy[]; };
@@ -28,6 +29,20 @@ layout(std430, binding = 16) buffer SumSq { double sumsq[]; };  // the same, wit
 uniform uint u_w, u_n, u_first, u_count, u_stride, u_npix;
 
 const float TWO_PI = 6.28318530717958647692;
+
+#if NCLIP_S > 0
+// A ghost's P_clip pairs on side P_s at sample s, from the pixel's records at b (per
+// pair: a flag, then x's and y's stop-monomial coefficients) and the stop monomials
+// (rows after the basis rows): 0 when a tested pair fails, else 1. CLIP_WEIGHT_BODY is
+// straight-line code made by the host (gl_render.c, clip_code): no loop, since llvmpipe
+// ends an invocation after 65,535 loop iterations in all.
+float clip_weight(uint b, uint s)
+{
+    float w = 1.0, hx, hy;
+    CLIP_WEIGHT_BODY
+    return w;
+}
+#endif
 
 void main()
 {
@@ -82,6 +97,10 @@ void main()
                 for (int j = 0; j < KY; j++) yi += uy[j] * rows[uint(NB + j) * uint(PASS) + s];
                 if (xi * xi + yi * yi > float(HOUSING_LAST * HOUSING_LAST)) weight = 0.0;
             }
+#if NCLIP_S > 0
+            // A ghost's P_clip pairs that the pixel set-up could not decide
+            weight *= clip_weight(at + 6u + uint(KX + KY + KT + KP), s);
+#endif
 #endif
             for (int l = 0; l < NL; l++) {
                 vec2 ls = light_sample[uint(l) * uint(PASS) + s];  // (phase waves, amplitude)
