@@ -204,6 +204,7 @@ def _fit_ghosts(lens, ghosts, info: dict, light: tuple[float, float],
     from lensfit.codegen import emit_c
     from lensfit.codegen.table import write_table
     from lensfit.generate import header_comment, lens_prefix, write_folder
+    from lensfit.ghosts.enumerate import enumerate_ghosts
     from lensfit.ghosts.fit import fit_ghost
     from lensfit.ghosts.tables import ghost_report, ghost_table, ghost_trust, trust_lines
 
@@ -212,12 +213,23 @@ def _fit_ghosts(lens, ghosts, info: dict, light: tuple[float, float],
     files: dict[str, str] = {}
     report = []
     for g in kept:
-        k = int(np.argmax(g.peak))  # footprint at the wavelength of its highest peak
         fit = fit_ghost(lens, g.first, g.second, domain)
         table = ghost_table(fit, direct, g.name)
+        # Trust where the ghost is: at this light, or on the axis if no ray of it reaches
+        # the sensor from this light (the table covers the whole domain either way)
+        at, where = g, light
+        if not any(g.rays):
+            where = (0.0, 0.0)
+            at = enumerate_ghosts(lens, f_number=args.f_number, light=where,
+                                  pairs=[(g.first, g.second)])[0]
+            if not any(at.rays):
+                raise InputError(f"ghost {g.name}: no ray of it reaches the sensor from the "
+                                 f"light at {light} or on the axis: nothing to check its "
+                                 f"fit against; leave it out (--ghost)")
+        k = int(np.argmax(at.peak))  # footprint at the wavelength of its highest peak
         cells = ghost_trust(lens, table, fit.half, f_number=info["f_number"],
-                            centre_mm=tuple(g.centre_mm[k] or (0.0, 0.0)),
-                            radius_mm=g.radius_mm[k], field_deg=light)
+                            centre_mm=tuple(at.centre_mm[k] or (0.0, 0.0)),
+                            radius_mm=at.radius_mm[k], field_deg=where)
         table = ghost_table(fit, direct, g.name, trust_lines(cells))
         stem = f"ghost_{g.first}_{g.second}"
         comment = header_comment(lens, f"Ghost {g.name} (reflect at surface {g.second_file}, "
@@ -261,7 +273,7 @@ def cmd_ghosts(args: argparse.Namespace) -> int:
     from lensfit.paraxial import stop_radius_for_f_number
     from lensfit.prescription import load_lens
 
-    lens = load_lens(args.lens)
+    lens = _coated(load_lens(args.lens), args)
     light = _light_arg(args.light)
     if args.count is not None and args.count < 1:
         raise InputError(f"--count {args.count}: expected a positive number of ghosts")
@@ -318,6 +330,19 @@ def cmd_ghosts(args: argparse.Namespace) -> int:
         print(f"  {g.name:>7s} {g.case:4s}  {energy:36s}{centre:>17s} {g.radius_mm[k]:7.3f} "
               f"{g.relative_peak:9.2e}  {'yes' if g.kept else 'no'}")
     return 0
+
+
+def _coated(lens, args: argparse.Namespace):
+    """The lens, or its uncoated variant with --coating none."""
+    from lensfit.prescription import with_coating
+
+    return with_coating(lens, getattr(args, "coating", "file"))
+
+
+def _coating_arg(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--coating", choices=("file", "none"), default="file",
+                   help="the coatings of the lens file (default), or none: the uncoated "
+                        "variant, written to <lens folder>-uncoated")
 
 
 def _glass_policy(lens, args: argparse.Namespace):
@@ -528,7 +553,7 @@ def cmd_fit(args: argparse.Namespace) -> int:
         _check_folder(args.generated, "--generated")
     if args.report:
         _check_folder(args.report, "--report")
-    lens = _glass_policy(load_lens(args.lens), args)
+    lens = _glass_policy(_coated(load_lens(args.lens), args), args)
     gen = Path(args.generated) if args.generated else GENERATED_DIR
     if args.scene:
         from lensfit.scene import load_scene, scene_domain
@@ -573,7 +598,7 @@ def cmd_report(args: argparse.Namespace) -> int:
 
     if args.out:
         _check_folder(args.out, "-o")  # before the fit, not after it
-    lens = _glass_policy(load_lens(args.lens), args)
+    lens = _glass_policy(_coated(load_lens(args.lens), args), args)
     domain, options = _domain_and_options(args, lens)
     report_dir = Path(args.out) if args.out else Path("build/report") / lens_folder_name(lens)
     _, fig = stage.run(lens, domain=domain, options=options, report_dir=report_dir,
@@ -712,6 +737,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--ghost", action="append", default=[], metavar="I-J",
                    help="only these ghosts, in the lens file's numbering (repeatable or a "
                         "comma list)")
+    _coating_arg(p)
     p.add_argument("--fit", action="store_true",
                    help="fit the kept ghosts over the direct fit's domain and write their "
                         "tables to <generated>/<lens folder>/ghosts/")
@@ -783,6 +809,7 @@ def build_parser() -> argparse.ArgumentParser:
         p.add_argument("--allow-glass-extrapolation", action="store_true",
                        help="use glasses outside their published range (as the lens "
                             "file's glass_extrapolation = \"allow\"); the report lists each")
+        _coating_arg(p)
         if name == "fit":
             p.add_argument("--generated", default=None, help="folder for generated code")
             p.add_argument("--report", default=None, help="folder for the report")

@@ -56,8 +56,11 @@ def lens_prefix(lens: Lens) -> str:
 
 
 def lens_folder_name(lens: Lens) -> str:
+    """The lens file's stem (else its id), with "-<variant>" for a variant such as the
+    uncoated lens (:func:`lensfit.prescription.with_coating`)."""
     stem = Path(lens.source_file).stem
-    return stem if stem and stem != "<memory>" else lens_id(lens)
+    name = stem if stem and stem != "<memory>" else lens_id(lens)
+    return f"{name}-{lens.variant}" if lens.variant else name
 
 
 def sources_for(systems: Sequence[System], prefix: str, comment: str, *,
@@ -102,7 +105,7 @@ def regenerate(folder: Path) -> tuple[Lens, list[str]]:
     """Rewrite ``folder`` (a ``generated/<lens>/``) from its fit.json without fitting: the
     code of the recorded systems and the lens facts of the lens file it names. Returns
     the lens and the names of the files written."""
-    from lensfit.prescription import load_lens  # the loader pulls in the glass catalog
+    from lensfit.prescription import load_lens, with_coating  # pulls in the glass catalog
 
     folder = Path(folder)
     fit_file = folder / "fit.json"
@@ -117,7 +120,7 @@ def regenerate(folder: Path) -> tuple[Lens, list[str]]:
     if not isinstance(lens_file, str) or not lens_file:
         raise InputError(f"{fit_file}: key 'lens_file': expected the lens's file name, "
                          f"found {lens_file!r}")
-    lens = load_lens(Path(lens_file).stem)
+    lens = with_coating(load_lens(Path(lens_file).stem), meta.get("coating", "file"))
     if folder.name != lens_folder_name(lens):
         raise InputError(f"{folder}: the folder of {lens_file} is named "
                          f"{lens_folder_name(lens)!r}, not {folder.name!r}")

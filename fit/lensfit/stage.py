@@ -57,6 +57,8 @@ def run(lens: Lens, *, domain: Domain | None = None, options: FitOptions | None 
                 "psf_vs_exact": {k: v for k, v in table.items() if k != "seconds"}}
         if glsl:
             meta["glsl"] = True
+        if lens.variant == "uncoated":
+            meta["coating"] = "none"  # regenerate() makes the same variant
         folder = generated_dir if flat else generated_dir / lens_folder_name(lens)
         write_folder(folder, lens_files(lens, systems, meta, trust))
     figures = measure(lens, fits, timing=timing)

@@ -40,7 +40,7 @@ from lensfit.generate import (
     write_folder,
 )
 from lensfit.poly import System, design_matrix
-from lensfit.prescription import load_lens
+from lensfit.prescription import load_lens, with_coating
 from lensfit.sample import Domain
 from lensfit.scene import load_scene, max_abs_difference, specialise
 from lensfit.trust import cell_label
@@ -85,7 +85,8 @@ def folder(request, quick_dir) -> Path:
 
 
 def lens_of(meta: dict):
-    return load_lens(Path(meta["lens_file"]).stem)
+    """The lens a fit.json was fitted for: its lens file, uncoated when it says so."""
+    return with_coating(load_lens(Path(meta["lens_file"]).stem), meta.get("coating", "file"))
 
 
 def horner_sources(folder: Path, lens) -> dict[str, str]:

@@ -7,6 +7,7 @@ from lensfit.prescription.load import (
     list_lenses,
     load_lens,
     make_lens,
+    with_coating,
 )
 from lensfit.prescription.model import BARE, SHAPES, Coating, Layer, Lens, Surface
 
@@ -23,4 +24,5 @@ __all__ = [
     "list_lenses",
     "load_lens",
     "make_lens",
+    "with_coating",
 ]

@@ -24,7 +24,7 @@ from typing import Any
 import jsonschema
 import numpy as np
 
-from lensfit.errors import LensError, regular_file_problem, toml_overflow
+from lensfit.errors import InputError, LensError, regular_file_problem, toml_overflow
 from lensfit.glass import (
     AIR,
     InlineGlassError,
@@ -275,6 +275,26 @@ def lens_from_dict(data: dict[str, Any], *, file: str = "<memory>") -> Lens:
         source_file=file,
         raw=copy.deepcopy(data),
     )
+
+
+COATING_CHOICES = ("file", "none")
+
+
+def with_coating(lens: Lens, coating: str) -> Lens:
+    """The lens with its coatings as the file gives them (``"file"``) or with every
+    surface bare (``"none"``: the uncoated variant, named "<name> (uncoated)", whose
+    fits go to ``generated/<lens folder>-uncoated/``), for coated-against-uncoated
+    comparisons (issue 13: the paper's Figure 10)."""
+    if coating not in COATING_CHOICES:
+        raise InputError(f"coating {coating!r}: expected one of {', '.join(COATING_CHOICES)}")
+    if coating == "file":
+        return lens
+    data = copy.deepcopy(lens.raw)
+    data.setdefault("coating", {})["default"] = "none"
+    for s in data["surface"]:
+        s.pop("coating", None)
+    bare = lens_from_dict(data, file=lens.source_file)
+    return dataclasses.replace(bare, name=f"{lens.name} (uncoated)", variant="uncoated")
 
 
 def make_lens(

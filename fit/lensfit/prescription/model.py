@@ -146,6 +146,7 @@ class Lens:
     design_wavelength_nm: float = 550.0
     source_file: str = "<memory>"
     raw: dict[str, Any] = field(default_factory=dict, compare=False, repr=False)
+    variant: str = ""  # "uncoated" for with_coating(lens, "none"); names its folders
 
     @property
     def stop_index(self) -> int:
