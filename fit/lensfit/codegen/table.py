@@ -367,42 +367,43 @@ def _lens(lines: _Lines) -> LensFacts:
     return LensFacts(*values)
 
 
+def _keyed(lines: _Lines, keyword: str, keys: tuple[str, ...]):
+    """The lines '<keyword> <key> <value>', every key once in the documented order: yields
+    (line number, key, value token)."""
+    for i, key in enumerate(keys):
+        form = f"{keyword} {key} <value>"
+        where = f"{keyword} line {i + 1} of {len(keys)}"
+        n, f = lines.next(f"'{form}' ({where})")
+        if len(f) != 3 or f[0] != keyword or f[1] != key:
+            raise _fail(n, f"expected '{form}' ({where}: keys come in the order "
+                           f"{', '.join(keys)}), found {' '.join(f)!r}")
+        yield n, key, f[2]
+
+
 def _trust(lines: _Lines) -> dict[str, Any]:
-    """The trust lines of a version-3 table: every key once, in the documented order."""
+    """The trust lines of a version-3 table."""
     out: dict[str, Any] = {}
-    for i, key in enumerate(TRUST_KEYS):
-        form = f"trust {key} <value>"
-        n, f = lines.next(f"'{form}' (trust line {i + 1} of {len(TRUST_KEYS)})")
-        if len(f) != 3 or f[0] != "trust" or f[1] != key:
-            raise _fail(n, f"expected '{form}' (trust line {i + 1} of {len(TRUST_KEYS)}: "
-                           f"keys come in the order {', '.join(TRUST_KEYS)}), found "
-                           f"{' '.join(f)!r}")
+    for n, key, token in _keyed(lines, "trust", TRUST_KEYS):
         if key == "psf_vs_exact_cell":
-            out[key] = decode_field(f[2], f"table line {n}")
+            out[key] = decode_field(token, f"table line {n}")
             continue
-        value = _real(f[2], n, f"trust {key}")
+        value = _real(token, n, f"trust {key}")
         if value < 0:
-            raise _fail(n, f"trust {key} = {f[2]}: expected a number >= 0")
+            raise _fail(n, f"trust {key} = {token}: expected a number >= 0")
         out[key] = value
     return out
 
 
 def _ghost(lines: _Lines) -> GhostLines | None:
-    """The ghost lines, if the next line starts them: every key once, in order."""
+    """The ghost lines, if the next line starts them."""
     if lines.done() or lines.rows[lines.pos][1][0] != "ghost":
         return None
     values: list[Any] = []
-    for i, key in enumerate(GHOST_KEYS):
-        form = f"ghost {key} <value>"
-        n, f = lines.next(f"'{form}' (ghost line {i + 1} of {len(GHOST_KEYS)})")
-        if len(f) != 3 or f[0] != "ghost" or f[1] != key:
-            raise _fail(n, f"expected '{form}' (ghost line {i + 1} of {len(GHOST_KEYS)}: "
-                           f"keys come in the order {', '.join(GHOST_KEYS)}), found "
-                           f"{' '.join(f)!r}")
-        values.append(_count(f[2], n, f"ghost {key}") if key in ("first", "second")
-                      else decode_field(f[2], f"table line {n}"))
+    for n, key, token in _keyed(lines, "ghost", GHOST_KEYS):
+        values.append(_count(token, n, f"ghost {key}") if key in ("first", "second")
+                      else decode_field(token, f"table line {n}"))
         if key == "side" and values[-1] not in ("P_o", "P_s"):
-            raise _fail(n, f"ghost side {f[2]!r}: expected P_o or P_s")
+            raise _fail(n, f"ghost side {token!r}: expected P_o or P_s")
         if key == "second" and values[1] <= values[0]:
             raise _fail(n, f"ghost second {values[1]}: expected more than ghost first "
                            f"{values[0]}")
