@@ -399,8 +399,15 @@ static double rel_l2(const float *a, const float *b, double scale, size_t n)
 /* N_POINTS points uniform over the disc of radius R_STOP (a fixed LCG), none within 1e-6
  * of the radius R_SMALL (relative): there a test in float and one in double could differ
  * by rounding, which is not what these tests are about. */
-static void disc_points(double *xy)
+static void disc_points_band(double *xy, double band);
+
+static void disc_points(double *xy) { disc_points_band(xy, R_SMALL); }
+
+/* The same keeping 1e-6 (relative) from the radius `band`, or 1e-3 for a band other
+ * than R_SMALL (a P_clip whose per-splat test may be approximated: see test_basis_clip). */
+static void disc_points_band(double *xy, double band)
 {
+    const double margin = band == R_SMALL ? 1e-6 : 1e-3;
     unsigned long long s = 0x9E3779B97F4A7C15ull;
     int j = 0;
     while (j < N_POINTS) {
@@ -410,7 +417,7 @@ static void disc_points(double *xy)
         s = s * 6364136223846793005ull + 1442695040888963407ull;
         v = (double)(s >> 11) / 9007199254740992.0 * 2.0 - 1.0;
         rr = sqrt(u * u + v * v) * R_STOP;
-        if (u * u + v * v > 1.0 || fabs(rr - R_SMALL) < 1e-6 * R_SMALL) continue;
+        if (u * u + v * v > 1.0 || fabs(rr - band) < margin * band) continue;
         xy[2 * j] = u * R_STOP;
         xy[2 * j + 1] = v * R_STOP;
         j++;
@@ -524,6 +531,64 @@ static void test_smaller_stop(lensrt_context ctx, lensrt_lens direct)
         }
         lensrt_lens_destroy(ctx, ghost);
     }
+    free(xy);
+    free(xy_in);
+}
+
+/* 2c. A P_clip on side P_s with several stop terms: a stop that bulges,
+ *     x_s1 = (R_STOP / R_SMALL) x_a (1 + B (x_a^2 + y_a^2) / s^2) (and y likewise), which
+ *     passes where |a| (1 + B |a|^2 / s^2) <= R_SMALL, |a| <= r_b. Every pixel has the same
+ *     three-term coefficients, which the window's basis of the clip output carries in one
+ *     function (the kernel then tests g(a) u + c0, not three monomials: the float path's
+ *     per-splat cost). Against the direct table at stop R_STOP splatting the points
+ *     inside r_b (the others moved out): the same image bit for bit, float and double,
+ *     the points keeping 1e-3 of r_b from it (the basis may move the tested x by at most
+ *     1e-4 of the limit, i.e. 1e-4 R_SMALL in |a|). */
+static void test_basis_clip(lensrt_context ctx, lensrt_lens direct)
+{
+    const double B = 0.2, k = R_STOP / R_SMALL;
+    double rb = R_SMALL, *xy = malloc(sizeof(double) * 2 * N_POINTS), *xy_in = malloc(sizeof(double) * 2 * N_POINTS);
+    char t[4][160];
+    clip_out o[2];
+    size_t n;
+    int it, j, prec;
+    lensrt_lens ghost;
+    if (!xy || !xy_in) abort();
+    // r_b: Newton on r (1 + B r^2 / s^2) = R_SMALL
+    for (it = 0; it < 50; it++)
+        rb -= (rb * (1 + B * rb * rb / (g_xa_s * g_xa_s)) - R_SMALL) / (1 + 3 * B * rb * rb / (g_xa_s * g_xa_s));
+    // x_s1 = k s xhat_a + k B s (xhat_a^3 + xhat_a yhat_a^2), raw x_a = s xhat_a
+    snprintf(t[0], sizeof t[0], "0 0 0 1 0 0 %.17g;0 0 0 3 0 0 %.17g;0 0 0 1 2 0 %.17g", k * g_xa_s, k * B * g_xa_s,
+             k * B * g_xa_s);
+    snprintf(t[1], sizeof t[1], "0 0 0 0 1 0 %.17g;0 0 0 0 3 0 %.17g;0 0 0 2 1 0 %.17g", k * g_xa_s, k * B * g_xa_s,
+             k * B * g_xa_s);
+    o[0].name = "x_s1"; o[0].unit = "mm"; o[0].terms = t[0];
+    o[1].name = "y_s1"; o[1].unit = "mm"; o[1].terms = t[1];
+    ghost = load(ctx, "bulging stop", ghost_table(GHOST_P_S, 1, o, 2, NULL, &n));
+    disc_points_band(xy, rb);
+    for (j = 0; j < N_POINTS; j++) {
+        int in = hypot(xy[2 * j], xy[2 * j + 1]) <= rb;
+        xy_in[2 * j] = in ? xy[2 * j] : 1e3;
+        xy_in[2 * j + 1] = in ? xy[2 * j + 1] : 0.0;
+    }
+    for (prec = 0; ghost && prec < 2; prec++) {
+        const int precision = prec ? LENSRT_PRECISION_DOUBLE : LENSRT_PRECISION_DEFAULT;
+        lensrt_render rg = make_render(ctx, ghost, R_STOP, precision, 1, LENSRT_APERTURE_CIRCLE);
+        lensrt_render rd = make_render(ctx, direct, R_STOP, precision, 1, LENSRT_APERTURE_CIRCLE);
+        float *ig, *id;
+        if (rg) CHECK_OK(ctx, lensrt_render_splat_points(rg, 0, xy, N_POINTS));
+        if (rd) CHECK_OK(ctx, lensrt_render_splat_points(rd, 0, xy_in, N_POINTS));
+        ig = image_of(ctx, rg, 1);
+        id = image_of(ctx, rd, 1);
+        CHECK(total(id, RES * RES) > 0 && memcmp(ig, id, sizeof(float) * RES * RES) == 0,
+              "bulging stop (r_b %.6g mm), %s: the ghost's image differs from the direct one with the points inside "
+              "r_b (relative L2 %.3g)", rb, prec ? "double" : "float", rel_l2(ig, id, 1.0, RES * RES));
+        free(ig);
+        free(id);
+        lensrt_render_destroy(rg);
+        lensrt_render_destroy(rd);
+    }
+    lensrt_lens_destroy(ctx, ghost);
     free(xy);
     free(xy_in);
 }
@@ -692,6 +757,7 @@ int main(int argc, char **argv)
         CHECK_OK(ctx, lensrt_lens_load_text(ctx, g_text, g_size, "lens0001.table", &direct));
         if (direct) {
             test_smaller_stop(ctx, direct);
+            test_basis_clip(ctx, direct);
             test_never_always(ctx, direct);
             test_shapes_and_tiles(ctx);
             test_image_sum(ctx, direct);

@@ -104,6 +104,8 @@ int lensrt_basis_keep(const double *V, int n, int R, const double *c, double lim
  * the render's tolerance (waves). */
 double lensrt_output_limit(const lensrt_render r, int o, double c0)
 {
+    // 4 + o: a ghost's P_clip output o, 0.01% of its pair's limit as for the inner pupil
+    if (o >= 4) return 1e-4 * r->clip_limit[(o - 4) / 2];
     return o < 2 ? 1e-4 * r->lens->housing_last_mm : o == 2 ? 1e-3 * fabs(c0) : r->desc.phase_tolerance_waves;
 }
 
@@ -129,8 +131,11 @@ lensrt_result lensrt_prepare_basis(lensrt_render r)
     r->n_rows = ns;
     r->use_basis = (r->desc.precision == LENSRT_PRECISION_DEFAULT || gl) && n > 0;
     if (!r->use_basis) return LENSRT_SUCCESS;
-    r->n_bases = gl ? 4 : 2;
-    for (k = 0; k < r->n_bases; k++) r->basis_output[k] = gl ? k : (k ? 2 : 3);
+    // CPU: phase and transmittance, then a ghost's P_clip outputs on side P_s (each
+    // tested pair is x, y of the stop or a housing: smooth across a window, so a few
+    // basis functions carry it); GL: the four outputs
+    r->n_bases = gl ? 4 : 2 + (r->clip_s ? 2 * r->n_clip_pairs : 0);
+    for (k = 0; k < r->n_bases; k++) r->basis_output[k] = gl ? k : k >= 2 ? 4 + (k - 2) : (k ? 2 : 3);
     r->basis = lensrt_calloc(r->ctx, (size_t)r->n_wl * (size_t)r->n_bases * (size_t)n * (size_t)n, sizeof(double));
     r->basis_rank = lensrt_calloc(r->ctx, (size_t)r->n_wl * (size_t)r->n_bases, sizeof(int));
     g = lensrt_calloc(r->ctx, (size_t)n * (size_t)n, sizeof(double));
@@ -154,7 +159,9 @@ lensrt_result lensrt_prepare_basis(lensrt_render r)
             int iy = grid_y > 1 ? (int)((double)gj * (r->height - 1) / (grid_y - 1) + 0.5) : 0;
             double px[16], py[16], *c = cs + (size_t)cell * (size_t)ns;
             lensrt_sensor_powers(r->lens, r->xs[ix], r->ys[iy], px, py);
-            lensrt_slot_coefficients(&r->ps[(w / r->n_bases) * 4 + o], px, py, c, ns);
+            lensrt_slot_coefficients(o < 4 ? &r->ps[(w / r->n_bases) * 4 + o]
+                                           : &r->clip_s[(w / r->n_bases) * 2 * r->n_clip_pairs + (o - 4)],
+                                     px, py, c, ns);
         }
         memset(g, 0, sizeof(double) * (size_t)n * (size_t)n);
         for (cell = 0; cell < grid_x * grid_y; cell++) {
@@ -181,6 +188,17 @@ lensrt_result lensrt_prepare_basis(lensrt_render r)
     lensrt_free(r->ctx, cs);
     lensrt_free(r->ctx, g);
     lensrt_free(r->ctx, eig);
+    // Rows: the monomials, the phase's and the transmittance's basis functions (room for
+    // all n each, as always), then each clip output's (room for its largest rank)
+    r->row_base[0] = ns;
+    r->row_base[1] = ns + n;
     r->n_rows = ns + 2 * n;
+    for (k = 2; !gl && k < r->n_bases; k++) {
+        int most = 0;
+        for (w = 0; w < r->n_wl; w++)
+            if (r->basis_rank[w * r->n_bases + k] > most) most = r->basis_rank[w * r->n_bases + k];
+        r->row_base[k] = r->n_rows;
+        r->n_rows += most;
+    }
     return LENSRT_SUCCESS;
 }

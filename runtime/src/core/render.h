@@ -53,7 +53,11 @@ struct lensrt_render_s {
      * a small window; analytic lenses, the sample's x and y. double_rows: rows, phases
      * and amplitudes are kept in double (precision DOUBLE; free space always). */
     int n_rows, use_basis, double_rows;
-    int n_bases, basis_output[4]; /* bases per wavelength and the output of each */
+    /* bases per wavelength and the output of each (4 + o: a ghost's P_clip output o on
+     * side P_s, CPU only), and the first row of each basis's functions in a sample block
+     * (the phase's at n_slots, the transmittance's after its n_slots - 1 rows, a clip
+     * output's after the rows its predecessors compute at most) */
+    int n_bases, basis_output[4 + 2 * LENSRT_MAX_CLIP_PAIRS], row_base[4 + 2 * LENSRT_MAX_CLIP_PAIRS];
     double *basis;                /* [w][b][(n_slots - 1)^2], V[(k - 1) * (n_slots - 1) + j];
                                      CPU: b = 0 phase (waves), 1 transmittance; GL: b = output */
     int *basis_rank;              /* [w][b]: rows computed per sample */

@@ -64,6 +64,25 @@ static int setup_clip(const lensrt_render r, int w, const double *px, const doub
                 cl->coef_d[row][j] = c[a][k];
                 j++;
             }
+            // Or in the window's basis of this output, when that needs fewer terms (the
+            // dropped tail's l1 norm under the same limit), the constant term kept
+            if (r->use_basis) {
+                const int bb = 2 + 2 * q + a, nb = ns - 1, rank = r->basis_rank[r->n_bases * w + bb];
+                const double *V = r->basis + (size_t)(r->n_bases * w + bb) * (size_t)nb * (size_t)nb;
+                double u[135];
+                int keep = lensrt_basis_keep(V, nb, rank, c[a], 1e-4 * lim, u), jj;
+                if (keep <= rank && keep + 1 < j) {
+                    for (jj = 0; jj < keep; jj++) {
+                        cl->slot[row][jj] = r->row_base[bb] + jj;
+                        cl->coef_f[row][jj] = (float)u[jj];
+                        cl->coef_d[row][jj] = u[jj];
+                    }
+                    cl->slot[row][keep] = 0;
+                    cl->coef_f[row][keep] = (float)c[a][0];
+                    cl->coef_d[row][keep] = c[a][0];
+                    j = keep + 1;
+                }
+            }
             {
                 lensrt_terms_f *tf = a ? &pt->f.clip_y[n_test] : &pt->f.clip_x[n_test];
                 lensrt_terms_d *td = a ? &pt->d.clip_y[n_test] : &pt->d.clip_x[n_test];
@@ -164,16 +183,16 @@ int lensrt_cpu_setup_pixel(const lensrt_render r, int w, double x, double y, len
         int bb;
         for (bb = 0; bb < 2; bb++) {
             const int oo = bb ? 2 : 3;
-            const double *V = r->basis + (size_t)(2 * w + bb) * (size_t)n * (size_t)n;
+            const double *V = r->basis + (size_t)(r->n_bases * w + bb) * (size_t)n * (size_t)n;
             const double limit = lensrt_output_limit(r, oo, c[2][0]);
             double u[135];
             int j, keep, have = counts[oo] - (oo == 2 && counts[2] > 0);
             if (oo == 2 && counts[2] == 0) continue; /* constant transmittance */
-            keep = lensrt_basis_keep(V, n, r->basis_rank[2 * w + bb], c[oo], limit, u);
-            if (keep > r->basis_rank[2 * w + bb]) continue; /* beyond the rows computed */
+            keep = lensrt_basis_keep(V, n, r->basis_rank[r->n_bases * w + bb], c[oo], limit, u);
+            if (keep > r->basis_rank[r->n_bases * w + bb]) continue; /* beyond the rows computed */
             if (keep >= have) continue;
             for (j = 0; j < keep; j++) {
-                pt->slot[oo][j] = ns + bb * n + j;
+                pt->slot[oo][j] = r->row_base[bb] + j;
                 pt->coef_f[oo][j] = (float)u[j];
                 pt->coef_d[oo][j] = u[j];
             }

@@ -132,12 +132,12 @@ static void sample_rows(const lensrt_render r, int w, double x, double y, double
     }
     if (r->use_basis) {
         int q, bb;
-        for (bb = 0; bb < 2; bb++) {
-            const double *V = r->basis + (size_t)(2 * w + bb) * (size_t)(ns - 1) * (size_t)(ns - 1);
-            for (q = 0; q < r->basis_rank[2 * w + bb]; q++) {
+        for (bb = 0; bb < r->n_bases; bb++) {
+            const double *V = r->basis + (size_t)(r->n_bases * w + bb) * (size_t)(ns - 1) * (size_t)(ns - 1);
+            for (q = 0; q < r->basis_rank[r->n_bases * w + bb]; q++) {
                 double gq = 0.0;
                 for (k = 1; k < ns; k++) gq += V[(k - 1) * (ns - 1) + q] * mono[k];
-                rows->f[(size_t)(ns + bb * (ns - 1) + q) * st] = (float)gq;
+                rows->f[(size_t)(r->row_base[bb] + q) * st] = (float)gq;
             }
         }
     }
