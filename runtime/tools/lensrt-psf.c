@@ -668,7 +668,13 @@ int main(int argc, char **argv)
     for (i = 0; i < n_ghosts; i++) {
         lensrt_render_desc gd = desc;
         gd.lens = ghost_lens[i];
-        if ((res = lensrt_render_create(ctx, &gd, &renders[1 + i])) != LENSRT_SUCCESS) goto fail_input;
+        if ((res = lensrt_render_create(ctx, &gd, &renders[1 + i])) != LENSRT_SUCCESS) {
+            // Said with the ghost's file: the library's message names the lens, which
+            // the direct table and every ghost share
+            fprintf(stderr, "lensrt-psf: --ghost %s: %s\n", ghost_paths[i], lensrt_context_last_error(ctx));
+            rc = res == LENSRT_ERROR_NO_DEVICE || res == LENSRT_ERROR_UNSUPPORTED ? 3 : 2;
+            goto done;
+        }
     }
     if (resume && (res = lensrt_render_load(render, resume)) != LENSRT_SUCCESS) goto fail_input;
     if (merge && (res = lensrt_render_merge(render, merge)) != LENSRT_SUCCESS) goto fail_input;

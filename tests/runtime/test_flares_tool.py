@@ -70,11 +70,15 @@ def tables(tmp_path_factory) -> dict[str, Path]:
     stop = [("x_h0", "1", [f"0 0 0 1 0 0 {s / r0!r}"]), ("y_h0", "1", [f"0 0 0 0 1 0 {s / r0!r}"])]
     paths = {"never": folder / "never" / "ghost_4_8.table",
              "stop": folder / "stop" / "ghost_0_2.table",
-             "other": folder / "other" / "ghost_4_8.table"}
+             "other": folder / "other" / "ghost_4_8.table",
+             "crossing": folder / "crossing" / "ghost_4_8.table"}
     for p in paths.values():
         p.parent.mkdir()
     paths["never"].write_text(ghost_table(text, "P_s", never))
     paths["stop"].write_text(ghost_table(text, "P_o", stop, 0, 2))
+    # a stop crossing (mm): needs a circular aperture
+    paths["crossing"].write_text(ghost_table(text, "P_s", [
+        ("x_s1", "mm", [f"0 0 0 1 0 0 {s!r}"]), ("y_s1", "mm", [f"0 0 0 0 1 0 {s!r}"])]))
     # the same ghost of another lens (its name changed)
     paths["other"].write_text(ghost_table(text, "P_s", never).replace(
         "lens name Angenieux", "lens name Other", 1))
@@ -153,3 +157,14 @@ def test_bad_ghosts_refused_before_rendering(tmp_path, tables):
         for w in words:
             assert w in lines[0], (w, lines[0])
         assert not out.exists()
+
+
+def test_stop_crossings_with_blades_refused_naming_the_ghost(tmp_path, tables):
+    out = tmp_path / "x.exr"
+    r = run("--ghost", str(tables["crossing"]), "--blades", "7", "-o", str(out), "--quiet")
+    lines = r.stderr.strip().splitlines()
+    assert r.returncode == 3, r.stderr  # unsupported, as for a missing GL device
+    assert len(lines) == 1, r.stderr
+    for w in (str(tables["crossing"]), "ghost 4-8", "blades", "circular"):
+        assert w in lines[0], (w, lines[0])
+    assert not out.exists()
