@@ -116,6 +116,7 @@ bench: setup runtime
 	cmake --build $(RUNTIME_BUILD) -j 2 --target lensrt-compiled-bench
 	$(RUNTIME_BUILD)/runtime/lensrt-compiled-bench | tee build/bench/compiled.txt
 	$(PY) runtime/bench/error_vs_time.py --out build/bench --lensrt-json build/bench/lensrt.json
+	$(PY) runtime/bench/flare_bench.py --library $(RUNTIME_BUILD)/runtime/liblensrt.so --out build/bench
 	$(PY) -m lensfit.bench --out build/bench
 	$(PY) -m lensfit.codegen.bench | tee build/bench/codegen.txt
 	$(VENV)/bin/lensfit report $(DEMO_LENS) -o build/bench/fit-$(DEMO_LENS) --json \
