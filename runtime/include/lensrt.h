@@ -322,7 +322,10 @@ LENSRT_API lensrt_result lensrt_light_direction_cosines(lensrt_context ctx, cons
  * fitted over; outside it the polynomials extrapolate (nothing is clamped). */
 typedef enum lensrt_system_id {
     LENSRT_SYSTEM_OBJECT = 0,   /* P_o */
-    LENSRT_SYSTEM_SENSOR = 1    /* P_s */
+    LENSRT_SYSTEM_SENSOR = 1,   /* P_s */
+    LENSRT_SYSTEM_CLIP = 2      /* a ghost table's P_clip: the ghost side's inputs, outputs
+                                   in (x, y) pairs (lensrt_lens_info.ghost_clip_pairs; a lens
+                                   without one: LENSRT_ERROR_UNSUPPORTED) */
 } lensrt_system_id;
 
 typedef enum lensrt_number_type {

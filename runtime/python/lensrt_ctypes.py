@@ -408,7 +408,7 @@ class Lensrt:
 
 
 # Per-ray evaluation (lensrt.h "per-ray evaluation")
-SYSTEMS = {"P_o": 0, "object": 0, "P_s": 1, "sensor": 1}
+SYSTEMS = {"P_o": 0, "object": 0, "P_s": 1, "sensor": 1, "P_clip": 2, "clip": 2}
 NUMBER_TYPES = {"float64": 0, "float32": 1}
 MAX_SYSTEM_INPUTS = 8
 MAX_SYSTEM_OUTPUTS = 8

@@ -688,6 +688,40 @@ static void test_shapes_and_tiles(lensrt_context ctx)
     lensrt_lens_destroy(ctx, hous);
 }
 
+/* 6. lensrt_lens_eval and lensrt_lens_system_info of P_clip (LENSRT_SYSTEM_CLIP): the
+ *    hand-made x_h0 = x_a / R_SMALL, y_h0 = y_a / R_SMALL at a few rays, to rounding
+ *    (one term: (s / r) * (x_a / s)); a direct table has no P_clip (UNSUPPORTED). */
+static void test_eval_clip(lensrt_context ctx, lensrt_lens direct)
+{
+    size_t n;
+    lensrt_lens g = load(ctx, "eval", smaller_stop_table(0, &n));
+    lensrt_system_info si = LENSRT_SYSTEM_INFO_INIT;
+    lensrt_eval_desc d = LENSRT_EVAL_DESC_INIT;
+    double in[3 * 6] = {0.05, -0.02, 0.0, 1.0, -2.0, 550.0, 0.0, 0.0, 0.0, -4.0, 3.5, 450.0,
+                        -0.1, 0.1, 0.0, 10.0, 0.5, 700.0};
+    double out[3 * 2];
+    int k;
+    if (!g) return;
+    CHECK_OK(ctx, lensrt_lens_system_info(g, LENSRT_SYSTEM_CLIP, &si));
+    CHECK(si.n_inputs == 6 && si.n_outputs == 2 && strcmp(si.input_names[0], "x_O") == 0 &&
+              strcmp(si.output_names[1], "y_h0") == 0,
+          "P_clip info: %d inputs, %d outputs", si.n_inputs, si.n_outputs);
+    d.system = LENSRT_SYSTEM_CLIP;
+    d.n_rays = 3;
+    d.inputs = in;
+    d.outputs = out;
+    CHECK_OK(ctx, lensrt_lens_eval(ctx, g, &d));
+    for (k = 0; k < 3; k++)
+        CHECK(fabs(out[2 * k] - in[6 * k + 3] / R_SMALL) < 1e-14 && fabs(out[2 * k + 1] - in[6 * k + 4] / R_SMALL) < 1e-14,
+              "P_clip ray %d: (%.17g, %.17g), expected (%.17g, %.17g)", k, out[2 * k], out[2 * k + 1],
+              in[6 * k + 3] / R_SMALL, in[6 * k + 4] / R_SMALL);
+    CHECK_RES(ctx, LENSRT_ERROR_UNSUPPORTED, lensrt_lens_eval(ctx, direct, &d));
+    CHECK_MSG(ctx, "has no system P_clip");
+    CHECK(lensrt_lens_system_info(direct, LENSRT_SYSTEM_CLIP, &si) == LENSRT_ERROR_UNSUPPORTED,
+          "system_info of a direct table's P_clip");
+    lensrt_lens_destroy(ctx, g);
+}
+
 /* 5. lensrt_renders_image: the sum of renders' images (a direct image plus a ghost's) is
  *    each image summed (in double, then rounded to float: exactly a + b when a and b are
  *    floats whose sum is representable to rounding; checked to 1 float ulp); one render
@@ -761,6 +795,7 @@ int main(int argc, char **argv)
             test_never_always(ctx, direct);
             test_shapes_and_tiles(ctx);
             test_image_sum(ctx, direct);
+            test_eval_clip(ctx, direct);
             lensrt_lens_destroy(ctx, direct);
         }
     }

@@ -52,8 +52,10 @@ typedef struct block {
     double dxdv[N_IN][BLOCK];         /* d xhat_i / d raw input i */
 } block;
 
+/* P_o, P_s, or a ghost table's P_clip (NULL when the lens has none). */
 static const lensrt_system *system_of(lensrt_lens lens, int32_t system)
 {
+    if (system == LENSRT_SYSTEM_CLIP) return lens->p_clip.n_outputs ? &lens->p_clip : NULL;
     return system == LENSRT_SYSTEM_OBJECT ? &lens->p_o : system == LENSRT_SYSTEM_SENSOR ? &lens->p_s : NULL;
 }
 
@@ -68,9 +70,10 @@ lensrt_result lensrt_lens_system_info(lensrt_lens lens, int32_t system, lensrt_s
     if (!lens || !out) return LENSRT_ERROR_INVALID_ARGUMENT;
     memcpy(&size, out, sizeof size);
     if (size < SYSTEM_INFO_MIN_SIZE) return LENSRT_ERROR_INVALID_ARGUMENT;
-    if (system != LENSRT_SYSTEM_OBJECT && system != LENSRT_SYSTEM_SENSOR) return LENSRT_ERROR_INVALID_ARGUMENT;
+    if (system != LENSRT_SYSTEM_OBJECT && system != LENSRT_SYSTEM_SENSOR && system != LENSRT_SYSTEM_CLIP)
+        return LENSRT_ERROR_INVALID_ARGUMENT;
     if (lens->analytic) return LENSRT_ERROR_UNSUPPORTED;
-    sys = system_of(lens, system);
+    if (!(sys = system_of(lens, system))) return LENSRT_ERROR_UNSUPPORTED; /* no P_clip */
     // Build the whole struct here, then copy what the caller's struct_size covers
     memset(&info, 0, sizeof info);
     info.struct_size = sizeof info;
@@ -197,10 +200,10 @@ lensrt_result lensrt_lens_eval(lensrt_context ctx, lensrt_lens lens, const lensr
                            "lensrt_eval_desc: struct_size is %zu, expected at least %zu (use LENSRT_EVAL_DESC_INIT)",
                            size, (size_t)EVAL_DESC_MIN_SIZE);
     if ((res = lensrt_struct_in(ctx, "lensrt_eval_desc", desc_in, &d, sizeof d)) != LENSRT_SUCCESS) return res;
-    if (d.system != LENSRT_SYSTEM_OBJECT && d.system != LENSRT_SYSTEM_SENSOR)
+    if (d.system != LENSRT_SYSTEM_OBJECT && d.system != LENSRT_SYSTEM_SENSOR && d.system != LENSRT_SYSTEM_CLIP)
         return lensrt_fail(ctx, LENSRT_ERROR_INVALID_ARGUMENT,
-                           "lensrt_eval_desc: system is %d, expected LENSRT_SYSTEM_OBJECT (0) or LENSRT_SYSTEM_SENSOR (1)",
-                           (int)d.system);
+                           "lensrt_eval_desc: system is %d, expected LENSRT_SYSTEM_OBJECT (0), LENSRT_SYSTEM_SENSOR (1) "
+                           "or LENSRT_SYSTEM_CLIP (2)", (int)d.system);
     if (d.type != LENSRT_TYPE_DOUBLE && d.type != LENSRT_TYPE_FLOAT)
         return lensrt_fail(ctx, LENSRT_ERROR_INVALID_ARGUMENT,
                            "lensrt_eval_desc: type is %d, expected LENSRT_TYPE_DOUBLE (0) or LENSRT_TYPE_FLOAT (1)",
@@ -208,7 +211,9 @@ lensrt_result lensrt_lens_eval(lensrt_context ctx, lensrt_lens lens, const lensr
     if (lens->analytic)
         return lensrt_fail(ctx, LENSRT_ERROR_UNSUPPORTED,
                            "lensrt_lens_eval: %s is an analytic lens; it has no fitted systems", lens->name);
-    sys = system_of(lens, d.system);
+    if (!(sys = system_of(lens, d.system)))
+        return lensrt_fail(ctx, LENSRT_ERROR_UNSUPPORTED, "lensrt_lens_eval: %s (%s) has no system P_clip (a ghost "
+                           "table's clip tests; info.ghost_clip_pairs is 0)", lens->file, lens->name);
     if (sys->n_inputs != N_IN || sys->n_outputs > LENSRT_MAX_SYSTEM_OUTPUTS)
         return lensrt_fail(ctx, LENSRT_ERROR_UNSUPPORTED, "lensrt_lens_eval: %s of %s has %d inputs (expected %d)",
                            sys->name, lens->name, sys->n_inputs, N_IN);
@@ -228,7 +233,7 @@ lensrt_result lensrt_lens_eval(lensrt_context ctx, lensrt_lens lens, const lensr
     // code, one ray at a time. Measured on 0001 (P_s, one thread): Horner 5.6-7.5 us per
     // ray at any batch size; the table 73 us for one ray (a block's set-up and every
     // term's pass are paid whatever the count), 17 us per ray at 8, 2.9 us at 256
-    if (lens->compiled && !d.jacobians && d.n_rays < BLOCK) {
+    if (lens->compiled && !d.jacobians && d.n_rays < BLOCK && d.system != LENSRT_SYSTEM_CLIP) {
         const lensrt_compiled_lens *c = lens->compiled;
         horner_d = d.system == LENSRT_SYSTEM_OBJECT ? c->object_d : c->sensor_d;
         horner_f = d.system == LENSRT_SYSTEM_OBJECT ? c->object_f : c->sensor_f;
