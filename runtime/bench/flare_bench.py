@@ -3,7 +3,7 @@
     python runtime/bench/flare_bench.py --out build/bench [--library PATH/liblensrt.so]
         [--lensrt-json build/bench/lensrt.json]
 
-Lens 0001 with its committed ghost tables (generated/0001-angenieux-double-gauss/ghosts/,
+Lens 0001 with its ghost tables (generated/0001-angenieux-double-gauss/ghosts/,
 listed in ghosts.json), light at field (-6, -4) deg at infinity, f/8, 16 wavelengths, the
 sensor in focus (shift 0). A ghost is rendered as its own render (its own phasor sums) and
 a flare's image is the direct image plus the ghosts' (intensities add), so each figure is
@@ -12,7 +12,8 @@ per render:
 1. Splats per second on the full frame, 36 x 24 mm at 1440 x 1080, sampled as lensrt-bench
    samples its frame: one pixel per STRIDE x STRIDE block (a 120 x 90 render over the same
    36 x 24 mm), 16384 samples per wavelength. Renders interleaved in one process: direct,
-   ghost 1, direct, ghost 2, ..., direct, REPEATS times over; each ghost's ratio is its rate
+   ghost 1, direct, ghost 2, ..., direct, --repeats times over (default 3, fewer when more
+   ghosts are kept: MAX_SPLAT_RENDERS); each ghost's ratio is its rate
    over the mean of the two direct renders that bracket it, and the figure is the median
    over the repeats. Rates are lensrt_render_get_stats' splats (aperture samples x pixels x
    wavelengths, dark pixels included) over its seconds (time in run()). Also each rate
@@ -28,10 +29,11 @@ per render:
 
        error_one = ||A - B||_2 / (sqrt(2) ||(A + B) / 2||_2)   over pixels and wavelengths
 
-   (A - B has twice one render's variance); scaled as 1/sqrt(N) to the N that gives 1%,
-   and the seconds of a render of that N scaled linearly from the measured one. When the
-   first N (ERROR_SAMPLES) is more than 2x short, the pair is rendered again at the
-   predicted N (power of two, at most MAX_ERROR_SAMPLES), so the extrapolation is short.
+   (A - B has twice one render's variance). From --error-samples, further pairs close in
+   on 1% (next_samples) up to --max-error-samples; pairs on both sides of 1% are
+   interpolated (log-log), else the error is scaled as 1/sqrt(N) from the pair nearest
+   1% (estimate_target; beside it, the N from the slope measured between two pairs on
+   that side), the seconds affine in N (the per-pixel set-up is the constant).
    Default sampler and estimator (Sobol, the paper's |sum|^2 / N^2, whose variance / N bias
    is second order at 1%). The ratio is a ghost's seconds over the direct PSF's.
 3. Ghost enumeration of the lens (all its ghosts, f/8, the light above), timed live; the
@@ -79,6 +81,11 @@ DIRECT_MARGIN_MM = 0.04  # the direct PSF's window: its image points' spread plu
 MIN_ERROR_SAMPLES = 64  # per wavelength, the fewest an error pair is rendered with
 MAX_STEPS = 4  # error pairs per image at most
 SLOPE_RANGE = (-1.5, -0.25)  # of log error against log N, for predicting the next N
+# Budgets that keep the script near 3 minutes on 2 cores whatever the number of kept ghosts:
+# part 1 renders at most this many (direct + ghost x 2 x repeats; 2 ghosts: 3 repeats) ...
+MAX_SPLAT_RENDERS = 13
+# ... and part 2's largest N shrinks with more ghosts (2 ghosts: 2^17 each)
+ERROR_SAMPLES_BUDGET = 1 << 18
 
 
 def load_ghosts(folder: Path) -> list[dict[str, Any]]:
@@ -93,6 +100,13 @@ def load_ghosts(folder: Path) -> list[dict[str, Any]]:
                         exact_seconds=float(sum(c.get("exact_seconds", 0.0)
                                                 for c in g.get("trust", [])))))
     return out
+
+
+def lens_of(rt: Lensrt, g: dict[str, Any]) -> Any:
+    """A ghost's table, loaded once (every part renders the same table)."""
+    if g.get("lens") is None:
+        g["lens"] = rt.load(g["table"])
+    return g["lens"]
 
 
 def render_once(rt: Lensrt, lens: Any, scene: dict[str, Any], samples: int,
@@ -138,7 +152,7 @@ def splat_rates(rt: Lensrt, direct_table: Path, ghosts: list[dict[str, Any]], st
     """Part 1: direct, ghost 1, direct, ghost 2, ..., direct, `repeats` times over."""
     scene = frame_scene(stride)
     direct = rt.load(direct_table)
-    lenses = {g["label"]: rt.load(g["table"]) for g in ghosts}
+    lenses = {g["label"]: lens_of(rt, g) for g in ghosts}
     renders: list[dict[str, Any]] = []
 
     def one(image: str, lens: Any, repeat: int) -> dict[str, Any]:
@@ -208,22 +222,6 @@ def pair_error(rt: Lensrt, lens: Any, scene: dict[str, Any], samples: int,
                 error_mean_of_two=diff / (2.0 * level), seeds=list(seeds))
 
 
-def floor_model_samples(n: float, error: float, target: float) -> float | None:
-    """N for `target` from `error` at n under the paper estimator's floor model, or None.
-
-    Per pixel the estimate is |mu + noise|^2 with complex noise of variance v / N; with
-    x = v / (N |mu|^2), the floor over the level, its relative error is
-    e = sqrt(2x + x^2) / (1 + x), so x = 1 / sqrt(1 - e^2) - 1, and x ~ 1 / N. For small e,
-    x ~ e^2 / 2: the 1/sqrt(N) law; near e = 1 (floor-dominated) N grows faster."""
-    if not 0.0 <= error < 1.0:
-        return None
-
-    def x(e: float) -> float:
-        return 1.0 / math.sqrt(1.0 - e * e) - 1.0
-
-    return n * x(error) / x(target)
-
-
 def _slope(lo: dict[str, Any], hi: dict[str, Any]) -> float:
     """d log(error) / d log(N) between two error pairs."""
     return math.log(hi["error_one"] / lo["error_one"]) / math.log(hi["samples"] / lo["samples"])
@@ -275,16 +273,29 @@ def estimate_target(steps: list[dict[str, Any]], target: float) -> dict[str, Any
                         method=f"interpolated between N = {lo['samples']} and {hi['samples']}",
                         from_samples=lo["samples"], from_error=lo["error_one"])
     best = min(steps, key=lambda st: abs(math.log(st["error_one"] / target)))
-    n = best["samples"] * (best["error_one"] / target) ** 2
     big = sorted(steps, key=lambda st: st["samples"])[-2:]
-    sec = secs(best) * n / best["samples"]
-    if len(big) == 2 and big[0]["samples"] < big[1]["samples"]:
-        rate = (secs(big[1]) - secs(big[0])) / (big[1]["samples"] - big[0]["samples"])
-        if rate > 0 and secs(big[0]) - rate * big[0]["samples"] >= 0:  # else noise: keep N
-            sec = affine(big[0], big[1], n)
-    return dict(samples_to_target=n, seconds_to_target=sec,
-                method=f"1/sqrt(N) from N = {best['samples']}",
-                from_samples=best["samples"], from_error=best["error_one"])
+
+    def seconds_at(n: float) -> float:
+        if len(big) == 2 and big[0]["samples"] < big[1]["samples"]:
+            rate = (secs(big[1]) - secs(big[0])) / (big[1]["samples"] - big[0]["samples"])
+            if rate > 0 and secs(big[0]) - rate * big[0]["samples"] >= 0:  # else noise
+                return affine(big[0], big[1], n)
+        return secs(best) * n / best["samples"]
+
+    n = best["samples"] * (best["error_one"] / target) ** 2
+    out = dict(samples_to_target=n, seconds_to_target=seconds_at(n),
+               method=f"1/sqrt(N) from N = {best['samples']}",
+               from_samples=best["samples"], from_error=best["error_one"])
+    # Beside it, the slope measured between the two pairs nearest the target on this side
+    # (Sobol points converge faster than 1/sqrt(N) where the integrand is smooth)
+    side = sorted(steps, key=lambda st: abs(math.log(st["error_one"] / target)))[:2]
+    if len(side) == 2 and side[0]["samples"] != side[1]["samples"]:
+        slope = _slope(*sorted(side, key=lambda st: st["samples"]))
+        if slope < 0:
+            n2 = best["samples"] * (target / best["error_one"]) ** (1.0 / slope)
+            out.update(measured_slope=slope, samples_to_target_measured_slope=n2,
+                       seconds_to_target_measured_slope=seconds_at(n2))
+    return out
 
 
 def seconds_to_error(rt: Lensrt, lens: Any, scene: dict[str, Any], samples: int,
@@ -301,13 +312,7 @@ def seconds_to_error(rt: Lensrt, lens: Any, scene: dict[str, Any], samples: int,
         if nxt is None:
             break
         steps.append(pair_error(rt, lens, scene, nxt))
-    est = estimate_target(steps, target)
-    n, e = est["from_samples"], est["from_error"]
-    floor = None if est["method"].startswith("interpolated") else floor_model_samples(
-        n, e, target)
-    return dict(steps=steps, **est,
-                extrapolated_from_floor_regime=bool(floor is not None and e > 0.1),
-                samples_to_target_floor_model=floor)
+    return dict(steps=steps, **estimate_target(steps, target))
 
 
 def window_scene(center: tuple[float, float], width_mm: float, pixels: int) -> dict[str, Any]:
@@ -358,13 +363,13 @@ def mc_errors(rt: Lensrt, direct_table: Path, ghosts: list[dict[str, Any]], pixe
             continue
         center = (0.5 * (box[0] + box[1]), 0.5 * (box[2] + box[3]))
         width = max(box[1] - box[0], box[3] - box[2]) + 2 * margin
-        res = seconds_to_error(rt, rt.load(g["table"]), window_scene(center, width, pixels),
+        res = seconds_to_error(rt, lens_of(rt, g), window_scene(center, width, pixels),
                                samples, max_samples)
         res.update(center_mm=list(center), width_mm=width, footprint_box_mm=list(box))
         if res["seconds_to_target"] is not None and d["seconds_to_target"]:
             res["ratio_vs_direct"] = res["seconds_to_target"] / d["seconds_to_target"]
         per_ghost[g["label"]] = res
-    return dict(target=TARGET_ERROR, pixels=[pixels, pixels],
+    return dict(target=TARGET_ERROR, pixels=[pixels, pixels], max_samples=max_samples,
                 error="error of ONE render of N samples per wavelength: ||A - B||_2 / "
                       "(sqrt(2) ||(A + B) / 2||_2) over pixels and wavelengths, A and B two "
                       "renders with seeds 1 and 2; N to the target scaled as 1/sqrt(N), "
@@ -462,10 +467,10 @@ def report_errors(er: dict[str, Any]) -> None:
                   f"{r['note']}")
             return
         ratio = r.get("ratio_vs_direct", 1.0 if label == "direct" else None)
-        fm = r["samples_to_target_floor_model"]
-        flag = f"  {r['method']}" + ("" if not r["extrapolated_from_floor_regime"] else (
-            " (in the floor regime 1/sqrt(N) is optimistic; floor model: "
-            + ("-" if fm is None else f"{fm:.3g} samples") + ")"))
+        flag = f"  {r['method']}" + ("" if "measured_slope" not in r else (
+            f"; with the measured slope {r['measured_slope']:.2f}: "
+            f"{r['samples_to_target_measured_slope']:.3g} samples, "
+            f"{r['seconds_to_target_measured_slope']:.3g} s"))
         print(f"  {label:8s} {r['width_mm']:9.3f} {r['from_samples']:10d} "
               f"{r['from_error']:8.2e} {r['samples_to_target']:9.3g} "
               f"{r['seconds_to_target']:8.3g} {'-' if ratio is None else f'{ratio:8.3g}'}"
@@ -510,11 +515,14 @@ def main(argv: list[str] | None = None) -> int:
                     help="lensrt-bench's JSON for the baseline (default: OUT/lensrt.json)")
     ap.add_argument("--stride", type=int, default=12, help="one pixel per STRIDE x STRIDE")
     ap.add_argument("--samples", type=int, default=16384, help="per wavelength (part 1)")
-    ap.add_argument("--repeats", type=int, default=3)
+    ap.add_argument("--repeats", type=int, default=0,
+                    help="default: 3, fewer with more ghosts (MAX_SPLAT_RENDERS)")
     ap.add_argument("--error-pixels", type=int, default=64)
     ap.add_argument("--error-samples", type=int, default=4096,
                     help="first N of the error pairs (part 2)")
-    ap.add_argument("--max-error-samples", type=int, default=1 << 17)
+    ap.add_argument("--max-error-samples", type=int, default=0,
+                    help="largest N of an error pair (default: 2^17 for up to 2 ghosts, "
+                         "less with more: ERROR_SAMPLES_BUDGET)")
     ap.add_argument("--rays", type=int, default=None,
                     help="exact rays per wavelength of the enumeration (default lensfit's)")
     ap.add_argument("--fit-ghost", default="0-2", help="ghost I-J to fit live, or none")
@@ -522,7 +530,13 @@ def main(argv: list[str] | None = None) -> int:
 
     t_all = time.perf_counter()
     ghosts = load_ghosts(FOLDER)
+    k = max(1, len(ghosts))
+    repeats = args.repeats or max(1, min(3, (MAX_SPLAT_RENDERS - 1) // (2 * k)))
+    max_n = args.max_error_samples or max(
+        args.error_samples, 2 ** int(math.log2(ERROR_SAMPLES_BUDGET / k)))
     rt = Lensrt(args.library)
+    for g in ghosts:  # every table read before any work
+        lens_of(rt, g)
     direct_table = FOLDER / "lens0001.table"
     lensrt_json = args.lensrt_json or args.out / "lensrt.json"
     res: dict[str, Any] = dict(
@@ -532,13 +546,13 @@ def main(argv: list[str] | None = None) -> int:
         light_field_deg=list(FIELD), f_number=F_NUMBER, wavelengths=WAVELENGTHS,
         focus_offset_mm=0.0, ghosts=[g["label"] for g in ghosts])
     print(f"Flares of {LENS}: light ({FIELD[0]:g}, {FIELD[1]:g}) deg, f/{F_NUMBER:g}, "
-          f"{WAVELENGTHS} wavelengths, in focus; {len(ghosts)} committed ghost tables "
+          f"{WAVELENGTHS} wavelengths, in focus; {len(ghosts)} ghost tables "
           f"({', '.join(res['ghosts'])})", flush=True)
     res["splats"] = splat_rates(rt, direct_table, ghosts, args.stride, args.samples,
-                                args.repeats, baseline_rate(lensrt_json))
+                                repeats, baseline_rate(lensrt_json))
     report_splats(res["splats"])
     res["error"] = mc_errors(rt, direct_table, ghosts, args.error_pixels, args.error_samples,
-                             args.max_error_samples, args.rays)
+                             max_n, args.rays)
     report_errors(res["error"])
     res["fitting"] = fit_times(ghosts, parse_ghost(args.fit_ghost), args.rays)
     report_fitting(res["fitting"])
