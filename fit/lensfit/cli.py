@@ -200,37 +200,21 @@ def _direct_fit(lens, args: argparse.Namespace):
 def _fit_ghosts(lens, ghosts, info: dict, light: tuple[float, float],
                 args: argparse.Namespace, source) -> int:
     """`lensfit ghosts LENS --fit`: fit every kept ghost over the direct fit's domain, and
-    write its table (and Horner C) with ghosts.json under <generated>/<lens folder>/ghosts/."""
+    write its table (and Horner C) with ghosts.json under <generated>/<lens folder>/ghosts/.
+    The folder then holds exactly the kept ghosts; with --add, the kept ones are added or
+    replaced and the others fitted before stay."""
     from lensfit.codegen import emit_c
     from lensfit.codegen.table import write_table
     from lensfit.generate import header_comment, lens_prefix, write_folder
-    from lensfit.ghosts.enumerate import enumerate_ghosts
-    from lensfit.ghosts.fit import fit_ghost
-    from lensfit.ghosts.tables import ghost_report, ghost_table, ghost_trust, trust_lines
+    from lensfit.ghosts.tables import fit_with_trust, ghost_report
 
     folder, direct, domain = source
+    out = folder / "ghosts"
     kept = [g for g in ghosts if g.kept]
     files: dict[str, str] = {}
     report = []
     for g in kept:
-        fit = fit_ghost(lens, g.first, g.second, domain)
-        table = ghost_table(fit, direct, g.name)
-        # Trust where the ghost is: at this light, or on the axis if no ray of it reaches
-        # the sensor from this light (the table covers the whole domain either way)
-        at, where = g, light
-        if not any(g.rays):
-            where = (0.0, 0.0)
-            at = enumerate_ghosts(lens, f_number=args.f_number, light=where,
-                                  pairs=[(g.first, g.second)])[0]
-            if not any(at.rays):
-                raise InputError(f"ghost {g.name}: no ray of it reaches the sensor from the "
-                                 f"light at {light} or on the axis: nothing to check its "
-                                 f"fit against; leave it out (--ghost)")
-        k = int(np.argmax(at.peak))  # footprint at the wavelength of its highest peak
-        cells = ghost_trust(lens, table, fit.half, f_number=info["f_number"],
-                            centre_mm=tuple(at.centre_mm[k] or (0.0, 0.0)),
-                            radius_mm=at.radius_mm[k], field_deg=where)
-        table = ghost_table(fit, direct, g.name, trust_lines(cells))
+        fit, table, cells = fit_with_trust(lens, g, direct, domain, light, info["f_number"])
         stem = f"ghost_{g.first}_{g.second}"
         comment = header_comment(lens, f"Ghost {g.name} (reflect at surface {g.second_file}, "
                                        f"then {g.first_file}): `lensfit ghosts --fit`.")
@@ -238,6 +222,7 @@ def _fit_ghosts(lens, ghosts, info: dict, light: tuple[float, float],
         files.update(emit_c(list(table), f"{lens_prefix(lens)}{stem}", header_comment=comment,
                             which="horner"))
         entry = ghost_report(fit, g.name, cells, g.to_dict())
+        entry.update(light_deg=list(light), f_number=info["f_number"])
         report.append(entry)
         worst = max(cells, key=lambda c: c.rel_l2)
         print(f"ghost {g.name} ({g.case}, side {fit.half.system}): {fit.seconds:.1f} s, "
@@ -245,19 +230,26 @@ def _fit_ghosts(lens, ghosts, info: dict, light: tuple[float, float],
               f"{fit.agreement_housings:.2%} ({len(fit.clip_housings.outputs) // 2} pairs), "
               f"PSF vs exact {worst.rel_l2:.2%} (f/{worst.f_number:g} "
               f"{worst.wavelength_nm:g} nm), energy {worst.energy_ratio:.4f}, without "
-              f"P_clip {worst.energy_ratio_no_clip:.4f}")
-    files["ghosts.json"] = json.dumps(
-        {"format": "lensfit-ghosts 1", "settings": {**info, "light_deg": list(light),
-                                                   "count": args.count,
-                                                   "threshold": None if args.count
-                                                   else args.threshold},
-         "ghosts": report}, indent=1, sort_keys=True, allow_nan=False) + "\n"
-    out = folder / "ghosts"
+              f"P_clip {worst.energy_ratio_no_clip:.4f}", flush=True)
+    index = out / "ghosts.json"
+    if args.add and index.is_file():
+        # Keep the ghosts fitted before that were not named this time
+        try:
+            before = json.loads(index.read_text(encoding="utf-8"))["ghosts"]
+        except (OSError, ValueError, KeyError, TypeError) as e:
+            raise InputError(f"{index}: cannot read the ghosts fitted before: {e}") from None
+        names = {e["label"] for e in report}
+        report = [e for e in before if e.get("label") not in names] + report
+        files.update({p.name: p.read_text(encoding="utf-8") for e in before
+                      if e.get("label") not in names
+                      for p in out.glob(f"*ghost_{e['first']}_{e['second']}.*")})
+    files["ghosts.json"] = json.dumps({"format": "lensfit-ghosts 1", "ghosts": report},
+                                      indent=1, sort_keys=True, allow_nan=False) + "\n"
     write_folder(out, files)
-    for old in out.glob("ghost_*"):  # ghosts no longer kept
+    for old in out.glob("*ghost_*"):  # ghosts no longer kept
         if old.name not in files:
             old.unlink()
-    print(f"wrote {len(kept)} ghost table(s) and ghosts.json to {out}")
+    print(f"wrote {len(kept)} ghost table(s) and ghosts.json ({len(report)} ghosts) to {out}")
     return 0
 
 
@@ -277,6 +269,8 @@ def cmd_ghosts(args: argparse.Namespace) -> int:
     light = _light_arg(args.light)
     if args.count is not None and args.count < 1:
         raise InputError(f"--count {args.count}: expected a positive number of ghosts")
+    if args.add and not args.fit:
+        raise InputError("--add: adds fitted ghosts to a lens folder, so it needs --fit")
     if not (math.isfinite(args.threshold) and args.threshold > 0):
         raise InputError(f"--threshold {args.threshold}: expected a positive relative peak")
     if not 100 <= args.rays <= 10**7:
@@ -741,6 +735,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--fit", action="store_true",
                    help="fit the kept ghosts over the direct fit's domain and write their "
                         "tables to <generated>/<lens folder>/ghosts/")
+    p.add_argument("--add", action="store_true",
+                   help="with --fit: keep the ghosts fitted before (replacing those fitted "
+                        "again) instead of writing exactly the kept ones")
     p.add_argument("--generated", default="generated", help="where the lens folders are "
                    "(with --fit; default generated)")
     p.set_defaults(func=cmd_ghosts)

@@ -26,7 +26,8 @@ the brightest ghost pixel over them, so that the uncoated flare is as much brigh
 it is. The tone map is logarithmic over DECADES decades below white; the direct image
 saturates, as in a photograph of a bright light. Colours are lensrt's linear sRGB (CIE
 1931 2-degree observer, D65). Writes the PNG and, beside it, a JSON with each image's
-window, power and seconds.
+window, samples, Monte Carlo floor, power and seconds (a power includes the floor: the
+paper's estimator adds it to every pixel, so it reads high by about that share).
 """
 
 from __future__ import annotations
@@ -266,11 +267,10 @@ def main(argv: list[str] | None = None) -> int:
         white = groups[p["folder"].name.removesuffix("-uncoated")] or 1.0
         ax.imshow(tone_map(p["direct"] + p["flare"], white),
                   extent=(-frame.w_mm / 2, frame.w_mm / 2, -frame.h_mm / 2, frame.h_mm / 2))
-        ghosts = sum(1 for r in p["record"] if r["image"] != "direct" and r["window"])
-        power = sum(r["power"] for r in p["record"] if r["image"] != "direct")
-        direct_power = next(r["power"] for r in p["record"] if r["image"] == "direct")
-        ax.set_title(f"{p['label']}: f/{p['f_number']:g}, {ghosts} ghosts, flare "
-                     f"{power / direct_power:.2e} of the direct power", color="white",
+        shown = [r for r in p["record"] if r["image"] != "direct" and r["window"]]
+        worst = max((r["floor"] for r in shown), default=0.0)
+        ax.set_title(f"{p['label']}: f/{p['f_number']:g}, {len(shown)} ghosts (Monte Carlo "
+                     f"floor at most {worst:.0%} of a ghost's level)", color="white",
                      fontsize=7)
         ax.set_xticks([])
         ax.set_yticks([])

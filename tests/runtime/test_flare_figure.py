@@ -65,10 +65,12 @@ def test_tone_map_keeps_hue_and_order():
 
 def test_small_figure_powers_match_the_exact_estimate(tmp_path):
     """One panel of 0001 at a coarse frame: every ghost that reaches the sensor is
-    rendered in its window, and its power over the direct power agrees with the
-    enumeration's estimate from exact rays (averaged over the rendered wavelengths
-    here against the estimate's 450/550/650 nm, so within a factor 3: the check is of
-    bookkeeping, not of the Monte Carlo; tests/runtime/test_ghost_psf.py checks 3%)."""
+    rendered in its window, and where its Monte Carlo floor is low (<= 5%: the paper's
+    estimator adds the floor to every pixel) its power over the direct power agrees with
+    the enumeration's estimate from exact rays at the same three wavelengths (lensrt's
+    default: the centres of three bins over 380-780 nm) to 25% (the ratio of the
+    wavelength means against the mean of the ratios, the window's margin; this checks
+    bookkeeping: tests/runtime/test_ghost_psf.py checks the power to 3%)."""
     from lensfit.ghosts.enumerate import enumerate_ghosts
     from lensfit.prescription import load_lens
 
@@ -81,15 +83,20 @@ def test_small_figure_powers_match_the_exact_estimate(tmp_path):
     images = {r["image"]: r for r in data["panels"][0]["images"]}
     direct = images.pop("direct")["power"]
     ghosts = json.loads((FOLDER / "ghosts" / "ghosts.json").read_text())["ghosts"]
+    lams = [380.0 + (k + 0.5) * 400.0 / 3 for k in range(3)]
     est = {e.name: e for e in enumerate_ghosts(
-        load_lens("0001"), f_number=8.0, light=(-6.0, -4.0),
+        load_lens("0001"), f_number=8.0, light=(-6.0, -4.0), wavelengths_nm=lams,
         pairs=[(g["first"], g["second"]) for g in ghosts])}
     assert set(images) == set(est)
+    checked = 0
     for name, r in images.items():
         energy = float(np.mean(est[name].energy))
         if energy == 0:
             assert r["window"] is None  # fully vignetted from this light: not rendered
             continue
-        assert r["window"] is not None and r["power"] > 0
-        assert r["power"] / direct == pytest.approx(energy, rel=2.0), name
+        assert r["window"] is not None and r["power"] > 0 and r["floor"] > 0
+        if r["floor"] <= 0.05:
+            assert r["power"] / direct == pytest.approx(energy, rel=0.25), name
+            checked += 1
+    assert checked >= 1  # 0-2, focused enough for a low floor
     assert out.is_file() and out.stat().st_size > 0

@@ -64,6 +64,7 @@ class GhostFit:
     held_out_rays: int  # converged held-out rays the agreements are measured on
     blocked_share: float  # of those, the share the exact trace blocks
     seconds: float
+    options: FitOptions | None = None  # the budgets it was fitted with
 
 
 def select_housings(ratio: np.ndarray, exact: np.ndarray, base: np.ndarray,
@@ -181,4 +182,5 @@ def fit_ghost(lens: Lens, i: int, j: int, domain: Domain | None = None,
     agree_h = float(np.mean(_predicted_pass(clip_h, x, len(selected), stop_r) == exact))
     return GhostFit(half, system, outs, clip_max, clip_h, selected, agree_max, agree_h,
                     float(np.mean(tr.ok)), float(np.mean(te.ok)), int(ok.sum()),
-                    float(np.mean(~exact)) if exact.size else 0.0, time.perf_counter() - t0)
+                    float(np.mean(~exact)) if exact.size else 0.0, time.perf_counter() - t0,
+                    options)

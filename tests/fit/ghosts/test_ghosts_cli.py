@@ -79,6 +79,7 @@ def test_table_and_json(singlet, capsys):
     (["--ghost", "0-5"], ["--ghost '0-5'", "surface 5 is out of range", "surfaces 0..1"]),
     (["--ghost", "1-0"], ["--ghost '1-0'", "expected i < j"]),
     (["--ghost", "0:1"], ["--ghost '0:1'", "expected a ghost as i-j"]),
+    (["--add"], ["--add", "needs --fit"]),
     (["--fit", "--generated", "/nonexistent-folder"],
      ["/nonexistent-folder/singlet/fit.json", "not found", "lensfit fit"]),
 ])
@@ -103,3 +104,34 @@ def test_no_ghost_above_threshold(singlet, capsys):
     assert captured.out == ""
     (err,) = captured.err.strip().splitlines()
     assert "singlet.toml" in err and "threshold 0.5" in err and "ghost 0-1" in err
+
+
+def test_fit_writes_ghost_tables_and_merges_named_ones(singlet, tmp_path, capsys):
+    """`lensfit ghosts --fit` end to end on the singlet (a quick direct fit first): the
+    ghost's table, C and ghosts.json. With --add, a ghost fitted before and not fitted
+    again (here a stand-in entry and file) is kept; without, the folder holds exactly the
+    kept ghosts. (Two ghost fits of ~40 s each on an idle 2-core machine.)"""
+    gen = tmp_path / "gen"
+    assert main(["fit", singlet, "--quick", "--f-number", "8", "--field", "5",
+                 "--generated", str(gen), "--report", str(tmp_path / "r"),
+                 "--no-timing"]) == 0
+    out = gen / "singlet" / "ghosts"
+    out.mkdir()
+    (out / "ghosts.json").write_text(json.dumps(
+        {"format": "lensfit-ghosts 1", "ghosts": [{"label": "9-9", "first": 9, "second": 9}]}))
+    (out / "ghost_9_9.table").write_text("stand-in")
+    args = ["ghosts", singlet, "--f-number", "8", "--rays", "2000", "--count", "1", "--fit",
+            "--generated", str(gen)]
+    assert main([*args, "--ghost", "0-1", "--add"]) == 0
+    assert "ghost 0-1 (B, side P_s)" in capsys.readouterr().out
+    doc = json.loads((out / "ghosts.json").read_text())
+    assert [e["label"] for e in doc["ghosts"]] == ["9-9", "0-1"]
+    assert (out / "ghost_9_9.table").read_text() == "stand-in"
+    g = doc["ghosts"][1]
+    assert (g["case"], g["side"], g["f_number"]) == ("B", "P_s", pytest.approx(8.0))
+    assert g["psf_vs_exact"] <= 0.03 and g["converged_test"] > 0.99
+    # Without --add: exactly the kept ghosts
+    assert main(args) == 0
+    assert [e["label"] for e in json.loads((out / "ghosts.json").read_text())["ghosts"]] == ["0-1"]
+    assert sorted(p.name for p in out.iterdir()) == [
+        "ghost_1_2.table", "ghosts.json", "lenssinglet_ghost_1_2.c", "lenssinglet_ghost_1_2.h"]
