@@ -291,8 +291,9 @@ def estimate_target(steps: list[dict[str, Any]], target: float) -> dict[str, Any
     side = sorted(steps, key=lambda st: abs(math.log(st["error_one"] / target)))[:2]
     if len(side) == 2 and side[0]["samples"] != side[1]["samples"]:
         slope = _slope(*sorted(side, key=lambda st: st["samples"]))
-        if slope < 0:
-            n2 = best["samples"] * (target / best["error_one"]) ** (1.0 / slope)
+        # Shallower than SLOPE_RANGE's: the floor dominates both pairs (or noise); no figure
+        if slope <= SLOPE_RANGE[1]:
+            n2 = best["samples"] * math.exp(math.log(target / best["error_one"]) / slope)
             out.update(measured_slope=slope, samples_to_target_measured_slope=n2,
                        seconds_to_target_measured_slope=seconds_at(n2))
     return out

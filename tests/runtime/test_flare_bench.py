@@ -135,6 +135,12 @@ def test_error_one_side_only_uses_the_sqrt_law():
     assert fast["samples_to_target"] == pytest.approx(8192 * (300 / 8192 / t) ** 2)
     assert fast["samples_to_target_measured_slope"] == pytest.approx(3e4, rel=1e-9)
     assert fast["seconds_to_target_measured_slope"] == pytest.approx(secs(3e4), rel=1e-9)
+    # Errors that barely fall (a floor-dominated ghost: 0.80 then 0.79 at 8x the samples):
+    # no slope figure (it would ask for 1e100 samples or overflow), the 1/sqrt(N) one stays
+    flat = fb.estimate_target([dict(samples=4096, error_one=0.80, seconds=[1.0, 1.0]),
+                               dict(samples=32768, error_one=0.79, seconds=[8.0, 8.0])], t)
+    assert "measured_slope" not in flat
+    assert flat["samples_to_target"] == pytest.approx(32768 * 79.0 ** 2)
     # Seconds that fell with N (a loaded machine): no affine line, proportional to N
     noisy = steps_of(law, lambda n: 5.0 - 1e-5 * n, [4096, 1 << 17])
     three = fb.estimate_target(noisy, t)
