@@ -178,6 +178,9 @@ def test_tiny_run_writes_flares_json(tmp_path, monkeypatch):
     assert sp["repeats"] == max(1, min(3, (fb.MAX_SPLAT_RENDERS - 1) // (2 * len(ghosts))))
     assert len(sp["renders"]) == 1 + 2 * len(ghosts) * sp["repeats"]
     assert res["error"]["max_samples"] == 256
+    for r in [res["error"]["direct"], *res["error"]["ghosts"].values()]:
+        if r.get("seconds_to_target") is not None:
+            assert r["rough"] == (r["from_error"] > fb.ROUGH_ERROR)
     assert set(sp["ghosts"]) == set(res["ghosts"])
     for g in sp["ghosts"].values():
         assert math.isfinite(g["ratio_vs_direct"]) and g["ratio_vs_direct"] > 0
