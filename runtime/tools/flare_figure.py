@@ -52,7 +52,7 @@ from lensrt_ctypes import Lensrt  # noqa: E402  (needs the path above)
 
 DECADES = 2.5  # of the tone map below white
 MIN_SAMPLES = 4096  # per wavelength and image
-DIRECT_SAMPLES = 1 << 20  # the direct image's few pixels: its halo's floor to ~1e-6
+DIRECT_SAMPLES = 1 << 18  # the direct image's few pixels: its halo's floor to ~4e-6
 WINDOW_MARGIN_LAMBDA_N = 30.0  # diffraction margin around a footprint: 30 lambda N
 LAMBDA_MM = 550e-6
 DIRECT_HALF_MM = 0.05  # the direct PSF's window: +-0.05 mm around its image points
