@@ -169,8 +169,9 @@ def main(argv: list[str] | None = None) -> int:
     if args.fits is not None:
         from lensfit.generate import GENERATED_DIR
 
-        ids = args.fits or sorted(p.name.split("-")[0] for p in GENERATED_DIR.iterdir()
-                                  if (p / "fit.json").is_file())
+        # One row per lens: an uncoated variant's folder (<lens>-uncoated) is the same id
+        ids = args.fits or sorted({p.name.split("-")[0] for p in GENERATED_DIR.iterdir()
+                                   if (p / "fit.json").is_file()})
         return bench_fits(outdir, ids)
 
     results: list[dict[str, Any]] = []
