@@ -200,7 +200,8 @@ def _direct_fit(lens, args: argparse.Namespace):
 def _fit_ghosts(lens, ghosts, info: dict, light: tuple[float, float],
                 args: argparse.Namespace, source) -> int:
     """`lensfit ghosts LENS --fit`: fit every kept ghost over the direct fit's domain, and
-    write its table (and Horner C) with ghosts.json under <generated>/<lens folder>/ghosts/.
+    write its table (and with --c its Horner C) with ghosts.json under
+    <generated>/<lens folder>/ghosts/.
     The folder then holds exactly the kept ghosts; with --add, the kept ones are added or
     replaced and the others fitted before stay."""
     from lensfit.codegen import emit_c
@@ -219,8 +220,9 @@ def _fit_ghosts(lens, ghosts, info: dict, light: tuple[float, float],
         comment = header_comment(lens, f"Ghost {g.name} (reflect at surface {g.second_file}, "
                                        f"then {g.first_file}): `lensfit ghosts --fit`.")
         files[f"{stem}.table"] = write_table(table, comment=comment)
-        files.update(emit_c(list(table), f"{lens_prefix(lens)}{stem}", header_comment=comment,
-                            which="horner"))
+        if args.c:  # megabytes a ghost; lensrt loads the table
+            files.update(emit_c(list(table), f"{lens_prefix(lens)}{stem}",
+                                header_comment=comment, which="horner"))
         entry = ghost_report(fit, g.name, cells, g.to_dict())
         entry.update(light_deg=list(light), f_number=info["f_number"])
         report.append(entry)
@@ -271,6 +273,8 @@ def cmd_ghosts(args: argparse.Namespace) -> int:
         raise InputError(f"--count {args.count}: expected a positive number of ghosts")
     if args.add and not args.fit:
         raise InputError("--add: adds fitted ghosts to a lens folder, so it needs --fit")
+    if args.c and not args.fit:
+        raise InputError("--c: writes fitted ghosts' C, so it needs --fit")
     if not (math.isfinite(args.threshold) and args.threshold > 0):
         raise InputError(f"--threshold {args.threshold}: expected a positive relative peak")
     if not 100 <= args.rays <= 10**7:
@@ -735,6 +739,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--fit", action="store_true",
                    help="fit the kept ghosts over the direct fit's domain and write their "
                         "tables to <generated>/<lens folder>/ghosts/")
+    p.add_argument("--c", action="store_true",
+                   help="with --fit: also write each ghost's Horner C (2-3 MB a ghost; lensrt "
+                        "loads the tables, `lensfit scene` writes a scene's ghosts as C)")
     p.add_argument("--add", action="store_true",
                    help="with --fit: keep the ghosts fitted before (replacing those fitted "
                         "again) instead of writing exactly the kept ones")
