@@ -56,6 +56,7 @@ def choose_ghosts(lens: Lens, scene: Scene, fitted: dict[str, Table]) -> list[st
     a count or threshold."""
     where = f"{scene.source_file}: key 'ghosts':"
     if scene.ghosts is not None:
+        labels = []
         for name in scene.ghosts:
             i, j = parse_ghost(lens, name, where)
             label = f"{lens.file_index(i)}-{lens.file_index(j)}"
@@ -63,8 +64,8 @@ def choose_ghosts(lens: Lens, scene: Scene, fitted: dict[str, Table]) -> list[st
                 raise SceneError(f"{where} ghost {name!r} is not fitted for {lens.name} "
                                  f"(fitted: {', '.join(fitted) or 'none'}); run `lensfit "
                                  f"ghosts LENS --fit --ghost {label}`")
-        return [f"{lens.file_index(i)}-{lens.file_index(j)}" for i, j in
-                (parse_ghost(lens, n, where) for n in scene.ghosts)]
+            labels.append(label)
+        return labels
     pairs = [(t.ghost.first, t.ghost.second) for t in fitted.values()]
     peak = dict.fromkeys(fitted, 0.0)
     for light in scene.lights:

@@ -25,29 +25,28 @@
 
 /* --------------------------------------------------------------- create ----- */
 
+/* An array of n per-pixel polynomials (P_s's or P_clip's), and what each holds. */
+static void free_pixel_polys(lensrt_context ctx, lensrt_pixel_poly *polys, int n)
+{
+    int i;
+    if (polys)
+        for (i = 0; i < n; i++) {
+            lensrt_free(ctx, polys[i].ix);
+            lensrt_free(ctx, polys[i].iy);
+            lensrt_free(ctx, polys[i].slot);
+            lensrt_free(ctx, polys[i].coef);
+        }
+    lensrt_free(ctx, polys);
+}
+
 static void free_render(lensrt_render r)
 {
     lensrt_context ctx = r->ctx;
-    int i;
     lensrt_tiles_free(r);
     if (r->device) r->device->destroy(r);
-    if (r->ps)
-        for (i = 0; i < r->n_wl * 4; i++) {
-            lensrt_free(ctx, r->ps[i].ix);
-            lensrt_free(ctx, r->ps[i].iy);
-            lensrt_free(ctx, r->ps[i].slot);
-            lensrt_free(ctx, r->ps[i].coef);
-        }
-    lensrt_free(ctx, r->ps);
+    free_pixel_polys(ctx, r->ps, r->n_wl * 4);
     lensrt_free(ctx, r->po);
-    if (r->clip_s)
-        for (i = 0; i < r->n_wl * 2 * r->n_clip_pairs; i++) {
-            lensrt_free(ctx, r->clip_s[i].ix);
-            lensrt_free(ctx, r->clip_s[i].iy);
-            lensrt_free(ctx, r->clip_s[i].slot);
-            lensrt_free(ctx, r->clip_s[i].coef);
-        }
-    lensrt_free(ctx, r->clip_s);
+    free_pixel_polys(ctx, r->clip_s, r->n_wl * 2 * r->n_clip_pairs);
     lensrt_free(ctx, r->clip_o);
     lensrt_free(ctx, r->basis);
     lensrt_free(ctx, r->basis_rank);
