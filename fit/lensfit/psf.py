@@ -56,7 +56,7 @@ import numpy as np
 from scipy.optimize import minimize_scalar
 
 from lensfit.facts import LensFacts, lens_facts
-from lensfit.ghosts.sample import GhostHalf, aim_ghost
+from lensfit.ghosts.sample import GhostHalf, StopShape, aim_ghost
 from lensfit.paraxial.paraxial import image_distance, paraxial
 from lensfit.poly import System, design_matrix
 from lensfit.prescription.model import Lens
@@ -255,7 +255,8 @@ def exact_psf(lens: Lens, *, stop_radius_mm: float, aperture_xy_mm: np.ndarray,
               width_mm: float, height_mm: float = 0.0, center_x_mm: float = 0.0,
               center_y_mm: float = 0.0, clip: str = "pupils", workers: int | None = None,
               batch_pairs: int = BATCH_PAIRS, nodes: int = 0,
-              ghost: GhostHalf | None = None) -> np.ndarray:
+              ghost: GhostHalf | None = None,
+              stop_shape: StopShape | None = None) -> np.ndarray:
     """U (height, width), complex: the sum of the module doc over ``aperture_xy_mm``
     (N, 2) stop points, with phi, tau and the pupil positions of exactly traced rays.
 
@@ -271,9 +272,14 @@ def exact_psf(lens: Lens, *, stop_radius_mm: float, aperture_xy_mm: np.ndarray,
     ``ghost`` (:func:`lensfit.ghosts.sample.ghost_half`) sums the ghost's image instead:
     its half is traced by :func:`lensfit.ghosts.sample.aim_ghost` and always clipped
     exactly (every housing it crosses and, in case C, a round stop of ``stop_radius_mm``
-    at its further stop crossings); ``clip`` then applies to the direct half."""
+    at its further stop crossings, or ``stop_shape`` (x, y) mm -> inside for a bladed or
+    slit stop; the caller passes only ``aperture_xy_mm`` inside that shape); ``clip``
+    then applies to the direct half."""
     if nodes and ghost is not None:
         raise ValueError("nodes: the interpolated sensor side is for the direct path only")
+    if stop_shape is not None and ghost is None:
+        raise ValueError("stop_shape: tests a ghost's further stop crossings; the direct "
+                         "path's stop points are the caller's aperture_xy_mm")
     if nodes:
         return exact_psf_nodes(lens, stop_radius_mm=stop_radius_mm,
                                aperture_xy_mm=aperture_xy_mm, field_deg=field_deg,
@@ -297,7 +303,7 @@ def exact_psf(lens: Lens, *, stop_radius_mm: float, aperture_xy_mm: np.ndarray,
     if ghost_o:
         obj = aim_ghost(lens, ghost, x_O, y_O, u_O, pts[:, 0], pts[:, 1], lam,
                         fd_scale=max(stop_radius_mm, 1.0))
-        pass_o = obj.passes(stop_radius_mm)
+        pass_o = obj.passes(stop_radius_mm, stop_shape)
     else:
         obj = aim_object_side(lens, x_O, y_O, u_O, pts[:, 0], pts[:, 1], lam)
         pass_o = _passes(obj, facts.housing_first_mm, clip)
@@ -315,7 +321,7 @@ def exact_psf(lens: Lens, *, stop_radius_mm: float, aperture_xy_mm: np.ndarray,
         if ghost_s:
             sen = aim_ghost(lens, ghost, xs[p % width], ys[p // width], z_s, pts[j, 0],
                             pts[j, 1], lam)
-            ok = sen.passes(stop_radius_mm)
+            ok = sen.passes(stop_radius_mm, stop_shape)
         else:
             sen = aim_sensor_side(lens, xs[p % width], ys[p // width], z_s, pts[j, 0],
                                   pts[j, 1], lam, guess=guess(j, p),

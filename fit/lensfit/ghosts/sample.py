@@ -24,6 +24,7 @@ counted apart) the position over the housing's radius (x_k / R_k, y_k / R_k).
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -42,6 +43,9 @@ from lensfit.sample.rays import (
     aim_sensor_side,
 )
 from lensfit.trace.tracer import Step, ghost_path
+
+# A stop's shape: (x, y) mm arrays at the stop plane -> True inside the opening
+StopShape = Callable[[np.ndarray, np.ndarray], np.ndarray]
 
 
 @dataclass(frozen=True)
@@ -127,12 +131,16 @@ class GhostAimed:
         k = np.argmax(r, axis=1)
         return self.clip[np.arange(len(r)), k]
 
-    def passes(self, stop_radius_mm: float) -> np.ndarray:
-        """The exact verdict: through every housing of the half and, in case C, inside a
-        round stop of ``stop_radius_mm`` at both extra crossings."""
+    def passes(self, stop_radius_mm: float, stop_shape: StopShape | None = None) -> np.ndarray:
+        """The exact verdict: through every housing of the half and, in case C, inside the
+        stop at both extra crossings: ``stop_shape(x, y)`` (mm, arrays; True inside) for a
+        bladed or slit stop, else a round stop of ``stop_radius_mm``."""
         ok = self.ok & (self.vignetting <= 1.0)
         if self.stop.shape[1]:
-            ok &= np.all(np.hypot(self.stop[..., 0], self.stop[..., 1]) <= stop_radius_mm, 1)
+            x, y = self.stop[..., 0], self.stop[..., 1]
+            inside = (np.asarray(stop_shape(x, y), dtype=bool) if stop_shape is not None
+                      else np.hypot(x, y) <= stop_radius_mm)
+            ok &= np.all(inside, 1)
         return ok
 
 

@@ -4,6 +4,7 @@ and the fit of a ghost half with its clip outputs against held-out exact rays.""
 
 from __future__ import annotations
 
+import math
 from dataclasses import replace
 
 import numpy as np
@@ -171,6 +172,16 @@ def test_sensor_side_ghost_half_is_the_full_ghost_ray(lens0001, pair):
     assert np.array_equal((clipped.status == Status.OK)[both], verdict[both])
     if pair == (5, 8):  # this ghost's second and third stop crossings block some rays
         assert 0 < np.mean(verdict[both]) < 1
+    # a stop shape given as a function: the round one is the default verdict, and a
+    # square inscribed in it (a 4-blade stop) blocks more at the extra crossings only
+    r = dom.stop_radius_mm
+    assert np.array_equal(gh.passes(r, lambda x, y: np.hypot(x, y) <= r), gh.passes(r))
+    square = gh.passes(r, lambda x, y: np.maximum(abs(x), abs(y)) <= r / math.sqrt(2))
+    assert not np.any(square & ~gh.passes(r))
+    if half.stop_crossings:
+        assert np.sum(square[both]) < np.sum(verdict[both])
+    else:
+        assert np.array_equal(square, gh.passes(r))
 
 
 def test_sensor_side_ghost_half_12_14_is_two_valued_documented(lens0001):
