@@ -200,11 +200,11 @@ def _direct_fit(lens, args: argparse.Namespace):
 def _fit_ghosts(lens, ghosts, info: dict, light: tuple[float, float],
                 args: argparse.Namespace, source) -> int:
     """`lensfit ghosts LENS --fit`: fit every kept ghost over the direct fit's domain, and
-    write its table (and with --c its Horner C) with ghosts.json under
+    write its table (with --c its Horner C, with --glsl its GLSL) with ghosts.json under
     <generated>/<lens folder>/ghosts/.
     The folder then holds exactly the kept ghosts; with --add, the kept ones are added or
     replaced and the others fitted before stay."""
-    from lensfit.codegen import emit_c
+    from lensfit.codegen import emit_c, emit_glsl
     from lensfit.codegen.table import write_table
     from lensfit.generate import header_comment, lens_prefix, write_folder
     from lensfit.ghosts.tables import fit_with_trust, ghost_report
@@ -223,6 +223,9 @@ def _fit_ghosts(lens, ghosts, info: dict, light: tuple[float, float],
         if args.c:  # megabytes a ghost; lensrt loads the table
             files.update(emit_c(list(table), f"{lens_prefix(lens)}{stem}",
                                 header_comment=comment, which="horner"))
+        if args.glsl:  # P_o, P_s and P_clip for a renderer's own shaders
+            files.update(emit_glsl(list(table), f"{lens_prefix(lens)}{stem}",
+                                   header_comment=comment))
         entry = ghost_report(fit, g.name, cells, g.to_dict())
         entry.update(light_deg=list(light), f_number=info["f_number"])
         report.append(entry)
@@ -275,6 +278,8 @@ def cmd_ghosts(args: argparse.Namespace) -> int:
         raise InputError("--add: adds fitted ghosts to a lens folder, so it needs --fit")
     if args.c and not args.fit:
         raise InputError("--c: writes fitted ghosts' C, so it needs --fit")
+    if args.glsl and not args.fit:
+        raise InputError("--glsl: writes fitted ghosts' GLSL, so it needs --fit")
     if not (math.isfinite(args.threshold) and args.threshold > 0):
         raise InputError(f"--threshold {args.threshold}: expected a positive relative peak")
     if not 100 <= args.rays <= 10**7:
@@ -634,7 +639,7 @@ def cmd_scene(args: argparse.Namespace) -> int:
     systems, _ = read_fit_json(fit_file)
     scene = sc.load_scene(args.scene)
     special = sc.specialise(systems, scene)
-    files = scene_files(lens, special, scene.name, args.scene, systems.trust)
+    files = scene_files(lens, special, scene.name, args.scene, systems.trust, glsl=args.glsl)
     c_files = {name: text for name, text in files.items() if name.endswith((".c", ".h"))}
     out = Path(args.out) if args.out else gen / "scenes" / scene.name
     ghost_files: dict[str, str] = {}
@@ -647,7 +652,7 @@ def cmd_scene(args: argparse.Namespace) -> int:
         for label in chosen:
             table = fitted[label]
             ghost_files |= scene_files(lens, sc.specialise(table, scene), scene.name,
-                                       args.scene, table.trust, table.ghost)
+                                       args.scene, table.trust, table.ghost, glsl=args.glsl)
     write_folder(out, files)
     if ghost_files or (out / "ghosts").exists():
         write_folder(out / "ghosts", ghost_files)
@@ -742,6 +747,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--c", action="store_true",
                    help="with --fit: also write each ghost's Horner C (2-3 MB a ghost; lensrt "
                         "loads the tables, `lensfit scene` writes a scene's ghosts as C)")
+    p.add_argument("--glsl", action="store_true",
+                   help="with --fit: also write each ghost's GLSL (P_o, P_s and P_clip, "
+                        "float and double)")
     p.add_argument("--add", action="store_true",
                    help="with --fit: keep the ghosts fitted before (replacing those fitted "
                         "again) instead of writing exactly the kept ones")
@@ -842,6 +850,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="folder to write (default: generated/<lens>/scenes/<name>)")
     p.add_argument("--json", action="store_true", help="print the comparison as JSON")
     p.add_argument("--no-timing", action="store_true", help="skip timing the C")
+    p.add_argument("--glsl", action="store_true",
+                   help="also write the specialised systems' GLSL (and each kept ghost's)")
     p.set_defaults(func=cmd_scene)
     return ap
 

@@ -132,19 +132,22 @@ def regenerate(folder: Path) -> tuple[Lens, list[str]]:
 
 def scene_files(lens: Lens, special: Sequence[System], scene_name: str,
                 scene_file: str, trust: dict[str, Any],
-                ghost: GhostLines | None = None) -> dict[str, str]:
+                ghost: GhostLines | None = None, glsl: bool = False) -> dict[str, str]:
     """The files of ``scenes/<name>/`` for the specialised systems ``special``: Horner C
-    and the table, which carries the lens's facts and ``trust`` like the lens folder's
-    (a specialisation is the same polynomials with inputs folded in). With ``ghost``, the
-    files of that ghost (for ``scenes/<name>/ghosts/``)."""
+    (and with ``glsl`` GLSL) and the table, which carries the lens's facts and ``trust``
+    like the lens folder's (a specialisation is the same polynomials with inputs folded
+    in). With ``ghost``, the files of that ghost (for ``scenes/<name>/ghosts/``)."""
     prefix = f"{lens_prefix(lens)}{scene_name.replace('-', '_')}_"
     extra = f"Specialised for scene {Path(scene_file).name}."
     if ghost is not None:
         prefix += f"ghost_{ghost.first}_{ghost.second}_"
         extra = f"Ghost {ghost.label}, specialised for scene {Path(scene_file).name}."
     comment = header_comment(lens, extra)
-    return emit_c(special, prefix, header_comment=comment) | table_file(
+    files = emit_c(special, prefix, header_comment=comment) | table_file(
         special, prefix, comment, lens_facts(lens), trust, ghost)
+    if glsl:
+        files |= emit_glsl(special, prefix, header_comment=comment)
+    return files
 
 
 def header_comment(lens: Lens, extra: str = "") -> str:

@@ -81,6 +81,7 @@ def test_table_and_json(singlet, capsys):
     (["--ghost", "0:1"], ["--ghost '0:1'", "expected a ghost as i-j"]),
     (["--add"], ["--add", "needs --fit"]),
     (["--c"], ["--c", "needs --fit"]),
+    (["--glsl"], ["--glsl", "needs --fit"]),
     (["--fit", "--generated", "/nonexistent-folder"],
      ["/nonexistent-folder/singlet/fit.json", "not found", "lensfit fit"]),
 ])
@@ -123,9 +124,9 @@ def test_fit_writes_ghost_tables_and_merges_named_ones(singlet, tmp_path, capsys
     (out / "ghost_9_9.table").write_text("stand-in")
     args = ["ghosts", singlet, "--f-number", "8", "--rays", "2000", "--count", "1", "--fit",
             "--generated", str(gen)]
-    assert main([*args, "--ghost", "0-1", "--add", "--c"]) == 0
-    assert {"lenssinglet_ghost_1_2.c", "lenssinglet_ghost_1_2.h"} <= {
-        p.name for p in out.iterdir()}  # C only when asked
+    assert main([*args, "--ghost", "0-1", "--add", "--c", "--glsl"]) == 0
+    assert {"lenssinglet_ghost_1_2.c", "lenssinglet_ghost_1_2.h",
+            "lenssinglet_ghost_1_2.glsl"} <= {p.name for p in out.iterdir()}  # when asked
     assert "ghost 0-1 (B, side P_s)" in capsys.readouterr().out
     doc = json.loads((out / "ghosts.json").read_text())
     assert [e["label"] for e in doc["ghosts"]] == ["9-9", "0-1"]
@@ -133,7 +134,7 @@ def test_fit_writes_ghost_tables_and_merges_named_ones(singlet, tmp_path, capsys
     g = doc["ghosts"][1]
     assert (g["case"], g["side"], g["f_number"]) == ("B", "P_s", pytest.approx(8.0))
     assert g["psf_vs_exact"] <= 0.03 and g["converged_test"] > 0.99
-    # Without --add: exactly the kept ghosts (and without --c, no C)
+    # Without --add: exactly the kept ghosts (and without --c or --glsl, no code)
     assert main(args) == 0
     assert [e["label"] for e in json.loads((out / "ghosts.json").read_text())["ghosts"]] == ["0-1"]
     assert sorted(p.name for p in out.iterdir()) == ["ghost_1_2.table", "ghosts.json"]
