@@ -95,7 +95,8 @@ demo: setup runtime
 		--panel generated/0001-angenieux-double-gauss-uncoated 16 "0001 uncoated" \
 		--panel generated/2004-schneider-anamorphic 16 "2004 coated" \
 		--panel generated/2004-schneider-anamorphic-uncoated 16 "2004 uncoated"
-	@# lensrt-psf with the default lens's ghosts around its first: direct, flare and total
+	@# lensrt-psf with the default lens's ghosts around its first: one EXR, the total with
+	@# layers direct. and flare.
 	$(PSF) --lens $(DEMO_LENS) --light -6,-4 --f-number 16 --center -10.1,-6.7 --size 1.2x0.8 \
 		--resolution 96x64 --wavelengths 4 --samples 16384 --quiet \
 		--flares generated/0001-angenieux-double-gauss/ghosts \

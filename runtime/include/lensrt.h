@@ -100,6 +100,8 @@ LENSRT_API const char *lensrt_version_string(void);
 #define LENSRT_MAX_DEGREE 15            /* highest exponent of one input in a lens table,
                                            and highest total degree of the stop monomials */
 #define LENSRT_MAX_TERMS 1000000        /* terms of one output of a lens table */
+#define LENSRT_MAX_LAYER_NAME 64        /* characters of an EXR layer's name (lensrt_exr_layer) */
+#define LENSRT_MAX_LAYERS 64            /* layers of one EXR (lensrt_layers_write_exr) */
 /* A lens table's outputs are bounded inside their domain by the sum of their |coefficients|
  * (every monomial of normalised inputs is at most 1 there); the reader refuses a table
  * whose sums exceed these (the shipped lenses have at most 225 and 2.3). */
@@ -623,6 +625,36 @@ LENSRT_API lensrt_result lensrt_renders_image(const lensrt_render *renders, int 
 LENSRT_API lensrt_result lensrt_renders_write_exr(const lensrt_render *renders, int n_renders, const char *path);
 LENSRT_API lensrt_result lensrt_renders_write_png(const lensrt_render *renders, int n_renders, const char *path,
                                                  double decades);
+
+/* One layer of a layered EXR (lensrt_layers_write_exr): a name and the renders whose
+ * images add into it (as lensrt_renders_image). Versioned: start from
+ * LENSRT_EXR_LAYER_INIT. */
+typedef struct lensrt_exr_layer {
+    size_t struct_size;
+    const char *name;              /* 1 to LENSRT_MAX_LAYER_NAME characters of [A-Za-z0-9_-],
+                                      unique in the file; not S0-S3, M00-M33 or T (the
+                                      spectral layout's channel groups) */
+    const lensrt_render *renders;  /* n_renders >= 1 renders of the same window and
+                                      wavelengths as every other layer's */
+    int32_t n_renders;
+} lensrt_exr_layer;
+#define LENSRT_EXR_LAYER_INIT {sizeof(lensrt_exr_layer), NULL, NULL, 0}
+
+/* One EXR holding layers and their sum (e.g. a light's direct image and its flare):
+ *   - the unprefixed channels (`S0.<lambda>nm`, R, G, B) hold the sum of every render of
+ *     every layer, exactly what lensrt_renders_write_exr of all of them writes: every
+ *     spectral-EXR reader and viewer sees the whole image by default;
+ *   - each layer's channels carry its name as OpenEXR layer prefix, `<name>.S0.<lambda>nm`,
+ *     `<name>.R`, `<name>.G`, `<name>.B`, holding lensrt_renders_image of its renders
+ *     (one render: lensrt_render_image bit for bit).
+ * Metadata from the first layer's first render, and "lensrt/layers" saying which lens
+ * tables each layer adds. Written atomically. A bad or repeated name, a render in two
+ * layers (the sum would count it twice) or renders of another window or wavelengths:
+ * LENSRT_ERROR_INVALID_ARGUMENT or _INCOMPATIBLE with a message naming the path and the
+ * layer; no file is written then. NULL layers, n_layers < 1, or a first layer without a
+ * struct_size or a first render: LENSRT_ERROR_INVALID_ARGUMENT with no context to hold a
+ * message (the messages go to the first render's context). */
+LENSRT_API lensrt_result lensrt_layers_write_exr(const lensrt_exr_layer *layers, int n_layers, const char *path);
 
 #ifdef __cplusplus
 }

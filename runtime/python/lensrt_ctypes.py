@@ -357,6 +357,20 @@ class Lensrt:
         r.run(samples)
         return r.image()
 
+    def write_exr_layers(self, path: str | os.PathLike[str],
+                         layers: dict[str, Sequence[Render]]) -> None:
+        """One EXR with a layer per name (its renders' images added) and their sum in the
+        unprefixed channels (lensrt_layers_write_exr; read with lensrt_exr)."""
+        fn = self.lib.lensrt_layers_write_exr
+        fn.argtypes = [C.POINTER(ExrLayer), C.c_int, C.c_char_p]
+        keep = []
+        arr = (ExrLayer * len(layers))()
+        for k, (name, renders) in enumerate(layers.items()):
+            handles = (C.c_void_p * len(renders))(*[r.handle for r in renders])
+            keep.append(handles)
+            arr[k] = ExrLayer(name.encode(), C.cast(handles, C.c_void_p), len(renders))
+        self._check(fn(arr, len(layers), os.fsencode(path)))
+
     # ------------------------------------------------- per-ray evaluation -----
 
     def _eval_functions(self) -> None:
@@ -412,6 +426,11 @@ SYSTEMS = {"P_o": 0, "object": 0, "P_s": 1, "sensor": 1, "P_clip": 2, "clip": 2}
 NUMBER_TYPES = {"float64": 0, "float32": 1}
 MAX_SYSTEM_INPUTS = 8
 MAX_SYSTEM_OUTPUTS = 8
+
+
+class ExrLayer(Versioned):
+    _fields_ = [("struct_size", C.c_size_t), ("name", C.c_char_p), ("renders", C.c_void_p),
+                ("n_renders", C.c_int32)]
 
 
 class SystemInfo(Versioned):

@@ -75,8 +75,9 @@ static void usage(FILE *f)
         "  --merge FILE           add phasor sums of the same scene rendered with another seed\n"
         "  --ghost TABLE          also render this ghost table of the same lens (repeatable)\n"
         "  --flares DIR           also render every ghost_*.table in DIR (sorted by name)\n"
-        "                         with ghosts: -o OUT.exr is the direct image, OUT.flare.exr the\n"
-        "                         ghosts' sum, OUT.total.exr both; --png shows the total\n"
+        "                         with ghosts: -o OUT.exr holds the total (direct + ghosts) in its\n"
+        "                         unprefixed channels and layers direct. and flare. (the ghosts'\n"
+        "                         sum); --png shows the total\n"
         "  --quiet                no progress (the error estimate is still printed on stdout)\n"
         "exit status: 0 done, 1 failed, 2 bad input, 3 no GL device (--device gl) or unsupported\n",
         LENSRT_GENERATED_DIR);
@@ -335,13 +336,6 @@ static int collect_flares(const char *dir, char **paths, int *n)
 }
 
 /* OUT.exr -> OUT.<what>.exr (the stem is OUT without a trailing ".exr"). */
-static int sibling_name(const char *out, const char *what, char *buf, size_t size)
-{
-    size_t n = strlen(out);
-    if (n > 4 && strcmp(out + n - 4, ".exr") == 0) n -= 4;
-    return snprintf(buf, size, "%.*s.%s.exr", (int)n, out, what) < (int)size;
-}
-
 static void on_log(lensrt_log_level level, const char *message, void *user)
 {
     progress_state *ps = user;
@@ -388,7 +382,6 @@ int main(int argc, char **argv)
     lensrt_lens ghost_lens[MAX_GHOSTS];
     lensrt_render renders[MAX_GHOSTS + 1];
     int n_ghosts = 0, n_ghost_args = 0;
-    char flare_out[4200] = "", total_out[4200] = "";
     if (!gen) gen = LENSRT_GENERATED_DIR;
     memset(ghost_lens, 0, sizeof ghost_lens);
     memset(renders, 0, sizeof renders);
@@ -529,21 +522,13 @@ int main(int argc, char **argv)
         rc = 2;
         goto done_args;
     }
-    if (n_ghosts && out &&
-        (!sibling_name(out, "flare", flare_out, sizeof flare_out) || !sibling_name(out, "total", total_out, sizeof total_out))) {
-        fprintf(stderr, "lensrt-psf: -o: '%s' is too long a name\n", out);
-        rc = 2;
-        goto done_args;
-    }
     {
-        const char *outs[5];
+        const char *outs[3];
         int k;
         outs[0] = out;
         outs[1] = png;
         outs[2] = save;
-        outs[3] = flare_out[0] ? flare_out : NULL;
-        outs[4] = total_out[0] ? total_out : NULL;
-        for (k = 0; k < 5; k++)
+        for (k = 0; k < 3; k++)
             if (outs[k] && !writable(outs[k])) {
                 fprintf(stderr, "lensrt-psf: cannot write '%s': %s\n", outs[k],
                         errno == ELOOP ? "it is a symbolic link (give the link's target)"
@@ -798,13 +783,20 @@ int main(int argc, char **argv)
         free(ghost_img);
     }
 
-    // Outputs, each written atomically; with ghosts, the flare (their sum) and the total
+    // Outputs, each written atomically; with ghosts one EXR whose unprefixed channels are
+    // the total and whose layers are the direct image and the flare (the ghosts' sum)
     if (save && (res = lensrt_render_save(render, save)) != LENSRT_SUCCESS) goto fail;
-    if (out && (res = lensrt_render_write_exr(render, out)) != LENSRT_SUCCESS) goto fail;
-    if (out && n_ghosts &&
-        ((res = lensrt_renders_write_exr(renders + 1, n_ghosts, flare_out)) != LENSRT_SUCCESS ||
-         (res = lensrt_renders_write_exr(renders, n_ghosts + 1, total_out)) != LENSRT_SUCCESS))
-        goto fail;
+    if (out && !n_ghosts && (res = lensrt_render_write_exr(render, out)) != LENSRT_SUCCESS) goto fail;
+    if (out && n_ghosts) {
+        lensrt_exr_layer layers[2] = {LENSRT_EXR_LAYER_INIT, LENSRT_EXR_LAYER_INIT};
+        layers[0].name = "direct";
+        layers[0].renders = renders;
+        layers[0].n_renders = 1;
+        layers[1].name = "flare";
+        layers[1].renders = renders + 1;
+        layers[1].n_renders = n_ghosts;
+        if ((res = lensrt_layers_write_exr(layers, 2, out)) != LENSRT_SUCCESS) goto fail;
+    }
     if (png && (res = lensrt_renders_write_png(renders, n_ghosts + 1, png, decades)) != LENSRT_SUCCESS) goto fail;
     if (estimate && mc_error >= 0)
         printf("Monte Carlo error estimate: %.3g%% relative L2 (two independent halves, %llu samples per wavelength)\n",

@@ -57,6 +57,7 @@ static void test_init_macros(void)
     EXPECT_INIT(lensrt_render_stats, LENSRT_RENDER_STATS_INIT);
     EXPECT_INIT(lensrt_system_info, LENSRT_SYSTEM_INFO_INIT);
     EXPECT_INIT(lensrt_eval_desc, LENSRT_EVAL_DESC_INIT);
+    EXPECT_INIT(lensrt_exr_layer, LENSRT_EXR_LAYER_INIT);
 }
 
 static void test_version(void)

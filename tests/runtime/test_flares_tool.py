@@ -1,6 +1,8 @@
 """lensrt-psf --ghost / --flares (issue 13, deliverable 4): the direct image and each ghost
-rendered as its own render (own phasor sums) with the same scene, the outputs OUT.exr
-(direct), OUT.flare.exr (the ghosts' sum), OUT.total.exr (both) and a PNG of the total.
+rendered as its own render (own phasor sums) with the same scene, the output one EXR,
+OUT.exr, whose unprefixed spectral channels hold the total and whose layers `direct.` and
+`flare.` (the ghosts' sum) the parts (read with runtime/python/lensrt_exr.py), and a PNG
+of the total.
 
 Ghost tables are made from lens0001.table's text (its P_o and P_s unchanged) with a
 hand-made P_clip, so the answers have closed forms:
@@ -9,6 +11,9 @@ hand-made P_clip, so the answers have closed forms:
     relative to its peak, is the direct PNG;
   * a P_clip that is a stop of radius r0 inside the render's stop R: the ghost's power is
     the power through r0, which lensrt-psf reports relative to the direct image's.
+The layered file against separate runs (same seed and samples): its direct layer is the
+direct-only run's image bit for bit, its flare layer's power the sum of the one-ghost
+runs' flare powers, its total the sum of its layers to float rounding.
 Bad input (a ghost of another lens, a direct table given as a ghost, an empty --flares
 folder, --save-phasors with ghosts) exits 2 before rendering with one line naming the
 files. Set LENSRT_PSF to test another build of the tool.
@@ -19,12 +24,17 @@ from __future__ import annotations
 import os
 import re
 import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
 
 ROOT = Path(__file__).resolve().parents[2]
+sys.path.insert(0, str(ROOT / "runtime" / "python"))
+
+from lensrt_exr import exr_layers, read_spectral_exr  # noqa: E402
+
 PSF = Path(os.environ.get("LENSRT_PSF", ROOT / "build" / "runtime" / "runtime" / "lensrt-psf"))
 LENS0001 = ROOT / "generated" / "0001-angenieux-double-gauss" / "lens0001.table"
 # f/4: the stop radius is stop_radius_f1_mm / 4; the window holds the whole defocused PSF
@@ -112,8 +122,12 @@ def test_never_blocking_ghost_doubles_the_direct_image(tmp_path, tables):
     out = tmp_path / "flare.exr"
     r = run("--ghost", str(tables["never"]), "-o", str(out), "--png", str(tmp_path / "total.png"))
     assert r.returncode == 0, r.stderr
-    for name in ("flare.exr", "flare.flare.exr", "flare.total.exr", "total.png"):
-        assert (tmp_path / name).stat().st_size > 0, name
+    # one EXR (no sibling files) with the total unprefixed and the two layers
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["direct.png", "flare.exr", "total.png"]
+    assert exr_layers(out) == ["", "direct", "flare"]
+    direct_layer, flare_layer = read_spectral_exr(out, "direct"), read_spectral_exr(out, "flare")
+    # the same samples through a P_clip that never blocks: the flare is the direct image
+    assert np.array_equal(direct_layer.spectral, flare_layer.spectral)
     # progress and the ghost's power, the same as the direct image's (ratio 1)
     assert "ghost 4-8 (1 of 1)" in r.stderr
     power = float(re.search(r"ghost 4-8 \(surfaces 4, 8; .*\): .* power in the window (\S+) of",
@@ -168,3 +182,37 @@ def test_stop_crossings_with_blades_refused_naming_the_ghost(tmp_path, tables):
     for w in (str(tables["crossing"]), "ghost 4-8", "blades", "circular"):
         assert w in lines[0], (w, lines[0])
     assert not out.exists()
+
+
+def test_layers_against_separate_runs(tmp_path, tables):
+    """--flares writes one file: direct layer = a direct-only run, flare layer's power = the
+    sum of one-ghost runs' (same seed, same samples: --no-estimate renders each ghost with
+    the direct render's seed and sample count)."""
+    alone = tmp_path / "alone.exr"
+    assert run("-o", str(alone), "--quiet").returncode == 0
+    out = tmp_path / "flares.exr"
+    r = run("--flares", str(tables["both"]), "-o", str(out), "--quiet")
+    assert r.returncode == 0, r.stderr
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["alone.exr", "flares.exr"]
+    total, direct, flare = (read_spectral_exr(out, layer) for layer in ("", "direct", "flare"))
+    # renders are deterministic functions of seed and samples: the same direct image bit for bit
+    assert np.array_equal(direct.spectral, read_spectral_exr(alone).spectral)
+    assert np.array_equal(direct.rgb, read_spectral_exr(alone).rgb)
+    # each ghost alone (--ghost): its flare layer is that ghost's image
+    powers = []
+    for name in ("ghost_0_2.table", "ghost_4_8.table"):
+        one = tmp_path / f"one_{name}.exr"
+        assert run("--ghost", str(tables["both"] / name), "-o", str(one), "--quiet").returncode == 0
+        powers.append(read_spectral_exr(one, "flare").spectral.astype(np.float64).sum())
+    assert min(powers) > 0.01 * max(powers)  # both ghosts count
+    # each pixel of the flare layer is the ghosts' sum rounded once to float (relative error
+    # <= 2^-24 each, all values >= 0 with the paper's |sum|^2 estimator), so the powers agree
+    # to 2^-24; 2^-22 leaves room for the double sums' own rounding
+    power = flare.spectral.astype(np.float64).sum()
+    assert power == pytest.approx(sum(powers), rel=2.0 ** -22)
+    # the total is direct + flare to float rounding: three values each rounded once from
+    # double sums, so |T - (D + F)| <= 2^-23 (D + F) (1 + 2^-23) for values >= 0
+    d, f = direct.spectral.astype(np.float64), flare.spectral.astype(np.float64)
+    assert np.all(np.abs(total.spectral - (d + f)) <= 2.0 ** -23 * (d + f) * (1 + 2.0 ** -23))
+    assert "direct: " in total.attributes["lensrt/layers"]
+    assert "ghost_0_2.table + " in total.attributes["lensrt/layers"]

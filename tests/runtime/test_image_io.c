@@ -659,6 +659,429 @@ static void test_exr(void)
 #endif
 }
 
+/* --------------------------------------------------------- layered EXR ----- */
+
+#ifdef LENSRT_EXR
+
+/* Names of a layered file's channels in the order OpenEXRCore keeps them (sorted by
+ * bytes: the unprefixed B G R S0.<lambda>nm first, capitals sorting before the lower-case
+ * layer names, then each layer's in the same order), for layers "" (unprefixed),
+ * "direct" and "flare": out[i] has room for 96 bytes. */
+static void layered_names(int n_wl, const double *wl, char (*out)[96])
+{
+    static const char *const prefixes[3] = {"", "direct.", "flare."};
+    char base[64][32];
+    int i, j, k, n = n_wl + 3;
+    snprintf(base[0], 32, "B");
+    snprintf(base[1], 32, "G");
+    snprintf(base[2], 32, "R");
+    for (i = 0; i < n_wl; ++i) { /* 6 decimals, comma: exactly the layout's spelling */
+        long long micro = (long long)floor(wl[i] * 1.0e6 + 0.5);
+        snprintf(base[3 + i], 32, "S0.%lld,%06lldnm", micro / 1000000, micro % 1000000);
+    }
+    /* The S0 names in byte order (the wavelengths need not be sorted) */
+    for (i = 3; i < n; ++i)
+        for (j = i + 1; j < n; ++j)
+            if (strcmp(base[j], base[i]) < 0) {
+                char t[32];
+                memcpy(t, base[i], 32);
+                memcpy(base[i], base[j], 32);
+                memcpy(base[j], t, 32);
+            }
+    for (k = 0; k < 3; ++k)
+        for (i = 0; i < n; ++i)
+        {
+            size_t lp = strlen(prefixes[k]); /* at most 7 + 31 bytes: fits in 96 */
+            memcpy(out[k * n + i], prefixes[k], lp);
+            memcpy(out[k * n + i] + lp, base[i], strlen(base[i]) + 1);
+        }
+}
+
+/* Read a layered file's channel list and every plane: 1 when it has exactly `n`
+ * channels named `names` (in that order, all FLOAT). planes[k * w * h + p]. */
+static int read_layered(const char *path, int w, int h, int n, char (*names)[96], float *planes,
+                        char *layers_attr, size_t attr_size)
+{
+    exr_context_t f = NULL;
+    const exr_attr_chlist_t *chlist = NULL;
+    const char *list[3 * (64 + 3)];
+    const char *s = NULL;
+    int32_t len = 0;
+    int i, ok = 1;
+    if (exr_start_read(&f, path, NULL) != EXR_ERR_SUCCESS) {
+        CHECK(0, "OpenEXRCore cannot open '%s'", path);
+        return 0;
+    }
+    CHECK(exr_get_channels(f, 0, &chlist) == EXR_ERR_SUCCESS && chlist, "exr_get_channels");
+    ok = chlist && chlist->num_channels == n;
+    CHECK(ok, "'%s' has %d channels, expected %d", path, chlist ? chlist->num_channels : -1, n);
+    for (i = 0; ok && i < n; ++i) {
+        CHECK(strcmp(chlist->entries[i].name.str, names[i]) == 0 &&
+                  chlist->entries[i].pixel_type == EXR_PIXEL_FLOAT,
+              "channel %d is '%s', expected '%s' (FLOAT)", i, chlist->entries[i].name.str, names[i]);
+        ok = ok && strcmp(chlist->entries[i].name.str, names[i]) == 0;
+        list[i] = names[i];
+    }
+    if (layers_attr) {
+        layers_attr[0] = '\0';
+        if (exr_attr_get_string(f, 0, "lensrt/layers", &len, &s) == EXR_ERR_SUCCESS)
+            snprintf(layers_attr, attr_size, "%s", s);
+    }
+    if (ok)
+        decode_planes(f, w, h, n, list, planes);
+    exr_finish(&f);
+    return ok;
+}
+
+/* lensrt_write_exr_layers on arrays: the unprefixed image and two layers come back bit for
+ * bit under the documented names; bad and repeated names are refused naming the value;
+ * failed writes leave an existing file as it was and no temporary file. */
+static void test_exr_layers(void)
+{
+    enum { N = EXR_N + 3, NP = EXR_W * EXR_H };
+    static float spec[3][EXR_N * NP], rgb[3][3 * NP], planes[3 * N * NP];
+    char names[3 * N][96], path[4200], target[4200], err[512], attr[256];
+    lensrt_exr_image images[3];
+    lensrt_image_meta meta = make_meta(NULL, 0);
+    test_alloc_state state;
+    lensrt_allocator alloc = make_allocator(&state, -1);
+    lensrt_result r;
+    int k, i, c, bad = 0;
+
+    /* Three different images: the values of the plain EXR test, shifted. */
+    for (k = 0; k < 3; ++k) {
+        fill_spectral(spec[k], 20.0f * (float)k);
+        lensrt_spectrum_to_rgb(EXR_N, exr_wavelengths, spec[k], NP, rgb[k]);
+        images[k].spectral = spec[k];
+        images[k].rgb = rgb[k];
+    }
+    images[0].name = NULL;
+    images[1].name = "direct";
+    images[2].name = "flare";
+    meta.layers = "direct: a.table; flare: b.table + c.table; unprefixed: their sum";
+    layered_names(EXR_N, exr_wavelengths, names);
+    scratch_path(path, sizeof path, "image_io_layers.exr");
+    remove(path);
+
+    /* (a) Round trip: exactly the documented channels, every value bit for bit. */
+    r = lensrt_write_exr_layers(&alloc, path, EXR_W, EXR_H, EXR_N, exr_wavelengths, 3, images, &meta, err,
+                                sizeof err);
+    CHECK(r == LENSRT_SUCCESS, "layered EXR: result %d, '%s'", (int)r, err);
+    CHECK(state.live == 0, "layered EXR writer leaked %d allocations", state.live);
+    if (r == LENSRT_SUCCESS && read_layered(path, EXR_W, EXR_H, 3 * N, names, planes, attr, sizeof attr)) {
+        for (k = 0; k < 3; ++k)
+            for (i = 0; i < NP; ++i) {
+                for (c = 0; c < 3; ++c) /* B G R first in each image's group */
+                    bad += memcmp(&planes[(k * N + 2 - c) * NP + i], &rgb[k][3 * i + c], sizeof(float)) != 0;
+                for (c = 0; c < EXR_N; ++c) /* the test's wavelengths are sorted already */
+                    bad += memcmp(&planes[(k * N + 3 + c) * NP + i], &spec[k][c * NP + i], sizeof(float)) != 0;
+            }
+        CHECK(bad == 0, "layered EXR: %d of %d values differ", bad, 3 * N * NP);
+        CHECK(strcmp(attr, meta.layers) == 0, "lensrt/layers is '%s'", attr);
+    }
+    printf("exr layers: '%s', '%s', ... '%s' (%d channels) read back bit for bit\n", names[0], names[N],
+           names[3 * N - 1], 3 * N);
+
+    /* A name of 64 characters: channel names past 31 bytes (OpenEXR's long names). */
+    {
+        char longest[LENSRT_MAX_LAYER_NAME + 1], want[96];
+        exr_context_t f = NULL;
+        const exr_attr_chlist_t *chlist = NULL;
+        lensrt_exr_image two[2];
+        memset(longest, 'x', LENSRT_MAX_LAYER_NAME);
+        longest[LENSRT_MAX_LAYER_NAME] = '\0';
+        two[0] = images[0];
+        two[1] = images[1];
+        two[1].name = longest;
+        r = lensrt_write_exr_layers(&alloc, path, EXR_W, EXR_H, EXR_N, exr_wavelengths, 2, two, &meta, err,
+                                    sizeof err);
+        CHECK(r == LENSRT_SUCCESS, "layer name of %d characters: result %d, '%s'", LENSRT_MAX_LAYER_NAME, (int)r,
+              err);
+        snprintf(want, sizeof want, "%s.S0.700,125000nm", longest);
+        if (r == LENSRT_SUCCESS && exr_start_read(&f, path, NULL) == EXR_ERR_SUCCESS) {
+            CHECK(exr_get_channels(f, 0, &chlist) == EXR_ERR_SUCCESS && chlist && chlist->num_channels == 2 * N &&
+                      strcmp(chlist->entries[2 * N - 1].name.str, want) == 0,
+                  "long layer name: last channel '%s', expected '%s'",
+                  chlist && chlist->num_channels > 0 ? chlist->entries[chlist->num_channels - 1].name.str : "",
+                  want);
+            exr_finish(&f);
+        } else {
+            CHECK(0, "cannot read the file with a long layer name");
+        }
+    }
+
+    /* (b) Bad names, repeated names, two unprefixed images: refused naming the value;
+     * the existing file is untouched, no temporary is left. */
+    scratch_path(target, sizeof target, "image_io_layers_existing.exr");
+    {
+        static const char *const refused[] = {"", "di.rect", "dir ect", "flare/2", "S0", "S3", "M12", "T",
+                                              "xxxxxxxxxxxxxxxxxxxxxxxxxxxxxxxxxxxxxxxxxxxxxxxxxxxxxxxxxxxxxxxxx"};
+        char quoted[96];
+        for (k = 0; k < (int)(sizeof refused / sizeof refused[0]); ++k) {
+            lensrt_exr_image two[2];
+            write_text_file(target, "sentinel\n");
+            two[0] = images[0];
+            two[1] = images[1];
+            two[1].name = refused[k];
+            r = lensrt_write_exr_layers(&alloc, target, EXR_W, EXR_H, EXR_N, exr_wavelengths, 2, two, &meta, err,
+                                        sizeof err);
+            snprintf(quoted, sizeof quoted, "'%s'", refused[k]);
+            CHECK(r == LENSRT_ERROR_INVALID_ARGUMENT && strstr(err, quoted) && strstr(err, target),
+                  "layer name %s: result %d, '%s'", quoted, (int)r, err);
+            CHECK(file_has_text(target, "sentinel\n") && count_temporaries() == 0,
+                  "refused layer name %s changed the file or left a temporary", quoted);
+            if (k == 1)
+                printf("exr layers: bad name -> \"%s\"\n", err);
+        }
+        images[2].name = "direct";
+        r = lensrt_write_exr_layers(&alloc, target, EXR_W, EXR_H, EXR_N, exr_wavelengths, 3, images, &meta, err,
+                                    sizeof err);
+        CHECK(r == LENSRT_ERROR_INVALID_ARGUMENT && strstr(err, "'direct'") && strstr(err, "images 1 and 2"),
+              "repeated layer name: result %d, '%s'", (int)r, err);
+        images[2].name = NULL;
+        images[1].name = NULL;
+        r = lensrt_write_exr_layers(&alloc, target, EXR_W, EXR_H, EXR_N, exr_wavelengths, 3, images, &meta, err,
+                                    sizeof err);
+        CHECK(r == LENSRT_ERROR_INVALID_ARGUMENT && strstr(err, "unprefixed"),
+              "two unprefixed images: result %d, '%s'", (int)r, err);
+        images[1].name = "direct";
+        images[2].name = "flare";
+        images[2].rgb = NULL;
+        r = lensrt_write_exr_layers(&alloc, target, EXR_W, EXR_H, EXR_N, exr_wavelengths, 3, images, &meta, err,
+                                    sizeof err);
+        CHECK(r == LENSRT_ERROR_INVALID_ARGUMENT && strstr(err, "'flare'") && strstr(err, "RGB"),
+              "a layer without RGB: result %d, '%s'", (int)r, err);
+        images[2].rgb = rgb[2];
+        CHECK(file_has_text(target, "sentinel\n") && count_temporaries() == 0,
+              "refused layers changed the file or left a temporary");
+    }
+
+    /* (c) Allocation failures at every step: the existing file stays, nothing leaks. */
+    {
+        int budget, failures = 0, succeeded = 0;
+        for (budget = 0; budget < 64 && !succeeded; ++budget) {
+            lensrt_allocator failing = make_allocator(&state, budget);
+            write_text_file(target, "sentinel\n");
+            r = lensrt_write_exr_layers(&failing, target, EXR_W, EXR_H, EXR_N, exr_wavelengths, 3, images, &meta,
+                                        err, sizeof err);
+            CHECK(state.live == 0, "layered EXR leaked %d allocations (budget %d)", state.live, budget);
+            if (r == LENSRT_SUCCESS) {
+                succeeded = 1;
+                break;
+            }
+            ++failures;
+            CHECK(r == LENSRT_ERROR_OUT_OF_MEMORY && strstr(err, target) != NULL,
+                  "layered EXR with allocation %d failing: result %d, '%s'", budget + 1, (int)r, err);
+            CHECK(file_has_text(target, "sentinel\n") && count_temporaries() == 0,
+                  "layered EXR failure (budget %d) changed the file or left a temporary", budget);
+        }
+        CHECK(succeeded && failures >= 3, "layered EXR allocation failures: %d cases, success %d", failures,
+              succeeded);
+        /* A disk full half-way through the pixels: IO error, file untouched. */
+        alloc = make_allocator(&state, -1);
+        write_text_file(target, "sentinel\n");
+        limit_file_size(2000);
+        r = lensrt_write_exr_layers(&alloc, target, EXR_W, EXR_H, EXR_N, exr_wavelengths, 3, images, &meta, err,
+                                    sizeof err);
+        limit_file_size(-1);
+        CHECK(r == LENSRT_ERROR_IO && strstr(err, target) && file_has_text(target, "sentinel\n") &&
+                  count_temporaries() == 0,
+              "layered EXR on a full disk: result %d, '%s'", (int)r, err);
+        printf("exr layers: %d allocation-failure points and a full disk, existing file untouched\n", failures);
+    }
+
+    /* (d) Special files are never replaced: a symbolic link (and its target), a FIFO. */
+    {
+        char link[4200], fifo[4200];
+        struct stat st;
+        scratch_path(link, sizeof link, "image_io_layers_link.exr");
+        scratch_path(fifo, sizeof fifo, "image_io_layers_fifo.exr");
+        write_text_file(target, "sentinel\n");
+        remove(link);
+        remove(fifo);
+        CHECK(symlink(target, link) == 0 && mkfifo(fifo, 0600) == 0, "cannot make a link and a FIFO");
+        r = lensrt_write_exr_layers(&alloc, link, EXR_W, EXR_H, EXR_N, exr_wavelengths, 3, images, &meta, err,
+                                    sizeof err);
+        CHECK(r == LENSRT_ERROR_IO && strstr(err, link) && strstr(err, "symbolic link"),
+              "layered EXR over a link: result %d, '%s'", (int)r, err);
+        CHECK(lstat(link, &st) == 0 && S_ISLNK(st.st_mode) && file_has_text(target, "sentinel\n"),
+              "layered EXR replaced the link or changed its target");
+        r = lensrt_write_exr_layers(&alloc, fifo, EXR_W, EXR_H, EXR_N, exr_wavelengths, 3, images, &meta, err,
+                                    sizeof err);
+        CHECK(r == LENSRT_ERROR_IO && strstr(err, fifo) && strstr(err, "FIFO"),
+              "layered EXR over a FIFO: result %d, '%s'", (int)r, err);
+        CHECK(lstat(fifo, &st) == 0 && S_ISFIFO(st.st_mode), "layered EXR replaced the FIFO");
+        CHECK(count_temporaries() == 0, "layered EXR over special files left a temporary");
+        remove(link);
+        remove(fifo);
+    }
+    remove(target);
+    remove(path);
+}
+
+#endif /* LENSRT_EXR */
+
+#ifdef LENSRT_TEST_RENDERS
+
+/* lensrt_layers_write_exr on renders (the library, through its public API): an analytic
+ * lens, a "direct" render and a "flare" of two renders (other lights, other seeds) over
+ * the same window. Each layer holds its renders' images bit for bit, the unprefixed total
+ * their sum; bad layers are refused with the library's message naming path and value. */
+static void test_exr_layers_of_renders(void)
+{
+    enum { W = 8, H = 6, NW = 2, N = NW + 3, NP = W * H };
+    static const double wl[NW] = {600.0, 500.0};
+    lensrt_context ctx = NULL;
+    lensrt_context_init ci = LENSRT_CONTEXT_INIT;
+    lensrt_analytic_lens m = LENSRT_ANALYTIC_LENS_INIT;
+    lensrt_lens lens = NULL;
+    lensrt_render rs[4] = {NULL, NULL, NULL, NULL};
+    lensrt_exr_layer layers[2] = {LENSRT_EXR_LAYER_INIT, LENSRT_EXR_LAYER_INIT};
+    lensrt_light lights[3] = {LENSRT_LIGHT_INIT, LENSRT_LIGHT_INIT, LENSRT_LIGHT_INIT};
+    static float direct[NW * NP], flare[NW * NP], total[NW * NP], planes[3 * N * NP], rgb[3][3 * NP];
+    char names[3 * N][96], path[4200], target[4200], attr[512];
+    lensrt_result r;
+    int k, i, c;
+
+    ci.threads = 1;
+    if (lensrt_context_create(&ci, &ctx) != LENSRT_SUCCESS) {
+        CHECK(0, "lensrt_context_create");
+        return;
+    }
+    m.focal_length_mm = 50.0;
+    m.sensor_distance_mm = 50.0;
+    CHECK(lensrt_lens_create_analytic(ctx, &m, &lens) == LENSRT_SUCCESS, "analytic lens: %s",
+          lensrt_context_last_error(ctx));
+    /* Lights: on the axis (direct); off it by about a pixel, and brighter, for the flare */
+    lights[1].field_x_deg = 0.003;
+    lights[1].intensity = 0.5;
+    lights[2].field_y_deg = -0.004;
+    lights[2].intensity = 2.0;
+    for (k = 0; k < 4 && lens; ++k) {
+        lensrt_render_desc d = LENSRT_RENDER_DESC_INIT;
+        d.lens = lens;
+        d.aperture.f_number = 8.0;
+        d.sensor.width = k == 3 ? W + 1 : W; /* render 3: another window */
+        d.sensor.height = H;
+        d.sensor.width_mm = 0.024;
+        d.wavelengths_nm = wl;
+        d.n_wavelengths = NW;
+        d.lights = &lights[k < 3 ? k : 0];
+        d.n_lights = 1;
+        d.seed = 11 + (uint64_t)k;
+        CHECK(lensrt_render_create(ctx, &d, &rs[k]) == LENSRT_SUCCESS &&
+                  lensrt_render_run(rs[k], 512, NULL, NULL) == LENSRT_SUCCESS,
+              "render %d: %s", k, lensrt_context_last_error(ctx));
+    }
+    if (!rs[0] || !rs[1] || !rs[2] || !rs[3])
+        goto done;
+    layers[0].name = "direct";
+    layers[0].renders = &rs[0];
+    layers[0].n_renders = 1;
+    layers[1].name = "flare";
+    layers[1].renders = &rs[1];
+    layers[1].n_renders = 2;
+    scratch_path(path, sizeof path, "image_io_render_layers.exr");
+    scratch_path(target, sizeof target, "image_io_render_layers_existing.exr");
+    remove(path);
+
+    /* (a) The file: documented channels; direct = lensrt_render_image, flare and total =
+     * lensrt_renders_image of their renders, bit for bit; RGB from the same spectra. */
+    r = lensrt_layers_write_exr(layers, 2, path);
+    CHECK(r == LENSRT_SUCCESS, "lensrt_layers_write_exr: %d, '%s'", (int)r, lensrt_context_last_error(ctx));
+    CHECK(lensrt_render_image(rs[0], direct, NW * NP) == LENSRT_SUCCESS &&
+              lensrt_renders_image(&rs[1], 2, flare, NW * NP) == LENSRT_SUCCESS &&
+              lensrt_renders_image(rs, 3, total, NW * NP) == LENSRT_SUCCESS,
+          "images: %s", lensrt_context_last_error(ctx));
+    lensrt_spectrum_to_rgb(NW, wl, total, NP, rgb[0]);
+    lensrt_spectrum_to_rgb(NW, wl, direct, NP, rgb[1]);
+    lensrt_spectrum_to_rgb(NW, wl, flare, NP, rgb[2]);
+    layered_names(NW, wl, names);
+    if (r == LENSRT_SUCCESS && read_layered(path, W, H, 3 * N, names, planes, attr, sizeof attr)) {
+        const float *want[3] = {total, direct, flare};
+        int bad = 0, over = 0, lit = 0;
+        double worst = 0.0;
+        for (k = 0; k < 3; ++k)
+            for (i = 0; i < NP; ++i) {
+                for (c = 0; c < 3; ++c)
+                    bad += memcmp(&planes[(k * N + 2 - c) * NP + i], &rgb[k][3 * i + c], sizeof(float)) != 0;
+                /* S0.500 sorts before S0.600: plane 3 is wl[1], plane 4 is wl[0] */
+                for (c = 0; c < NW; ++c)
+                    bad += memcmp(&planes[(k * N + 3 + c) * NP + i], &want[k][(NW - 1 - c) * NP + i],
+                                  sizeof(float)) != 0;
+            }
+        CHECK(bad == 0, "layered EXR of renders: %d values differ from the renders' images", bad);
+        /* The total is the sum of direct and flare to float rounding. Each of the three
+         * is a double sum rounded once to float (relative error <= 2^-24 each; the double
+         * sums' own errors are ~2^-52), so with d, f the exact layer images
+         * |T - (D + F)| <= 2^-24 (|d + f| + |d| + |f|) <= 2^-23 (|D| + |F|) (1 + 2^-23), and a
+         * denormal's absolute rounding 2^-149 on top. */
+        for (c = 0; c < NW; ++c)
+            for (i = 0; i < NP; ++i) {
+                double t = planes[(3 + c) * NP + i], d = planes[(N + 3 + c) * NP + i],
+                       f = planes[(2 * N + 3 + c) * NP + i];
+                double bound = ldexp(1.0, -23) * (fabs(d) + fabs(f)) * (1.0 + ldexp(1.0, -23)) + ldexp(1.0, -149);
+                double e = fabs(t - (d + f));
+                over += e > bound;
+                lit += d > 0.0 && f > 0.0;
+                worst = e / bound > worst ? e / bound : worst;
+            }
+        CHECK(over == 0, "total vs direct + flare: %d values beyond float rounding", over);
+        CHECK(lit > NP / 2, "only %d of %d values have both a direct and a flare part", lit, NW * NP);
+        CHECK(strstr(attr, "direct: ") == attr && strstr(attr, "; flare: ") && strstr(attr, " + "),
+              "lensrt/layers is '%s'", attr);
+        printf("exr layers of renders: total - (direct + flare) at most %.2f of the rounding bound; "
+               "lensrt/layers '%s'\n", worst, attr);
+    }
+
+    /* (b) Refusals, each naming the path and the value, no file written: a bad name, a
+     * repeated name, a render in two layers, another window; an unset struct_size. */
+    {
+        lensrt_exr_layer bad[2];
+        write_text_file(target, "sentinel\n");
+        bad[0] = layers[0];
+        bad[1] = layers[1];
+        bad[1].name = "fl.are";
+        CHECK_RES(ctx, LENSRT_ERROR_INVALID_ARGUMENT, lensrt_layers_write_exr(bad, 2, target));
+        CHECK_MSG(ctx, "'fl.are'");
+        CHECK_MSG(ctx, target);
+        bad[1].name = "direct";
+        CHECK_RES(ctx, LENSRT_ERROR_INVALID_ARGUMENT, lensrt_layers_write_exr(bad, 2, target));
+        CHECK_MSG(ctx, "both named 'direct'");
+        bad[1].name = "flare";
+        bad[1].renders = &rs[0]; /* the direct render again */
+        bad[1].n_renders = 2;
+        CHECK_RES(ctx, LENSRT_ERROR_INVALID_ARGUMENT, lensrt_layers_write_exr(bad, 2, target));
+        CHECK_MSG(ctx, "count it twice");
+        bad[1].renders = &rs[2]; /* renders 2 and 3: render 3 has another window */
+        CHECK_RES(ctx, LENSRT_ERROR_INCOMPATIBLE, lensrt_layers_write_exr(bad, 2, target));
+        CHECK_MSG(ctx, "9 x 6");
+        bad[1] = layers[1];
+        bad[1].struct_size = 0;
+        CHECK_RES(ctx, LENSRT_ERROR_INVALID_ARGUMENT, lensrt_layers_write_exr(bad, 2, target));
+        CHECK_MSG(ctx, "struct_size");
+        CHECK_RES(ctx, LENSRT_ERROR_INVALID_ARGUMENT, lensrt_layers_write_exr(layers, 0, target));
+        CHECK_RES(ctx, LENSRT_ERROR_INVALID_ARGUMENT, lensrt_layers_write_exr(layers, 2, NULL));
+        CHECK(file_has_text(target, "sentinel\n") && count_temporaries() == 0,
+              "refused layers changed the file or left a temporary");
+        /* A missing folder: IO naming the path, no file */
+        scratch_path(target, sizeof target, "image_io_no_such_folder/layers.exr");
+        CHECK_RES(ctx, LENSRT_ERROR_IO, lensrt_layers_write_exr(layers, 2, target));
+        CHECK_MSG(ctx, target);
+        CHECK(!file_exists(target), "a failed layered write left '%s'", target);
+    }
+    remove(path);
+    scratch_path(target, sizeof target, "image_io_render_layers_existing.exr");
+    remove(target);
+done:
+    for (k = 0; k < 4; ++k)
+        lensrt_render_destroy(rs[k]);
+    lensrt_lens_destroy(ctx, lens);
+    lensrt_context_destroy(ctx);
+}
+
+#endif /* LENSRT_TEST_RENDERS */
+
 /* ----------------------------------------------------------------- PNG ----- */
 
 /* An independent bitwise CRC-32 (no table), to check the writer's table version. */
@@ -1191,6 +1614,12 @@ int main(int argc, char **argv)
     }
     test_colour();
     test_exr();
+#ifdef LENSRT_EXR
+    test_exr_layers();
+#endif
+#ifdef LENSRT_TEST_RENDERS
+    test_exr_layers_of_renders();
+#endif
     test_png();
     test_png_gamut();
     printf("test_image_io: %d checks, %d failed\n", g_checks, g_failures);

@@ -20,6 +20,19 @@
  *   - an RGB preview in channels R, G, B next to the spectral channels (the reference
  *     writer does the same).
  *
+ * Layers (lensrt_write_exr_layers): OpenEXR groups channels by name, "channel C in layer L
+ * is called L.C" (OpenEXR's Technical Introduction, "Layers"; the split is at the last
+ * period, so layers nest). The spectral layout defines unprefixed names only, and the
+ * reference reader's pattern is anchored at the start (^S[0-3]\. ...): it reads the
+ * unprefixed channels and ignores every prefixed one. So the unprefixed channels hold
+ * the image every spectral reader and viewer should see (lensrt writes the sum of the
+ * layers there), and each named layer repeats the same channel set behind its prefix:
+ * "direct.S0.550,000000nm", "direct.R", ... A layer name is 1 to LENSRT_MAX_LAYER_NAME
+ * characters of [A-Za-z0-9_-] (no period: a period would nest it in another layer),
+ * not a name of the spectral layout's own (S0-S3, M00-M33, T), unique in the file.
+ * Channel names longer than 31 bytes need OpenEXR's long-name flag (OpenEXR 1.7 and
+ * later read it), which we set only then (exr_set_longname_support).
+ *
  * Standard OpenEXR attributes (OpenEXR "Standard Optional Attributes", and
  * ImfStandardAttributes.h of OpenEXR 3.1): "chromaticities" (sRGB primaries, D65 white:
  * the R, G, B channels are linear sRGB), "aperture" (float, the lens's f-number),
@@ -64,22 +77,45 @@ static void exr_set_error(char *err, size_t err_size, const char *fmt, ...)
     va_end(args);
 }
 
+const char *lensrt_exr_layer_name_refusal(const char *name)
+{
+    size_t n, i;
+    if (!name || !name[0])
+        return "is empty; a layer needs a name";
+    n = strlen(name);
+    if (n > LENSRT_MAX_LAYER_NAME)
+        return "is longer than LENSRT_MAX_LAYER_NAME (64) characters";
+    for (i = 0; i < n; ++i) {
+        char c = name[i];
+        if (!((c >= 'A' && c <= 'Z') || (c >= 'a' && c <= 'z') || (c >= '0' && c <= '9') || c == '_' ||
+              c == '-'))
+            return "has a character other than A-Z, a-z, 0-9, '_' and '-' (a '.' would nest it in "
+                   "another layer)";
+    }
+    // The spectral layout's own channel groups: S0-S3 (Stokes), M00-M33 (Mueller), T
+    if ((n == 2 && name[0] == 'S' && name[1] >= '0' && name[1] <= '3') ||
+        (n == 3 && name[0] == 'M' && name[1] >= '0' && name[1] <= '3' && name[2] >= '0' && name[2] <= '3') ||
+        (n == 1 && name[0] == 'T'))
+        return "is a channel group of the spectral layout (S0-S3, M00-M33, T)";
+    return NULL;
+}
+
 #ifndef LENSRT_EXR
 
 /* Built without OpenEXR (LENSRT_WITH_EXR=OFF): say so. */
-lensrt_result lensrt_write_exr(const lensrt_allocator *allocator, const char *path,
-                               int width, int height, int n_wavelengths,
-                               const double *wavelengths_nm, const float *spectral,
-                               const float *rgb, const lensrt_image_meta *meta,
-                               char *err, size_t err_size)
+lensrt_result lensrt_write_exr_layers(const lensrt_allocator *allocator, const char *path,
+                                      int width, int height, int n_wavelengths,
+                                      const double *wavelengths_nm, int n_images,
+                                      const lensrt_exr_image *images, const lensrt_image_meta *meta,
+                                      char *err, size_t err_size)
 {
     (void)allocator;
     (void)width;
     (void)height;
     (void)n_wavelengths;
     (void)wavelengths_nm;
-    (void)spectral;
-    (void)rgb;
+    (void)n_images;
+    (void)images;
     (void)meta;
     exr_set_error(err, err_size,
                   "EXR '%s': this lensrt was built without OpenEXR (configure with "
@@ -99,8 +135,10 @@ lensrt_result lensrt_write_exr(const lensrt_allocator *allocator, const char *pa
 #include <time.h>
 #include <unistd.h>
 
-/* Room for one channel name "S0.<digits>,<6 digits>nm" (bytes, with the NUL). */
-#define EXR_CHANNEL_NAME_SIZE 32
+/* Room for one spectral channel name "S0.<digits>,<6 digits>nm" (bytes, with the NUL). */
+#define EXR_SPECTRAL_NAME_SIZE 32
+/* Room for one channel name: "<layer>." and a spectral name (bytes, with the NUL). */
+#define EXR_CHANNEL_NAME_SIZE (LENSRT_MAX_LAYER_NAME + 1 + EXR_SPECTRAL_NAME_SIZE)
 /* Largest wavelength we format (nm): keeps the integer part of a name to 9 digits. */
 #define EXR_MAX_WAVELENGTH_NM 1.0e9
 /* Room for one light in the "lensrt/lights" string (bytes). */
@@ -161,7 +199,16 @@ static int64_t exr_write_to_fd(exr_const_context_t ctxt, void *userdata, const v
 static void exr_channel_name(double wavelength_nm, char *out)
 {
     long long micro = (long long)floor(wavelength_nm * 1.0e6 + 0.5); /* units of 1e-6 nm */
-    snprintf(out, EXR_CHANNEL_NAME_SIZE, "S0.%lld,%06lldnm", micro / 1000000, micro % 1000000);
+    snprintf(out, EXR_SPECTRAL_NAME_SIZE, "S0.%lld,%06lldnm", micro / 1000000, micro % 1000000);
+}
+
+/* A channel's name in a layer: "<layer>.<name>", or `name` itself for the unprefixed image. */
+static void exr_layer_channel_name(const char *layer, const char *name, char *out)
+{
+    if (layer)
+        snprintf(out, EXR_CHANNEL_NAME_SIZE, "%s.%s", layer, name);
+    else
+        snprintf(out, EXR_CHANNEL_NAME_SIZE, "%s", name);
 }
 
 static lensrt_result exr_map_result(exr_result_t rv)
@@ -208,11 +255,11 @@ static char *exr_lights_text(const lensrt_allocator *allocator, const lensrt_ima
     return text;
 }
 
-lensrt_result lensrt_write_exr(const lensrt_allocator *allocator, const char *path,
-                               int width, int height, int n_wavelengths,
-                               const double *wavelengths_nm, const float *spectral,
-                               const float *rgb, const lensrt_image_meta *meta,
-                               char *err, size_t err_size)
+lensrt_result lensrt_write_exr_layers(const lensrt_allocator *allocator, const char *path,
+                                      int width, int height, int n_wavelengths,
+                                      const double *wavelengths_nm, int n_images,
+                                      const lensrt_exr_image *images, const lensrt_image_meta *meta,
+                                      char *err, size_t err_size)
 {
     exr_context_initializer_t init = EXR_DEFAULT_CONTEXT_INITIALIZER;
     exr_context_t ctxt = NULL;
@@ -220,13 +267,16 @@ lensrt_result lensrt_write_exr(const lensrt_allocator *allocator, const char *pa
     int encoder_live = 0;
     exr_sink sink;
     char (*names)[EXR_CHANNEL_NAME_SIZE] = NULL;
-    int *channel_of = NULL; /* encoder channel -> our channel (0..n-1 spectral, n..n+2 R G B) */
+    char (*base)[EXR_SPECTRAL_NAME_SIZE] = NULL; /* the unprefixed names: n spectral, R G B */
+    /* encoder channel -> our channel: image i's k-th at i * per_image + k (k < n spectral,
+     * n..n+2 R G B) */
+    int *channel_of = NULL;
     char *tmp_name = NULL, *lights = NULL;
     const char *step = "", *refusal;
     exr_result_t rv = EXR_ERR_SUCCESS;
     lensrt_result result = LENSRT_SUCCESS;
     size_t n_pixels;
-    int part = 0, n_channels, lines_per_chunk = 0, i, j, y, open_errno = 0;
+    int part = 0, n_channels, per_image, lines_per_chunk = 0, i, j, y, open_errno = 0;
 
     memset(&sink, 0, sizeof sink);
     sink.fd = -1;
@@ -243,10 +293,30 @@ lensrt_result lensrt_write_exr(const lensrt_allocator *allocator, const char *pa
         exr_set_error(err, err_size, "EXR '%s': no allocator", path);
         return LENSRT_ERROR_INVALID_ARGUMENT;
     }
-    if (!wavelengths_nm || !spectral || !rgb) {
-        exr_set_error(err, err_size, "EXR '%s': the %s is NULL", path,
-                      !wavelengths_nm ? "wavelength list" : !spectral ? "spectral image" : "RGB image");
+    if (!wavelengths_nm || !images || n_images < 1) {
+        exr_set_error(err, err_size, "EXR '%s': %s", path,
+                      !wavelengths_nm ? "the wavelength list is NULL" : "no image to write");
         return LENSRT_ERROR_INVALID_ARGUMENT;
+    }
+    /* Each image: its arrays, and a layer name that is valid and unique (at most one
+     * unprefixed image). */
+    for (i = 0; i < n_images; ++i) {
+        const char *name = images[i].name;
+        if (!images[i].spectral || !images[i].rgb) {
+            exr_set_error(err, err_size, "EXR '%s': %s%s%sthe %s is NULL", path, name ? "layer '" : "",
+                          name ? name : "", name ? "': " : "", !images[i].spectral ? "spectral image" : "RGB image");
+            return LENSRT_ERROR_INVALID_ARGUMENT;
+        }
+        if (name && (refusal = lensrt_exr_layer_name_refusal(name)) != NULL) {
+            exr_set_error(err, err_size, "EXR '%s': layer name '%.80s' %s", path, name, refusal);
+            return LENSRT_ERROR_INVALID_ARGUMENT;
+        }
+        for (j = 0; j < i; ++j)
+            if ((!name && !images[j].name) || (name && images[j].name && strcmp(name, images[j].name) == 0)) {
+                exr_set_error(err, err_size, "EXR '%s': images %d and %d are both %s%s%s", path, j, i,
+                              name ? "layer '" : "unprefixed", name ? name : "", name ? "'" : "");
+                return LENSRT_ERROR_INVALID_ARGUMENT;
+            }
     }
     if (width <= 0 || height <= 0 || n_wavelengths <= 0) {
         exr_set_error(err, err_size,
@@ -255,20 +325,24 @@ lensrt_result lensrt_write_exr(const lensrt_allocator *allocator, const char *pa
         return LENSRT_ERROR_INVALID_ARGUMENT;
     }
     /* OpenEXRCore indexes channels with int16 and lines with int32; 4-byte pixels. */
-    if (n_wavelengths > 32000 || (size_t)width > ((size_t)-1) / 12 / (size_t)height ||
+    if (n_wavelengths > 32000 / n_images - 3 || (size_t)width > ((size_t)-1) / 12 / (size_t)height ||
         width > INT32_MAX / 12) {
         exr_set_error(err, err_size, "EXR '%s': size %d x %d with %d wavelengths is too large", path,
                       width, height, n_wavelengths);
         return LENSRT_ERROR_INVALID_ARGUMENT;
     }
     n_pixels = (size_t)width * (size_t)height;
-    n_channels = n_wavelengths + 3;
+    per_image = n_wavelengths + 3;
+    n_channels = n_images * per_image;
 
-    /* Step 2: channel names, each wavelength positive, finite and distinct at 6 decimals. */
+    /* Step 2: channel names, each wavelength positive, finite and distinct at 6 decimals;
+     * then each image's, behind its layer's prefix. */
     names = (char (*)[EXR_CHANNEL_NAME_SIZE])allocator->alloc_fn(
         (size_t)n_channels * EXR_CHANNEL_NAME_SIZE, allocator->user_data);
+    base = (char (*)[EXR_SPECTRAL_NAME_SIZE])allocator->alloc_fn(
+        (size_t)per_image * EXR_SPECTRAL_NAME_SIZE, allocator->user_data);
     channel_of = (int *)allocator->alloc_fn((size_t)n_channels * sizeof(int), allocator->user_data);
-    if (!names || !channel_of) {
+    if (!names || !base || !channel_of) {
         exr_set_error(err, err_size, "EXR '%s': out of memory", path);
         result = LENSRT_ERROR_OUT_OF_MEMORY;
         goto cleanup;
@@ -281,20 +355,23 @@ lensrt_result lensrt_write_exr(const lensrt_allocator *allocator, const char *pa
             result = LENSRT_ERROR_INVALID_ARGUMENT;
             goto cleanup;
         }
-        exr_channel_name(l, names[i]);
+        exr_channel_name(l, base[i]);
         for (j = 0; j < i; ++j)
-            if (strcmp(names[i], names[j]) == 0) {
+            if (strcmp(base[i], base[j]) == 0) {
                 exr_set_error(err, err_size,
                               "EXR '%s': wavelengths %d and %d (%.9g and %.9g nm) give the same "
                               "channel name '%s'",
-                              path, j, i, wavelengths_nm[j], l, names[i]);
+                              path, j, i, wavelengths_nm[j], l, base[i]);
                 result = LENSRT_ERROR_INVALID_ARGUMENT;
                 goto cleanup;
             }
     }
-    strcpy(names[n_wavelengths + 0], "R");
-    strcpy(names[n_wavelengths + 1], "G");
-    strcpy(names[n_wavelengths + 2], "B");
+    strcpy(base[n_wavelengths + 0], "R");
+    strcpy(base[n_wavelengths + 1], "G");
+    strcpy(base[n_wavelengths + 2], "B");
+    for (i = 0; i < n_images; ++i)
+        for (j = 0; j < per_image; ++j)
+            exr_layer_channel_name(images[i].name, base[j], names[i * per_image + j]);
 
     /* Step 3: the temporary file (a regular target or none), and an OpenEXRCore write
      * context on it. */
@@ -320,6 +397,16 @@ lensrt_result lensrt_write_exr(const lensrt_allocator *allocator, const char *pa
     rv = exr_start_write(&ctxt, path, EXR_WRITE_FILE_DIRECTLY, &init);
     if (rv != EXR_ERR_SUCCESS)
         goto exr_failed;
+    /* Channel names past 31 bytes (long layer names) need the long-name flag; files
+     * without them keep the flag off, as every file before layers had it. */
+    for (i = 0; i < n_channels; ++i)
+        if (strlen(names[i]) > 31) {
+            step = "enabling long names";
+            rv = exr_set_longname_support(ctxt, 1);
+            if (rv != EXR_ERR_SUCCESS)
+                goto exr_failed;
+            break;
+        }
 
     /* Step 4: one scanline part: data and display window 0..width-1 x 0..height-1 (row 0
      * at the top), ZIP compression (16 scanlines per chunk), increasing y. */
@@ -330,7 +417,8 @@ lensrt_result lensrt_write_exr(const lensrt_allocator *allocator, const char *pa
     if (rv != EXR_ERR_SUCCESS)
         goto exr_failed;
     /* FLOAT channels; the spectral and RGB values are linear (not perceptual). The
-     * channel list is kept sorted by name, so R, G, B come before the S0. channels. */
+     * channel list is kept sorted by name (bytes), so R, G, B come before the S0.
+     * channels, and the unprefixed ones before the layers (capitals sort first). */
     step = "adding the channels";
     for (i = 0; i < n_channels; ++i) {
         rv = (exr_result_t)exr_add_channel(ctxt, part, names[i], EXR_PIXEL_FLOAT,
@@ -424,6 +512,8 @@ lensrt_result lensrt_write_exr(const lensrt_allocator *allocator, const char *pa
             rv = exr_attr_set_string(ctxt, part, "lensrt/estimator", meta->estimator);
         if (rv == EXR_ERR_SUCCESS && meta->aperture)
             rv = exr_attr_set_string(ctxt, part, "lensrt/aperture", meta->aperture);
+        if (rv == EXR_ERR_SUCCESS && meta->layers)
+            rv = exr_attr_set_string(ctxt, part, "lensrt/layers", meta->layers);
         if (rv == EXR_ERR_SUCCESS) {
             snprintf(text, sizeof text, "%llu", (unsigned long long)meta->seed);
             rv = exr_attr_set_string(ctxt, part, "lensrt/seed", text);
@@ -492,13 +582,14 @@ lensrt_result lensrt_write_exr(const lensrt_allocator *allocator, const char *pa
         }
         for (c = 0; c < n_channels; ++c) {
             exr_coding_channel_info_t *ch = &encoder.channels[c];
-            int k = channel_of[c];
+            const lensrt_exr_image *im = &images[channel_of[c] / per_image];
+            int k = channel_of[c] % per_image;
             const float *first;
             if (k < n_wavelengths) {
-                first = spectral + (size_t)k * n_pixels + (size_t)chunk.start_y * (size_t)width;
+                first = im->spectral + (size_t)k * n_pixels + (size_t)chunk.start_y * (size_t)width;
                 ch->user_pixel_stride = (int32_t)sizeof(float);
             } else {
-                first = rgb + (size_t)chunk.start_y * (size_t)width * 3 + (size_t)(k - n_wavelengths);
+                first = im->rgb + (size_t)chunk.start_y * (size_t)width * 3 + (size_t)(k - n_wavelengths);
                 ch->user_pixel_stride = (int32_t)(3 * sizeof(float));
             }
             ch->user_line_stride = ch->user_pixel_stride * width;
@@ -581,9 +672,26 @@ cleanup:
         allocator->free_fn(lights, allocator->user_data);
     if (names)
         allocator->free_fn(names, allocator->user_data);
+    if (base)
+        allocator->free_fn(base, allocator->user_data);
     if (channel_of)
         allocator->free_fn(channel_of, allocator->user_data);
     return result;
 }
 
 #endif /* LENSRT_EXR */
+
+lensrt_result lensrt_write_exr(const lensrt_allocator *allocator, const char *path,
+                               int width, int height, int n_wavelengths,
+                               const double *wavelengths_nm, const float *spectral,
+                               const float *rgb, const lensrt_image_meta *meta,
+                               char *err, size_t err_size)
+{
+    /* One unprefixed image: the spectral layout as it is. */
+    lensrt_exr_image image;
+    image.name = NULL;
+    image.spectral = spectral;
+    image.rgb = rgb;
+    return lensrt_write_exr_layers(allocator, path, width, height, n_wavelengths, wavelengths_nm, 1,
+                                   &image, meta, err, err_size);
+}

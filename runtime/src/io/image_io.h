@@ -52,6 +52,7 @@ typedef struct lensrt_image_meta {
     const char *sampler;        /* "sobol", "random", "stratified" */
     const char *estimator;      /* "paper", "unbiased" */
     const char *aperture;       /* e.g. "circle", "7 blades, curvature 0.3, rotation 10 deg" */
+    const char *layers;         /* what each layer holds (EXR "lensrt/layers"), or NULL */
     uint64_t seed;
     int n_lights;
     const lensrt_light *lights;
@@ -75,6 +76,30 @@ lensrt_result lensrt_write_exr(const lensrt_allocator *allocator, const char *pa
                                const double *wavelengths_nm, const float *spectral,
                                const float *rgb, const lensrt_image_meta *meta,
                                char *err, size_t err_size);
+
+/* One image of a layered EXR: a spectral image and its RGB preview, as for
+ * lensrt_write_exr, and its layer's name (NULL: the unprefixed channels). */
+typedef struct lensrt_exr_image {
+    const char *name;
+    const float *spectral;
+    const float *rgb;
+} lensrt_exr_image;
+
+/* NULL when `name` may name an EXR layer: 1 to LENSRT_MAX_LAYER_NAME characters of
+ * [A-Za-z0-9_-], not a channel group of the spectral layout (S0-S3, M00-M33, T);
+ * otherwise why not, a phrase for a message ("is empty; ...", ...). */
+const char *lensrt_exr_layer_name_refusal(const char *name);
+
+/* The same EXR with several images: image i's channels are lensrt_write_exr's names
+ * behind the prefix "<name>." (OpenEXR's layer convention), or unprefixed for the one
+ * image whose name is NULL (at most one). Names must be valid and unique
+ * (LENSRT_ERROR_INVALID_ARGUMENT naming the path and the name). lensrt_write_exr is this
+ * with one unprefixed image. */
+lensrt_result lensrt_write_exr_layers(const lensrt_allocator *allocator, const char *path,
+                                      int width, int height, int n_wavelengths,
+                                      const double *wavelengths_nm, int n_images,
+                                      const lensrt_exr_image *images, const lensrt_image_meta *meta,
+                                      char *err, size_t err_size);
 
 /* PNG, 8-bit sRGB: luminance mapped by log10 over `decades` below the image's peak;
  * colours outside the sRGB gamut (or with a negative component) are desaturated towards

@@ -130,6 +130,34 @@ static void describe_aperture(const lensrt_render r, char *buf, size_t size)
         snprintf(buf, size, "circle");
 }
 
+/* The EXR metadata of render r (`aperture`: 128 bytes for its description). */
+static void image_meta(const lensrt_render r, lensrt_image_meta *out, char *aperture)
+{
+    lensrt_image_meta meta;
+    memset(&meta, 0, sizeof meta);
+    describe_aperture(r, aperture, 128);
+    meta.lens_name = r->lens->name;
+    meta.lens_file = r->lens_ops->table_file(r->lens);
+    meta.focal_length_mm = r->lens->focal_length_mm;
+    meta.f_number = r->f_number;
+    meta.stop_radius_mm = r->stop_radius;
+    meta.focus_offset_mm = r->desc.sensor.focus_offset_mm;
+    meta.pixel_pitch_x_mm = r->pitch_x;
+    meta.pixel_pitch_y_mm = r->pitch_y;
+    meta.center_x_mm = r->desc.sensor.center_x_mm;
+    meta.center_y_mm = r->desc.sensor.center_y_mm;
+    meta.samples_per_wavelength = r->samples;
+    meta.seconds = r->seconds;
+    meta.splats_per_second = r->seconds > 0 ? (double)r->splats / r->seconds : 0.0;
+    meta.sampler = lensrt_sampler_name(r->desc.sampler);
+    meta.estimator = r->desc.estimator == LENSRT_ESTIMATOR_UNBIASED ? "unbiased" : "paper";
+    meta.aperture = aperture;
+    meta.seed = r->desc.seed;
+    meta.n_lights = r->n_lights;
+    meta.lights = r->lights;
+    *out = meta;
+}
+
 /* The image (the sum of the renders' images) as EXR, with the first render's metadata,
  * or PNG. */
 static lensrt_result write_image(const lensrt_render *rs, int n, const char *path, int exr, double decades)
@@ -143,27 +171,7 @@ static lensrt_result write_image(const lensrt_render *rs, int n, const char *pat
     res = spectral_and_rgb_of(rs, n, &spectral, &rgb);
     if (res == LENSRT_SUCCESS && exr) {
         lensrt_image_meta meta;
-        memset(&meta, 0, sizeof meta);
-        describe_aperture(r, aperture, sizeof aperture);
-        meta.lens_name = r->lens->name;
-        meta.lens_file = r->lens_ops->table_file(r->lens);
-        meta.focal_length_mm = r->lens->focal_length_mm;
-        meta.f_number = r->f_number;
-        meta.stop_radius_mm = r->stop_radius;
-        meta.focus_offset_mm = r->desc.sensor.focus_offset_mm;
-        meta.pixel_pitch_x_mm = r->pitch_x;
-        meta.pixel_pitch_y_mm = r->pitch_y;
-        meta.center_x_mm = r->desc.sensor.center_x_mm;
-        meta.center_y_mm = r->desc.sensor.center_y_mm;
-        meta.samples_per_wavelength = r->samples;
-        meta.seconds = r->seconds;
-        meta.splats_per_second = r->seconds > 0 ? (double)r->splats / r->seconds : 0.0;
-        meta.sampler = lensrt_sampler_name(r->desc.sampler);
-        meta.estimator = r->desc.estimator == LENSRT_ESTIMATOR_UNBIASED ? "unbiased" : "paper";
-        meta.aperture = aperture;
-        meta.seed = r->desc.seed;
-        meta.n_lights = r->n_lights;
-        meta.lights = r->lights;
+        image_meta(r, &meta, aperture);
         res = lensrt_write_exr(&r->ctx->allocator, path, r->width, r->height, r->n_wl, r->wavelengths,
                                spectral, rgb, &meta, err, sizeof err);
     } else if (res == LENSRT_SUCCESS) {
@@ -190,4 +198,154 @@ lensrt_result lensrt_renders_write_exr(const lensrt_render *renders, int n_rende
 lensrt_result lensrt_renders_write_png(const lensrt_render *renders, int n_renders, const char *path, double decades)
 {
     return write_image(renders, n_renders, path, 0, decades);
+}
+
+/* ------------------------------------------------------------- layered EXR ----- */
+
+/* "direct: lens0001.table; flare: ghost_0_2.table + ghost_4_8.table; unprefixed: their
+ * sum", for the EXR attribute "lensrt/layers" (lens files, or lens names for lenses
+ * without one). NULL when out of memory. */
+static char *layers_text(lensrt_context ctx, const lensrt_exr_layer *ls, int n)
+{
+    size_t size = 64, used = 0;
+    char *text;
+    int i, k;
+    // Room: every name and file, with their separators
+    for (i = 0; i < n; i++) {
+        size += strlen(ls[i].name) + 8;
+        for (k = 0; k < ls[i].n_renders; k++) {
+            const char *file = ls[i].renders[k]->lens_ops->table_file(ls[i].renders[k]->lens);
+            size += strlen(file ? file : ls[i].renders[k]->lens->name) + 4;
+        }
+    }
+    if (!(text = lensrt_alloc(ctx, size))) return NULL;
+    for (i = 0; i < n; i++) {
+        used += (size_t)snprintf(text + used, size - used, "%s%s: ", i ? "; " : "", ls[i].name);
+        for (k = 0; k < ls[i].n_renders; k++) {
+            const char *file = ls[i].renders[k]->lens_ops->table_file(ls[i].renders[k]->lens);
+            used += (size_t)snprintf(text + used, size - used, "%s%s", k ? " + " : "",
+                                     file ? file : ls[i].renders[k]->lens->name);
+        }
+    }
+    snprintf(text + used, size - used, "; unprefixed: %s", n > 1 ? "their sum" : "the same");
+    return text;
+}
+
+/* Read (ABI rules) and check the layers: names valid and unique, renders non-NULL, no
+ * render in two places, one window and one set of wavelengths. `ls` gets the layers,
+ * `all` every render in layer order. */
+static lensrt_result check_layers(lensrt_context ctx, const lensrt_exr_layer *layers, int n, const char *path,
+                                  lensrt_exr_layer *ls, lensrt_render *all, int *n_all)
+{
+    lensrt_result res;
+    int i, j, k;
+    *n_all = 0;
+    if ((res = lensrt_array_in(ctx, "EXR layers", layers, (size_t)n, ls, sizeof *ls)) != LENSRT_SUCCESS) return res;
+    for (i = 0; i < n; i++) {
+        const char *refusal = lensrt_exr_layer_name_refusal(ls[i].name);
+        if (refusal)
+            return lensrt_fail(ctx, LENSRT_ERROR_INVALID_ARGUMENT, "EXR '%s': layer %d: name '%.80s' %s", path, i,
+                               ls[i].name ? ls[i].name : "", refusal);
+        for (j = 0; j < i; j++)
+            if (strcmp(ls[i].name, ls[j].name) == 0)
+                return lensrt_fail(ctx, LENSRT_ERROR_INVALID_ARGUMENT,
+                                   "EXR '%s': layers %d and %d are both named '%s'; names must be unique", path, j, i,
+                                   ls[i].name);
+        if (!ls[i].renders || ls[i].n_renders < 1)
+            return lensrt_fail(ctx, LENSRT_ERROR_INVALID_ARGUMENT, "EXR '%s': layer '%s' has %s, expected 1 or more renders",
+                               path, ls[i].name, ls[i].renders ? "no render" : "a NULL render list");
+        for (k = 0; k < ls[i].n_renders; k++) {
+            lensrt_render r = ls[i].renders[k];
+            if (!r)
+                return lensrt_fail(ctx, LENSRT_ERROR_INVALID_ARGUMENT, "EXR '%s': layer '%s': render %d is NULL", path,
+                                   ls[i].name, k);
+            // The unprefixed sum would count a render twice
+            for (j = 0; j < *n_all; j++)
+                if (all[j] == r)
+                    return lensrt_fail(ctx, LENSRT_ERROR_INVALID_ARGUMENT,
+                                       "EXR '%s': layer '%s': render %d (%s) is already in this or an earlier layer; "
+                                       "the sum of the layers would count it twice", path, ls[i].name, k, r->lens->file);
+            all[(*n_all)++] = r;
+        }
+    }
+    if (!path) return lensrt_fail(ctx, LENSRT_ERROR_INVALID_ARGUMENT, "EXR: the path is NULL");
+    if ((res = check_same_frame(all, *n_all)) != LENSRT_SUCCESS) {
+        char why[LENSRT_ERROR_SIZE];
+        snprintf(why, sizeof why, "%s", lensrt_context_last_error(ctx));
+        return lensrt_fail(ctx, res, "EXR '%s': layers in one file: %s", path, why);
+    }
+    return LENSRT_SUCCESS;
+}
+
+lensrt_result lensrt_layers_write_exr(const lensrt_exr_layer *layers, int n_layers, const char *path)
+{
+    lensrt_exr_layer *ls = NULL;
+    lensrt_render *all = NULL, r0;
+    lensrt_exr_image *images = NULL;
+    float **planes = NULL; /* image i's spectral planes at 2 i, its RGB at 2 i + 1 */
+    lensrt_context ctx;
+    lensrt_image_meta meta;
+    lensrt_result res = LENSRT_SUCCESS;
+    char err[LENSRT_ERROR_SIZE] = "", aperture[128], *text = NULL;
+    size_t size, n_total = 0;
+    int i, n_all = 0;
+
+    // Step 1: a context for messages, the first layer's first render's (a caller's struct
+    // too small to hold our fields, e.g. zeroed without its INIT macro, has none to read)
+    if (!layers || n_layers < 1) return LENSRT_ERROR_INVALID_ARGUMENT;
+    memcpy(&size, layers, sizeof size);
+    if (size < sizeof(lensrt_exr_layer) || !layers[0].renders || layers[0].n_renders < 1 || !layers[0].renders[0])
+        return LENSRT_ERROR_INVALID_ARGUMENT;
+    r0 = layers[0].renders[0];
+    ctx = r0->ctx;
+    if (n_layers > LENSRT_MAX_LAYERS)
+        return lensrt_fail(ctx, LENSRT_ERROR_INVALID_ARGUMENT, "EXR '%s': %d layers, at most %d",
+                           path ? path : "(null)", n_layers, LENSRT_MAX_LAYERS);
+
+    // Step 2: the layers, read and checked; every render of every layer, in order
+    for (i = 0; i < n_layers; i++) {
+        const lensrt_exr_layer *l = (const lensrt_exr_layer *)(const void *)((const unsigned char *)layers + (size_t)i * size);
+        if (l->struct_size == size && l->n_renders > 0) n_total += (size_t)l->n_renders;
+    }
+    ls = lensrt_calloc(ctx, (size_t)n_layers, sizeof *ls);
+    all = lensrt_calloc(ctx, n_total + 1, sizeof *all);
+    images = lensrt_calloc(ctx, (size_t)n_layers + 1, sizeof *images);
+    planes = lensrt_calloc(ctx, 2 * ((size_t)n_layers + 1), sizeof *planes);
+    if (!ls || !all || !images || !planes) {
+        res = lensrt_fail(ctx, LENSRT_ERROR_OUT_OF_MEMORY, "EXR '%s': out of memory", path ? path : "(null)");
+        goto done;
+    }
+    if ((res = check_layers(ctx, layers, n_layers, path, ls, all, &n_all)) != LENSRT_SUCCESS) goto done;
+
+    // Step 3: the images: unprefixed, the sum of every render (lensrt_renders_write_exr
+    // of all of them); then each layer's own sum
+    res = spectral_and_rgb_of(all, n_all, &planes[0], &planes[1]);
+    for (i = 0; i < n_layers && res == LENSRT_SUCCESS; i++) {
+        images[1 + i].name = ls[i].name;
+        res = spectral_and_rgb_of(ls[i].renders, ls[i].n_renders, &planes[2 + 2 * i], &planes[3 + 2 * i]);
+    }
+    if (res != LENSRT_SUCCESS) goto done;
+    for (i = 0; i <= n_layers; i++) {
+        images[i].spectral = planes[2 * i];
+        images[i].rgb = planes[2 * i + 1];
+    }
+
+    // Step 4: the file, with the first render's metadata and what each layer holds
+    image_meta(r0, &meta, aperture);
+    if (!(text = layers_text(ctx, ls, n_layers))) {
+        res = lensrt_fail(ctx, LENSRT_ERROR_OUT_OF_MEMORY, "EXR '%s': out of memory", path);
+        goto done;
+    }
+    meta.layers = text;
+    res = lensrt_write_exr_layers(&ctx->allocator, path, r0->width, r0->height, r0->n_wl, r0->wavelengths,
+                                  n_layers + 1, images, &meta, err, sizeof err);
+    if (res != LENSRT_SUCCESS && err[0]) lensrt_fail(ctx, res, "%s", err);
+done:
+    for (i = 0; planes && i < 2 * (n_layers + 1); i++) lensrt_free(ctx, planes[i]);
+    lensrt_free(ctx, planes);
+    lensrt_free(ctx, images);
+    lensrt_free(ctx, text);
+    lensrt_free(ctx, all);
+    lensrt_free(ctx, ls);
+    return res;
 }
