@@ -107,3 +107,72 @@ def test_ghost_power_against_the_exact_estimate(rt, lens, report):
     direct = power(FOLDER / "lens0001.table", 0.2, 96)
     print(f"4-8 power over direct: runtime {ghost / direct:.4g}, estimate {est.energy[0]:.4g}")
     assert ghost / direct == pytest.approx(est.energy[0], rel=0.03)
+
+
+def _seven_blades(radius: float, rotation_deg: float):
+    """The inside of a regular 7-gon with vertices on the circle of ``radius`` at
+    ``rotation_deg`` + k 360/7 deg (straight blades), (x, y) mm arrays -> bool: on the
+    inner side of every edge v_k -> v_k+1 (counter-clockwise), by the sign of the cross
+    product. An implementation independent of lensrt's (edge normals at the apothem)."""
+    ang = np.radians(rotation_deg) + 2 * np.pi * np.arange(8) / 7
+    vx, vy = radius * np.cos(ang), radius * np.sin(ang)
+
+    def inside(x, y):
+        x, y = np.asarray(x, dtype=float), np.asarray(y, dtype=float)
+        ok = np.ones(np.broadcast(x, y).shape, dtype=bool)
+        for k in range(7):
+            ok &= (vx[k + 1] - vx[k]) * (y - vy[k]) - (vy[k + 1] - vy[k]) * (x - vx[k]) >= 0
+        return ok
+
+    return inside
+
+
+def test_runtime_ghost_with_bladed_stop_matches_exact_ghost_rays(rt, lens, report):
+    """Ghost 4-8 of 0001 (case C: its path crosses the stop plane twice more) at f/8 with
+    a 7-blade stop (straight blades, rotated 15 deg): lensrt's render, which tests both
+    crossings against the blades, against exactly traced ghost rays whose crossings are
+    tested against the same polygon (``exact_psf(stop_shape=)``, the polygon written
+    here in numpy), the same stop points (the 868 of 1000 sunflower points inside the
+    polygon) on both sides. Bound: the issue's 3% relative L2; measured 1.6e-2 (the
+    round stop's figure for this ghost is 0.9%: the polygon's corners add edge
+    diffraction the fit was not trusted on).
+
+    The circle-only test of the crossings (lensrt before: a round stop at the
+    crossings, the blades only at the aperture point) is measurably wrong: the same
+    render with a round aperture is 0.33 relative L2 from the bladed exact image and
+    carries 1.16x its power (the exact round-stop image has 1.164x the bladed one's);
+    asserted beyond 3x the bound and 5% of power."""
+    g = next(x for x in report["ghosts"] if x["label"] == "4-8")
+    cell = next(c for c in g["trust"] if c["wavelength_nm"] == LAMBDA)
+    table = FOLDER / "ghosts" / f"ghost_{g['first']}_{g['second']}.table"
+    radius = read_table(table.read_text()).lens.stop_radius_f1_mm / F_NUMBER
+    inside = _seven_blades(radius, 15.0)
+    points = psf.sunflower_points(1000, radius)
+    points = points[inside(points[:, 0], points[:, 1])]
+    cx, cy, width = cell["window"]
+    light = tuple(cell["field_deg"])
+    exact = psf.exact_psf(lens, ghost=ghost_half(lens, g["first"], g["second"]),
+                          stop_radius_mm=radius, aperture_xy_mm=points, wavelength_nm=LAMBDA,
+                          width=32, height=32, width_mm=width, center_x_mm=cx, center_y_mm=cy,
+                          field_deg=light, stop_shape=inside)
+
+    def render(**aperture) -> np.ndarray:
+        r = rt.create(rt.load(table), width=32, height=32, width_mm=width, center=(cx, cy),
+                      focus_offset_mm=0.0, radius_mm=radius, wavelengths=[LAMBDA],
+                      lights=[light], **aperture)
+        r.splat_points(points)
+        return r.image()[0]
+
+    def err(image: np.ndarray) -> float:
+        return float(np.linalg.norm(normalised(image) - normalised(exact))
+                     / np.linalg.norm(normalised(exact)))
+
+    bladed = render(shape="blades", blades=7, rotation_deg=15.0)
+    round_ = render()
+    power = float(round_.sum() / bladed.sum())
+    print(f"4-8, 7 blades: runtime against exact ghost rays {err(bladed):.2e}; circle-only "
+          f"{err(round_):.2e}, power {power:.3f}x")
+    assert len(points) > 800
+    assert err(bladed) <= 0.03, err(bladed)
+    assert err(round_) > 0.09, err(round_)
+    assert power > 1.05, power

@@ -15,6 +15,47 @@
 #define LENSRT_BLOCK 256
 #define LENSRT_NM_PER_MM 1e6
 
+/* The render's aperture as a test of a ghost's further stop crossings (P_clip pairs
+ * x_s<c>, y_s<c>), exactly the set lensrt_aperture_contains (core/sampler.c) defines,
+ * written so that a kernel tests it with a few multiply-adds per point and no atan2:
+ *   every shape:  x^2 + y^2 <= r2 (the stop radius squared; the slits: a circle around
+ *                 them, which every point of theirs passes);
+ *   blades:       for each edge k, a r^2 + gx[k] x + gy[k] y <= c[k]. A straight edge is
+ *                 the half-plane n_k . p <= apothem (a = 0, g = n_k, c = apothem); a
+ *                 curved one the disc through the edge's two vertices whose centre lies
+ *                 on its normal at d = apothem + sag - rho, |p - d n_k| <= rho, divided
+ *                 by 2 rho so that it stays well conditioned as rho grows:
+ *                 a = 1 / (2 rho), g = (1 - (apothem + sag) / rho) n_k,
+ *                 c = (apothem + sag)(1 - (apothem + sag) / (2 rho)).
+ *                 The polygon is the intersection of the R-disc and the n edges' sets
+ *                 (each edge's disc reaches beyond the R-disc only inside its own sector,
+ *                 which is the sector lensrt_aperture_contains tests it in);
+ *   slits:        |y| <= half_y and |x - centre[i]| <= half_x for one of n slits.
+ * Float copies (f_*) serve the float kernels. */
+#define LENSRT_STOP_CIRCLE 0
+#define LENSRT_STOP_BLADES 1
+#define LENSRT_STOP_SLIT 2
+typedef struct lensrt_stop_shape {
+    int kind, n;
+    double r2, a, gx[LENSRT_MAX_BLADES], gy[LENSRT_MAX_BLADES], c[LENSRT_MAX_BLADES];
+    double nx[LENSRT_MAX_BLADES], ny[LENSRT_MAX_BLADES]; /* blades: outward edge normals */
+    double apothem, reach;  /* blades: the straight polygon's apothem; apothem + sag (the edges' farthest) */
+    double half_x, half_y, centre[2];
+    double scale;           /* the shape's smallest size (mm): the slit's half width, else the radius */
+    float f_r2, f_a, f_gx[LENSRT_MAX_BLADES], f_gy[LENSRT_MAX_BLADES], f_c[LENSRT_MAX_BLADES];
+    float f_half_x, f_half_y, f_centre[2];
+} lensrt_stop_shape;
+
+/* The stop test of `ap` with stop radius `radius_mm`. */
+void lensrt_stop_shape_init(const lensrt_aperture *ap, double radius_mm, lensrt_stop_shape *s);
+
+/* Whether (x, y) passes the stop test, in double. */
+int lensrt_stop_shape_contains(const lensrt_stop_shape *s, double x, double y);
+
+/* What the stop test says of every point of the box |x - cx| <= bx, |y - cy| <= by:
+ * 1 every point passes, 0 none does, 2 it cannot tell (test each point). */
+int lensrt_stop_shape_box(const lensrt_stop_shape *s, double cx, double bx, double cy, double by);
+
 struct lensrt_lens_ops;   /* lens/lens.h */
 struct lensrt_device_ops; /* core/device.h */
 struct lensrt_tiles;      /* core/tiles.h */
@@ -74,6 +115,11 @@ struct lensrt_render_s {
      * direct render), and nothing below is allocated. */
     int n_clip_pairs, clip_side;
     double clip_limit[LENSRT_MAX_CLIP_PAIRS];
+    /* clip_shaped[q]: pair q is a stop crossing and the aperture is not a circle, so it
+     * passes when `stop` says so (clip_limit[q] is then sqrt(stop.r2)); 0 for every
+     * housing pair and for a round stop (the circle test above, as it always was) */
+    int clip_shaped[LENSRT_MAX_CLIP_PAIRS];
+    lensrt_stop_shape stop;
     double *clip_o;               /* [((l * n_wl + w) * 2 n_clip_pairs + o) * n_slots + slot] */
     lensrt_pixel_poly *clip_s;    /* [w * 2 n_clip_pairs + o] */
     /* phasor sums: [((l * n_wl + w) * npix + p) * 2 + re/im]; sum of |X|^2 per

@@ -85,8 +85,29 @@ static inline void vdot(const float *mono, const lensrt_terms_f *t, float start,
     out[3] = s3;
 }
 
-void lensrt_kernel_f(const float *mono, int n_lights, const float *sphase, const float *samp,
-                     const lensrt_pixel_f *px, double *acc)
+/* A stop crossing of a bladed or slit stop (core/render.h): 1 where (x, y) passes its
+ * circle (r2_max) and its edge or slit tests, 0 elsewhere. */
+static inline vf vstop(const lensrt_stop_shape *st, vf x, vf y, float r2_max)
+{
+    vf r2 = x * x + y * y;
+    vi m = r2 <= r2_max;
+    int k;
+    if (st->kind == LENSRT_STOP_BLADES) {
+        for (k = 0; k < st->n; k++) m &= st->f_a * r2 + st->f_gx[k] * x + st->f_gy[k] * y <= st->f_c[k];
+    } else {
+        vf d0 = x - st->f_centre[0], d1 = x - st->f_centre[1];
+        vi in = (d0 <= st->f_half_x) & (d0 >= -st->f_half_x);
+        if (st->n == 2) in |= (d1 <= st->f_half_x) & (d1 >= -st->f_half_x);
+        m &= in & (y <= st->f_half_y) & (y >= -st->f_half_y);
+    }
+    return -__builtin_convertvector(m, vf);
+}
+
+/* The kernel, compiled twice: shaped 0 (every direct render, and ghosts whose pixel tests
+ * no stop crossing of a bladed or slit stop: the code the kernel always was) and 1. */
+static inline __attribute__((always_inline)) void kernel_f(const float *mono, int n_lights, const float *sphase,
+                                                           const float *samp, const lensrt_pixel_f *px, double *acc,
+                                                           const int shaped)
 {
     vf re[64], im[64], sq[64];
     int jc, l, h, q;
@@ -107,8 +128,13 @@ void lensrt_kernel_f(const float *mono, int n_lights, const float *sphase, const
         for (q = 0; q < px->n_clip; q++) {
             vdot(mono, &px->clip_x[q], 0.0f, jc, x);
             vdot(mono, &px->clip_y[q], 0.0f, jc, y);
-            for (h = 0; h < NV; h++)
-                w[h] *= -__builtin_convertvector(x[h] * x[h] + y[h] * y[h] <= px->clip_r2[q], vf);
+            if (!shaped || !px->clip_shaped[q]) {
+                for (h = 0; h < NV; h++)
+                    w[h] *= -__builtin_convertvector(x[h] * x[h] + y[h] * y[h] <= px->clip_r2[q], vf);
+            } else {
+                // A stop crossing of a bladed or slit stop: its circle, then its shape
+                for (h = 0; h < NV; h++) w[h] *= vstop(px->stop, x[h], y[h], px->clip_r2[q]);
+            }
         }
         // Amplitude transmittance: the square root of the power transmittance
         if (px->tau.n > 0) {
@@ -139,6 +165,27 @@ void lensrt_kernel_f(const float *mono, int n_lights, const float *sphase, const
     }
 }
 
+static __attribute__((noinline)) void kernel_f_round(const float *mono, int n_lights, const float *sphase,
+                                                     const float *samp, const lensrt_pixel_f *px, double *acc)
+{
+    kernel_f(mono, n_lights, sphase, samp, px, acc, 0);
+}
+
+static __attribute__((noinline)) void kernel_f_shaped(const float *mono, int n_lights, const float *sphase,
+                                                      const float *samp, const lensrt_pixel_f *px, double *acc)
+{
+    kernel_f(mono, n_lights, sphase, samp, px, acc, 1);
+}
+
+void lensrt_kernel_f(const float *mono, int n_lights, const float *sphase, const float *samp,
+                     const lensrt_pixel_f *px, double *acc)
+{
+    int q, shaped = 0;
+    for (q = 0; q < px->n_clip; q++) shaped |= px->clip_shaped[q];
+    if (shaped) kernel_f_shaped(mono, n_lights, sphase, samp, px, acc);
+    else kernel_f_round(mono, n_lights, sphase, samp, px, acc);
+}
+
 #else
 
 /* sin and cos of 2 pi p: reduce p to [-1/2, 1/2], split off the quadrant q = rint(4 p),
@@ -156,6 +203,21 @@ static inline void sincos2pi(float p, float *c_out, float *s_out)
     float swap_s = (qi & 1) ? c : s, swap_c = (qi & 1) ? s : c;
     *s_out = (qi & 2) ? -swap_s : swap_s;
     *c_out = ((qi + 1) & 2) ? -swap_c : swap_c;
+}
+
+/* A stop crossing inside a bladed or slit stop (core/render.h), in float: 1 or 0 (the
+ * circle test is the caller's) */
+static float stop_f(const lensrt_stop_shape *st, float x, float y, float r2)
+{
+    int k;
+    if (st->kind == LENSRT_STOP_BLADES) {
+        for (k = 0; k < st->n; k++)
+            if (st->f_a * r2 + st->f_gx[k] * x + st->f_gy[k] * y > st->f_c[k]) return 0.0f;
+        return 1.0f;
+    }
+    if (fabsf(y) > st->f_half_y) return 0.0f;
+    return fabsf(x - st->f_centre[0]) <= st->f_half_x || (st->n == 2 && fabsf(x - st->f_centre[1]) <= st->f_half_x)
+               ? 1.0f : 0.0f;
 }
 
 /* out[j] = start + sum_k coef_k * mono[slot_k][j] */
@@ -187,6 +249,8 @@ void lensrt_kernel_f(const float *mono, int n_lights, const float *sphase, const
         dot_f(mono, &px->clip_y[q], 0.0f, y);
         for (j = 0; j < B; j++)
             weight[j] *= (x[j] * x[j] + y[j] * y[j] <= px->clip_r2[q]) ? 1.0f : 0.0f;
+        if (px->clip_shaped[q])
+            for (j = 0; j < B; j++) weight[j] *= stop_f(px->stop, x[j], y[j], x[j] * x[j] + y[j] * y[j]);
     }
     if (px->tau.n > 0) {
         dot_f(mono, &px->tau, 0.0f, x);
@@ -237,6 +301,9 @@ void lensrt_kernel_d(const double *mono, int n_lights, const double *sphase,
         dot_d(mono, &px->clip_y[q], 0.0, y);
         for (j = 0; j < B; j++)
             weight[j] *= (x[j] * x[j] + y[j] * y[j] <= px->clip_r2[q]) ? 1.0 : 0.0;
+        // A stop crossing of a bladed or slit stop: its shape too, in double
+        if (px->clip_shaped[q])
+            for (j = 0; j < B; j++) weight[j] *= lensrt_stop_shape_contains(px->stop, x[j], y[j]) ? 1.0 : 0.0;
     }
     if (px->tau.n > 0) {
         dot_d(mono, &px->tau, 0.0, x);

@@ -32,10 +32,14 @@ typedef struct lensrt_pixel_f {
     float housing2;        /* housing radius squared (mm^2) */
     int clip;
     /* A ghost's P_clip pairs tested per splat (side P_s; 0 for every direct render): a
-     * sample passes pair q when x^2 + y^2 <= clip_r2[q] (x, y with their constant terms) */
+     * sample passes pair q when x^2 + y^2 <= clip_r2[q] (x, y with their constant terms)
+     * and, when clip_shaped[q] (a stop crossing of a bladed or slit aperture), when
+     * `stop` contains (x, y) (core/render.h: its edge or slit tests, in float) */
     int n_clip;
     lensrt_terms_f clip_x[LENSRT_MAX_CLIP_PAIRS], clip_y[LENSRT_MAX_CLIP_PAIRS];
     float clip_r2[LENSRT_MAX_CLIP_PAIRS];
+    int clip_shaped[LENSRT_MAX_CLIP_PAIRS];
+    const lensrt_stop_shape *stop;
 } lensrt_pixel_f;
 
 typedef struct lensrt_pixel_d {
@@ -45,6 +49,8 @@ typedef struct lensrt_pixel_d {
     int n_clip;
     lensrt_terms_d clip_x[LENSRT_MAX_CLIP_PAIRS], clip_y[LENSRT_MAX_CLIP_PAIRS];
     double clip_r2[LENSRT_MAX_CLIP_PAIRS];
+    int clip_shaped[LENSRT_MAX_CLIP_PAIRS];
+    const lensrt_stop_shape *stop;
 } lensrt_pixel_d;
 
 /* Accumulate acc[3 l + 0..2] += (sum re, sum im, sum |X|^2) over the block for every

@@ -17,7 +17,9 @@
  * largest possible x^2 + y^2 is within its limit always passes (no test), one whose
  * smallest possible is beyond it never does (the pixel is dark: returns 0), and the
  * others are tested per splat with their terms pruned as x_i, y_i are (dropped terms
- * sum to at most 1e-4 of the limit; none in precision DOUBLE). */
+ * sum to at most 1e-4 of the limit; none in precision DOUBLE). A stop crossing of a
+ * bladed or slit stop is decided from the box of its possible points against the shape
+ * (lensrt_stop_shape_box) and tested per splat against it. */
 static int setup_clip(const lensrt_render r, int w, const double *px, const double *py, lensrt_cpu_pixel *pt,
                       lensrt_cpu_clip *cl)
 {
@@ -27,17 +29,28 @@ static int setup_clip(const lensrt_render r, int w, const double *px, const doub
     int q, a, k, n_test = 0;
     for (q = 0; q < r->n_clip_pairs; q++) {
         const double lim = r->clip_limit[q];
+        // Pruning tolerance: 1e-4 of the limit, or of a shaped stop's smallest size (a
+        // narrow slit's half width)
+        const double tol = 1e-4 * (r->clip_shaped[q] ? r->stop.scale : lim);
         double hi, lo_x, lo_y;
         for (a = 0; a < 2; a++) {
             lensrt_slot_coefficients(&r->clip_s[w * n_out + 2 * q + a], px, py, c[a], ns);
             bound[a] = 0.0;
             for (k = 1; k < ns; k++) bound[a] += fabs(c[a][k]);
         }
-        hi = hypot(fabs(c[0][0]) + bound[0], fabs(c[1][0]) + bound[1]);
-        lo_x = fabs(c[0][0]) - bound[0];
-        lo_y = fabs(c[1][0]) - bound[1];
-        if (lo_x > lim || lo_y > lim || (lo_x > 0 && lo_y > 0 && hypot(lo_x, lo_y) > lim)) return 0;
-        if (hi <= lim) continue;
+        if (r->clip_shaped[q]) {
+            // A stop crossing of a bladed or slit stop: the box of its possible points
+            // inside the shape (no test), outside it (dark), or tested per splat
+            const int box = lensrt_stop_shape_box(&r->stop, c[0][0], bound[0], c[1][0], bound[1]);
+            if (box == 0) return 0;
+            if (box == 1) continue;
+        } else {
+            hi = hypot(fabs(c[0][0]) + bound[0], fabs(c[1][0]) + bound[1]);
+            lo_x = fabs(c[0][0]) - bound[0];
+            lo_y = fabs(c[1][0]) - bound[1];
+            if (lo_x > lim || lo_y > lim || (lo_x > 0 && lo_y > 0 && hypot(lo_x, lo_y) > lim)) return 0;
+            if (hi <= lim) continue;
+        }
         // Tested: the terms by increasing size, the smallest dropped within the tolerance
         for (a = 0; a < 2; a++) {
             const int row = 2 * n_test + a;
@@ -53,7 +66,7 @@ static int setup_clip(const lensrt_render r, int w, const double *px, const doub
             }
             i = 0;
             if (!dbl)
-                while (i < n && dropped + fabs(c[a][order[i]]) <= 1e-4 * lim) dropped += fabs(c[a][order[i++]]);
+                while (i < n && dropped + fabs(c[a][order[i]]) <= tol) dropped += fabs(c[a][order[i++]]);
             memset(kept, 0, sizeof kept);
             kept[0] = 1; /* the constant term (row 0 is the monomial 1) */
             for (j = i; j < n; j++) kept[order[j]] = 1;
@@ -70,7 +83,7 @@ static int setup_clip(const lensrt_render r, int w, const double *px, const doub
                 const int bb = 2 + 2 * q + a, nb = ns - 1, rank = r->basis_rank[r->n_bases * w + bb];
                 const double *V = r->basis + (size_t)(r->n_bases * w + bb) * (size_t)nb * (size_t)nb;
                 double u[135];
-                int keep = lensrt_basis_keep(V, nb, rank, c[a], 1e-4 * lim, u), jj;
+                int keep = lensrt_basis_keep(V, nb, rank, c[a], tol, u), jj;
                 if (keep <= rank && keep + 1 < j) {
                     for (jj = 0; jj < keep; jj++) {
                         cl->slot[row][jj] = r->row_base[bb] + jj;
@@ -94,9 +107,11 @@ static int setup_clip(const lensrt_render r, int w, const double *px, const doub
         }
         pt->f.clip_r2[n_test] = (float)(lim * lim);
         pt->d.clip_r2[n_test] = lim * lim;
+        pt->f.clip_shaped[n_test] = pt->d.clip_shaped[n_test] = r->clip_shaped[q];
         n_test++;
     }
     pt->f.n_clip = pt->d.n_clip = n_test;
+    pt->f.stop = pt->d.stop = &r->stop;
     return 1;
 }
 

@@ -51,6 +51,7 @@ struct lensrt_gl_render_s {
      * both outputs' stop-monomial coefficients; 0 floats for every other render */
     int clip_rec;
     char defines[4096];    /* the scene's constants, for every shader */
+    char *stop_text;       /* a bladed or slit stop's test for samples.comp and pixels.comp (NULL: none) */
     float *inside;         /* [LENSRT_PASS] aperture-shape mask of the pass */
 };
 
@@ -130,13 +131,14 @@ static void set_ivec4(lensrt_gl *gl, GLuint program, const char *name, const int
  * the shader expands in clip_weight(b, s)): per pair q, when the pixel's record says it
  * is tested, x and y as dot products of its coefficients (records[b + ...]) with the
  * sample's stop monomials (rows after the basis rows), and w = 0 when x^2 + y^2 exceeds
- * the pair's limit. No loop: llvmpipe ends an invocation after 65,535 loop iterations in
+ * the pair's limit or, for a stop crossing of a bladed or slit stop, when the point
+ * fails one of its edges or lies in no slit (r->stop's float constants, one line each). No loop: llvmpipe ends an invocation after 65,535 loop iterations in
  * all, and the splat loop over a pass's samples already takes 16,384 of them. The text,
  * allocated through the context; NULL when out of memory. */
 static char *clip_code(lensrt_render r)
 {
     const int ns = r->n_slots, nb = r->n_slots - 1, K = r->n_clip_pairs;
-    const size_t size = 256 + (size_t)K * (2 * (size_t)ns * 48 + 256);
+    const size_t size = 256 + (size_t)K * (2 * (size_t)ns * 48 + 512 + (size_t)r->stop.n * 160);
     char *t = lensrt_alloc(r->ctx, size);
     size_t used;
     int q, a, k;
@@ -152,9 +154,122 @@ static char *clip_code(lensrt_render r)
                                          at + 1 + a * ns + k, (unsigned long)(4 * nb + k) * LENSRT_PASS);
             used += (size_t)snprintf(t + used, size - used, "; ");
         }
-        used += (size_t)snprintf(t + used, size - used, "if (hx * hx + hy * hy > float(CLIP_LIMIT2_%d)) w = 0.0; } ", q);
+        if (!r->clip_shaped[q]) {
+            used += (size_t)snprintf(t + used, size - used, "if (hx * hx + hy * hy > float(CLIP_LIMIT2_%d)) w = 0.0; } ", q);
+            continue;
+        }
+        // A stop crossing of a bladed or slit stop (core/render.h): its circle, then each
+        // edge (a r^2 + gx x + gy y <= c) or the slits, with the host's float constants
+        used += (size_t)snprintf(t + used, size - used, "float r2 = hx * hx + hy * hy; if (r2 > float(CLIP_LIMIT2_%d)) w = 0.0; ", q);
+        if (r->stop.kind == LENSRT_STOP_BLADES) {
+            for (k = 0; k < r->stop.n; k++) {
+                lensrt_snprintf_c(t + used, size - used, "if (%.9e * r2 + %.9e * hx + %.9e * hy > %.9e) w = 0.0; ",
+                                  (double)r->stop.f_a, (double)r->stop.f_gx[k], (double)r->stop.f_gy[k],
+                                  (double)r->stop.f_c[k]);
+                used += strlen(t + used);
+            }
+        } else {
+            lensrt_snprintf_c(t + used, size - used,
+                              "if (abs(hy) > %.9e || (abs(hx - %.9e) > %.9e && (%d == 1 || abs(hx - %.9e) > %.9e))) w = 0.0; ",
+                              (double)r->stop.f_half_y, (double)r->stop.f_centre[0], (double)r->stop.f_half_x, r->stop.n,
+                              (double)r->stop.f_centre[1], (double)r->stop.f_half_x);
+            used += strlen(t + used);
+        }
+        used += (size_t)snprintf(t + used, size - used, "} ");
     }
     snprintf(t + used, size - used, "\n");
+    return t;
+}
+
+/* A bladed or slit stop's test of a ghost's stop crossings for samples.comp (side P_o,
+ * per sample) and pixels.comp (side P_s, the per-pixel decision), in double: the
+ * constants of r->stop (core/render.h) and two functions, stop_inside(x, y) and
+ * stop_box(cx, bx, cy, by) (1 every point of the box passes, 0 none, 2 test each), the
+ * same as lensrt_stop_shape_contains and lensrt_stop_shape_box. With STOP_SHAPED_q, which
+ * pairs are such crossings. NULL (no text) when there are none; else allocated through
+ * the context, and *oom set when that fails. */
+static char *stop_text(lensrt_render r, int *oom)
+{
+    const lensrt_stop_shape *st = &r->stop;
+    const int n = st->kind == LENSRT_STOP_BLADES ? st->n : 1;
+    const size_t size = 4096 + (size_t)n * 5 * 32;
+    char *t, num[64];
+    size_t used = 0;
+    int q, k, any = 0;
+    const char *arrays[5] = {"STOP_GX", "STOP_GY", "STOP_C", "STOP_NX", "STOP_NY"};
+    *oom = 0;
+    for (q = 0; q < r->n_clip_pairs; q++) any |= r->clip_shaped[q];
+    if (!any) return NULL;
+    if (!(t = lensrt_alloc(r->ctx, size))) {
+        *oom = 1;
+        return NULL;
+    }
+    t[0] = '\0';
+    append_int(t, size, "STOP_SHAPED", 1);
+    append_int(t, size, "STOP_KIND", st->kind);
+    append_int(t, size, "STOP_N", n);
+    for (q = 0; q < LENSRT_MAX_CLIP_PAIRS; q++) {
+        snprintf(num, sizeof num, "STOP_SHAPED_%d", q);
+        append_int(t, size, num, q < r->n_clip_pairs && r->clip_shaped[q]);
+    }
+    append_double(t, size, "STOP_R2", st->r2);
+    append_double(t, size, "STOP_A", st->a);
+    append_double(t, size, "STOP_APOTHEM", st->apothem);
+    append_double(t, size, "STOP_REACH", st->reach);
+    append_double(t, size, "STOP_HALF_X", st->half_x);
+    append_double(t, size, "STOP_HALF_Y", st->half_y);
+    append_double(t, size, "STOP_C0", st->centre[0]);
+    append_double(t, size, "STOP_C1", st->centre[1]);
+    // Per edge (blades; one zero entry otherwise): const double arrays
+    for (q = 0; q < 5; q++) {
+        const double *v = q == 0 ? st->gx : q == 1 ? st->gy : q == 2 ? st->c : q == 3 ? st->nx : st->ny;
+        used = strlen(t);
+        used += (size_t)snprintf(t + used, size - used, "const double %s[%d] = double[%d](", arrays[q], n, n);
+        for (k = 0; k < n; k++) {
+            lensrt_snprintf_c(num, sizeof num, "%.17e", v[k]);
+            used += (size_t)snprintf(t + used, size - used, "%s%sLF", k ? ", " : "", num);
+        }
+        used += (size_t)snprintf(t + used, size - used, ");\n");
+    }
+    used = strlen(t);
+    snprintf(t + used, size - used, "%s",
+             "bool stop_inside(double x, double y)\n"
+             "{\n"
+             "    double r2 = x * x + y * y;\n"
+             "    if (r2 > STOP_R2) return false;\n"
+             "#if STOP_KIND == 1\n"
+             "    for (int k = 0; k < STOP_N; k++)\n"
+             "        if (STOP_A * r2 + STOP_GX[k] * x + STOP_GY[k] * y > STOP_C[k]) return false;\n"
+             "    return true;\n"
+             "#else\n"
+             "    if (abs(y) > STOP_HALF_Y) return false;\n"
+             "    return abs(x - STOP_C0) <= STOP_HALF_X || (STOP_N == 2 && abs(x - STOP_C1) <= STOP_HALF_X);\n"
+             "#endif\n"
+             "}\n"
+             "int stop_box(double cx, double bx, double cy, double by)\n"
+             "{\n"
+             "    double lo_x = abs(cx) - bx, lo_y = abs(cy) - by, R = sqrt(STOP_R2);\n"
+             "    if (lo_x > R || lo_y > R || (lo_x > 0.0LF && lo_y > 0.0LF && length(dvec2(lo_x, lo_y)) > R)) return 0;\n"
+             "#if STOP_KIND == 1\n"
+             "    bool all = true;\n"
+             "    for (int k = 0; k < STOP_N; k++) {\n"
+             "        double mid = STOP_NX[k] * cx + STOP_NY[k] * cy, spread = abs(STOP_NX[k]) * bx + abs(STOP_NY[k]) * by;\n"
+             "        if (mid - spread > STOP_REACH) return 0;\n"
+             "        if (mid + spread > STOP_APOTHEM) all = false;\n"
+             "    }\n"
+             "    return all || length(dvec2(abs(cx) + bx, abs(cy) + by)) <= STOP_REACH ? 1 : 2;\n"
+             "#else\n"
+             "    if (abs(cy) - by > STOP_HALF_Y) return 0;\n"
+             "    bool in_x = false, out_x = true;\n"
+             "    for (int k = 0; k < STOP_N; k++) {\n"
+             "        double dx = abs(cx - (k == 0 ? STOP_C0 : STOP_C1));\n"
+             "        if (dx + bx <= STOP_HALF_X) in_x = true;\n"
+             "        if (dx - bx <= STOP_HALF_X) out_x = false;\n"
+             "    }\n"
+             "    if (out_x) return 0;\n"
+             "    return in_x && abs(cy) + by <= STOP_HALF_Y ? 1 : 2;\n"
+             "#endif\n"
+             "}\n");
     return t;
 }
 
@@ -384,9 +499,17 @@ static lensrt_result gl_create(lensrt_render r)
         lensrt_free(r->ctx, lambda);
         return res;
     }
-    // Programs: the sample shader, and the pixel set-up for fitted lenses
-    res = compile(r, "samples.comp", lensrt_samples_comp, "", &g->samples);
-    if (res == LENSRT_SUCCESS && !free_space(r)) res = compile(r, "pixels.comp", lensrt_pixels_comp, "", &g->pixels);
+    // Programs: the sample shader, and the pixel set-up for fitted lenses (with a bladed
+    // or slit stop's test of a ghost's stop crossings)
+    {
+        int oom = 0;
+        g->stop_text = free_space(r) ? NULL : stop_text(r, &oom);
+        res = oom ? lensrt_fail(r->ctx, LENSRT_ERROR_OUT_OF_MEMORY, "GL: out of memory") : LENSRT_SUCCESS;
+    }
+    if (res == LENSRT_SUCCESS)
+        res = compile(r, "samples.comp", lensrt_samples_comp, g->stop_text ? g->stop_text : "", &g->samples);
+    if (res == LENSRT_SUCCESS && !free_space(r))
+        res = compile(r, "pixels.comp", lensrt_pixels_comp, g->stop_text ? g->stop_text : "", &g->pixels);
     if (res == LENSRT_SUCCESS) {
         // What stays fixed: lights, wavelengths, pixel centres, polynomials; then space
         // for the pass's samples and rows, the chunk's records and the phasor sums
@@ -436,6 +559,7 @@ static void gl_destroy(lensrt_render r)
     }
     lensrt_free(r->ctx, g->k);
     lensrt_free(r->ctx, g->inside);
+    lensrt_free(r->ctx, g->stop_text);
     lensrt_free(r->ctx, g);
     r->device_data = NULL;
 }

@@ -15,7 +15,9 @@
 // SENSOR_SX, SENSOR_CY, SENSOR_SY (normalisation of x_S, y_S), HOUSING_LAST (mm),
 // LIMIT_PUPIL (mm), LIMIT_TAU_REL, TOL_PHASE (waves): the l1 norm each output may drop
 // (render.c, lensrt_output_limit), STEP_MM, MONO_RADIUS (mm), NAIVE, NCLIP_S and
-// CLIP_LIMIT2_0..3 (a ghost's P_clip pairs on side P_s; 0 for direct renders).
+// CLIP_LIMIT2_0..3 (a ghost's P_clip pairs on side P_s; 0 for direct renders); with
+// STOP_SHAPED (stop crossings and a bladed or slit stop), STOP_SHAPED_0..3 and
+// stop_box(cx, bx, cy, by) (gl_render.c, stop_text).
 layout(local_size_x = 64) in;
 
 layout(std430, binding = 3) readonly buffer Basis { double basis[]; };  // [(w 4 + o) NB NB + (slot - 1) NB + j]
@@ -118,13 +120,23 @@ void main()
                 bx += abs(cx[k]);
                 by += abs(cy[k]);
             }
+            // decide: 0 none passes, 1 every one does, 2 tested per splat
+            int decide;
             double cl_x = abs(cx[0]) - bx, cl_y = abs(cy[0]) - by;
-            if (cl_x > lim || cl_y > lim || (cl_x > 0.0LF && cl_y > 0.0LF && length(dvec2(cl_x, cl_y)) > lim)) {
+            if (cl_x > lim || cl_y > lim || (cl_x > 0.0LF && cl_y > 0.0LF && length(dvec2(cl_x, cl_y)) > lim)) decide = 0;
+            else decide = length(dvec2(abs(cx[0]) + bx, abs(cy[0]) + by)) <= lim ? 1 : 2;
+#ifdef STOP_SHAPED
+            // A stop crossing of a bladed or slit stop: the box of its possible points
+            // against the shape (gl_render.c, stop_text)
+            int shaped = q == 0 ? STOP_SHAPED_0 : q == 1 ? STOP_SHAPED_1 : q == 2 ? STOP_SHAPED_2 : STOP_SHAPED_3;
+            if (shaped != 0) decide = stop_box(cx[0], bx, cy[0], by);
+#endif
+            if (decide == 0) {
                 atomicAdd(ranks[u_nw * 4u], 1u);
                 return;  // amplitude 0: dark
             }
             uint qat = cat + uint(q * (1 + 2 * NS));
-            if (length(dvec2(abs(cx[0]) + bx, abs(cy[0]) + by)) <= lim) continue;  // flag 0: always passes
+            if (decide == 1) continue;  // flag 0: always passes
             records[qat] = 1.0;
             for (int k = 0; k < NS; k++) {
                 records[qat + 1u + uint(k)] = float(cx[k]);

@@ -13,7 +13,8 @@
 // ANALYTIC with FOCAL_MM_SET and FOCAL_MM (a perfect lens; else free space), NAIVE
 // (total phase kept unreduced and rounded to float, to show why the default does not),
 // NCLIP_O and NCLIP_S (a ghost's P_clip pairs on side P_o or P_s; 0 for direct renders)
-// and CLIP_LIMIT2_0..3.
+// and CLIP_LIMIT2_0..3; with STOP_SHAPED (a ghost's stop crossings and a bladed or slit
+// stop), STOP_SHAPED_0..3 and stop_inside(x, y) (gl_render.c, stop_text).
 layout(local_size_x = 64) in;
 
 layout(std430, binding = 0) readonly buffer SampleXY { dvec2 sample_xy[]; };      // mm on the stop
@@ -102,6 +103,11 @@ void main()
             }
             double lim2 = q == 0 ? CLIP_LIMIT2_0 : q == 1 ? CLIP_LIMIT2_1 : q == 2 ? CLIP_LIMIT2_2 : CLIP_LIMIT2_3;
             if (hx * hx + hy * hy > lim2) amp = 0.0LF;
+#ifdef STOP_SHAPED
+            // A stop crossing of a bladed or slit stop: inside its shape too
+            int shaped = q == 0 ? STOP_SHAPED_0 : q == 1 ? STOP_SHAPED_1 : q == 2 ? STOP_SHAPED_2 : STOP_SHAPED_3;
+            if (shaped != 0 && !stop_inside(hx, hy)) amp = 0.0LF;
+#endif
         }
 #endif
         amp *= sqrt(max(tau, 0.0LF));

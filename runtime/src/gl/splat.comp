@@ -33,7 +33,8 @@ const float TWO_PI = 6.28318530717958647692;
 #if NCLIP_S > 0
 // A ghost's P_clip pairs on side P_s at sample s, from the pixel's records at b (per
 // pair: a flag, then x's and y's stop-monomial coefficients) and the stop monomials
-// (rows after the basis rows): 0 when a tested pair fails, else 1. CLIP_WEIGHT_BODY is
+// (rows after the basis rows): 0 when a tested pair fails (its circle, or for a stop
+// crossing of a bladed or slit stop its edges or slits), else 1. CLIP_WEIGHT_BODY is
 // straight-line code made by the host (gl_render.c, clip_code): no loop, since llvmpipe
 // ends an invocation after 65,535 loop iterations in all.
 float clip_weight(uint b, uint s)

@@ -85,30 +85,29 @@ static lensrt_result check_window(lensrt_render r, const lensrt_lens_info *info)
     return LENSRT_SUCCESS;
 }
 
-/* A ghost whose P_clip tests stop crossings is rendered with a circular stop only: the
- * crossings are tested against a circle of the render's stop radius (a blade or slit
- * test of the crossing points is not there yet). */
-static const char *const SHAPE_NAMES[3] = {"circle", "blades", "slit"};
-
-static lensrt_result check_ghost(lensrt_render r)
+/* A ghost whose P_clip tests stop crossings (case C: its path meets the stop plane
+ * again) tests each crossing against the render's aperture, exactly the set
+ * lensrt_aperture_contains defines (circle, blades, slits): r->stop, in the form the
+ * kernels test it in (core/render.h). A round stop keeps the circle test of its radius;
+ * a shaped one tests its circle (the stop radius, or one around the slits) and then the
+ * shape. Side P_o tests here per sample with lensrt_aperture_contains itself. */
+static void prepare_stop_pairs(lensrt_render r)
 {
     const lensrt_lens lens = r->lens;
-    if (lens->n_stop_pairs && r->desc.aperture.shape != LENSRT_APERTURE_CIRCLE)
-        return lensrt_fail(r->ctx, LENSRT_ERROR_UNSUPPORTED,
-                           "%s: ghost %s (surfaces %d, %d): its P_clip tests %d crossing(s) of the stop plane, which "
-                           "lensrt tests against a circular stop only; aperture shape %s is not supported for this "
-                           "ghost (render it with a circular aperture)",
-                           lens->file, lens->ghost_label, lens->ghost_first, lens->ghost_second, lens->n_stop_pairs,
-                           SHAPE_NAMES[r->desc.aperture.shape]);
-    return LENSRT_SUCCESS;
+    int q;
+    lensrt_stop_shape_init(&r->desc.aperture, r->stop_radius, &r->stop);
+    for (q = 0; q < r->n_clip_pairs; q++) {
+        r->clip_shaped[q] = lens->clip_stop[q] && r->stop.kind != LENSRT_STOP_CIRCLE;
+        if (r->clip_shaped[q]) r->clip_limit[q] = sqrt(r->stop.r2);
+    }
 }
 
 static lensrt_result prepare(lensrt_render r)
 {
     lensrt_result res;
-    if ((res = check_ghost(r)) != LENSRT_SUCCESS) return res;
     r->double_rows = r->desc.precision == LENSRT_PRECISION_DOUBLE;
     if ((res = lensrt_specialise_scene(r)) != LENSRT_SUCCESS) return res;
+    prepare_stop_pairs(r);
     return lensrt_prepare_basis(r);
 }
 
@@ -162,7 +161,8 @@ static void sample_wave(const lensrt_render r, int w, int l, double x, double y,
         opl += cp[k] * mono[k];
     }
     if (xo * xo + yo * yo > lens->housing_first_mm * lens->housing_first_mm) *amp = 0.0;
-    // A ghost's P_clip on this side: every pair must pass (x^2 + y^2 <= its limit^2)
+    // A ghost's P_clip on this side: every pair must pass (x^2 + y^2 <= its limit^2, or
+    // a stop crossing inside the aperture's shape)
     if (r->clip_o) {
         int q;
         for (q = 0; q < r->n_clip_pairs; q++) {
@@ -172,7 +172,12 @@ static void sample_wave(const lensrt_render r, int w, int l, double x, double y,
                 hx += qx[k] * mono[k];
                 hy += qy[k] * mono[k];
             }
-            if (hx * hx + hy * hy > r->clip_limit[q] * r->clip_limit[q]) *amp = 0.0;
+            if (r->clip_shaped[q]) {
+                // A stop crossing of a shaped aperture: the aperture's own definition
+                if (!lensrt_aperture_contains(&r->desc.aperture, r->stop_radius, hx, hy)) *amp = 0.0;
+            } else if (hx * hx + hy * hy > r->clip_limit[q] * r->clip_limit[q]) {
+                *amp = 0.0;
+            }
         }
     }
     *amp *= sqrt(tau > 0 ? tau : 0.0);
