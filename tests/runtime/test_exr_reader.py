@@ -1,6 +1,7 @@
-"""runtime/python/lensrt_exr.py, the numpy reader of lensrt's spectral EXR files, against the
-library's own images: a plain file (lensrt_render_write_exr) and a layered one
-(lensrt_layers_write_exr through the ctypes binding) read back bit for bit, layer by layer;
+"""runtime/python/lensrt_exr.py (lensrt's spectral EXR files through the OpenEXR bindings,
+grouped by layer and wavelength) against the library's own images: a plain file
+(lensrt_render_write_exr) and a layered one (lensrt_layers_write_exr through the ctypes
+binding) read back bit for bit, layer by layer;
 unknown layers, other files and damaged ones refused with a ValueError naming the file.
 Needs the library built with EXR (skipped otherwise, as the writer then refuses)."""
 
@@ -90,7 +91,7 @@ def test_refusals_name_the_file(tmp_path, renders, rt):
         read_spectral_exr(path, "glare")
     other = tmp_path / "other.exr"
     other.write_bytes(b"not an EXR file at all")
-    with pytest.raises(ValueError, match=r"other\.exr.*not an OpenEXR file"):
+    with pytest.raises(ValueError, match=r"other\.exr.*OpenEXR cannot read it"):
         read_spectral_exr(other)
     cut = tmp_path / "cut.exr"
     cut.write_bytes(path.read_bytes()[:-100])
@@ -105,7 +106,7 @@ def test_refusals_name_the_file(tmp_path, renders, rt):
 
 
 def test_damaged_files_give_value_errors(tmp_path, renders, rt):
-    """The reader parses untrusted bytes: every damaged copy of a layered file (bytes
+    """The reader's contract on untrusted bytes: every damaged copy of a layered file (bytes
     changed in the header, the offset table and the chunks; cut short) is read or refused
     with a ValueError naming the file, never another exception. 400 mutants from a fixed
     seed (a few seconds)."""
