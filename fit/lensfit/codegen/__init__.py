@@ -21,7 +21,7 @@ from collections.abc import Sequence
 from lensfit.codegen.c_casadi import casadi_system, emit_casadi_c
 from lensfit.codegen.c_horner import emit_horner_c
 from lensfit.codegen.common import check_prefix
-from lensfit.codegen.glsl import GLSL_AS_C_PRELUDE, emit_glsl, glsl_as_c
+from lensfit.codegen.glsl import GLSL_AS_C_PRELUDE, emit_glsl, glsl_as_c, glsl_check_shader
 from lensfit.codegen.table import Table, read_table, write_table
 from lensfit.codegen.timing import CompilerNotFound, call_c, check_compiles, load_c, time_c
 from lensfit.poly import System
@@ -39,6 +39,7 @@ __all__ = [
     "emit_glsl",
     "emit_horner_c",
     "glsl_as_c",
+    "glsl_check_shader",
     "load_c",
     "read_table",
     "time_c",

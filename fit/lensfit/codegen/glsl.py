@@ -105,6 +105,26 @@ def emit_glsl(systems: Sequence[System], prefix: str, *,
     return {f"{stem}.glsl": "\n".join(g)}
 
 
+def glsl_check_shader(glsl: str, systems: Sequence[System], prefix: str) -> str:
+    """A GLSL 4.30 compute shader that includes ``glsl`` and calls every system's float
+    and double function at its domain's centre (at most 8 systems), for a validator such
+    as glslangValidator: the generated code must compile as a real shader."""
+    if len(systems) > 8:
+        raise ValueError(f"{len(systems)} systems: the check shader holds at most 8")
+    calls = []
+    for k, s in enumerate(systems):
+        n_in, n_out = len(s.inputs), len(s.outputs)
+        mid = ", ".join(repr(0.5 * (i.lo + i.hi)) for i in s.inputs)
+        calls += [f"    float rf{k}[{n_out}]; double rd{k}[{n_out}];",
+                  f"    {prefix}{s.name}_f(float[{n_in}]({mid}), rf{k});",
+                  f"    {prefix}{s.name}_d(double[{n_in}]({mid}), rd{k});",
+                  f"    ff[{k}] = rf{k}[0]; dd[{k}] = rd{k}[0];"]
+    return "\n".join([
+        "#version 430", "layout(local_size_x = 1) in;", glsl,
+        "layout(std430, binding = 0) buffer Results { double dd[8]; float ff[8]; };",
+        "void main()", "{", *calls, "}", ""])
+
+
 def glsl_as_c(glsl: str) -> str:
     """The GLSL text as a C99 translation unit (for tests and CPU checks)."""
     return GLSL_AS_C_PRELUDE + "\n" + glsl

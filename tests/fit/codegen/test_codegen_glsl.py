@@ -13,7 +13,14 @@ import numpy as np
 import pytest
 from codegen_systems import coefficient_scale, sample_inputs, term_scale
 
-from lensfit.codegen import call_c, check_compiles, emit_glsl, glsl_as_c, load_c
+from lensfit.codegen import (
+    call_c,
+    check_compiles,
+    emit_glsl,
+    glsl_as_c,
+    glsl_check_shader,
+    load_c,
+)
 from lensfit.poly import System
 
 PREFIX = "lens0001_"
@@ -80,18 +87,7 @@ def test_glslang_validates(glsl, systems, tmp_path: Path):
     tool = shutil.which("glslangValidator")
     if tool is None:
         pytest.skip("glslangValidator is not on PATH (Debian: apt-get install glslang-tools)")
-    calls = []
-    for k, s in enumerate(systems):
-        n_in, n_out = len(s.inputs), len(s.outputs)
-        mid = ", ".join(repr(0.5 * (i.lo + i.hi)) for i in s.inputs)
-        calls += [f"    float rf{k}[{n_out}]; double rd{k}[{n_out}];",
-                  f"    {PREFIX}{s.name}_f(float[{n_in}]({mid}), rf{k});",
-                  f"    {PREFIX}{s.name}_d(double[{n_in}]({mid}), rd{k});",
-                  f"    ff[{k}] = rf{k}[0]; dd[{k}] = rd{k}[0];"]
-    shader = "\n".join([
-        "#version 430", "layout(local_size_x = 1) in;", glsl,
-        "layout(std430, binding = 0) buffer Results { double dd[8]; float ff[8]; };",
-        "void main()", "{", *calls, "}", ""])
+    shader = glsl_check_shader(glsl, systems, PREFIX)
     path = tmp_path / "check.comp"
     path.write_text(shader)
     done = subprocess.run([tool, str(path)], capture_output=True, text=True)

@@ -1,17 +1,25 @@
 """A scene's flares (issue 13, part 3): which fitted ghosts a scene keeps, their
-specialised systems against the general ones, and bad choices refused naming the file,
-key and value."""
+specialised systems against the general ones, their C, GLSL and tables, and bad choices
+refused naming the file, key and value. (`lensfit ghosts --fit --glsl` writes a general
+ghost's GLSL with the same emitter: test_ghosts_cli; a whole general ghost, ~2 MB of
+GLSL, takes over 10 minutes to compile as C, so the specialised one is checked here.)"""
 
 from __future__ import annotations
 
+import os
+import shutil
+import subprocess
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from lensfit.cli import main
+from lensfit.codegen import call_c, glsl_as_c, glsl_check_shader, load_c
 from lensfit.codegen.table import read_table
 from lensfit.errors import InputError
 from lensfit.ghosts.scene import choose_ghosts, fitted_ghosts
+from lensfit.poly import design_matrix
 from lensfit.prescription import load_lens
 from lensfit.scene import Scene, SceneError, max_abs_difference, specialise
 
@@ -100,7 +108,45 @@ def test_scene_command_writes_the_chosen_ghosts(tmp_path, capsys):
     table = read_table((out / "ghosts" / files[2]).read_text())
     assert table.ghost.label == "4-8"
     assert [s.name for s in table] == ["P_o_light0", "P_s", "P_clip"]
-    # Without flares the ghosts folder goes
+    # With --glsl, GLSL beside the C: checked through its C route against the table
+    assert main(["scene", "0001", str(scene), "-o", str(out), "--no-timing", "--glsl"]) == 0
+    assert (out / "lens0001_flare.glsl").is_file()  # the direct systems' too
+    glsl = (out / "ghosts" / "lens0001_flare_ghost_4_8.glsl").read_text()
+    _glsl_agrees(glsl, table, "lens0001_flare_ghost_4_8_", tmp_path)
+    # Without flares (and without --glsl) the ghosts folder goes
     scene.write_text(scene.read_text().replace("flares = true\nghosts = [\"4-8\"]\n", ""))
     assert main(["scene", "0001", str(scene), "-o", str(out), "--no-timing"]) == 0
     assert list((out / "ghosts").iterdir()) == []
+
+
+def _glsl_agrees(glsl: str, table, prefix: str, tmp_path: Path) -> None:
+    """A ghost's GLSL (P_o, P_s and P_clip with housing and stop-crossing pairs) through
+    its C route against the table's polynomials at raw inputs over the domain: double
+    within 1e-12 of sum |c_k xhat^e| (the rounding scale of any evaluation order of a few
+    thousand terms is ~n eps of it), float at float32 inputs within 1e-5 of sum |c_k|
+    (float32 Horner over degree <= 22: ~degree x 6e-8, with margin). glslangValidator
+    (installed by `make setup`) must accept it as a compute shader."""
+    if shutil.which(os.environ.get("CC", "cc")) is None:
+        pytest.skip("no C compiler (set CC or install build-essential)")
+    assert any(p.output.startswith("x_s") for p in table[2].outputs)  # a stop crossing
+    lib = load_c({"ghost.c": glsl_as_c(glsl)})
+    rng = np.random.default_rng(13)
+    for system in table:
+        lo = np.array([i.lo for i in system.inputs])
+        hi = np.array([i.hi for i in system.inputs])
+        x = np.vstack([lo + (hi - lo) * rng.random((400, len(lo))), lo, hi])
+        xhat = system.normalise(x)
+        scale = np.stack([np.abs(design_matrix(xhat, p.exponents) * p.coefficients).sum(1)
+                          for p in system.outputs], axis=1) + 1e-300
+        got = call_c(lib, f"{prefix}{system.name}_d", x, len(system.outputs), "d")
+        assert (np.abs(got - system.evaluate(x)) / scale).max() < 1e-12, system.name
+        xf = x.astype(np.float32).astype(np.float64)
+        got = call_c(lib, f"{prefix}{system.name}_f", xf, len(system.outputs), "f")
+        coef = np.array([np.abs(p.coefficients).sum() for p in system.outputs]) + 1e-300
+        assert (np.abs(got - system.evaluate(xf)) / coef).max() < 1e-5, system.name
+    tool = shutil.which("glslangValidator")
+    if tool is not None:
+        path = tmp_path / "check.comp"
+        path.write_text(glsl_check_shader(glsl, list(table), prefix))
+        done = subprocess.run([tool, str(path)], capture_output=True, text=True)
+        assert done.returncode == 0, done.stdout + done.stderr
