@@ -13,10 +13,11 @@ a missing one fails).
 
 Stop crossings of a bladed or slit stop: a stop pair (x_s1, y_s1) = (2 x_a, 2 y_a) mm
 passes where 2 a lies inside the render's aperture (7 straight blades rotated 10 deg;
-two 3 mm slits 3.5 mm apart), tested per sample in samples.comp (side P_o), decided per
-pixel from the box of possible crossings in pixels.comp and tested per splat in
-splat.comp's straight-line code (side P_s); against the CPU in double (whose tests are
-test_ghost.c's closed forms) at the same tolerance.
+64 blades of curvature 0.3, the most GLSL edge tests; two 3 mm slits 3.5 mm apart),
+tested per sample in samples.comp (side P_o), decided per pixel from the box of possible
+crossings in pixels.comp and tested per splat in splat.comp's straight-line code (side
+P_s); against the CPU in double (whose tests are test_ghost.c's closed forms) at the same
+tolerance.
 """
 
 from __future__ import annotations
@@ -47,10 +48,12 @@ def tables() -> dict[str, str]:
     }
 
 
-@pytest.mark.parametrize("side", ["P_o", "P_s"])
-def test_gl_ghost_matches_cpu(gl, tmp_path, side):  # noqa: F811
-    path = tmp_path / f"ghost_{side}.table"
-    path.write_text(tables()[side])
+def _gl_against_cpu(gl, path, what: str, **aperture) -> None:  # noqa: F811
+    """The ghost table at ``path`` rendered on GL and on the CPU (default and double
+    precision), same seed and samples, around the direct image of a light at (-6, -4) deg:
+    GL within 3x the CPU default's distance from the double image plus the float floor;
+    and the ghost's clip matters (the direct table with the same stop gives another
+    image)."""
     ghost = gl.load(path)
     direct = gl.load(LENS0001)
     center = gl.image_point(direct, (-6.0, -4.0), 580.0, 0.2)
@@ -59,27 +62,34 @@ def test_gl_ghost_matches_cpu(gl, tmp_path, side):  # noqa: F811
         return gl.render(lens, width=24, height=24, width_mm=0.06, center=center,
                          focus_offset_mm=0.2, radius_mm=R, lights=[(-6.0, -4.0)],
                          wavelengths=[450.0, 650.0], samples=1 << 14, seed=3, device=device,
-                         precision=precision)
+                         precision=precision, **aperture)
 
     ref = render(ghost, "cpu", "double")
     cpu = rel_l2(render(ghost, "cpu"), ref)
-    img = render(ghost, "gl")
-    err = rel_l2(img, ref)
-    print(f"{side}: GL {err:.3g}, CPU default {cpu:.3g} relative L2 against CPU double")
+    err = rel_l2(render(ghost, "gl"), ref)
+    print(f"{what}: GL {err:.3g}, CPU default {cpu:.3g} relative L2 against CPU double")
     assert err <= 3 * cpu + FLOAT_FLOOR, (err, cpu)
-    # the clip matters: without it (the direct table) the image is another one
     assert rel_l2(render(direct, "cpu", "double"), ref) > 0.1
     assert np.sum(ref) > 0
 
 
+@pytest.mark.parametrize("side", ["P_o", "P_s"])
+def test_gl_ghost_matches_cpu(gl, tmp_path, side):  # noqa: F811
+    path = tmp_path / f"ghost_{side}.table"
+    path.write_text(tables()[side])
+    _gl_against_cpu(gl, path, side)
+
+
 SHAPES = {
     "blades": dict(shape="blades", blades=7, rotation_deg=10.0),
+    "curved": dict(shape="blades", blades=64, blade_curvature=0.3, rotation_deg=3.0),
     "slits": dict(shape="slit", slit_width_mm=3.0, slit_separation_mm=3.5),
 }
 
 
 @pytest.mark.parametrize(("side", "shape"),
-                         [("P_o", "blades"), ("P_s", "blades"), ("P_s", "slits")])
+                         [("P_o", "blades"), ("P_s", "blades"), ("P_s", "curved"),
+                          ("P_s", "slits")])
 def test_gl_ghost_shaped_stop_matches_cpu(gl, tmp_path, side, shape):  # noqa: F811
     text = LENS0001.read_text()
     s = float(re.search(r"^input x_a \S+ \S+ (\S+) affine", text, re.M).group(1))
@@ -89,22 +99,4 @@ def test_gl_ghost_shaped_stop_matches_cpu(gl, tmp_path, side, shape):  # noqa: F
                ("y_h0", "1", [f"0 0 0 0 1 0 {s / R1!r}"])]
     path = tmp_path / f"ghost_{side}.table"
     path.write_text(ghost_table(text, side, housing + crossing, *((0, 2) if side == "P_o" else ())))
-    ghost = gl.load(path)
-    direct = gl.load(LENS0001)
-    center = gl.image_point(direct, (-6.0, -4.0), 580.0, 0.2)
-
-    def render(lens, device, precision="default"):
-        return gl.render(lens, width=24, height=24, width_mm=0.06, center=center,
-                         focus_offset_mm=0.2, radius_mm=R, lights=[(-6.0, -4.0)],
-                         wavelengths=[450.0, 650.0], samples=1 << 14, seed=3, device=device,
-                         precision=precision, **SHAPES[shape])
-
-    ref = render(ghost, "cpu", "double")
-    cpu = rel_l2(render(ghost, "cpu"), ref)
-    img = render(ghost, "gl")
-    err = rel_l2(img, ref)
-    print(f"{side}, {shape}: GL {err:.3g}, CPU default {cpu:.3g} relative L2 against CPU double")
-    assert err <= 3 * cpu + FLOAT_FLOOR, (err, cpu)
-    # the crossings matter: the direct table with the same stop gives another image
-    assert rel_l2(render(direct, "cpu", "double"), ref) > 0.1
-    assert np.sum(ref) > 0
+    _gl_against_cpu(gl, path, f"{side}, {shape}", **SHAPES[shape])
