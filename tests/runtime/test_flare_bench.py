@@ -200,3 +200,20 @@ def test_tiny_run_writes_flares_json(tmp_path, monkeypatch):
     assert rec["total_seconds"] == pytest.approx(
         rec["fit_seconds"] + sum(g["exact_seconds"] for g in ghosts))
     assert rec["total_seconds"] > 0
+
+
+def test_fit_choice_and_its_report(capsys):
+    """--fit-ghost: all (every kept ghost live, the default), one ghost I-J, or none; the
+    line for "all" sums the live fits with the enumeration against the 5-minute target."""
+    assert fb.parse_ghost("all") == "all" and fb.parse_ghost("none") is None
+    assert fb.parse_ghost("4-8") == (4, 8)
+    ft = dict(enumeration=dict(ghosts=91, seconds=10.0), target_seconds=300.0,
+              fit_live=dict(ghost="all", seconds=200.0,
+                            per_ghost={"0-2": dict(seconds=50.0), "4-8": dict(seconds=150.0)}),
+              recorded=dict(kept=2, fit_seconds=1.0, trust_exact_seconds=2.0,
+                            total_seconds=3.0),
+              recorded_plus_live_enumeration_seconds=13.0)
+    fb.report_fitting(ft)
+    out = capsys.readouterr().out
+    assert "all 2 kept ghosts" in out and "0-2 50 s, 4-8 150 s" in out
+    assert "with the enumeration 210.0 s against the target 300 s (0.70 of it)" in out
