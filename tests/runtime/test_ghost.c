@@ -384,6 +384,13 @@ static float *image_of(lensrt_context ctx, lensrt_render r, int n_wl)
     return img;
 }
 
+/* The image (one wavelength) of render r after splatting the N_POINTS stop points xy. */
+static float *splatted(lensrt_context ctx, lensrt_render r, const double *xy)
+{
+    if (r) CHECK_OK(ctx, lensrt_render_splat_points(r, 0, xy, N_POINTS));
+    return image_of(ctx, r, 1);
+}
+
 static double total(const float *a, size_t n)
 {
     double s = 0;
@@ -504,12 +511,9 @@ static void test_smaller_stop(lensrt_context ctx, lensrt_lens direct)
             lensrt_render rd = make_render(ctx, direct, R_STOP, precision, 1, LENSRT_APERTURE_CIRCLE);
             lensrt_render rall = make_render(ctx, direct, R_STOP, precision, 1, LENSRT_APERTURE_CIRCLE);
             float *ig, *id, *iall;
-            if (rg) CHECK_OK(ctx, lensrt_render_splat_points(rg, 0, xy, N_POINTS));
-            if (rd) CHECK_OK(ctx, lensrt_render_splat_points(rd, 0, xy_in, N_POINTS));
-            if (rall) CHECK_OK(ctx, lensrt_render_splat_points(rall, 0, xy, N_POINTS));
-            ig = image_of(ctx, rg, 1);
-            id = image_of(ctx, rd, 1);
-            iall = image_of(ctx, rall, 1);
+            ig = splatted(ctx, rg, xy);
+            id = splatted(ctx, rd, xy_in);
+            iall = splatted(ctx, rall, xy);
             CHECK(memcmp(ig, id, sizeof(float) * RES * RES) == 0,
                   "side %s, %s: the ghost's image differs from the direct one with the same points inside R_SMALL "
                   "(relative L2 %.3g)", side ? "P_s" : "P_o", what, rel_l2(ig, id, 1.0, RES * RES));
@@ -523,8 +527,7 @@ static void test_smaller_stop(lensrt_context ctx, lensrt_lens direct)
                 float *is;
                 const double scale = pow(R_STOP / R_SMALL, 4.0);
                 double e;
-                if (rs) CHECK_OK(ctx, lensrt_render_splat_points(rs, 0, xy, N_POINTS));
-                is = image_of(ctx, rs, 1);
+                is = splatted(ctx, rs, xy);
                 e = rel_l2(ig, is, scale, RES * RES);
                 CHECK(e < 1e-6, "side %s, double: ghost against the direct table at stop %g mm: relative L2 %.3g",
                       side ? "P_s" : "P_o", R_SMALL, e);
@@ -585,10 +588,8 @@ static void test_basis_clip(lensrt_context ctx, lensrt_lens direct)
         lensrt_render rg = make_render(ctx, ghost, R_STOP, precision, 1, LENSRT_APERTURE_CIRCLE);
         lensrt_render rd = make_render(ctx, direct, R_STOP, precision, 1, LENSRT_APERTURE_CIRCLE);
         float *ig, *id;
-        if (rg) CHECK_OK(ctx, lensrt_render_splat_points(rg, 0, xy, N_POINTS));
-        if (rd) CHECK_OK(ctx, lensrt_render_splat_points(rd, 0, xy_in, N_POINTS));
-        ig = image_of(ctx, rg, 1);
-        id = image_of(ctx, rd, 1);
+        ig = splatted(ctx, rg, xy);
+        id = splatted(ctx, rd, xy_in);
         CHECK(total(id, RES * RES) > 0 && memcmp(ig, id, sizeof(float) * RES * RES) == 0,
               "bulging stop (r_b %.6g mm), %s: the ghost's image differs from the direct one with the points inside "
               "r_b (relative L2 %.3g)", rb, prec ? "double" : "float", rel_l2(ig, id, 1.0, RES * RES));
@@ -760,16 +761,11 @@ static void test_shaped_stop(lensrt_context ctx, lensrt_lens direct)
                 lensrt_render rin = make_render_ap(ctx, direct, &ap, precision, 1, 0);
                 lensrt_render rc = make_render_ap(ctx, direct, &ap, precision, 1, 0);
                 float *i1, *i2, *id, *iin, *ic;
-                if (r1) CHECK_OK(ctx, lensrt_render_splat_points(r1, 0, xy, N_POINTS));
-                if (r2) CHECK_OK(ctx, lensrt_render_splat_points(r2, 0, xy, N_POINTS));
-                if (rd) CHECK_OK(ctx, lensrt_render_splat_points(rd, 0, xy, N_POINTS));
-                if (rin) CHECK_OK(ctx, lensrt_render_splat_points(rin, 0, xy_in, N_POINTS));
-                if (rc) CHECK_OK(ctx, lensrt_render_splat_points(rc, 0, xy_c, N_POINTS));
-                i1 = image_of(ctx, r1, 1);
-                i2 = image_of(ctx, r2, 1);
-                id = image_of(ctx, rd, 1);
-                iin = image_of(ctx, rin, 1);
-                ic = image_of(ctx, rc, 1);
+                i1 = splatted(ctx, r1, xy);
+                i2 = splatted(ctx, r2, xy);
+                id = splatted(ctx, rd, xy);
+                iin = splatted(ctx, rin, xy_in);
+                ic = splatted(ctx, rc, xy_c);
                 CHECK(total(id, RES * RES) > 0 && memcmp(i1, id, sizeof(float) * RES * RES) == 0,
                       "%s, side %s, %s: F = 1 differs from the direct image (relative L2 %.3g)", shapes[shape].name, sd, what,
                       rel_l2(i1, id, 1.0, RES * RES));
@@ -788,8 +784,7 @@ static void test_shaped_stop(lensrt_context ctx, lensrt_lens direct)
                     float *ih;
                     half.radius_mm = 0.5 * R_STOP;
                     rh = make_render_ap(ctx, direct, &half, precision, 1, 0);
-                    if (rh) CHECK_OK(ctx, lensrt_render_splat_points(rh, 0, xy, N_POINTS));
-                    ih = image_of(ctx, rh, 1);
+                    ih = splatted(ctx, rh, xy);
                     CHECK(rel_l2(i2, ih, 16.0, RES * RES) < 1e-6,
                           "%s, side %s, double: F = 2 against the direct stop S / 2: relative L2 %.3g", shapes[shape].name, sd,
                           rel_l2(i2, ih, 16.0, RES * RES));
