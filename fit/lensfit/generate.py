@@ -65,13 +65,15 @@ def lens_folder_name(lens: Lens) -> str:
 
 def sources_for(systems: Sequence[System], prefix: str, comment: str, *,
                 facts: LensFacts | None = None, trust: dict[str, Any] | None = None,
-                casadi: bool = False, glsl: bool = False) -> dict[str, str]:
+                casadi: bool = False, glsl: bool = False, c: bool = True) -> dict[str, str]:
     """Every generated file's text, by file name (the table carries ``facts`` and
-    ``trust``: give them for a lens folder). casadi's C only with ``casadi`` (for a
-    tensor fit ~30 MB a file and ~3x slower than the Horner C); GLSL only with ``glsl``
-    (~6 MB for a tensor fit; lensrt's GL path uploads the table instead)."""
+    ``trust``: give them for a lens folder). The Horner C unless ``c`` is false; casadi's
+    C only with ``casadi`` (for a tensor fit ~30 MB a file and ~3x slower than the Horner
+    C); GLSL only with ``glsl`` (~6 MB for a tensor fit; lensrt's GL path uploads the
+    table instead)."""
     files: dict[str, str] = {}
-    files.update(emit_c(systems, prefix, header_comment=comment, which="horner"))
+    if c:
+        files.update(emit_c(systems, prefix, header_comment=comment, which="horner"))
     if casadi:
         files.update(emit_c(systems, prefix, header_comment=comment, which="casadi"))
     if glsl:
@@ -93,10 +95,14 @@ def lens_files(lens: Lens, systems: Sequence[System], meta: dict[str, Any],
                trust: dict[str, Any]) -> dict[str, str]:
     """Every file of the folder ``generated/<lens>/``, by name (``meta``: fit.json's keys;
     ``trust``: the table's trust figures, :func:`lensfit.trust.trust_figures`; GLSL
-    when ``meta["glsl"]`` is true, as `lensfit fit --glsl` records it)."""
+    when ``meta["glsl"]`` is true, as `lensfit fit --glsl` records it).
+
+    A coating variant (`--coating none`) gets no C: its positions and phase are the
+    lens's own, bit for bit (the same rays; only tau differs), so its 2.5 MB of Horner C
+    would repeat the lens's. lensrt loads its table."""
     prefix = lens_prefix(lens)
     files = sources_for(systems, prefix, header_comment(lens), facts=lens_facts(lens),
-                        trust=trust, glsl=bool(meta.get("glsl", False)))
+                        trust=trust, glsl=bool(meta.get("glsl", False)), c=not lens.variant)
     files["fit.json"] = fit_json({**meta, "table": f"{file_stem(prefix)}.table"})
     return files
 

@@ -6,11 +6,13 @@ from __future__ import annotations
 
 import dataclasses
 
+import numpy as np
 import pytest
 
 from lensfit.cli import main
+from lensfit.codegen.table import read_table
 from lensfit.errors import InputError
-from lensfit.generate import lens_folder_name
+from lensfit.generate import GENERATED_DIR, lens_folder_name
 from lensfit.prescription import BARE, load_lens, with_coating
 
 
@@ -37,3 +39,21 @@ def test_cli_refuses_an_unknown_coating(capsys):
         main(["fit", "0001", "--coating", "mgf3"])
     assert e.value.code == 2
     assert "--coating" in capsys.readouterr().err
+
+
+def test_uncoated_folder_shares_positions_and_phase_and_carries_no_c():
+    """The committed uncoated fits have the coated ones' positions and phase bit for bit
+    (the same rays; the coating changes tau only), which is why a variant's folder keeps
+    its table and fit.json but no C (generate.lens_files)."""
+    root = GENERATED_DIR
+    for coated in ("0001-angenieux-double-gauss", "2004-schneider-anamorphic"):
+        a = read_table(next((root / coated).glob("lens*.table")).read_text())
+        bare = root / f"{coated}-uncoated"
+        b = read_table(next(bare.glob("lens*.table")).read_text())
+        for sa, sb in zip(a, b, strict=True):
+            for pa, pb in zip(sa.outputs, sb.outputs, strict=True):
+                same = (np.array_equal(pa.exponents, pb.exponents)
+                        and np.array_equal(pa.coefficients, pb.coefficients))
+                assert same == (not pa.output.startswith("tau")), (coated, pa.output)
+        assert not list(bare.glob("*.c")) and not list(bare.glob("*.h"))
+        assert list((root / coated).glob("lens*.c"))

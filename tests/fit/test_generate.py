@@ -77,11 +77,27 @@ def quick_dir(quick_run) -> Path:
     return quick_run.generated
 
 
+def _folder(param: str, quick_dir: Path) -> Path:
+    if param == "quick":
+        return quick_dir / lens_folder_name(load_lens("0001"))
+    return GENERATED_DIR / param
+
+
 @pytest.fixture(params=folder_params())
 def folder(request, quick_dir) -> Path:
-    if request.param == "quick":
-        return quick_dir / lens_folder_name(load_lens("0001"))
-    return GENERATED_DIR / request.param
+    return _folder(request.param, quick_dir)
+
+
+def _is_variant(name: str) -> bool:
+    """A coating variant's folder (fit.json "coating": "none"): table only, no C."""
+    return read_fit_json(GENERATED_DIR / name / "fit.json")[1].get("coating", "file") != "file"
+
+
+@pytest.fixture(params=[p for p in folder_params()
+                        if p.values[0] in ("quick", None) or not _is_variant(p.values[0])])
+def c_folder(request, quick_dir) -> Path:
+    """The folders that carry Horner C: every one but the coating variants'."""
+    return _folder(request.param, quick_dir)
 
 
 def lens_of(meta: dict):
@@ -116,7 +132,8 @@ def test_regenerating_from_fit_json_is_byte_identical(folder):
     assert meta["table"] == f"{file_stem(lens_prefix(lens))}.table"
     assert systems.version == 3 and systems.trust is not None
     files = sources_for(list(systems), lens_prefix(lens), header_comment(lens),
-                        facts=lens_facts(lens), trust=systems.trust)
+                        facts=lens_facts(lens), trust=systems.trust,
+                        c=not lens.variant)  # a coating variant: no C (test_coating_variant)
     files["fit.json"] = fit_json(meta)  # meta holds its own format and table keys
     rest = {k: v for k, v in meta.items() if k not in ("format", "table")}
     assert files == lens_files(lens, list(systems), rest, systems.trust)
@@ -177,16 +194,16 @@ def test_fit_json_records_domain_options_and_errors(folder):
 
 
 @needs_cc
-def test_horner_c_compiles_strictly(folder):
-    _, meta = read_fit_json(folder / "fit.json")
-    check_compiles(horner_sources(folder, lens_of(meta)))
+def test_horner_c_compiles_strictly(c_folder):
+    _, meta = read_fit_json(c_folder / "fit.json")
+    check_compiles(horner_sources(c_folder, lens_of(meta)))
 
 
 @needs_cc
-def test_compiled_c_agrees_with_system_evaluate(folder):
-    systems, meta = read_fit_json(folder / "fit.json")
+def test_compiled_c_agrees_with_system_evaluate(c_folder):
+    systems, meta = read_fit_json(c_folder / "fit.json")
     lens = lens_of(meta)
-    lib = load_c(horner_sources(folder, lens))
+    lib = load_c(horner_sources(c_folder, lens))
     prefix = lens_prefix(lens)
     for k, s in enumerate(systems):
         x = random_inputs(s, 200, seed=k)
