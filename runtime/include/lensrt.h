@@ -52,7 +52,7 @@ extern "C" {
  * when a program built against one header runs with a newer shared library, which the
  * versioned structs below allow within one major version. */
 #define LENSRT_VERSION_MAJOR 0
-#define LENSRT_VERSION_MINOR 3
+#define LENSRT_VERSION_MINOR 4
 #define LENSRT_VERSION_PATCH 0
 #define LENSRT_VERSION \
     ((uint32_t)LENSRT_VERSION_MAJOR * 1000000u + (uint32_t)LENSRT_VERSION_MINOR * 1000u + \
@@ -521,6 +521,27 @@ LENSRT_API lensrt_result lensrt_render_run(lensrt_render render, uint64_t sample
 LENSRT_API lensrt_result lensrt_render_splat_points(lensrt_render render, int wavelength,
                                          const double *xy_mm, size_t n_points);
 
+/* The deterministic aperture integrator (since 0.4.0), beside Monte Carlo's run(): the
+ * aperture (circle, straight or curved blades, slits) is meshed into 6 x rings^2
+ * triangles (blades x rings^2 for blades) whose vertices lie on its boundary; on each,
+ * the phase and the log amplitude are interpolated linearly and exp(i phase) integrated
+ * in closed form, so that a triangle may span many waves of tilt and only the phase's
+ * curvature limits its size (the error falls as 1 / rings^2). Clips that depend on the
+ * light or the pixel (outer and inner pupil, a ghost's P_clip) cut the triangles along
+ * their interpolated boundary. The integrand is the one run() samples, pixel for pixel.
+ *
+ * The sums then hold the field of this mesh, and image(), rgb() and the writers show
+ * it; run(), splat_points(), tiles and save/load/merge refuse such a render. A later
+ * call with more rings replaces it. With error_estimate non-NULL, a mesh half as fine
+ * (or the previous call's, when it was coarser: a refinement costs one new mesh) gives
+ * *error_estimate, the image's relative L2 error (all pixels and wavelengths) against
+ * the field extrapolated from both (2 rings at least). CPU device only: the GL device
+ * returns LENSRT_ERROR_UNSUPPORTED with a message, never a silent fallback; so do
+ * one-dimensional lenses, precision NAIVE_FLOAT and the unbiased estimator. */
+#define LENSRT_MAX_RINGS 4096
+LENSRT_API lensrt_result lensrt_render_integrate(lensrt_render render, int32_t rings, double *error_estimate,
+                                      lensrt_progress_fn progress, void *user_data);
+
 /* Host-scheduled tiles: the same samples as lensrt_render_run(render, samples_per_wavelength,
  * NULL, NULL), rendered one rectangle of the window at a time on threads the caller
  * schedules (TBB, its own pool). The sums after tiles_end equal those of that run() bit
@@ -584,8 +605,12 @@ typedef struct lensrt_render_stats {
      * pass (fitted lenses): phase terms per splat, and the fractions of pixels that
      * needed the inner-pupil clip, a varying transmittance, or were fully clipped. */
     double phase_terms, clip_fraction, tau_fraction, dark_fraction;
+    /* Since 0.4.0: the rings of the cells integral the sums hold (0: Monte Carlo) and its
+     * error estimate (-1: none asked for) */
+    int32_t cells_rings;
+    double cells_error_estimate;
 } lensrt_render_stats;
-#define LENSRT_RENDER_STATS_INIT {sizeof(lensrt_render_stats), 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0}
+#define LENSRT_RENDER_STATS_INIT {sizeof(lensrt_render_stats), 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0}
 
 LENSRT_API lensrt_result lensrt_render_get_stats(lensrt_render render, lensrt_render_stats *out);
 /* The wavelengths in use (n_wavelengths of them). */

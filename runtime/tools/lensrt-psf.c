@@ -78,6 +78,13 @@ static void usage(FILE *f)
         "                         with ghosts: -o OUT.exr holds the total (direct + ghosts) in its\n"
         "                         unprefixed channels and layers direct. and flare. (the ghosts'\n"
         "                         sum); --png shows the total\n"
+        "  --integrator montecarlo|cells\n"
+        "                         montecarlo (default): the samples above; cells: the deterministic\n"
+        "                         integrator (closed-form integrals over a triangle mesh of the\n"
+        "                         aperture), its error estimated from a mesh half as fine\n"
+        "  --rings N              cells: mesh rings (6 N^2 triangles, blades N^2 each; default 32);\n"
+        "                         --target-error doubles them until the estimate is <= E\n"
+        "  --max-rings N          cells: stop doubling there (default 1024)\n"
         "  --quiet                no progress (the error estimate is still printed on stdout)\n"
         "exit status: 0 done, 1 failed, 2 bad input, 3 no GL device (--device gl) or unsupported\n",
         LENSRT_GENERATED_DIR);
@@ -261,6 +268,35 @@ static int on_progress(double fraction, double eta, void *user)
     return 0;
 }
 
+/* The cells integrator (lensrt_render_integrate) from `rings` on, doubling them while a
+ * target error is set, not reached and max_rings allows; *used and *err: the last mesh
+ * and its estimate. */
+static lensrt_result integrate_cells(lensrt_render r, int rings, int max_rings, double target, progress_state *ps,
+                                     const char *what, int *used, double *err)
+{
+    char label[128];
+    lensrt_result res;
+    for (;;) {
+        snprintf(label, sizeof label, "%s, %d rings", what, rings);
+        ps->label = label;
+        ps->round_start = now_seconds();
+        ps->base = 0.0;
+        ps->span = 1.0;
+        res = lensrt_render_integrate(r, rings, err, on_progress, ps);
+        if (!ps->quiet) fprintf(stderr, "\n");
+        if (res != LENSRT_SUCCESS) return res;
+        *used = rings;
+        if (!ps->quiet) fprintf(stderr, "lensrt-psf: %s: cells error estimate %.3g%%\n", label, 100.0 * *err);
+        if (target <= 0 || *err <= target) return LENSRT_SUCCESS;
+        if (2 * rings > max_rings) {
+            fprintf(stderr, "lensrt-psf: warning: --target-error %g not reached within --max-rings %d (%s): the "
+                    "estimate is %.3g%%\n", target, max_rings, what, 100.0 * *err);
+            return LENSRT_SUCCESS;
+        }
+        rings *= 2;
+    }
+}
+
 /* The relative L2 Monte Carlo error of an image rendered as two independent halves.
  *
  * Per pixel and wavelength, half k (N/2 samples, seed of its own) estimates the field as
@@ -356,7 +392,8 @@ int main(int argc, char **argv)
     int n_lights = 0, n_wl = 0, have_center = 0, width = 256, height = 256, quiet = 0, i, rc = 1;
     long long samples = 65536, seed = 1, threads = 0, blades = 0, max_samples = 0;
     double target = 0.0;
-    int estimate = 1;
+    int estimate = 1, cells = 0;
+    long long rings = 32, max_rings = 0;
     double curvature = 0.0, rotation = 0.0;
     lensrt_sampler sampler = LENSRT_SAMPLER_DEFAULT;
     lensrt_estimator estimator = LENSRT_ESTIMATOR_PAPER;
@@ -369,6 +406,7 @@ int main(int argc, char **argv)
     float *img_a = NULL, *img_b = NULL, *img_all = NULL;
     char tmp_a[4200] = "", tmp_b[4200] = "";
     double mc_error = -1.0;
+    int cells_rings = 0;
     uint64_t mc_samples = 0;
     lensrt_render_desc desc;
     lensrt_render_stats st = LENSRT_RENDER_STATS_INIT;
@@ -417,6 +455,13 @@ int main(int argc, char **argv)
         else if (strcmp(a, "--samples") == 0) { if (!parse_long(v, 1, (long long)1 << 40, &samples)) return bad(a, v, "expected a positive sample count"); }
         else if (strcmp(a, "--target-error") == 0) { if (!parse_double(v, &target) || target <= 0 || target >= 1) return bad(a, v, "expected a relative error in (0, 1), e.g. 0.01"); }
         else if (strcmp(a, "--max-samples") == 0) { if (!parse_long(v, 2, (long long)1 << 40, &max_samples)) return bad(a, v, "expected a sample count >= 2"); }
+        else if (strcmp(a, "--rings") == 0) { if (!parse_long(v, 2, LENSRT_MAX_RINGS, &rings)) return bad(a, v, "expected 2..4096 rings"); }
+        else if (strcmp(a, "--max-rings") == 0) { if (!parse_long(v, 2, LENSRT_MAX_RINGS, &max_rings)) return bad(a, v, "expected 2..4096 rings"); }
+        else if (strcmp(a, "--integrator") == 0) {
+            if (strcmp(v, "cells") == 0) cells = 1;
+            else if (strcmp(v, "montecarlo") == 0) cells = 0;
+            else return bad(a, v, "expected montecarlo or cells");
+        }
         else if (strcmp(a, "--seed") == 0) { if (!parse_long(v, 0, (long long)9e18, &seed)) return bad(a, v, "expected a non-negative integer"); }
         else if (strcmp(a, "--threads") == 0) { if (!parse_long(v, 1, 1024, &threads)) return bad(a, v, "expected 1..1024"); }
         else if (strcmp(a, "--resolution") == 0) {
@@ -483,6 +528,20 @@ int main(int argc, char **argv)
         }
     }
     if (!lens_arg) return bad("--lens", NULL, "a lens id or table is required");
+    if (cells && (resume || merge || save || !estimate || estimator == LENSRT_ESTIMATOR_UNBIASED || max_samples)) {
+        fprintf(stderr, "lensrt-psf: --integrator cells takes no --resume, --merge, --save-phasors, --no-estimate, "
+                "--estimator unbiased or --max-samples (those are Monte Carlo's)\n");
+        return 2;
+    }
+    if (!cells && max_rings) {
+        fprintf(stderr, "lensrt-psf: --max-rings goes with --integrator cells\n");
+        return 2;
+    }
+    if (!max_rings) max_rings = rings > 1024 ? rings : 1024;
+    if (max_rings < rings) {
+        fprintf(stderr, "lensrt-psf: --max-rings %lld is below --rings %lld\n", max_rings, rings);
+        return 2;
+    }
     if (!out && !png && !save) return bad("-o", NULL, "an output (-o, --png or --save-phasors) is required");
     if (target > 0 && (!estimate || resume || merge || samples < 2)) {
         fprintf(stderr, "lensrt-psf: --target-error needs the two halves: not with --no-estimate, --resume, --merge or --samples 1\n");
@@ -642,7 +701,7 @@ int main(int argc, char **argv)
         estimate = 0;
     }
     if ((res = lensrt_render_create(ctx, &desc, &render)) != LENSRT_SUCCESS) goto fail_input;
-    if (estimate) {
+    if (estimate && !cells) {
         lensrt_render_desc half = desc;
         half.seed = (uint64_t)seed + HALF_SEED_STEP;
         if ((res = lensrt_render_create(ctx, &half, &render_b)) != LENSRT_SUCCESS) goto fail_input;
@@ -665,11 +724,18 @@ int main(int argc, char **argv)
     if (merge && (res = lensrt_render_merge(render, merge)) != LENSRT_SUCCESS) goto fail_input;
 
     // Render
-    if (!quiet)
+    if (!quiet && cells)
+        fprintf(stderr, "lensrt-psf: %s, window %g mm at (%g, %g) mm, cells integrator from %lld rings\n",
+                table, size[0], center[0], center[1], rings);
+    else if (!quiet)
         fprintf(stderr, "lensrt-psf: %s, window %g mm at (%g, %g) mm, %lld samples per wavelength%s\n",
                 table, size[0], center[0], center[1], samples, estimate ? " in two halves" : "");
     ps.round_start = now_seconds();
-    if (!estimate) {
+    if (cells) {
+        if ((res = integrate_cells(render, (int)rings, (int)max_rings, target, &ps, "direct", &cells_rings,
+                                   &mc_error)) != LENSRT_SUCCESS)
+            goto fail;
+    } else if (!estimate) {
         ps.base = 0.0;
         ps.span = 1.0;
         ps.label = "rendering";
@@ -764,8 +830,17 @@ int main(int argc, char **argv)
             ps.round_start = now_seconds();
             ps.base = 0.0;
             ps.span = 1.0;
-            res = lensrt_render_run(renders[1 + i], ghost_samples, on_progress, &ps);
-            if (!quiet) fprintf(stderr, "\n");
+            if (cells) {
+                int gr = 0;
+                double ge = -1.0;
+                res = integrate_cells(renders[1 + i], (int)rings, (int)max_rings, target, &ps, gi.ghost_label, &gr, &ge);
+                if (res == LENSRT_SUCCESS)
+                    printf("Cells error estimate, ghost %s: %.3g%% relative L2 (%d rings)\n", gi.ghost_label,
+                           100.0 * ge, gr);
+            } else {
+                res = lensrt_render_run(renders[1 + i], ghost_samples, on_progress, &ps);
+                if (!quiet) fprintf(stderr, "\n");
+            }
             if (res == LENSRT_SUCCESS) res = lensrt_render_image(renders[1 + i], ghost_img, n);
             if (res != LENSRT_SUCCESS) {
                 free(direct_img);
@@ -798,7 +873,10 @@ int main(int argc, char **argv)
         if ((res = lensrt_layers_write_exr(layers, 2, out)) != LENSRT_SUCCESS) goto fail;
     }
     if (png && (res = lensrt_renders_write_png(renders, n_ghosts + 1, png, decades)) != LENSRT_SUCCESS) goto fail;
-    if (estimate && mc_error >= 0)
+    if (cells)
+        printf("Cells error estimate: %.3g%% relative L2 (%d rings against %d)\n", 100.0 * mc_error, cells_rings,
+               cells_rings / 2);
+    else if (estimate && mc_error >= 0)
         printf("Monte Carlo error estimate: %.3g%% relative L2 (two independent halves, %llu samples per wavelength)\n",
                100.0 * mc_error, (unsigned long long)mc_samples);
     else if (estimate)

@@ -11,6 +11,7 @@
  * samples are pure functions of their index, so the result does not depend on the
  * number of threads. */
 #include "render.h"
+#include "cells.h"
 
 #include "../lens/lens.h"
 #include "device.h"
@@ -59,6 +60,7 @@ static void free_render(lensrt_render r)
     lensrt_free(ctx, r->light_d);
     lensrt_free(ctx, r->sum);
     lensrt_free(ctx, r->sumsq);
+    lensrt_free(ctx, r->cells_field);
     lensrt_free(ctx, r);
 }
 
@@ -190,7 +192,9 @@ lensrt_result lensrt_render_run(lensrt_render r, uint64_t samples_per_wavelength
     if (samples_per_wavelength == 0 || samples_per_wavelength > ((uint64_t)1 << 40))
         return lensrt_fail(r->ctx, LENSRT_ERROR_INVALID_ARGUMENT,
                            "run: samples per wavelength must be 1..2^40, got %llu", (unsigned long long)samples_per_wavelength);
-    if ((res = lensrt_tiles_idle(r, "run")) != LENSRT_SUCCESS || (res = begin_passes(r, &xy)) != LENSRT_SUCCESS) return res;
+    if ((res = lensrt_tiles_idle(r, "run")) != LENSRT_SUCCESS || (res = lensrt_cells_idle(r, "run")) != LENSRT_SUCCESS ||
+        (res = begin_passes(r, &xy)) != LENSRT_SUCCESS)
+        return res;
     while (done < samples_per_wavelength && res == LENSRT_SUCCESS) {
         uint64_t n = samples_per_wavelength - done < PASS ? samples_per_wavelength - done : PASS;
         int w, cancelled = 0;
@@ -257,7 +261,8 @@ lensrt_result lensrt_render_splat_points(lensrt_render r, int wavelength, const 
     if (r->n_wl != 1)
         return lensrt_fail(r->ctx, LENSRT_ERROR_INVALID_ARGUMENT,
                            "splat_points: needs a render with one wavelength (sample counts are shared), it has %d", r->n_wl);
-    if ((res = lensrt_tiles_idle(r, "splat_points")) != LENSRT_SUCCESS || (res = begin_passes(r, &xy)) != LENSRT_SUCCESS)
+    if ((res = lensrt_tiles_idle(r, "splat_points")) != LENSRT_SUCCESS ||
+        (res = lensrt_cells_idle(r, "splat_points")) != LENSRT_SUCCESS || (res = begin_passes(r, &xy)) != LENSRT_SUCCESS)
         return res;
     while (done < n_points && res == LENSRT_SUCCESS) {
         size_t n = n_points - done < PASS ? n_points - done : PASS;
@@ -272,6 +277,132 @@ lensrt_result lensrt_render_splat_points(lensrt_render r, int wavelength, const 
         }
     }
     res = end_passes(r, xy, res);
+    r->seconds += lensrt_seconds() - t0;
+    return res;
+}
+
+/* ------------------------------------------------------ the cells integrator ----- */
+
+lensrt_result lensrt_cells_idle(lensrt_render r, const char *what)
+{
+    if (!r->cells_rings) return LENSRT_SUCCESS;
+    return lensrt_fail(r->ctx, LENSRT_ERROR_INVALID_ARGUMENT,
+                       "%s: the sums hold a cells integral (lensrt_render_integrate, %d rings), not Monte Carlo "
+                       "samples; render samples with a new render", what, r->cells_rings);
+}
+
+/* The field of every light, wavelength and pixel on the mesh of `rings` rings. */
+static lensrt_result cells_field(lensrt_render r, int rings, double *U, lensrt_progress_fn progress, void *user_data,
+                                 double frac0, double frac1)
+{
+    lensrt_mesh m;
+    lensrt_result res = lensrt_mesh_build(r->ctx, &r->desc.aperture, r->stop_radius, rings, &m);
+    if (res != LENSRT_SUCCESS) return res;
+    res = r->device->integrate(r, &m, U, progress, user_data, frac0, frac1);
+    lensrt_mesh_free(r->ctx, &m);
+    return res;
+}
+
+/* The relative L2 error of the image of field Uf, estimated from the field Uc of a mesh
+ * `ratio` times coarser: with an error c h^2, Uf - Uc = (1 - ratio^2) c h^2, so the
+ * extrapolated field is UR = Uf + (Uf - Uc) / (ratio^2 - 1) and the image's error
+ * ||I(Uf) - I(UR)|| / ||I(Uf)|| over every pixel and wavelength (lights add). */
+static double cells_estimate(lensrt_render r, const double *Uf, const double *Uc, double ratio)
+{
+    const size_t npix = (size_t)r->width * (size_t)r->height;
+    const double k = 1.0 / (ratio * ratio - 1.0);
+    double num = 0.0, den = 0.0;
+    size_t p;
+    int w, l;
+    for (w = 0; w < r->n_wl; w++)
+        for (p = 0; p < npix; p++) {
+            double If = 0.0, IR = 0.0;
+            for (l = 0; l < r->n_lights; l++) {
+                const size_t at = 2 * (((size_t)l * (size_t)r->n_wl + (size_t)w) * npix + p);
+                const double fr = Uf[at], fi = Uf[at + 1];
+                const double er = fr + k * (fr - Uc[at]), ei = fi + k * (fi - Uc[at + 1]);
+                If += fr * fr + fi * fi;
+                IR += er * er + ei * ei;
+            }
+            num += (If - IR) * (If - IR);
+            den += If * If;
+        }
+    return den > 0.0 ? sqrt(num / den) : 0.0;
+}
+
+lensrt_result lensrt_render_integrate(lensrt_render r, int32_t rings, double *error_estimate,
+                                      lensrt_progress_fn progress, void *user_data)
+{
+    const size_t nsum = 2 * (size_t)r->n_lights * (size_t)r->n_wl * (size_t)r->width * (size_t)r->height;
+    const double t0 = lensrt_seconds();
+    double *Uf, *Uc = NULL;
+    int coarse = 0, k;
+    lensrt_result res;
+    size_t i;
+    if (!r) return LENSRT_ERROR_INVALID_ARGUMENT;
+    if ((res = lensrt_tiles_idle(r, "integrate")) != LENSRT_SUCCESS) return res;
+    if (rings < 1 || rings > LENSRT_MAX_RINGS || (error_estimate && rings < 2))
+        return lensrt_fail(r->ctx, LENSRT_ERROR_INVALID_ARGUMENT,
+                           "integrate: rings must be %d..%d (2 or more with an error estimate), got %d",
+                           error_estimate ? 2 : 1, LENSRT_MAX_RINGS, (int)rings);
+    if (!r->device->integrate)
+        return lensrt_fail(r->ctx, LENSRT_ERROR_UNSUPPORTED,
+                           "integrate: the %s device has no cells integrator (the CPU device has): render with "
+                           "device cpu, or with Monte Carlo samples (lensrt_render_run)", r->device->name);
+    if (r->lens_ops->one_dimensional(r->lens))
+        return lensrt_fail(r->ctx, LENSRT_ERROR_UNSUPPORTED,
+                           "integrate: the cells integrator meshes two-dimensional apertures; %s is one-dimensional "
+                           "(use lensrt_render_run)", r->lens->info.name);
+    if (r->desc.precision == LENSRT_PRECISION_NAIVE_FLOAT || r->desc.estimator == LENSRT_ESTIMATOR_UNBIASED)
+        return lensrt_fail(r->ctx, LENSRT_ERROR_UNSUPPORTED,
+                           "integrate: the cells integrator takes precision DEFAULT or DOUBLE and the paper's estimator "
+                           "(precision NAIVE_FLOAT and the unbiased estimator are Monte Carlo's)");
+    if (r->samples > 0 && !r->cells_rings)
+        return lensrt_fail(r->ctx, LENSRT_ERROR_INVALID_ARGUMENT,
+                           "integrate: the sums already hold %llu Monte Carlo samples per wavelength; integrate with "
+                           "a new render", (unsigned long long)r->samples);
+    Uf = lensrt_calloc(r->ctx, nsum, sizeof(double));
+    if (!Uf) return lensrt_fail(r->ctx, LENSRT_ERROR_OUT_OF_MEMORY, "integrate: out of memory");
+    // The coarse level of the estimate: the last call's field when it was coarser (a
+    // refinement costs one new level), else half the rings (a quarter of the cost)
+    if (error_estimate) {
+        if (r->cells_field && r->cells_rings < rings) {
+            Uc = r->cells_field;
+            coarse = r->cells_rings;
+        } else {
+            coarse = rings / 2;
+            Uc = lensrt_calloc(r->ctx, nsum, sizeof(double));
+            if (!Uc) res = lensrt_fail(r->ctx, LENSRT_ERROR_OUT_OF_MEMORY, "integrate: out of memory");
+            else res = cells_field(r, coarse, Uc, progress, user_data, 0.0, 0.2);
+        }
+    }
+    if (res == LENSRT_SUCCESS)
+        res = cells_field(r, rings, Uf, progress, user_data, error_estimate && Uc != r->cells_field ? 0.2 : 0.0, 1.0);
+    // Never a NaN or inf in the sums: name the first such field
+    for (i = 0; res == LENSRT_SUCCESS && i < nsum; i++)
+        if (!isfinite(Uf[i]))
+            res = lensrt_fail(r->ctx, LENSRT_ERROR_OUT_OF_DOMAIN,
+                              "integrate: the field of pixel %zu is not finite: the lens table or the lights' "
+                              "intensities are beyond what double holds",
+                              (i / 2) % ((size_t)r->width * (size_t)r->height));
+    if (res == LENSRT_SUCCESS) {
+        r->cells_error = error_estimate ? cells_estimate(r, Uf, Uc, (double)rings / coarse) : -1.0;
+        if (error_estimate) *error_estimate = r->cells_error;
+        // The sums hold the field divided by the measure, as one sample would
+        for (i = 0; i < nsum; i++) r->sum[i] = Uf[i] / r->measure;
+        r->samples = 1;
+        r->cells_rings = rings;
+        k = 0;
+    } else {
+        k = 1;
+    }
+    if (Uc && Uc != r->cells_field) lensrt_free(r->ctx, Uc);
+    if (k) {
+        lensrt_free(r->ctx, Uf);
+    } else {
+        lensrt_free(r->ctx, r->cells_field);
+        r->cells_field = Uf;
+    }
     r->seconds += lensrt_seconds() - t0;
     return res;
 }
@@ -296,6 +427,8 @@ lensrt_result lensrt_render_get_stats(lensrt_render r, lensrt_render_stats *call
     out->splats_per_second = r->seconds > 0 ? (double)r->splats / r->seconds : 0.0;
     out->stop_radius_mm = r->stop_radius;
     out->f_number = r->f_number;
+    out->cells_rings = r->cells_rings;
+    out->cells_error_estimate = r->cells_rings ? r->cells_error : -1.0;
     if (r->stat_count > 0) {
         double live = r->stat_count - r->stat_dark;
         out->phase_terms = live > 0 ? r->stat_terms / live : 0.0;

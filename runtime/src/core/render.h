@@ -59,6 +59,7 @@ int lensrt_stop_shape_box(const lensrt_stop_shape *s, double cx, double bx, doub
 struct lensrt_lens_ops;   /* lens/lens.h */
 struct lensrt_device_ops; /* core/device.h */
 struct lensrt_tiles;      /* core/tiles.h */
+struct lensrt_mesh;       /* core/cells.h */
 
 /* A polynomial in (x_S, y_S) and the stop monomials, for one output and wavelength:
  * sum_t coef[t] * xS^ix[t] * yS^iy[t] * mono[slot[t]] (normalised x_S, y_S). */
@@ -134,10 +135,21 @@ struct lensrt_render_s {
     int n_runs;
     uint64_t runs_samples;
     double seconds;
+    /* The cells integrator (core/cells.h, lensrt_render_integrate): 0 while the sums
+     * hold Monte Carlo samples (or none); else the rings of the mesh whose field the sums
+     * hold (then samples is 1 and sum is the field divided by measure), its estimated
+     * error (-1: none) and a copy of that field, the coarse level of the next, finer call */
+    int cells_rings;
+    double cells_error;
+    double *cells_field;
     struct lensrt_tiles *tiles;   /* the open tile session, or NULL */
     /* pruning statistics of the last pass: sums over (pixel, wavelength) */
     double stat_terms, stat_clip, stat_tau, stat_dark, stat_count;
 };
+
+/* LENSRT_SUCCESS unless the sums hold a cells integral (lensrt_render_integrate), which
+ * samples cannot be added to, saved or merged with: then the refusal naming `what`. */
+lensrt_result lensrt_cells_idle(lensrt_render r, const char *what);
 
 /* "sobol", "random" or "stratified" (core/sampler.c). */
 const char *lensrt_sampler_name(lensrt_sampler s);

@@ -114,7 +114,8 @@ lensrt_result lensrt_render_tiles_begin(lensrt_render r, uint64_t samples_per_wa
     lensrt_tiles *t;
     lensrt_result res;
     if (!r) return LENSRT_ERROR_INVALID_ARGUMENT;
-    if ((res = lensrt_tiles_idle(r, "tiles_begin")) != LENSRT_SUCCESS) return res;
+    if ((res = lensrt_tiles_idle(r, "tiles_begin")) != LENSRT_SUCCESS || (res = lensrt_cells_idle(r, "tiles_begin")) != LENSRT_SUCCESS)
+        return res;
     if (!r->device->tile)
         return lensrt_fail(r->ctx, LENSRT_ERROR_UNSUPPORTED,
                            "tiles_begin: the %s device renders whole passes only; host-scheduled tiles need device "

@@ -179,7 +179,8 @@ lensrt_result lensrt_render_save(lensrt_render r, const char *path)
     int ok, err = 0;
     lensrt_result res;
     if (!r || !path) return LENSRT_ERROR_INVALID_ARGUMENT;
-    if ((res = lensrt_tiles_idle(r, "save")) != LENSRT_SUCCESS) return res;
+    if ((res = lensrt_tiles_idle(r, "save")) != LENSRT_SUCCESS || (res = lensrt_cells_idle(r, "save")) != LENSRT_SUCCESS)
+        return res;
     if (!record_own(r)) return too_many_runs(r, path);
     if ((refusal = lensrt_target_refusal(path)) != NULL)
         return lensrt_fail(r->ctx, LENSRT_ERROR_IO, "%s: cannot write phasor sums: it %s", path, refusal);
@@ -338,7 +339,8 @@ lensrt_result lensrt_render_load(lensrt_render r, const char *path)
     double *sum, *sumsq;
     lensrt_result res;
     if (!r || !path) return LENSRT_ERROR_INVALID_ARGUMENT;
-    if ((res = lensrt_tiles_idle(r, "load")) != LENSRT_SUCCESS) return res;
+    if ((res = lensrt_tiles_idle(r, "load")) != LENSRT_SUCCESS || (res = lensrt_cells_idle(r, "load")) != LENSRT_SUCCESS)
+        return res;
     if ((res = read_file(r, path, &hd, runs, &sum, &sumsq)) != LENSRT_SUCCESS) return res;
     // Replace the sums and their record; a later run() continues the saved sequence when the seed matches
     lensrt_free(r->ctx, r->sum);
@@ -366,7 +368,8 @@ lensrt_result lensrt_render_merge(lensrt_render r, const char *path)
     size_t i, n;
     int a, b;
     if (!r || !path) return LENSRT_ERROR_INVALID_ARGUMENT;
-    if ((res = lensrt_tiles_idle(r, "merge")) != LENSRT_SUCCESS) return res;
+    if ((res = lensrt_tiles_idle(r, "merge")) != LENSRT_SUCCESS || (res = lensrt_cells_idle(r, "merge")) != LENSRT_SUCCESS)
+        return res;
     if (!record_own(r)) return too_many_runs(r, path);
     if ((res = read_file(r, path, &hd, runs, &sum, &sumsq)) != LENSRT_SUCCESS) return res;
     // Sample points are functions of (seed, index): a run of the same seed over indices

@@ -121,7 +121,7 @@ static const char *table_file(lensrt_lens lens)
 const lensrt_lens_ops lensrt_lens_analytic = {
     "analytic", LENSRT_TRANSPORT_FREE_SPACE, 0,
     one_dimensional, wavelength_range, check_light, choose_stop, check_window, prepare,
-    sample_rows, sample_wave, image_point, table_file,
+    sample_rows, sample_wave, image_point, table_file, NULL,
 };
 
 lensrt_result lensrt_lens_create_analytic(lensrt_context ctx, const lensrt_analytic_lens *desc,

@@ -11,6 +11,7 @@
 #include "lens.h"
 
 #include "../core/basis.h"
+#include "../core/cells.h"
 #include "../core/image_point.h"
 #include "../core/specialise.h"
 
@@ -142,47 +143,78 @@ static void sample_rows(const lensrt_render r, int w, double x, double y, double
     }
 }
 
-/* P_o: outer-pupil clip, transmittance, OPL from the light minus its distance. */
-static void sample_wave(const lensrt_render r, int w, int l, double x, double y, const double *mono, double *amp,
-                        double *opl_out)
+/* P_o at a stop point: the outer-pupil position and every P_clip pair on this side as
+ * level functions (>= 0: the path passes; mm-like, zero on the clip's boundary), the
+ * front group's transmittance and the OPL from the light minus its distance. Returns
+ * the number of levels: 1 + the ghost's pairs on side P_o. *pass says whether every
+ * test passes, decided as the Monte Carlo samples always were (x^2 + y^2 against the
+ * limit squared, a shaped stop crossing by lensrt_aperture_contains). */
+static int po_levels(const lensrt_render r, int w, int l, const double *mono, double *tau_out, double *opl_out,
+                     double *levels, int *pass)
 {
     const lensrt_lens lens = r->lens;
     const int ns = r->n_slots;
     const double *cx = lensrt_po_slots(r, l, w, 0), *cy = lensrt_po_slots(r, l, w, 1);
     const double *ct = lensrt_po_slots(r, l, w, 2), *cp = lensrt_po_slots(r, l, w, 3);
+    const double h = lens->housing_first_mm;
     double xo = 0, yo = 0, tau = 0, opl = 0.0;
-    int k;
-    (void)x;
-    (void)y;
+    int k, n = 1;
     for (k = 0; k < ns; k++) {
         xo += cx[k] * mono[k];
         yo += cy[k] * mono[k];
         tau += ct[k] * mono[k];
         opl += cp[k] * mono[k];
     }
-    if (xo * xo + yo * yo > lens->housing_first_mm * lens->housing_first_mm) *amp = 0.0;
+    *pass = !(xo * xo + yo * yo > h * h);
+    levels[0] = (h * h - (xo * xo + yo * yo)) / (2.0 * (h > 0.0 ? h : 1.0));
     // A ghost's P_clip on this side: every pair must pass (x^2 + y^2 <= its limit^2, or
     // a stop crossing inside the aperture's shape)
     if (r->clip_o) {
         int q;
         for (q = 0; q < r->n_clip_pairs; q++) {
             const double *qx = lensrt_clip_o_slots(r, l, w, 2 * q), *qy = lensrt_clip_o_slots(r, l, w, 2 * q + 1);
+            const double lim = r->clip_limit[q];
             double hx = 0.0, hy = 0.0;
             for (k = 0; k < ns; k++) {
                 hx += qx[k] * mono[k];
                 hy += qy[k] * mono[k];
             }
             if (r->clip_shaped[q]) {
-                // A stop crossing of a shaped aperture: the aperture's own definition
-                if (!lensrt_aperture_contains(&r->desc.aperture, r->stop_radius, hx, hy)) *amp = 0.0;
-            } else if (hx * hx + hy * hy > r->clip_limit[q] * r->clip_limit[q]) {
-                *amp = 0.0;
+                levels[n++] = lensrt_stop_shape_level(&r->stop, hx, hy);
+                if (!lensrt_aperture_contains(&r->desc.aperture, r->stop_radius, hx, hy)) *pass = 0;
+            } else {
+                levels[n++] = (lim * lim - (hx * hx + hy * hy)) / (2.0 * (lim > 0.0 ? lim : 1.0));
+                if (hx * hx + hy * hy > lim * lim) *pass = 0;
             }
         }
     }
-    *amp *= sqrt(tau > 0 ? tau : 0.0);
     if (r->desc.precision == LENSRT_PRECISION_NAIVE_FLOAT) opl += r->light_d[l];
+    *tau_out = tau;
     *opl_out = opl;
+    return n;
+}
+
+/* P_o: outer-pupil clip, transmittance, OPL from the light minus its distance. */
+static void sample_wave(const lensrt_render r, int w, int l, double x, double y, const double *mono, double *amp,
+                        double *opl_out)
+{
+    double levels[1 + LENSRT_MAX_CLIP_PAIRS], tau;
+    int pass;
+    (void)x;
+    (void)y;
+    po_levels(r, w, l, mono, &tau, opl_out, levels, &pass);
+    if (!pass) *amp = 0.0;
+    *amp *= sqrt(tau > 0 ? tau : 0.0);
+}
+
+/* The cells integrator's view (lens/lens.h): the same without zeroing the amplitude. */
+static int sample_levels(const lensrt_render r, int w, int l, const double *mono, double *amp, double *opl,
+                         double *levels)
+{
+    double tau;
+    int pass, n = po_levels(r, w, l, mono, &tau, opl, levels, &pass);
+    *amp *= sqrt(tau > 0 ? tau : 0.0);
+    return n;
 }
 
 static const char *table_file(lensrt_lens lens) { return lens->file; }
@@ -190,5 +222,5 @@ static const char *table_file(lensrt_lens lens) { return lens->file; }
 const lensrt_lens_ops lensrt_lens_fitted = {
     "fitted", LENSRT_TRANSPORT_POLYNOMIAL, 1,
     one_dimensional, wavelength_range, check_light, choose_stop, check_window, prepare,
-    sample_rows, sample_wave, lensrt_polynomial_image_point, table_file,
+    sample_rows, sample_wave, lensrt_polynomial_image_point, table_file, sample_levels,
 };

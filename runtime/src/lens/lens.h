@@ -66,6 +66,13 @@ typedef struct lensrt_lens_ops {
                                  double wavelength_nm, double focus_offset_mm, double xy_mm[2]);
     /* The table file recorded in image metadata (NULL: none). */
     const char *(*table_file)(lensrt_lens lens);
+    /* The cells integrator's view of light l's wave at a stop point (core/cells.h): as
+     * sample_wave, but the amplitude is never zeroed by a clip; instead each clip before
+     * the stop is a level function (>= 0: the path passes, continuous, mm-like) written
+     * to levels[] (at most 1 + LENSRT_MAX_CLIP_PAIRS); returns their count. NULL: the
+     * kind has no such clips, and sample_wave serves. */
+    int (*sample_levels)(const lensrt_render r, int w, int l, const double *mono, double *amp, double *opl,
+                         double *levels);
 } lensrt_lens_ops;
 
 extern const lensrt_lens_ops lensrt_lens_fitted, lensrt_lens_analytic;

@@ -1,0 +1,64 @@
+/* The deterministic aperture integrator (internal, issue 22): cells instead of samples.
+ *
+ * For one pixel, light and wavelength the field is U = integral over the aperture of
+ * A(a) exp(i 2 pi Phi(a)) da, with A and Phi smooth. Monte Carlo needs ever more samples
+ * as Phi swings over the aperture. Here the aperture is meshed into triangles that follow
+ * its boundary (circle, straight or curved blades, slits), Phi and log A are interpolated
+ * linearly on each triangle from their values at its vertices, and the integral of the
+ * interpolant over the triangle is taken in closed form (a divided difference of the
+ * exponential). A triangle may therefore span many waves of phase tilt: only the phase
+ * curvature limits its size, and the error falls as h^2 (h: the triangle size).
+ *
+ * Clips that depend on the light or the pixel (outer and inner pupil, a ghost's P_clip)
+ * are level functions, positive where a path passes, known at the vertices: a triangle
+ * they cross is cut along the zero line of their linear interpolants, to the same order
+ * h^2 as the interior, never dropped or kept whole. */
+#ifndef LENSRT_CELLS_H
+#define LENSRT_CELLS_H
+
+#include "render.h"
+
+/* Level functions a triangle may be cut by: the outer pupil and P_clip pairs on side P_o
+ * (per light), the inner pupil and P_clip pairs on side P_s (per pixel). */
+#define LENSRT_CELLS_MAX_LEVELS (2 + 2 * LENSRT_MAX_CLIP_PAIRS)
+
+/* A triangulation of the aperture in mm on the stop. The fan shapes (circle, blades) are
+ * `sectors` triangles from the centre to the boundary, each mapped from the lattice of
+ * `rings` rows by x = rho * B(theta) (rho = row / rings, B the boundary point at
+ * parameter theta along the sector's edge: a chord, a blade's arc or the circle's), so
+ * that the boundary vertices lie on the true boundary and the map is smooth; slits are
+ * rectangles of right triangles. Vertices on the sectors' shared edges are repeated
+ * (each sector's lattice is its own). */
+typedef struct lensrt_mesh {
+    int n_vertices, n_triangles;
+    double *xy;   /* [2 v]: mm */
+    int *tri;     /* [3 t]: vertex indices, counter-clockwise */
+    double *area; /* [t]: mm^2 */
+} lensrt_mesh;
+
+/* The mesh of `rings` rows for aperture `ap` of stop radius radius_mm (and slits of
+ * half height radius_mm). LENSRT_ERROR_OUT_OF_MEMORY with a message; *m zeroed first. */
+lensrt_result lensrt_mesh_build(lensrt_context ctx, const lensrt_aperture *ap, double radius_mm, int rings,
+                                lensrt_mesh *m);
+void lensrt_mesh_free(lensrt_context ctx, lensrt_mesh *m);
+
+/* The triangle count of that mesh without building it (for progress and statistics). */
+long lensrt_mesh_triangles(const lensrt_aperture *ap, double radius_mm, int rings);
+
+/* integral over a triangle of area S of exp(i z), z linear on it with the complex values
+ * z[k] = (re, im) at its vertices (re: phase in radians, -im: log amplitude) and
+ * E[k] = exp(i z[k]) given (the caller has them per vertex): out = (re, im).
+ * Exact for every z, stable at and near every removable singularity (equal or zero
+ * differences: series), to a few units of rounding relative to S max|E|. */
+void lensrt_tri_integral(double S, const double z[6], const double E[6], double out[2]);
+
+/* The same over the part of the triangle where every level l (values lev[k * n_lev + l]
+ * at vertex k) interpolated linearly is >= 0; adds to out. */
+void lensrt_tri_integral_clipped(double S, const double z[6], const double E[6], const double *lev, int n_lev,
+                                 double out[2]);
+
+/* A level function of the render's stop shape (core/render.h), continuous, positive
+ * inside, zero on the boundary (mm-like): for the stop crossings of a ghost's P_clip. */
+double lensrt_stop_shape_level(const lensrt_stop_shape *s, double x, double y);
+
+#endif /* LENSRT_CELLS_H */
