@@ -61,6 +61,7 @@ static void free_render(lensrt_render r)
     lensrt_free(ctx, r->sum);
     lensrt_free(ctx, r->sumsq);
     lensrt_free(ctx, r->cells_field);
+    lensrt_free(ctx, r->cells_coarse);
     lensrt_free(ctx, r);
 }
 
@@ -303,31 +304,45 @@ static lensrt_result cells_field(lensrt_render r, int rings, double *U, lensrt_p
     return res;
 }
 
-/* The relative L2 error of the image of field Uf, estimated from the field Uc of a mesh
- * `ratio` times coarser: with an error c h^2, Uf - Uc = (1 - ratio^2) c h^2, so the
- * extrapolated field is UR = Uf + (Uf - Uc) / (ratio^2 - 1) and the image's error
- * ||I(Uf) - I(UR)|| / ||I(Uf)|| over every pixel and wavelength (lights add). */
-static double cells_estimate(lensrt_render r, const double *Uf, const double *Uc, double ratio)
+/* ||I(Ua) - I(Ub)|| and ||I(Ua)|| over every pixel and wavelength (lights add). */
+static void image_distance(lensrt_render r, const double *Ua, const double *Ub, double *dist, double *norm)
 {
     const size_t npix = (size_t)r->width * (size_t)r->height;
-    const double k = 1.0 / (ratio * ratio - 1.0);
     double num = 0.0, den = 0.0;
     size_t p;
     int w, l;
     for (w = 0; w < r->n_wl; w++)
         for (p = 0; p < npix; p++) {
-            double If = 0.0, IR = 0.0;
+            double Ia = 0.0, Ib = 0.0;
             for (l = 0; l < r->n_lights; l++) {
                 const size_t at = 2 * (((size_t)l * (size_t)r->n_wl + (size_t)w) * npix + p);
-                const double fr = Uf[at], fi = Uf[at + 1];
-                const double er = fr + k * (fr - Uc[at]), ei = fi + k * (fi - Uc[at + 1]);
-                If += fr * fr + fi * fi;
-                IR += er * er + ei * ei;
+                Ia += Ua[at] * Ua[at] + Ua[at + 1] * Ua[at + 1];
+                Ib += Ub[at] * Ub[at] + Ub[at + 1] * Ub[at + 1];
             }
-            num += (If - IR) * (If - IR);
-            den += If * If;
+            num += (Ia - Ib) * (Ia - Ib);
+            den += Ia * Ia;
         }
-    return den > 0.0 ? sqrt(num / den) : 0.0;
+    *dist = sqrt(num);
+    *norm = sqrt(den);
+}
+
+/* The relative L2 error of the image of field Uf (rings m), estimated from the fields of
+ * meshes m / 2 and m / 4 (Uc, Uc2; Uc2 NULL: none): with an error c h^p the images'
+ * differences d1 = |I_m - I_m/2| and d2 = |I_m/2 - I_m/4| give 2^p = d2 / d1 and
+ * the error of I_m is d1 / (2^p - 1). The order is taken within [2, 4] (the method is
+ * second order; a cleaner convergence shows as a larger ratio, pre-asymptotic noise is
+ * not trusted below 2): without Uc2, p = 2. */
+static double cells_estimate(lensrt_render r, const double *Uf, const double *Uc, const double *Uc2)
+{
+    double d1, d2, n1, n2, ratio = 4.0;
+    image_distance(r, Uf, Uc, &d1, &n1);
+    if (Uc2 && d1 > 0.0) {
+        image_distance(r, Uc, Uc2, &d2, &n2);
+        ratio = d2 / d1;
+        if (!(ratio >= 4.0)) ratio = 4.0;
+        if (ratio > 16.0) ratio = 16.0;
+    }
+    return n1 > 0.0 ? d1 / (ratio - 1.0) / n1 : 0.0;
 }
 
 lensrt_result lensrt_render_integrate(lensrt_render r, int32_t rings, double *error_estimate,
@@ -335,7 +350,7 @@ lensrt_result lensrt_render_integrate(lensrt_render r, int32_t rings, double *er
 {
     const size_t nsum = 2 * (size_t)r->n_lights * (size_t)r->n_wl * (size_t)r->width * (size_t)r->height;
     const double t0 = lensrt_seconds();
-    double *Uf, *Uc = NULL;
+    double *Uf, *Uc = NULL, *Uc2 = NULL;
     int coarse = 0, k;
     lensrt_result res;
     size_t i;
@@ -363,17 +378,23 @@ lensrt_result lensrt_render_integrate(lensrt_render r, int32_t rings, double *er
                            "a new render", (unsigned long long)r->samples);
     Uf = lensrt_calloc(r->ctx, nsum, sizeof(double));
     if (!Uf) return lensrt_fail(r->ctx, LENSRT_ERROR_OUT_OF_MEMORY, "integrate: out of memory");
-    // The coarse level of the estimate: the last call's field when it was coarser (a
-    // refinement costs one new level), else half the rings (a quarter of the cost)
+    // The coarse levels of the estimate, rings / 2 and rings / 4 (a quarter and a
+    // sixteenth of the cost): the last call's fields when it was exactly half as fine (a
+    // refinement costs one new level)
     if (error_estimate) {
-        if (r->cells_field && r->cells_rings < rings) {
+        coarse = rings / 2;
+        if (r->cells_field && r->cells_rings == coarse) {
             Uc = r->cells_field;
-            coarse = r->cells_rings;
+            Uc2 = r->cells_coarse;
         } else {
-            coarse = rings / 2;
             Uc = lensrt_calloc(r->ctx, nsum, sizeof(double));
             if (!Uc) res = lensrt_fail(r->ctx, LENSRT_ERROR_OUT_OF_MEMORY, "integrate: out of memory");
             else res = cells_field(r, coarse, Uc, progress, user_data, 0.0, 0.2);
+            if (res == LENSRT_SUCCESS && coarse >= 2) {
+                Uc2 = lensrt_calloc(r->ctx, nsum, sizeof(double));
+                if (!Uc2) res = lensrt_fail(r->ctx, LENSRT_ERROR_OUT_OF_MEMORY, "integrate: out of memory");
+                else res = cells_field(r, coarse / 2, Uc2, progress, user_data, 0.0, 0.2);
+            }
         }
     }
     if (res == LENSRT_SUCCESS)
@@ -386,7 +407,7 @@ lensrt_result lensrt_render_integrate(lensrt_render r, int32_t rings, double *er
                               "intensities are beyond what double holds",
                               (i / 2) % ((size_t)r->width * (size_t)r->height));
     if (res == LENSRT_SUCCESS) {
-        r->cells_error = error_estimate ? cells_estimate(r, Uf, Uc, (double)rings / coarse) : -1.0;
+        r->cells_error = error_estimate ? cells_estimate(r, Uf, Uc, Uc2) : -1.0;
         if (error_estimate) *error_estimate = r->cells_error;
         // The sums hold the field divided by the measure, as one sample would
         for (i = 0; i < nsum; i++) r->sum[i] = Uf[i] / r->measure;
@@ -396,12 +417,18 @@ lensrt_result lensrt_render_integrate(lensrt_render r, int32_t rings, double *er
     } else {
         k = 1;
     }
-    if (Uc && Uc != r->cells_field) lensrt_free(r->ctx, Uc);
     if (k) {
+        // Failed: the render keeps what it had
         lensrt_free(r->ctx, Uf);
+        if (Uc != r->cells_field) lensrt_free(r->ctx, Uc);
+        if (Uc2 != r->cells_coarse) lensrt_free(r->ctx, Uc2);
     } else {
-        lensrt_free(r->ctx, r->cells_field);
+        // Kept for the next, finer call: this field and the one half as fine
+        if (r->cells_coarse != Uc) lensrt_free(r->ctx, r->cells_coarse);
+        if (r->cells_field != Uc) lensrt_free(r->ctx, r->cells_field);
+        if (Uc2 && Uc2 != r->cells_coarse) lensrt_free(r->ctx, Uc2);
         r->cells_field = Uf;
+        r->cells_coarse = Uc;
     }
     r->seconds += lensrt_seconds() - t0;
     return res;

@@ -141,7 +141,7 @@ struct lensrt_render_s {
      * error (-1: none) and a copy of that field, the coarse level of the next, finer call */
     int cells_rings;
     double cells_error;
-    double *cells_field;
+    double *cells_field, *cells_coarse; /* the fields of rings and rings / 2 (NULL: none) */
     struct lensrt_tiles *tiles;   /* the open tile session, or NULL */
     /* pruning statistics of the last pass: sums over (pixel, wavelength) */
     double stat_terms, stat_clip, stat_tau, stat_dark, stat_count;
