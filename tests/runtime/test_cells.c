@@ -55,35 +55,32 @@ static int failures;
 #define NG 96
 static long double gx[NG], gw[NG]; /* Gauss-Legendre on [0, 1] */
 
+/* P_NG(x) and P_NG'(x) by the three-term recurrence. */
+static long double legendre(long double x, long double *dp)
+{
+    long double p0 = 1.0L, p1 = x;
+    int k;
+    for (k = 2; k <= NG; k++) {
+        long double p2 = ((2 * k - 1) * x * p1 - (k - 1) * p0) / k;
+        p0 = p1;
+        p1 = p2;
+    }
+    *dp = NG * (x * p1 - p0) / (x * x - 1.0L);
+    return p1;
+}
+
 static void gauss_legendre(void)
 {
-    int i, k;
+    int i, it;
     for (i = 0; i < NG; i++) {
         // Newton on P_NG from the Chebyshev guess, in long double
-        long double x = cosl(3.14159265358979323846264L * (i + 0.75L) / (NG + 0.5L)), p0, p1, dp;
-        int it;
+        long double x = cosl(3.14159265358979323846264L * (i + 0.75L) / (NG + 0.5L)), dp;
         for (it = 0; it < 100; it++) {
-            long double dx;
-            p0 = 1.0L;
-            p1 = x;
-            for (k = 2; k <= NG; k++) {
-                long double p2 = ((2 * k - 1) * x * p1 - (k - 1) * p0) / k;
-                p0 = p1;
-                p1 = p2;
-            }
-            dp = NG * (x * p1 - p0) / (x * x - 1.0L);
-            dx = p1 / dp;
+            long double dx = legendre(x, &dp) / dp;
             x -= dx;
             if (fabsl(dx) < 1e-19L) break;
         }
-        p0 = 1.0L;
-        p1 = x;
-        for (k = 2; k <= NG; k++) {
-            long double p2 = ((2 * k - 1) * x * p1 - (k - 1) * p0) / k;
-            p0 = p1;
-            p1 = p2;
-        }
-        dp = NG * (x * p1 - p0) / (x * x - 1.0L);
+        legendre(x, &dp);
         gx[i] = 0.5L * (1.0L + x);
         gw[i] = 1.0L / ((1.0L - x * x) * dp * dp); /* 2 / ((1 - x^2) P'^2), halved for [0, 1] */
     }
