@@ -100,20 +100,29 @@ void lensrt_mesh_free(lensrt_context ctx, lensrt_mesh *m)
     lensrt_free(ctx, m->xy);
     lensrt_free(ctx, m->tri);
     lensrt_free(ctx, m->area);
+    lensrt_free(ctx, m->strip);
     memset(m, 0, sizeof *m);
 }
 
-/* Triangle t of vertices a, b, c: counter-clockwise, with its area. */
-static void add_triangle(lensrt_mesh *m, int a, int b, int c)
+/* A strip of n triangles (a + k, b + k, c + k), each with its area. */
+static void add_strip(lensrt_mesh *m, int n, int a, int b, int c)
 {
     const double *p = m->xy;
-    double s = 0.5 * ((p[2 * b] - p[2 * a]) * (p[2 * c + 1] - p[2 * a + 1]) -
-                      (p[2 * c] - p[2 * a]) * (p[2 * b + 1] - p[2 * a + 1]));
-    int *t = m->tri + 3 * m->n_triangles;
-    t[0] = a;
-    t[1] = s >= 0 ? b : c;
-    t[2] = s >= 0 ? c : b;
-    m->area[m->n_triangles++] = fabs(s);
+    int k, *st = m->strip + 5 * m->n_strips++;
+    st[0] = m->n_triangles;
+    st[1] = n;
+    st[2] = a;
+    st[3] = b;
+    st[4] = c;
+    for (k = 0; k < n; k++) {
+        const int i = a + k, j = b + k, l = c + k;
+        int *t = m->tri + 3 * m->n_triangles;
+        t[0] = i;
+        t[1] = j;
+        t[2] = l;
+        m->area[m->n_triangles++] = 0.5 * fabs((p[2 * j] - p[2 * i]) * (p[2 * l + 1] - p[2 * i + 1]) -
+                                               (p[2 * l] - p[2 * i]) * (p[2 * j + 1] - p[2 * i + 1]));
+    }
 }
 
 lensrt_result lensrt_mesh_build(lensrt_context ctx, const lensrt_aperture *ap, double radius_mm, int rings,
@@ -137,7 +146,8 @@ lensrt_result lensrt_mesh_build(lensrt_context ctx, const lensrt_aperture *ap, d
     m->xy = lensrt_calloc(ctx, (size_t)nv * 2, sizeof(double));
     m->tri = lensrt_calloc(ctx, (size_t)nt * 3, sizeof(int));
     m->area = lensrt_calloc(ctx, (size_t)nt, sizeof(double));
-    if (!m->xy || !m->tri || !m->area) {
+    m->strip = lensrt_calloc(ctx, 5 * (size_t)(n_slits ? 2 * n_slits * rows : 2 * ns * rings), sizeof(int));
+    if (!m->xy || !m->tri || !m->area || !m->strip) {
         lensrt_mesh_free(ctx, m);
         return lensrt_fail(ctx, LENSRT_ERROR_OUT_OF_MEMORY, "cells: out of memory for %ld triangles", nt);
     }
@@ -154,12 +164,12 @@ lensrt_result lensrt_mesh_build(lensrt_context ctx, const lensrt_aperture *ap, d
                     m->xy[2 * m->n_vertices + 1] = -R + 2.0 * R * j / rows;
                     m->n_vertices++;
                 }
-            for (j = 0; j < rows; j++)
-                for (i = 0; i < rings; i++) {
-                    const int a = v0 + j * (rings + 1) + i, b = a + 1, d = a + rings + 1, e = d + 1;
-                    add_triangle(m, a, b, e);
-                    add_triangle(m, a, e, d);
-                }
+            for (j = 0; j < rows; j++) {
+                // Row j's rectangles (a, a + 1, e = a + rings + 2, d = a + rings + 1)
+                const int a = v0 + j * (rings + 1);
+                add_strip(m, rings, a, a + 1, a + rings + 2);
+                add_strip(m, rings, a, a + rings + 2, a + rings + 1);
+            }
         }
         return LENSRT_SUCCESS;
     }
@@ -177,11 +187,10 @@ lensrt_result lensrt_mesh_build(lensrt_context ctx, const lensrt_aperture *ap, d
                     m->n_vertices++;
                 }
             for (i = 0; i < rings; i++) {
+                // Between rings i and i + 1: i + 1 triangles pointing out, i pointing in
                 const int r0 = v0 + i * (i + 1) / 2, r1 = v0 + (i + 1) * (i + 2) / 2;
-                for (j = 0; j <= i; j++) {
-                    add_triangle(m, r0 + j, r1 + j, r1 + j + 1);
-                    if (j < i) add_triangle(m, r0 + j, r1 + j + 1, r0 + j + 1);
-                }
+                add_strip(m, i + 1, r0, r1, r1 + 1);
+                if (i > 0) add_strip(m, i, r0, r1 + 1, r0 + 1);
             }
         }
     }
@@ -212,8 +221,8 @@ static double c_abs1(cpx a) { return fabs(a.re) > fabs(a.im) ? fabs(a.re) : fabs
  *   SERIES_D: two nodes within 1/32 of each other: phi1's series, 6 terms.
  * Elsewhere the divided differences lose at most about log10(s / 2^-5 / 0.1) digits to
  * cancellation (s: the largest difference): 2e-13 relative for s up to 100 radians. */
-#define SERIES_G 0.1
-#define SERIES_D 0.03125
+#define SERIES_G LENSRT_CELLS_SERIES_G
+#define SERIES_D LENSRT_CELLS_SERIES_D
 
 /* G(a, b) = integral over the unit simplex {l1, l2 >= 0, l1 + l2 <= 1} of
  * exp(i (l1 a + l2 b)) = sum_m i^m h_m(a, b) / (m + 2)!, h_m = sum_j a^j b^(m-j) the

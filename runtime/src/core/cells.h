@@ -18,6 +18,11 @@
 
 #include "render.h"
 
+/* Where lensrt_tri_integral's series take over (max norm of the differences): every
+ * node within SERIES_G of z0 (the series of G), two within SERIES_D (phi1's series). */
+#define LENSRT_CELLS_SERIES_G 0.1
+#define LENSRT_CELLS_SERIES_D 0.03125
+
 /* Level functions a triangle may be cut by: the outer pupil and P_clip pairs on side P_o
  * (per light), the inner pupil and P_clip pairs on side P_s (per pixel). */
 #define LENSRT_CELLS_MAX_LEVELS (2 + 2 * LENSRT_MAX_CLIP_PAIRS)
@@ -30,10 +35,15 @@
  * rectangles of right triangles. Vertices on the sectors' shared edges are repeated
  * (each sector's lattice is its own). */
 typedef struct lensrt_mesh {
-    int n_vertices, n_triangles;
+    int n_vertices, n_triangles, n_strips;
     double *xy;   /* [2 v]: mm */
-    int *tri;     /* [3 t]: vertex indices, counter-clockwise */
+    int *tri;     /* [3 t]: vertex indices */
     double *area; /* [t]: mm^2 */
+    /* The triangles as strips: strip s holds triangles strip[5 s] + k, k < strip[5 s + 1],
+     * of vertices (strip[5 s + 2] + k, strip[5 s + 3] + k, strip[5 s + 4] + k): a ring's
+     * (or a slit row's) triangles of one orientation, whose vertices follow each other,
+     * so that loops over them read memory in order (cpu/cells_kernel.c) */
+    int *strip;
 } lensrt_mesh;
 
 /* The mesh of `rings` rows for aperture `ap` of stop radius radius_mm (and slits of

@@ -8,7 +8,7 @@
  * basis), so both integrators integrate the same function. */
 #include "pass.h"
 
-#include "../core/cells.h"
+#include "cells_kernel.h"
 #include "../lens/lens.h"
 
 #include <math.h>
@@ -17,17 +17,17 @@
 #include <omp.h>
 #endif
 
-#define TWO_PI 6.283185307179586477
 /* Log amplitudes below this (amplitude 0: intensity 0 or no transmittance) are held
  * there: e^-80 is 2e-35 of a unit amplitude, nothing in a float image. */
 #define LOG_AMP_FLOOR (-80.0)
 
-/* One wavelength's vertex data: rows [v][n_rows]; per light l the phase in waves
- * relative to vertex 0 (sph), the log amplitude (lna) and the levels before the stop
- * (lev_o [l][v][n_lev_o]). */
+/* One wavelength's vertex data: rows [row][v] (structure of arrays, so that the
+ * per-pixel sums over vertices vectorise); per light l the phase in waves (sph), the
+ * amplitude (samp) and its log (lna), and the levels before the stop
+ * (lev_o [l][v][1 + LENSRT_MAX_CLIP_PAIRS]). */
 typedef struct cells_vertices {
     int n, n_rows, n_lev_o;
-    double *rows, *sph, *lna, *lev_o;
+    double *rows, *sph, *samp, *lna, *lev_o;
     float *rows_f;
 } cells_vertices;
 
@@ -36,6 +36,7 @@ static void free_vertices(lensrt_context ctx, cells_vertices *cv)
     lensrt_free(ctx, cv->rows);
     lensrt_free(ctx, cv->rows_f);
     lensrt_free(ctx, cv->sph);
+    lensrt_free(ctx, cv->samp);
     lensrt_free(ctx, cv->lna);
     lensrt_free(ctx, cv->lev_o);
     memset(cv, 0, sizeof *cv);
@@ -50,9 +51,10 @@ static int alloc_vertices(lensrt_render r, const lensrt_mesh *m, cells_vertices 
     cv->rows = lensrt_calloc(r->ctx, nv * (size_t)r->n_rows, sizeof(double));
     cv->rows_f = lensrt_calloc(r->ctx, (size_t)r->n_rows, sizeof(float) * 64); /* per thread: [64][n_rows] */
     cv->sph = lensrt_calloc(r->ctx, nv * nl, sizeof(double));
+    cv->samp = lensrt_calloc(r->ctx, nv * nl, sizeof(double));
     cv->lna = lensrt_calloc(r->ctx, nv * nl, sizeof(double));
     cv->lev_o = lensrt_calloc(r->ctx, nv * nl * (1 + LENSRT_MAX_CLIP_PAIRS), sizeof(double));
-    if (!cv->rows || !cv->rows_f || !cv->sph || !cv->lna || !cv->lev_o) {
+    if (!cv->rows || !cv->rows_f || !cv->sph || !cv->samp || !cv->lna || !cv->lev_o) {
         free_vertices(r->ctx, cv);
         return 0;
     }
@@ -60,23 +62,25 @@ static int alloc_vertices(lensrt_render r, const lensrt_mesh *m, cells_vertices 
 }
 
 /* Vertex v: the lens kind's rows (in double), and per light the wave at the stop. The
- * phase is kept unreduced (the triangles need its differences), relative to vertex 0's
- * so that it stays a few thousand waves at most. */
+ * phase is kept unreduced: the triangles need its differences (each pixel subtracts
+ * its vertex 0's, so that it stays a few thousand waves at most). */
 static void prepare_vertex(const lensrt_render r, int w, const lensrt_mesh *m, cells_vertices *cv, long v, float *rf)
 {
     const lensrt_lens_ops *ops = r->lens_ops;
     const double lambda_mm = r->wavelengths[w] / LENSRT_NM_PER_MM;
     const double x = m->xy[2 * v], y = m->xy[2 * v + 1];
     const int nr = r->n_rows;
-    double mono[136], *row = cv->rows + (size_t)v * (size_t)nr;
+    double mono[136];
     lensrt_rows rows;
     int l, k;
-    rows.stride = 1;
-    rows.d = row;
+    // Rows in double straight into their columns, or in float (as the lens kind keeps
+    // them) through the thread's scratch
+    rows.stride = r->double_rows ? (size_t)cv->n : 1;
+    rows.d = cv->rows + v;
     rows.f = rf;
     ops->sample_rows(r, w, x, y, mono, &rows);
     if (!r->double_rows)
-        for (k = 0; k < nr; k++) row[k] = (double)rf[k];
+        for (k = 0; k < nr; k++) cv->rows[(size_t)k * (size_t)cv->n + (size_t)v] = (double)rf[k];
     for (l = 0; l < r->n_lights; l++) {
         const size_t at = (size_t)l * (size_t)cv->n + (size_t)v;
         double amp = sqrt(r->lights[l].intensity), opl = 0.0;
@@ -85,6 +89,7 @@ static void prepare_vertex(const lensrt_render r, int w, const lensrt_mesh *m, c
         else ops->sample_wave(r, w, l, x, y, mono, &amp, &opl);
         cv->n_lev_o = n_lev;
         cv->sph[at] = opl / lambda_mm;
+        cv->samp[at] = amp > 0.0 ? amp : 0.0;
         cv->lna[at] = amp > 0.0 ? fmax(log(amp), LOG_AMP_FLOOR) : LOG_AMP_FLOOR;
     }
 }
@@ -92,8 +97,9 @@ static void prepare_vertex(const lensrt_render r, int w, const lensrt_mesh *m, c
 /* Per-thread scratch for one pixel: per vertex the pixel's phase (waves), log amplitude
  * and levels after the stop, then per light z = (2 pi phase, -log amp) and exp(i z). */
 typedef struct cells_scratch {
-    double *ph, *lnt, *lev_p, *z, *E, *lev;
-    unsigned char *in; /* every level >= 0 at the vertex */
+    double *ph, *lnt, *st, *lev_p, *zr, *zi, *er, *ei, *lev, *cr, *ci;
+    unsigned char *in;   /* every level >= 0 at the vertex */
+    unsigned char *rest; /* triangles left to the scalar pass */
 } cells_scratch;
 
 #define MAX_LEV_P (1 + LENSRT_MAX_CLIP_PAIRS)
@@ -104,12 +110,15 @@ static double disc_level(double r2, double x, double y)
     return (r2 - (x * x + y * y)) / (2.0 * (r2 > 0.0 ? sqrt(r2) : 1.0));
 }
 
-static double dot_terms(const lensrt_terms_d *t, const double *row)
+/* out[v] = sum of the terms' coefficients times their rows, over every vertex. */
+static void sum_terms(const lensrt_terms_d *t, const double *rows, int nv, double *out)
 {
-    double s = 0.0;
-    int k;
-    for (k = 0; k < t->n; k++) s += t->coef[k] * row[t->slot[k]];
-    return s;
+    int k, v;
+    for (v = 0; v < nv; v++) out[v] = 0.0;
+    for (k = 0; k < t->n; k++) {
+        const double c = t->coef[k], *row = rows + (size_t)t->slot[k] * (size_t)nv;
+        for (v = 0; v < nv; v++) out[v] += c * row[v];
+    }
 }
 
 /* The pixel's part at every vertex: phase in waves, log transmittance (and the free-space
@@ -118,18 +127,19 @@ static double dot_terms(const lensrt_terms_d *t, const double *row)
 static int pixel_vertices(lensrt_render r, int w, long p, const cells_vertices *cv, cells_scratch *s, double *amp)
 {
     const double x = r->xs[p % r->width], y = r->ys[p / r->width];
-    const int nv = cv->n, nr = cv->n_rows;
+    const int nv = cv->n;
     int v, n_lev = 0;
     if (r->lens_ops->transport == LENSRT_TRANSPORT_FREE_SPACE) {
         // Rayleigh-Sommerfeld: the distance in waves and cos(theta) / (lambda r)
         const lensrt_analytic_lens *mdl = &r->lens->model;
         const double z = mdl->sensor_distance_mm + r->desc.sensor.focus_offset_mm;
         const double lambda_mm = r->wavelengths[w] / LENSRT_NM_PER_MM;
+        const double *ax = cv->rows, *ay = cv->rows + nv;
         for (v = 0; v < nv; v++) {
-            const double dx = x - cv->rows[(size_t)v * nr], dy = y - cv->rows[(size_t)v * nr + 1];
-            const double r2 = dx * dx + dy * dy + z * z;
+            const double dx = x - ax[v], dy = y - ay[v], r2 = dx * dx + dy * dy + z * z;
             s->ph[v] = sqrt(r2) / lambda_mm;
-            s->lnt[v] = log(z / (lambda_mm * r2));
+            s->st[v] = z / (lambda_mm * r2);
+            s->lnt[v] = log(s->st[v]);
         }
         *amp = 1.0;
         return 0;
@@ -138,37 +148,52 @@ static int pixel_vertices(lensrt_render r, int w, long p, const cells_vertices *
         lensrt_cpu_pixel px;
         lensrt_cpu_clip clip;
         const lensrt_pixel_d *d = &px.d;
-        int q;
+        double *hx = s->zr, *hy = s->zi; /* free until the lights' pass */
+        int q, j = 0;
         if (!lensrt_cpu_setup_pixel(r, w, x, y, &px, r->clip_s ? &clip : NULL)) return -1;
         *amp = px.amp;
         n_lev = (d->clip ? 1 : 0) + d->n_clip;
-        for (v = 0; v < nv; v++) {
-            const double *row = cv->rows + (size_t)v * nr;
-            double *lv = s->lev_p + (size_t)v * MAX_LEV_P;
-            int j = 0;
-            s->ph[v] = dot_terms(&d->phase, row);
-            if (d->tau.n > 0) {
-                const double t = dot_terms(&d->tau, row);
+        sum_terms(&d->phase, cv->rows, nv, s->ph);
+        if (d->tau.n > 0) {
+            sum_terms(&d->tau, cv->rows, nv, s->st);
+            for (v = 0; v < nv; v++) {
+                const double t = s->st[v];
                 s->lnt[v] = t > 0.0 ? fmax(0.5 * log(t), LOG_AMP_FLOOR) : LOG_AMP_FLOOR;
-            } else {
-                s->lnt[v] = 0.0;
+                s->st[v] = t > 0.0 ? sqrt(t) : 0.0;
             }
-            if (d->clip) lv[j++] = disc_level(d->housing2, dot_terms(&d->xi, row), dot_terms(&d->yi, row));
-            for (q = 0; q < d->n_clip; q++) {
-                const double hx = dot_terms(&d->clip_x[q], row), hy = dot_terms(&d->clip_y[q], row);
-                double e = disc_level(d->clip_r2[q], hx, hy);
+        } else {
+            for (v = 0; v < nv; v++) {
+                s->lnt[v] = 0.0;
+                s->st[v] = 1.0;
+            }
+        }
+        // The levels after the stop: the inner pupil, then the P_clip pairs
+        if (d->clip) {
+            sum_terms(&d->xi, cv->rows, nv, hx);
+            sum_terms(&d->yi, cv->rows, nv, hy);
+            for (v = 0; v < nv; v++) s->lev_p[(size_t)v * MAX_LEV_P + j] = disc_level(d->housing2, hx[v], hy[v]);
+            j++;
+        }
+        for (q = 0; q < d->n_clip; q++, j++) {
+            sum_terms(&d->clip_x[q], cv->rows, nv, hx);
+            sum_terms(&d->clip_y[q], cv->rows, nv, hy);
+            for (v = 0; v < nv; v++) {
+                double e = disc_level(d->clip_r2[q], hx[v], hy[v]);
                 if (d->clip_shaped[q]) {
-                    const double f = lensrt_stop_shape_level(d->stop, hx, hy);
+                    const double f = lensrt_stop_shape_level(d->stop, hx[v], hy[v]);
                     if (f < e) e = f;
                 }
-                lv[j++] = e;
+                s->lev_p[(size_t)v * MAX_LEV_P + j] = e;
             }
         }
     }
     return n_lev;
 }
 
-/* One pixel's fields for every light: U[l] (re, im). */
+/* One pixel's fields for every light: U[l] (re, im). Per light, the vertices' phasors
+ * and the triangles whose nodes are apart inside every clip in the vectorised loops,
+ * then the rest (close nodes: series; crossed by a clip: cut) one by one; the
+ * triangles' integrals are added in their order. */
 static void integrate_pixel(lensrt_render r, int w, long p, const lensrt_mesh *m, const cells_vertices *cv,
                             cells_scratch *s, double *U)
 {
@@ -179,37 +204,15 @@ static void integrate_pixel(lensrt_render r, int w, long p, const lensrt_mesh *m
     if (n_lev_p < 0) return; /* dark */
     n_lev = n_lev_o + n_lev_p;
     for (l = 0; l < r->n_lights; l++) {
-        const double *sph = cv->sph + (size_t)l * nv, *lna = cv->lna + (size_t)l * nv;
-        const double *lev_o = cv->lev_o + (size_t)l * nv * (1 + LENSRT_MAX_CLIP_PAIRS);
-        const double ref = s->ph[0] + sph[0];
+        const size_t off = (size_t)l * (size_t)nv;
+        const double *lev_o = cv->lev_o + off * (1 + LENSRT_MAX_CLIP_PAIRS);
         double acc[2] = {0.0, 0.0};
         if (r->lights[l].intensity <= 0.0) continue;
-        // z and exp(i z) per vertex: the phase relative to vertex 0 in radians, minus i
-        // the log amplitude (so that log A is interpolated with the phase)
-        for (v = 0; v < nv; v++) {
-            const double ph = TWO_PI * ((s->ph[v] + sph[v]) - ref), la = lna[v] + s->lnt[v], a = exp(la);
-            s->z[2 * v] = ph;
-            s->z[2 * v + 1] = -la;
-            s->E[2 * v] = a * cos(ph);
-            s->E[2 * v + 1] = a * sin(ph);
-        }
-        if (n_lev == 0) {
-            for (t = 0; t < nt; t++) {
-                const int *tv = m->tri + 3 * t;
-                double z[6], E[6], o[2];
-                int k;
-                for (k = 0; k < 3; k++) {
-                    z[2 * k] = s->z[2 * tv[k]];
-                    z[2 * k + 1] = s->z[2 * tv[k] + 1];
-                    E[2 * k] = s->E[2 * tv[k]];
-                    E[2 * k + 1] = s->E[2 * tv[k] + 1];
-                }
-                lensrt_tri_integral(m->area[t], z, E, o);
-                acc[0] += o[0];
-                acc[1] += o[1];
-            }
-        } else {
-            // The levels before the stop (this light's) and after it (this pixel's)
+        lensrt_cells_vertices(nv, s->ph, cv->sph + off, s->ph[0] + cv->sph[off], cv->lna + off, cv->samp + off,
+                              s->lnt, s->st, s->zr, s->zi, s->er, s->ei);
+        // The levels before the stop (this light's) and after it (this pixel's)
+        if (n_lev == 0) memset(s->in, 1, (size_t)nv);
+        else
             for (v = 0; v < nv; v++) {
                 double *lv = s->lev + (size_t)v * n_lev;
                 int j, in = 1;
@@ -218,27 +221,27 @@ static void integrate_pixel(lensrt_render r, int w, long p, const lensrt_mesh *m
                 for (j = 0; j < n_lev; j++) in &= lv[j] >= 0.0;
                 s->in[v] = (unsigned char)in;
             }
-            for (t = 0; t < nt; t++) {
+        lensrt_cells_triangles(m, s->zr, s->zi, s->er, s->ei, s->in, s->cr, s->ci, s->rest);
+        for (t = 0; t < nt; t++) {
+            if (s->rest[t]) {
                 const int *tv = m->tri + 3 * t;
-                double z[6], E[6], lev[3 * LENSRT_CELLS_MAX_LEVELS], o[2];
+                double z[6], E[6], lev[3 * LENSRT_CELLS_MAX_LEVELS], o[2] = {0.0, 0.0};
                 int k, j;
                 for (k = 0; k < 3; k++) {
-                    z[2 * k] = s->z[2 * tv[k]];
-                    z[2 * k + 1] = s->z[2 * tv[k] + 1];
-                    E[2 * k] = s->E[2 * tv[k]];
-                    E[2 * k + 1] = s->E[2 * tv[k] + 1];
-                }
-                // Wholly inside every clip (most triangles): no cutting
-                if (s->in[tv[0]] && s->in[tv[1]] && s->in[tv[2]]) {
-                    lensrt_tri_integral(m->area[t], z, E, o);
-                    acc[0] += o[0];
-                    acc[1] += o[1];
-                    continue;
-                }
-                for (k = 0; k < 3; k++)
+                    z[2 * k] = s->zr[tv[k]];
+                    z[2 * k + 1] = s->zi[tv[k]];
+                    E[2 * k] = s->er[tv[k]];
+                    E[2 * k + 1] = s->ei[tv[k]];
                     for (j = 0; j < n_lev; j++) lev[k * n_lev + j] = s->lev[(size_t)tv[k] * n_lev + j];
-                lensrt_tri_integral_clipped(m->area[t], z, E, lev, n_lev, acc);
+                }
+                // Inside every clip: the closed form with its series; else cut
+                if (n_lev == 0 || (s->in[tv[0]] && s->in[tv[1]] && s->in[tv[2]])) lensrt_tri_integral(m->area[t], z, E, o);
+                else lensrt_tri_integral_clipped(m->area[t], z, E, lev, n_lev, o);
+                s->cr[t] = o[0];
+                s->ci[t] = o[1];
             }
+            acc[0] += s->cr[t];
+            acc[1] += s->ci[t];
         }
         U[2 * l] = amp * acc[0];
         U[2 * l + 1] = amp * acc[1];
@@ -258,9 +261,10 @@ lensrt_result lensrt_cpu_cells(lensrt_render r, const lensrt_mesh *m, double *U,
     const size_t nv = (size_t)m->n_vertices;
     cells_vertices cv;
     double *scratch;
-    const size_t per_thread = nv * (3 + MAX_LEV_P + 4 + LENSRT_CELLS_MAX_LEVELS);
-    /* ph, lnt (nv each), lev_p (MAX_LEV_P nv), z, E (2 nv each), lev (MAX_LEVELS nv),
-     * in (nv bytes in the last nv doubles) */
+    const size_t nt = (size_t)m->n_triangles;
+    /* ph, lnt, st, zr, zi, er, ei (nv each), lev_p (MAX_LEV_P nv), lev (MAX_LEVELS nv),
+     * in (nv bytes); cr, ci (nt each), rest (nt bytes) */
+    const size_t per_thread = nv * (7 + MAX_LEV_P + LENSRT_CELLS_MAX_LEVELS + 1) + nt * 3;
     double t0 = lensrt_seconds();
     int w, failed = 0;
     if (!alloc_vertices(r, m, &cv)) return lensrt_fail(r->ctx, LENSRT_ERROR_OUT_OF_MEMORY, "cells: out of memory");
@@ -303,11 +307,17 @@ lensrt_result lensrt_cpu_cells(lensrt_render r, const lensrt_mesh *m, double *U,
             int l;
             s.ph = base;
             s.lnt = base + nv;
-            s.lev_p = base + 2 * nv;
-            s.z = base + (2 + MAX_LEV_P) * nv;
-            s.E = base + (4 + MAX_LEV_P) * nv;
-            s.lev = base + (6 + MAX_LEV_P) * nv;
-            s.in = (unsigned char *)(base + (6 + MAX_LEV_P + LENSRT_CELLS_MAX_LEVELS) * nv);
+            s.st = base + 2 * nv;
+            s.zr = base + 3 * nv;
+            s.zi = base + 4 * nv;
+            s.er = base + 5 * nv;
+            s.ei = base + 6 * nv;
+            s.lev_p = base + 7 * nv;
+            s.lev = base + (7 + MAX_LEV_P) * nv;
+            s.in = (unsigned char *)(base + (7 + MAX_LEV_P + LENSRT_CELLS_MAX_LEVELS) * nv);
+            s.cr = base + (8 + MAX_LEV_P + LENSRT_CELLS_MAX_LEVELS) * nv;
+            s.ci = s.cr + nt;
+            s.rest = (unsigned char *)(s.ci + nt);
             integrate_pixel(r, w, p, m, &cv, &s, f);
             for (l = 0; l < r->n_lights; l++) {
                 const size_t at = ((size_t)l * (size_t)r->n_wl + (size_t)w) * (size_t)npix + (size_t)p;

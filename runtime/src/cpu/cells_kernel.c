@@ -1,0 +1,88 @@
+/* The cells integrator's loops over vertices and triangles (cpu/cells.c calls them per
+ * pixel and light), written so that the compiler vectorises them: structure of arrays,
+ * no calls, selects instead of branches. Built with -O3 (and -march=native with
+ * LENSRT_NATIVE) but without fast-math and without FMA contraction, so that the
+ * triangles it takes give the very bits lensrt_tri_integral (core/cells.c) gives. */
+#include "cells_kernel.h"
+
+#include <math.h>
+
+#define TWO_PI 6.283185307179586477
+/* The larger of two non-NaN numbers, inline (libm's fmax is a call: no vectorising) */
+#define MAX2(a, b) ((a) > (b) ? (a) : (b))
+
+void lensrt_cells_vertices(int n, const double *restrict ph, const double *restrict sph, double ref, const double *restrict lna,
+                           const double *restrict samp, const double *restrict lnt, const double *restrict st, double *restrict zr, double *restrict zi,
+                           double *restrict er, double *restrict ei)
+{
+    int v;
+    for (v = 0; v < n; v++) {
+        // The phase in waves relative to vertex 0's, and its fraction reduced to an
+        // eighth of a turn around a quadrant: cos and sin by their Taylor series to
+        // theta^14 on |theta| <= pi/4 (error below 1e-15), then the quadrant's rotation
+        const double w = (ph[v] + sph[v]) - ref, f = w - rint(w), q = rint(4.0 * f), r = f - 0.25 * q;
+        const double t = TWO_PI * r, t2 = t * t;
+        const double s = t * (1.0 + t2 * (-1.0 / 6 + t2 * (1.0 / 120 + t2 * (-1.0 / 5040 + t2 * (1.0 / 362880 +
+                             t2 * (-1.0 / 39916800 + t2 * (1.0 / 6227020800.0)))))));
+        const double c = 1.0 + t2 * (-0.5 + t2 * (1.0 / 24 + t2 * (-1.0 / 720 + t2 * (1.0 / 40320 +
+                             t2 * (-1.0 / 3628800 + t2 * (1.0 / 479001600.0 + t2 * (-1.0 / 87178291200.0)))))));
+        // q in -2 .. 2: the quadrant q mod 4 is 0 for q = 0, 1 for q = 1, 2 for q = +-2,
+        // 3 for q = -1 (compares in double: the loop vectorises)
+        const double cc = (q == 1.0 || q == -1.0) ? s : c, ss = (q == 1.0 || q == -1.0) ? c : s;
+        const double a = samp[v] * st[v];
+        zr[v] = TWO_PI * w;
+        zi[v] = -(lna[v] + lnt[v]);
+        er[v] = a * ((q == 1.0 || q == 2.0 || q == -2.0) ? -cc : cc);
+        ei[v] = a * ((q == 2.0 || q == -2.0 || q == -1.0) ? -ss : ss);
+    }
+}
+
+/* One strip: triangle k of vertices (k of the 0 arrays, k of the 1, k of the 2). */
+static void strip_triangles(int n, const double *restrict area, const double *restrict zr0,
+                            const double *restrict zi0, const double *restrict er0, const double *restrict ei0,
+                            const unsigned char *restrict in0, const double *restrict zr1,
+                            const double *restrict zi1, const double *restrict er1, const double *restrict ei1,
+                            const unsigned char *restrict in1, const double *restrict zr2,
+                            const double *restrict zi2, const double *restrict er2, const double *restrict ei2,
+                            const unsigned char *restrict in2, double *restrict cr, double *restrict ci,
+                            unsigned char *restrict rest)
+{
+    int k;
+    // The outputs never overlap the inputs (restrict; the pragma says so to GCC once the
+    // function is inlined, where it forgets)
+#ifdef __GNUC__
+#pragma GCC ivdep
+#endif
+    for (k = 0; k < n; k++) {
+        // Differences a = z1 - z0, b = z2 - z0, c = z2 - z1 and their max norms
+        const double ar = zr1[k] - zr0[k], ai = zi1[k] - zi0[k], br = zr2[k] - zr0[k], bi = zi2[k] - zi0[k];
+        const double cr_ = zr2[k] - zr1[k], ci_ = zi2[k] - zi1[k];
+        const double da = MAX2(fabs(ar), fabs(ai)), db = MAX2(fabs(br), fabs(bi)), dc = MAX2(fabs(cr_), fabs(ci_));
+        // The branch lensrt_tri_integral takes for nodes apart (not all within 0.1 of
+        // z0, every pair beyond 1/32), inside every clip
+        const int apart = ((da > LENSRT_CELLS_SERIES_G) | (db > LENSRT_CELLS_SERIES_G)) &
+                          (da > LENSRT_CELLS_SERIES_D) & (db > LENSRT_CELLS_SERIES_D) & (dc > LENSRT_CELLS_SERIES_D) &
+                          (in0[k] & in1[k] & in2[k]);
+        // num = E0 c - E1 b + E2 a, den = a b c, g = -num / den (core/cells.c)
+        const double nr = er0[k] * cr_ - ei0[k] * ci_ - (er1[k] * br - ei1[k] * bi) + er2[k] * ar - ei2[k] * ai;
+        const double ni = er0[k] * ci_ + ei0[k] * cr_ - (er1[k] * bi + ei1[k] * br) + er2[k] * ai + ei2[k] * ar;
+        const double abr = ar * br - ai * bi, abi = ar * bi + ai * br;
+        const double dr = abr * cr_ - abi * ci_, di = abr * ci_ + abi * cr_;
+        const double q = 1.0 / (dr * dr + di * di);
+        const double gr = -((nr * dr + ni * di) * q), gi = -((ni * dr - nr * di) * q);
+        cr[k] = apart ? 2.0 * area[k] * gr : 0.0;
+        ci[k] = apart ? 2.0 * area[k] * gi : 0.0;
+        rest[k] = (unsigned char)!apart;
+    }
+}
+
+void lensrt_cells_triangles(const lensrt_mesh *m, const double *zr, const double *zi, const double *er,
+                            const double *ei, const unsigned char *in, double *cr, double *ci, unsigned char *rest)
+{
+    int s;
+    for (s = 0; s < m->n_strips; s++) {
+        const int *st = m->strip + 5 * s, t0 = st[0], a = st[2], b = st[3], c = st[4];
+        strip_triangles(st[1], m->area + t0, zr + a, zi + a, er + a, ei + a, in + a, zr + b, zi + b, er + b, ei + b,
+                        in + b, zr + c, zi + c, er + c, ei + c, in + c, cr + t0, ci + t0, rest + t0);
+    }
+}

@@ -1,0 +1,21 @@
+/* The cells integrator's vectorised loops (internal; cpu/cells_kernel.c). */
+#ifndef LENSRT_CELLS_KERNEL_H
+#define LENSRT_CELLS_KERNEL_H
+
+#include "../core/cells.h"
+
+/* Vertex phasors of one pixel and light: w = ph + sph - ref (waves), z = (2 pi w,
+ * -(lna + lnt)), E = samp st exp(2 pi i w) (the amplitude and its log kept apart, so
+ * that no exp or log is taken here). */
+void lensrt_cells_vertices(int n, const double *restrict ph, const double *restrict sph, double ref, const double *restrict lna,
+                           const double *restrict samp, const double *restrict lnt, const double *restrict st, double *restrict zr, double *restrict zi,
+                           double *restrict er, double *restrict ei);
+
+/* The integral over every triangle of mesh m whose nodes are apart (lensrt_tri_integral's
+ * one-division branch, bit for bit) and that lies inside every clip (in: per vertex,
+ * 1 inside, 0 not) into cr, ci; the others get 0 and rest[t] = 1, for the caller's
+ * scalar pass. Strip by strip (lensrt_mesh.strip): every read in order. */
+void lensrt_cells_triangles(const lensrt_mesh *m, const double *zr, const double *zi, const double *er,
+                            const double *ei, const unsigned char *in, double *cr, double *ci, unsigned char *rest);
+
+#endif /* LENSRT_CELLS_KERNEL_H */
