@@ -26,8 +26,11 @@ the brightest ghost pixel over them, so that the uncoated flare is as much brigh
 it is. The tone map is logarithmic over DECADES decades below white; the direct image
 saturates, as in a photograph of a bright light. Colours are lensrt's linear sRGB (CIE
 1931 2-degree observer, D65). Writes the PNG and, beside it, a JSON with each image's
-window, samples, Monte Carlo floor, power and seconds (a power includes the floor: the
-paper's estimator adds it to every pixel, so it reads high by about that share).
+window, power and seconds, and how it was integrated: with ``--integrator cells`` (the
+default) the rings of its mesh and its error estimate (each image refined until the
+estimate is within ``--target-error``, default 1%); with ``montecarlo`` its samples and
+Monte Carlo floor (a power then includes the floor: the paper's estimator adds it to
+every pixel, so it reads high by about that share).
 """
 
 from __future__ import annotations
@@ -72,6 +75,11 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p.add_argument("--floor", type=float, default=0.03,
                    help="Monte Carlo floor aimed at, relative to a ghost's own level "
                         "(default 0.03; module doc)")
+    p.add_argument("--integrator", choices=("cells", "montecarlo"), default="cells",
+                   help="cells (default): lensrt_render_integrate to --target-error; "
+                        "montecarlo: samples within --floor and --splats")
+    p.add_argument("--target-error", type=float, default=0.01,
+                   help="cells: the relative L2 error each image is refined to (default 0.01)")
     p.add_argument("--splats", type=float, default=1e10,
                    help="most splats per image (samples x pixels x wavelengths; default "
                         "1e10, ~10 s on 2 cores): larger ghosts get fewer samples and a "
@@ -152,8 +160,23 @@ def samples_for(radius_mm: float, f_number: float, pixels: int, args) -> tuple[i
     return n, 1.0 / (s * n)
 
 
+CELLS_FIRST_RINGS = 8  # the cells integrator's first mesh; doubled while the estimate is high
+CELLS_MAX_RINGS = 512
+
+
+def integrate_to_target(r, target: float) -> tuple[int, float]:
+    """Refine a render's cells mesh until its error estimate is within ``target`` (each
+    refinement reuses the previous meshes for its estimate); its rings and estimate."""
+    rings = CELLS_FIRST_RINGS
+    est = r.integrate(rings)
+    while est > target and 2 * rings <= CELLS_MAX_RINGS:
+        rings *= 2
+        est = r.integrate(rings)
+    return rings, float(est)
+
+
 def render_window(rt, table: Path, frame: Frame, win, f_number: float,
-                  light: tuple[float, float], args, samples: int) -> tuple[np.ndarray, float]:
+                  light: tuple[float, float], args, samples: int) -> tuple[np.ndarray, float, dict]:
     """Linear sRGB of one image over the pixel rectangle ``win``, and its power (the
     spectral image's sum times the pixel area, averaged over wavelengths; a PSF smaller
     than a pixel is under-sampled by pixel centres, so the direct power is measured in a
@@ -164,9 +187,14 @@ def render_window(rt, table: Path, frame: Frame, win, f_number: float,
     r = rt.create(lens, width=i1 - i0, height=j1 - j0, width_mm=(i1 - i0) * frame.pitch,
                   height_mm=(j1 - j0) * frame.pitch, center=(cx, cy), f_number=f_number,
                   lights=[light], wavelengths=args.wavelengths)
-    r.run(samples)
+    how: dict = {}
+    if args.integrator == "cells":
+        how["rings"], how["error_estimate"] = integrate_to_target(r, args.target_error)
+    else:
+        r.run(samples)
+        how["samples"] = samples
     power = float(r.image().sum(axis=(1, 2)).mean()) * frame.pitch**2
-    return r.rgb(), power
+    return r.rgb(), power, how
 
 
 def direct_power(rt, table: Path, centre: tuple[float, float], f_number: float,
@@ -176,7 +204,10 @@ def direct_power(rt, table: Path, centre: tuple[float, float], f_number: float,
     lens = rt.load(table)
     r = rt.create(lens, width=128, height=128, width_mm=0.2, center=centre,
                   f_number=f_number, lights=[light], wavelengths=args.wavelengths)
-    r.run(MIN_SAMPLES)
+    if args.integrator == "cells":
+        integrate_to_target(r, args.target_error)
+    else:
+        r.run(MIN_SAMPLES)
     return float(r.image().sum(axis=(1, 2)).mean()) * (0.2 / 128) ** 2
 
 
@@ -219,14 +250,19 @@ def render_panel(rt, folder: Path, f_number: float, light, frame: Frame, args):
         n, floor = samples_for(radius, f_number, (i1 - i0) * (j1 - j0), args)
         if name == "direct":  # a few pixels: its halo's floor is what shows around it
             n = max(n, DIRECT_SAMPLES)
-        rgb, power = render_window(rt, path, frame, w, f_number, light, args, n)
+        rgb, power, how = render_window(rt, path, frame, w, f_number, light, args, n)
         if name == "direct":
             power = direct_power(rt, path, frame.centre(w), f_number, light, args)
         canvas[j0:j1, i0:i1] += rgb
-        record.append({"image": name, "window": list(w), "power": power, "samples": n,
-                       "floor": floor, "seconds": time.perf_counter() - t0})
-        print(f"  {folder.name} {name}: {i1 - i0} x {j1 - j0} pixels, {n} samples (floor "
-              f"{floor:.1%}), power {power:.4g}, {record[-1]['seconds']:.1f} s", flush=True)
+        if args.integrator == "montecarlo":
+            how["floor"] = floor
+            said = f"{n} samples (floor {floor:.1%})"
+        else:
+            said = f"{how['rings']} rings (error estimate {how['error_estimate']:.2%})"
+        record.append({"image": name, "window": list(w), "power": power, **how,
+                       "seconds": time.perf_counter() - t0})
+        print(f"  {folder.name} {name}: {i1 - i0} x {j1 - j0} pixels, {said}, power {power:.4g}, "
+              f"{record[-1]['seconds']:.1f} s", flush=True)
     return direct, flare, record
 
 
@@ -268,10 +304,14 @@ def main(argv: list[str] | None = None) -> int:
         ax.imshow(tone_map(p["direct"] + p["flare"], white),
                   extent=(-frame.w_mm / 2, frame.w_mm / 2, -frame.h_mm / 2, frame.h_mm / 2))
         shown = [r for r in p["record"] if r["image"] != "direct" and r["window"]]
-        worst = max((r["floor"] for r in shown), default=0.0)
-        ax.set_title(f"{p['label']}: f/{p['f_number']:g}, {len(shown)} ghosts (Monte Carlo "
-                     f"floor at most {worst:.0%} of a ghost's level)", color="white",
-                     fontsize=7)
+        if args.integrator == "cells":
+            worst = max((r["error_estimate"] for r in shown), default=0.0)
+            said = f"error estimate at most {worst:.1%} of a ghost's image"
+        else:
+            worst = max((r["floor"] for r in shown), default=0.0)
+            said = f"Monte Carlo floor at most {worst:.0%} of a ghost's level"
+        ax.set_title(f"{p['label']}: f/{p['f_number']:g}, {len(shown)} ghosts ({said})",
+                     color="white", fontsize=7)
         ax.set_xticks([])
         ax.set_yticks([])
     for ax in list(axes.flat)[len(panels):]:

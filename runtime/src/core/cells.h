@@ -46,6 +46,16 @@ typedef struct lensrt_mesh {
     int *strip;
 } lensrt_mesh;
 
+/* One call of a device's cells integrator: up to 3 meshes (the render's, and those half
+ * and a quarter as fine for the error estimate) integrated pixel by pixel with one
+ * per-pixel set-up; mesh k's fields go to U[k][2 ((l n_wl + w) npix + p) + re/im]. */
+#define LENSRT_CELLS_MAX_MESHES 3
+typedef struct lensrt_cells_job {
+    int n_mesh;
+    const lensrt_mesh *mesh[LENSRT_CELLS_MAX_MESHES];
+    double *U[LENSRT_CELLS_MAX_MESHES];
+} lensrt_cells_job;
+
 /* The mesh of `rings` rows for aperture `ap` of stop radius radius_mm (and slits of
  * half height radius_mm). LENSRT_ERROR_OUT_OF_MEMORY with a message; *m zeroed first. */
 lensrt_result lensrt_mesh_build(lensrt_context ctx, const lensrt_aperture *ap, double radius_mm, int rings,

@@ -292,15 +292,24 @@ lensrt_result lensrt_cells_idle(lensrt_render r, const char *what)
                        "samples; render samples with a new render", what, r->cells_rings);
 }
 
-/* The field of every light, wavelength and pixel on the mesh of `rings` rings. */
-static lensrt_result cells_field(lensrt_render r, int rings, double *U, lensrt_progress_fn progress, void *user_data,
-                                 double frac0, double frac1)
+/* The fields of every light, wavelength and pixel on the meshes of rings[k] rings into
+ * U[k] (k < n), in one pass of the device (one set-up per pixel). */
+static lensrt_result cells_fields(lensrt_render r, int n, const int *rings, double *const *U,
+                                  lensrt_progress_fn progress, void *user_data)
 {
-    lensrt_mesh m;
-    lensrt_result res = lensrt_mesh_build(r->ctx, &r->desc.aperture, r->stop_radius, rings, &m);
-    if (res != LENSRT_SUCCESS) return res;
-    res = r->device->integrate(r, &m, U, progress, user_data, frac0, frac1);
-    lensrt_mesh_free(r->ctx, &m);
+    lensrt_mesh mesh[LENSRT_CELLS_MAX_MESHES];
+    lensrt_cells_job job;
+    lensrt_result res = LENSRT_SUCCESS;
+    int k, built = 0;
+    memset(&job, 0, sizeof job);
+    for (k = 0; k < n && res == LENSRT_SUCCESS; k++, built++) {
+        res = lensrt_mesh_build(r->ctx, &r->desc.aperture, r->stop_radius, rings[k], &mesh[k]);
+        job.mesh[k] = &mesh[k];
+        job.U[k] = U[k];
+    }
+    job.n_mesh = n;
+    if (res == LENSRT_SUCCESS) res = r->device->integrate(r, &job, progress, user_data, 0.0, 1.0);
+    for (k = 0; k < built; k++) lensrt_mesh_free(r->ctx, &mesh[k]);
     return res;
 }
 
@@ -348,90 +357,96 @@ static double cells_estimate(lensrt_render r, const double *Uf, const double *Uc
 lensrt_result lensrt_render_integrate(lensrt_render r, int32_t rings, double *error_estimate,
                                       lensrt_progress_fn progress, void *user_data)
 {
-    const size_t nsum = 2 * (size_t)r->n_lights * (size_t)r->n_wl * (size_t)r->width * (size_t)r->height;
     const double t0 = lensrt_seconds();
-    double *Uf, *Uc = NULL, *Uc2 = NULL;
-    int coarse = 0, k;
+    size_t nsum;
+    double *U[LENSRT_CELLS_MAX_MESHES] = {NULL, NULL, NULL};
+    int levels[LENSRT_CELLS_MAX_MESHES], n = 1, reuse = 0, k;
     lensrt_result res;
-    size_t i;
     if (!r) return LENSRT_ERROR_INVALID_ARGUMENT;
-    if ((res = lensrt_tiles_idle(r, "integrate")) != LENSRT_SUCCESS) return res;
-    if (rings < 1 || rings > LENSRT_MAX_RINGS || (error_estimate && rings < 2))
-        return lensrt_fail(r->ctx, LENSRT_ERROR_INVALID_ARGUMENT,
-                           "integrate: rings must be %d..%d (2 or more with an error estimate), got %d",
-                           error_estimate ? 2 : 1, LENSRT_MAX_RINGS, (int)rings);
-    if (!r->device->integrate)
-        return lensrt_fail(r->ctx, LENSRT_ERROR_UNSUPPORTED,
-                           "integrate: the %s device has no cells integrator (the CPU device has): render with "
-                           "device cpu, or with Monte Carlo samples (lensrt_render_run)", r->device->name);
-    if (r->lens_ops->one_dimensional(r->lens))
-        return lensrt_fail(r->ctx, LENSRT_ERROR_UNSUPPORTED,
-                           "integrate: the cells integrator meshes two-dimensional apertures; %s is one-dimensional "
-                           "(use lensrt_render_run)", r->lens->info.name);
-    if (r->desc.precision == LENSRT_PRECISION_NAIVE_FLOAT || r->desc.estimator == LENSRT_ESTIMATOR_UNBIASED)
-        return lensrt_fail(r->ctx, LENSRT_ERROR_UNSUPPORTED,
-                           "integrate: the cells integrator takes precision DEFAULT or DOUBLE and the paper's estimator "
-                           "(precision NAIVE_FLOAT and the unbiased estimator are Monte Carlo's)");
-    if (r->samples > 0 && !r->cells_rings)
-        return lensrt_fail(r->ctx, LENSRT_ERROR_INVALID_ARGUMENT,
-                           "integrate: the sums already hold %llu Monte Carlo samples per wavelength; integrate with "
-                           "a new render", (unsigned long long)r->samples);
-    Uf = lensrt_calloc(r->ctx, nsum, sizeof(double));
-    if (!Uf) return lensrt_fail(r->ctx, LENSRT_ERROR_OUT_OF_MEMORY, "integrate: out of memory");
-    // The coarse levels of the estimate, rings / 2 and rings / 4 (a quarter and a
-    // sixteenth of the cost): the last call's fields when it was exactly half as fine (a
-    // refinement costs one new level)
+    if ((res = lensrt_tiles_idle(r, "integrate")) != LENSRT_SUCCESS ||
+        (res = lensrt_cells_check(r, "integrate", rings, error_estimate != NULL)) != LENSRT_SUCCESS)
+        return res;
+    nsum = 2 * (size_t)r->n_lights * (size_t)r->n_wl * (size_t)r->width * (size_t)r->height;
+    // The meshes: rings, and for the estimate rings / 2 and rings / 4 (a quarter and a
+    // sixteenth of the cost), unless the last call's fields are those (a refinement
+    // costs one new mesh)
+    levels[0] = rings;
     if (error_estimate) {
-        coarse = rings / 2;
-        if (r->cells_field && r->cells_rings == coarse) {
-            Uc = r->cells_field;
-            Uc2 = r->cells_coarse;
-        } else {
-            Uc = lensrt_calloc(r->ctx, nsum, sizeof(double));
-            if (!Uc) res = lensrt_fail(r->ctx, LENSRT_ERROR_OUT_OF_MEMORY, "integrate: out of memory");
-            else res = cells_field(r, coarse, Uc, progress, user_data, 0.0, 0.2);
-            if (res == LENSRT_SUCCESS && coarse >= 2) {
-                Uc2 = lensrt_calloc(r->ctx, nsum, sizeof(double));
-                if (!Uc2) res = lensrt_fail(r->ctx, LENSRT_ERROR_OUT_OF_MEMORY, "integrate: out of memory");
-                else res = cells_field(r, coarse / 2, Uc2, progress, user_data, 0.0, 0.2);
-            }
+        reuse = r->cells_field && r->cells_rings == rings / 2 && rings % 2 == 0;
+        if (!reuse) {
+            levels[n++] = rings / 2;
+            if (rings / 4 >= 1) levels[n++] = rings / 4;
         }
     }
-    if (res == LENSRT_SUCCESS)
-        res = cells_field(r, rings, Uf, progress, user_data, error_estimate && Uc != r->cells_field ? 0.2 : 0.0, 1.0);
-    // Never a NaN or inf in the sums: name the first such field
-    for (i = 0; res == LENSRT_SUCCESS && i < nsum; i++)
-        if (!isfinite(Uf[i]))
-            res = lensrt_fail(r->ctx, LENSRT_ERROR_OUT_OF_DOMAIN,
-                              "integrate: the field of pixel %zu is not finite: the lens table or the lights' "
-                              "intensities are beyond what double holds",
-                              (i / 2) % ((size_t)r->width * (size_t)r->height));
+    for (k = 0; k < n; k++)
+        if (!(U[k] = lensrt_calloc(r->ctx, nsum, sizeof(double)))) {
+            for (k = 0; k < n; k++) lensrt_free(r->ctx, U[k]);
+            return lensrt_fail(r->ctx, LENSRT_ERROR_OUT_OF_MEMORY, "integrate: out of memory");
+        }
+    res = cells_fields(r, n, levels, U, progress, user_data);
     if (res == LENSRT_SUCCESS) {
-        r->cells_error = error_estimate ? cells_estimate(r, Uf, Uc, Uc2) : -1.0;
-        if (error_estimate) *error_estimate = r->cells_error;
-        // The sums hold the field divided by the measure, as one sample would
-        for (i = 0; i < nsum; i++) r->sum[i] = Uf[i] / r->measure;
-        r->samples = 1;
-        r->cells_rings = rings;
-        k = 0;
-    } else {
-        k = 1;
+        double *coarse = reuse ? r->cells_field : n > 1 ? U[1] : NULL;
+        double *coarse2 = reuse ? r->cells_coarse : n > 2 ? U[2] : NULL;
+        res = lensrt_cells_finish(r, rings, U[0], coarse, coarse2, error_estimate);
+        if (res == LENSRT_SUCCESS) {
+            // The render keeps this field and the one half as fine
+            if (r->cells_coarse != coarse) lensrt_free(r->ctx, r->cells_coarse);
+            if (r->cells_field != coarse) lensrt_free(r->ctx, r->cells_field);
+            r->cells_field = U[0];
+            r->cells_coarse = coarse;
+            U[0] = NULL;
+            if (!reuse && n > 1) U[1] = NULL;
+        }
     }
-    if (k) {
-        // Failed: the render keeps what it had
-        lensrt_free(r->ctx, Uf);
-        if (Uc != r->cells_field) lensrt_free(r->ctx, Uc);
-        if (Uc2 != r->cells_coarse) lensrt_free(r->ctx, Uc2);
-    } else {
-        // Kept for the next, finer call: this field and the one half as fine
-        if (r->cells_coarse != Uc) lensrt_free(r->ctx, r->cells_coarse);
-        if (r->cells_field != Uc) lensrt_free(r->ctx, r->cells_field);
-        if (Uc2 && Uc2 != r->cells_coarse) lensrt_free(r->ctx, Uc2);
-        r->cells_field = Uf;
-        r->cells_coarse = Uc;
-    }
+    for (k = 0; k < n; k++) lensrt_free(r->ctx, U[k]);
     r->seconds += lensrt_seconds() - t0;
     return res;
+}
+
+lensrt_result lensrt_cells_check(lensrt_render r, const char *what, int rings, int estimate)
+{
+    if (rings < 1 || rings > LENSRT_MAX_RINGS || (estimate && rings < 2))
+        return lensrt_fail(r->ctx, LENSRT_ERROR_INVALID_ARGUMENT,
+                           "%s: rings must be %d..%d (2 or more with an error estimate), got %d", what, estimate ? 2 : 1,
+                           LENSRT_MAX_RINGS, rings);
+    if (!r->device->integrate)
+        return lensrt_fail(r->ctx, LENSRT_ERROR_UNSUPPORTED,
+                           "%s: the %s device has no cells integrator (the CPU device has): render with device cpu, "
+                           "or with Monte Carlo samples (lensrt_render_run)", what, r->device->name);
+    if (r->lens_ops->one_dimensional(r->lens))
+        return lensrt_fail(r->ctx, LENSRT_ERROR_UNSUPPORTED,
+                           "%s: the cells integrator meshes two-dimensional apertures; %s is one-dimensional "
+                           "(use lensrt_render_run)", what, r->lens->info.name);
+    if (r->desc.precision == LENSRT_PRECISION_NAIVE_FLOAT || r->desc.estimator == LENSRT_ESTIMATOR_UNBIASED)
+        return lensrt_fail(r->ctx, LENSRT_ERROR_UNSUPPORTED,
+                           "%s: the cells integrator takes precision DEFAULT or DOUBLE and the paper's estimator "
+                           "(precision NAIVE_FLOAT and the unbiased estimator are Monte Carlo's)", what);
+    if (r->samples > 0 && !r->cells_rings)
+        return lensrt_fail(r->ctx, LENSRT_ERROR_INVALID_ARGUMENT,
+                           "%s: the sums already hold %llu Monte Carlo samples per wavelength; integrate with a new "
+                           "render", what, (unsigned long long)r->samples);
+    return LENSRT_SUCCESS;
+}
+
+lensrt_result lensrt_cells_finish(lensrt_render r, int rings, const double *Uf, const double *Uc, const double *Uc2,
+                                  double *error_estimate)
+{
+    const size_t nsum = 2 * (size_t)r->n_lights * (size_t)r->n_wl * (size_t)r->width * (size_t)r->height;
+    size_t i;
+    // Never a NaN or inf in the sums: name the first such field
+    for (i = 0; i < nsum; i++)
+        if (!isfinite(Uf[i]))
+            return lensrt_fail(r->ctx, LENSRT_ERROR_OUT_OF_DOMAIN,
+                               "integrate: the field of pixel %zu is not finite: the lens table or the lights' "
+                               "intensities are beyond what double holds",
+                               (i / 2) % ((size_t)r->width * (size_t)r->height));
+    r->cells_error = Uc ? cells_estimate(r, Uf, Uc, Uc2) : -1.0;
+    if (error_estimate) *error_estimate = r->cells_error;
+    // The sums hold the field divided by the measure, as one sample would
+    for (i = 0; i < nsum; i++) r->sum[i] = Uf[i] / r->measure;
+    r->samples = 1;
+    r->cells_rings = rings;
+    return LENSRT_SUCCESS;
 }
 
 /* ------------------------------------------------------------- results ----- */

@@ -60,6 +60,7 @@ struct lensrt_lens_ops;   /* lens/lens.h */
 struct lensrt_device_ops; /* core/device.h */
 struct lensrt_tiles;      /* core/tiles.h */
 struct lensrt_mesh;       /* core/cells.h */
+struct lensrt_cells_job;  /* core/cells.h */
 
 /* A polynomial in (x_S, y_S) and the stop monomials, for one output and wavelength:
  * sum_t coef[t] * xS^ix[t] * yS^iy[t] * mono[slot[t]] (normalised x_S, y_S). */
@@ -150,6 +151,15 @@ struct lensrt_render_s {
 /* LENSRT_SUCCESS unless the sums hold a cells integral (lensrt_render_integrate), which
  * samples cannot be added to, saved or merged with: then the refusal naming `what`. */
 lensrt_result lensrt_cells_idle(lensrt_render r, const char *what);
+
+/* The checks of a cells integral (lensrt_render_integrate, a cells tile session) of
+ * `rings` rings, with or without an estimate: a failure with its message naming what. */
+lensrt_result lensrt_cells_check(lensrt_render r, const char *what, int rings, int estimate);
+
+/* The sums become field Uf of `rings` rings (checked finite), with the estimate from the
+ * fields of rings / 2 and rings / 4 (Uc, Uc2; NULL: none) into *error_estimate. */
+lensrt_result lensrt_cells_finish(lensrt_render r, int rings, const double *Uf, const double *Uc, const double *Uc2,
+                                  double *error_estimate);
 
 /* "sobol", "random" or "stratified" (core/sampler.c). */
 const char *lensrt_sampler_name(lensrt_sampler s);

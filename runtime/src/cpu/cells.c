@@ -28,13 +28,11 @@
 typedef struct cells_vertices {
     int n, n_rows, n_lev_o;
     double *rows, *sph, *samp, *lna, *lev_o;
-    float *rows_f;
 } cells_vertices;
 
 static void free_vertices(lensrt_context ctx, cells_vertices *cv)
 {
     lensrt_free(ctx, cv->rows);
-    lensrt_free(ctx, cv->rows_f);
     lensrt_free(ctx, cv->sph);
     lensrt_free(ctx, cv->samp);
     lensrt_free(ctx, cv->lna);
@@ -49,12 +47,11 @@ static int alloc_vertices(lensrt_render r, const lensrt_mesh *m, cells_vertices 
     cv->n = m->n_vertices;
     cv->n_rows = r->n_rows;
     cv->rows = lensrt_calloc(r->ctx, nv * (size_t)r->n_rows, sizeof(double));
-    cv->rows_f = lensrt_calloc(r->ctx, (size_t)r->n_rows, sizeof(float) * 64); /* per thread: [64][n_rows] */
     cv->sph = lensrt_calloc(r->ctx, nv * nl, sizeof(double));
     cv->samp = lensrt_calloc(r->ctx, nv * nl, sizeof(double));
     cv->lna = lensrt_calloc(r->ctx, nv * nl, sizeof(double));
     cv->lev_o = lensrt_calloc(r->ctx, nv * nl * (1 + LENSRT_MAX_CLIP_PAIRS), sizeof(double));
-    if (!cv->rows || !cv->rows_f || !cv->sph || !cv->samp || !cv->lna || !cv->lev_o) {
+    if (!cv->rows || !cv->sph || !cv->samp || !cv->lna || !cv->lev_o) {
         free_vertices(r->ctx, cv);
         return 0;
     }
@@ -121,12 +118,30 @@ static void sum_terms(const lensrt_terms_d *t, const double *rows, int nv, doubl
     }
 }
 
-/* The pixel's part at every vertex: phase in waves, log transmittance (and the free-space
- * kernel's log amplitude), the levels after the stop. Returns their count, or -1 when
- * every path through the pixel is clipped. *amp: the pixel's constant amplitude. */
-static int pixel_vertices(lensrt_render r, int w, long p, const cells_vertices *cv, cells_scratch *s, double *amp)
+/* A pixel's set-up, shared by the meshes of one call: the Monte Carlo kernel's terms
+ * (polynomial transport; lensrt_cpu_setup_pixel) or nothing (free space). */
+typedef struct cells_pixel {
+    lensrt_cpu_pixel px;
+    lensrt_cpu_clip clip;
+    double x, y, amp;
+    int live;
+} cells_pixel;
+
+static void setup_pixel(lensrt_render r, int w, long p, cells_pixel *cp)
 {
-    const double x = r->xs[p % r->width], y = r->ys[p / r->width];
+    cp->x = r->xs[p % r->width];
+    cp->y = r->ys[p / r->width];
+    cp->amp = 1.0;
+    cp->live = 1;
+    if (r->lens_ops->transport == LENSRT_TRANSPORT_FREE_SPACE) return;
+    cp->live = lensrt_cpu_setup_pixel(r, w, cp->x, cp->y, &cp->px, r->clip_s ? &cp->clip : NULL);
+    cp->amp = cp->px.amp;
+}
+
+/* The pixel's part at every vertex: phase in waves, log transmittance (and the free-space
+ * kernel's log amplitude), the levels after the stop. Returns their count. */
+static int pixel_vertices(lensrt_render r, int w, const cells_pixel *cp, const cells_vertices *cv, cells_scratch *s)
+{
     const int nv = cv->n;
     int v, n_lev = 0;
     if (r->lens_ops->transport == LENSRT_TRANSPORT_FREE_SPACE) {
@@ -136,22 +151,17 @@ static int pixel_vertices(lensrt_render r, int w, long p, const cells_vertices *
         const double lambda_mm = r->wavelengths[w] / LENSRT_NM_PER_MM;
         const double *ax = cv->rows, *ay = cv->rows + nv;
         for (v = 0; v < nv; v++) {
-            const double dx = x - ax[v], dy = y - ay[v], r2 = dx * dx + dy * dy + z * z;
+            const double dx = cp->x - ax[v], dy = cp->y - ay[v], r2 = dx * dx + dy * dy + z * z;
             s->ph[v] = sqrt(r2) / lambda_mm;
             s->st[v] = z / (lambda_mm * r2);
             s->lnt[v] = log(s->st[v]);
         }
-        *amp = 1.0;
         return 0;
     }
     {
-        lensrt_cpu_pixel px;
-        lensrt_cpu_clip clip;
-        const lensrt_pixel_d *d = &px.d;
+        const lensrt_pixel_d *d = &cp->px.d;
         double *hx = s->zr, *hy = s->zi; /* free until the lights' pass */
         int q, j = 0;
-        if (!lensrt_cpu_setup_pixel(r, w, x, y, &px, r->clip_s ? &clip : NULL)) return -1;
-        *amp = px.amp;
         n_lev = (d->clip ? 1 : 0) + d->n_clip;
         sum_terms(&d->phase, cv->rows, nv, s->ph);
         if (d->tau.n > 0) {
@@ -194,14 +204,15 @@ static int pixel_vertices(lensrt_render r, int w, long p, const cells_vertices *
  * and the triangles whose nodes are apart inside every clip in the vectorised loops,
  * then the rest (close nodes: series; crossed by a clip: cut) one by one; the
  * triangles' integrals are added in their order. */
-static void integrate_pixel(lensrt_render r, int w, long p, const lensrt_mesh *m, const cells_vertices *cv,
-                            cells_scratch *s, double *U)
+static void integrate_pixel(lensrt_render r, int w, const cells_pixel *cp, const lensrt_mesh *m,
+                            const cells_vertices *cv, cells_scratch *s, double *U)
 {
     const int nv = cv->n, nt = m->n_triangles, n_lev_o = cv->n_lev_o;
-    double amp = 1.0;
-    int l, v, t, n_lev_p = pixel_vertices(r, w, p, cv, s, &amp), n_lev;
+    const double amp = cp->amp;
+    int l, v, t, n_lev_p, n_lev;
     for (l = 0; l < r->n_lights; l++) U[2 * l] = U[2 * l + 1] = 0.0;
-    if (n_lev_p < 0) return; /* dark */
+    if (!cp->live) return; /* dark */
+    n_lev_p = pixel_vertices(r, w, cp, cv, s);
     n_lev = n_lev_o + n_lev_p;
     for (l = 0; l < r->n_lights; l++) {
         const size_t off = (size_t)l * (size_t)nv;
@@ -248,7 +259,117 @@ static void integrate_pixel(lensrt_render r, int w, long p, const lensrt_mesh *m
     }
 }
 
-lensrt_result lensrt_cpu_cells(lensrt_render r, const lensrt_mesh *m, double *U, lensrt_progress_fn progress,
+/* Scratch of one thread for meshes of up to nv vertices and nt triangles. */
+static size_t scratch_size(size_t nv, size_t nt)
+{
+    /* ph, lnt, st, zr, zi, er, ei (nv each), lev_p (MAX_LEV_P nv), lev (MAX_LEVELS nv),
+     * in (nv bytes); cr, ci (nt each), rest (nt bytes) */
+    return nv * (7 + MAX_LEV_P + LENSRT_CELLS_MAX_LEVELS + 1) + nt * 3;
+}
+
+static void scratch_view(double *base, size_t nv, size_t nt, cells_scratch *s)
+{
+    s->ph = base;
+    s->lnt = base + nv;
+    s->st = base + 2 * nv;
+    s->zr = base + 3 * nv;
+    s->zi = base + 4 * nv;
+    s->er = base + 5 * nv;
+    s->ei = base + 6 * nv;
+    s->lev_p = base + 7 * nv;
+    s->lev = base + (7 + MAX_LEV_P) * nv;
+    s->in = (unsigned char *)(base + (7 + MAX_LEV_P + LENSRT_CELLS_MAX_LEVELS) * nv);
+    s->cr = base + (8 + MAX_LEV_P + LENSRT_CELLS_MAX_LEVELS) * nv;
+    s->ci = s->cr + nt;
+    s->rest = (unsigned char *)(s->ci + nt);
+}
+
+/* Pixel p of wavelength w on every mesh: one set-up, then each mesh's field into its U. */
+static void cells_pixel_all(lensrt_render r, int w, long p, const lensrt_cells_job *job, const cells_vertices *cv,
+                            double *base, size_t nv_max, size_t nt_max)
+{
+    const size_t npix = (size_t)r->width * (size_t)r->height;
+    cells_pixel cp;
+    cells_scratch s;
+    double f[2 * LENSRT_MAX_LIGHTS];
+    int k, l;
+    setup_pixel(r, w, p, &cp);
+    scratch_view(base, nv_max, nt_max, &s);
+    for (k = 0; k < job->n_mesh; k++) {
+        integrate_pixel(r, w, &cp, job->mesh[k], &cv[k], &s, f);
+        for (l = 0; l < r->n_lights; l++) {
+            const size_t at = ((size_t)l * (size_t)r->n_wl + (size_t)w) * npix + (size_t)p;
+            job->U[k][2 * at] = f[2 * l];
+            job->U[k][2 * at + 1] = f[2 * l + 1];
+        }
+    }
+}
+
+/* What a call needs beyond the job: each mesh's vertex data (for one wavelength at a
+ * time), and the threads' scratch. */
+typedef struct cells_state {
+    cells_vertices cv[LENSRT_CELLS_MAX_MESHES];
+    double *scratch;
+    float *rows_f;
+    size_t nv_max, nt_max, per_thread;
+    int nthreads;
+} cells_state;
+
+static void free_state(lensrt_render r, cells_state *st, int n_mesh)
+{
+    int k;
+    for (k = 0; k < n_mesh; k++) free_vertices(r->ctx, &st->cv[k]);
+    lensrt_free(r->ctx, st->scratch);
+    lensrt_free(r->ctx, st->rows_f);
+}
+
+static int alloc_state(lensrt_render r, const lensrt_cells_job *job, int nthreads, cells_state *st)
+{
+    int k, ok = 1;
+    memset(st, 0, sizeof *st);
+    st->nthreads = nthreads;
+    for (k = 0; k < job->n_mesh; k++) {
+        ok &= alloc_vertices(r, job->mesh[k], &st->cv[k]);
+        if ((size_t)job->mesh[k]->n_vertices > st->nv_max) st->nv_max = (size_t)job->mesh[k]->n_vertices;
+        if ((size_t)job->mesh[k]->n_triangles > st->nt_max) st->nt_max = (size_t)job->mesh[k]->n_triangles;
+    }
+    st->per_thread = scratch_size(st->nv_max, st->nt_max);
+    st->scratch = lensrt_calloc(r->ctx, st->per_thread * (size_t)nthreads, sizeof(double));
+    st->rows_f = lensrt_calloc(r->ctx, (size_t)nthreads * (size_t)(r->n_rows > 0 ? r->n_rows : 1), sizeof(float));
+    if (!ok || !st->scratch || !st->rows_f) {
+        free_state(r, st, job->n_mesh);
+        return 0;
+    }
+    return 1;
+}
+
+/* Every mesh's vertices for wavelength w (threaded: OpenMP over vertices). */
+static void prepare_meshes(lensrt_render r, int w, const lensrt_cells_job *job, cells_state *st, int threaded)
+{
+    int k;
+    for (k = 0; k < job->n_mesh; k++) {
+        const long nv = job->mesh[k]->n_vertices;
+        long v;
+        if (!threaded) {
+            for (v = 0; v < nv; v++) prepare_vertex(r, w, job->mesh[k], &st->cv[k], v, st->rows_f);
+            continue;
+        }
+#ifdef LENSRT_OPENMP
+#pragma omp parallel for schedule(static) num_threads(st->nthreads)
+#endif
+        for (v = 0; v < nv; v++) {
+            int th =
+#ifdef LENSRT_OPENMP
+                omp_get_thread_num();
+#else
+                0;
+#endif
+            prepare_vertex(r, w, job->mesh[k], &st->cv[k], v, st->rows_f + (size_t)th * (size_t)r->n_rows);
+        }
+    }
+}
+
+lensrt_result lensrt_cpu_cells(lensrt_render r, const lensrt_cells_job *job, lensrt_progress_fn progress,
                                void *user_data, double frac0, double frac1)
 {
     const long npix = (long)r->width * r->height;
@@ -258,39 +379,14 @@ lensrt_result lensrt_cpu_cells(lensrt_render r, const lensrt_mesh *m, double *U,
 #else
         1;
 #endif
-    const size_t nv = (size_t)m->n_vertices;
-    cells_vertices cv;
-    double *scratch;
-    const size_t nt = (size_t)m->n_triangles;
-    /* ph, lnt, st, zr, zi, er, ei (nv each), lev_p (MAX_LEV_P nv), lev (MAX_LEVELS nv),
-     * in (nv bytes); cr, ci (nt each), rest (nt bytes) */
-    const size_t per_thread = nv * (7 + MAX_LEV_P + LENSRT_CELLS_MAX_LEVELS + 1) + nt * 3;
+    cells_state st;
     double t0 = lensrt_seconds();
     int w, failed = 0;
-    if (!alloc_vertices(r, m, &cv)) return lensrt_fail(r->ctx, LENSRT_ERROR_OUT_OF_MEMORY, "cells: out of memory");
-    lensrt_free(r->ctx, cv.rows_f);
-    cv.rows_f = lensrt_calloc(r->ctx, (size_t)nthreads * (size_t)(r->n_rows > 0 ? r->n_rows : 1), sizeof(float));
-    scratch = lensrt_calloc(r->ctx, per_thread * (size_t)nthreads, sizeof(double));
-    if (!scratch || !cv.rows_f) {
-        lensrt_free(r->ctx, scratch);
-        free_vertices(r->ctx, &cv);
+    if (!alloc_state(r, job, nthreads, &st))
         return lensrt_fail(r->ctx, LENSRT_ERROR_OUT_OF_MEMORY, "cells: out of memory for %d threads' scratch", nthreads);
-    }
     for (w = 0; w < r->n_wl && !failed; w++) {
-        long v, p;
-        // The vertices' side before the stop, in parallel over vertices
-#ifdef LENSRT_OPENMP
-#pragma omp parallel for schedule(static) num_threads(nthreads)
-#endif
-        for (v = 0; v < (long)nv; v++) {
-            int th =
-#ifdef LENSRT_OPENMP
-                omp_get_thread_num();
-#else
-                0;
-#endif
-            prepare_vertex(r, w, m, &cv, v, cv.rows_f + (size_t)th * (size_t)r->n_rows);
-        }
+        long p;
+        prepare_meshes(r, w, job, &st, 1);
         // Every pixel, in parallel over pixels (each writes only its own fields)
 #ifdef LENSRT_OPENMP
 #pragma omp parallel for schedule(dynamic, 4) num_threads(nthreads)
@@ -302,36 +398,29 @@ lensrt_result lensrt_cpu_cells(lensrt_render r, const lensrt_mesh *m, double *U,
 #else
                 0;
 #endif
-            double *base = scratch + per_thread * (size_t)th, f[2 * LENSRT_MAX_LIGHTS];
-            cells_scratch s;
-            int l;
-            s.ph = base;
-            s.lnt = base + nv;
-            s.st = base + 2 * nv;
-            s.zr = base + 3 * nv;
-            s.zi = base + 4 * nv;
-            s.er = base + 5 * nv;
-            s.ei = base + 6 * nv;
-            s.lev_p = base + 7 * nv;
-            s.lev = base + (7 + MAX_LEV_P) * nv;
-            s.in = (unsigned char *)(base + (7 + MAX_LEV_P + LENSRT_CELLS_MAX_LEVELS) * nv);
-            s.cr = base + (8 + MAX_LEV_P + LENSRT_CELLS_MAX_LEVELS) * nv;
-            s.ci = s.cr + nt;
-            s.rest = (unsigned char *)(s.ci + nt);
-            integrate_pixel(r, w, p, m, &cv, &s, f);
-            for (l = 0; l < r->n_lights; l++) {
-                const size_t at = ((size_t)l * (size_t)r->n_wl + (size_t)w) * (size_t)npix + (size_t)p;
-                U[2 * at] = f[2 * l];
-                U[2 * at + 1] = f[2 * l + 1];
-            }
+            cells_pixel_all(r, w, p, job, st.cv, st.scratch + st.per_thread * (size_t)th, st.nv_max, st.nt_max);
         }
         if (progress) {
             const double frac = frac0 + (frac1 - frac0) * (w + 1) / r->n_wl, el = lensrt_seconds() - t0;
             if (progress(frac, el * (frac1 - frac0 - (frac - frac0)) / (frac - frac0), user_data)) failed = 1;
         }
     }
-    lensrt_free(r->ctx, scratch);
-    free_vertices(r->ctx, &cv);
+    free_state(r, &st, job->n_mesh);
     if (failed) return lensrt_fail(r->ctx, LENSRT_ERROR_CANCELLED, "cells: cancelled");
+    return LENSRT_SUCCESS;
+}
+
+lensrt_result lensrt_cpu_cells_tile(lensrt_render r, const lensrt_cells_job *job, int x0, int y0, int width, int height)
+{
+    cells_state st;
+    int w, x, y;
+    if (!alloc_state(r, job, 1, &st)) return LENSRT_ERROR_OUT_OF_MEMORY;
+    for (w = 0; w < r->n_wl; w++) {
+        prepare_meshes(r, w, job, &st, 0);
+        for (y = y0; y < y0 + height; y++)
+            for (x = x0; x < x0 + width; x++)
+                cells_pixel_all(r, w, (long)y * r->width + x, job, st.cv, st.scratch, st.nv_max, st.nt_max);
+    }
+    free_state(r, &st, job->n_mesh);
     return LENSRT_SUCCESS;
 }

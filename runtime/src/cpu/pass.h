@@ -73,10 +73,12 @@ typedef struct lensrt_cpu_clip {
 int lensrt_cpu_setup_pixel(const lensrt_render r, int w, double x, double y, lensrt_cpu_pixel *px,
                            lensrt_cpu_clip *clip);
 
-/* The CPU device's cells integrator (cpu/cells.c; lensrt_device_ops.integrate). */
-struct lensrt_mesh;
-lensrt_result lensrt_cpu_cells(lensrt_render r, const struct lensrt_mesh *m, double *U, lensrt_progress_fn progress,
+/* The CPU device's cells integrator (cpu/cells.c; lensrt_device_ops.integrate and
+ * integrate_tile). */
+lensrt_result lensrt_cpu_cells(lensrt_render r, const struct lensrt_cells_job *job, lensrt_progress_fn progress,
                                void *user_data, double frac0, double frac1);
+lensrt_result lensrt_cpu_cells_tile(lensrt_render r, const struct lensrt_cells_job *job, int x0, int y0, int width,
+                                    int height);
 
 /* The CPU device's host-scheduled tile (cpu/tiles.c; lensrt_device_ops.tile). */
 lensrt_result lensrt_cpu_tile(lensrt_render r, int x0, int y0, int width, int height);
