@@ -559,6 +559,16 @@ LENSRT_API lensrt_result lensrt_render_integrate(lensrt_render render, int32_t r
  * and save/load/merge refuse with LENSRT_ERROR_INVALID_ARGUMENT. */
 LENSRT_API lensrt_result lensrt_render_tiles_begin(lensrt_render render, uint64_t samples_per_wavelength);
 
+/* Since 0.4.0: a tile session of the cells integrator instead of samples: the same
+ * tiles and tiles_end, and after tiles_end the sums equal those of
+ * lensrt_render_integrate(render, rings, estimate ? &e : NULL, ...) on a render with no
+ * earlier integral, bit for bit, whatever the rectangles, their order and the threads;
+ * the estimate (estimate non-zero) is then the stats' cells_error_estimate. Each tile
+ * prepares the meshes' vertices for itself (a few milliseconds per wavelength at 32
+ * rings), so tiles of a few thousand pixels or more keep that small. The checks and
+ * refusals of lensrt_render_integrate apply. */
+LENSRT_API lensrt_result lensrt_render_tiles_begin_cells(lensrt_render render, int32_t rings, int32_t estimate);
+
 /* Render pixels x0 .. x0 + width - 1 of rows y0 .. y0 + height - 1 (row 0 at the top) for
  * every light and wavelength and the session's whole sample range, on the calling thread
  * alone (no OpenMP), adding to those pixels' sums. Any number of threads may call it at

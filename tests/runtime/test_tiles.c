@@ -196,15 +196,17 @@ static void *worker(void *arg)
     }
 }
 
-/* tiles_begin, every tile on `threads` threads (in the tiling's order, taken from a
+/* tiles_begin (of n samples, or with rings > 0 tiles_begin_cells of that many rings with
+ * the estimate), every tile on `threads` threads (in the tiling's order, taken from a
  * shared counter), tiles_end. Returns the first tile failure, else tiles_end's result. */
-static lensrt_result render_tiles(lensrt_render r, uint64_t n, const tiling *t, int threads)
+static lensrt_result render_tiles_of(lensrt_render r, uint64_t n, int rings, const tiling *t, int threads)
 {
     pthread_t th[8];
     pool p;
     lensrt_result res;
     int i;
-    if ((res = lensrt_render_tiles_begin(r, n)) != LENSRT_SUCCESS) return res;
+    res = rings > 0 ? lensrt_render_tiles_begin_cells(r, rings, 1) : lensrt_render_tiles_begin(r, n);
+    if (res != LENSRT_SUCCESS) return res;
     p.render = r;
     p.tiles = t;
     p.next = 0;
@@ -215,6 +217,11 @@ static lensrt_result render_tiles(lensrt_render r, uint64_t n, const tiling *t, 
     pthread_mutex_destroy(&p.lock);
     res = lensrt_render_tiles_end(r);
     return p.first_error != LENSRT_SUCCESS ? p.first_error : res;
+}
+
+static lensrt_result render_tiles(lensrt_render r, uint64_t n, const tiling *t, int threads)
+{
+    return render_tiles_of(r, n, 0, t, threads);
 }
 
 /* -------------------------------------------------------------- scenes ----- */
@@ -362,6 +369,59 @@ static void test_equal_to_run(lensrt_context ctx, const scene *s, uint64_t n, un
     for (k = 0; k < 6; k++) free(shapes[k].r);
 }
 
+/* Cells tiles (lensrt_render_tiles_begin_cells) against lensrt_render_integrate on a
+ * fresh render: every tiling on 1 and 4 threads gives the same image bit for bit and
+ * the same error estimate. */
+static void test_cells_equal_to_integrate(lensrt_context ctx, const scene *scene_in, int rings)
+{
+    scene copy = *scene_in, *s = &copy;
+    const int W = s->desc.sensor.width, H = s->desc.sensor.height;
+    const size_t n = (size_t)W * (size_t)H * (size_t)s->desc.n_wavelengths;
+    tiling shapes[4];
+    const char *names[4] = {"one tile", "uneven 5 x 3 grid", "mixture", "single pixels"};
+    lensrt_render ref, r;
+    lensrt_render_stats a = LENSRT_RENDER_STATS_INIT, b = LENSRT_RENDER_STATS_INIT;
+    float *ia = malloc(n * sizeof *ia), *ib = malloc(n * sizeof *ib);
+    double est = -1.0;
+    int k, threads;
+    if (!ia || !ib) abort();
+    copy.desc.lights = copy.desc.lights ? copy.lights : NULL; /* the copy's own */
+    copy.desc.wavelengths_nm = copy.desc.wavelengths_nm ? copy.wavelengths : NULL;
+    copy.desc.estimator = LENSRT_ESTIMATOR_DEFAULT; /* the unbiased one is Monte Carlo's */
+    shapes[0] = grid(W, H, 1, 1);
+    shapes[1] = grid(W, H, 5, 3);
+    shapes[2] = mixture(W, H);
+    shapes[3] = grid(W, H, W, H);
+    CHECK_RES(ctx, lensrt_render_create(ctx, &s->desc, &ref), LENSRT_SUCCESS);
+    CHECK_RES(ctx, lensrt_render_integrate(ref, rings, &est, NULL, NULL), LENSRT_SUCCESS);
+    CHECK_RES(ctx, lensrt_render_image(ref, ia, n), LENSRT_SUCCESS);
+    lensrt_render_get_stats(ref, &a);
+    for (k = 0; k < 4; k++)
+        for (threads = 1; threads <= 4; threads += 3) {
+            CHECK_RES(ctx, lensrt_render_create(ctx, &s->desc, &r), LENSRT_SUCCESS);
+            CHECK_RES(ctx, render_tiles_of(r, 0, rings, &shapes[k], threads), LENSRT_SUCCESS);
+            CHECK_RES(ctx, lensrt_render_image(r, ib, n), LENSRT_SUCCESS);
+            lensrt_render_get_stats(r, &b);
+            CHECK(memcmp(ia, ib, n * sizeof *ia) == 0, "%s: cells, %s on %d thread(s): the image differs from "
+                  "lensrt_render_integrate's", s->name, names[k], threads);
+            CHECK(b.cells_rings == rings && b.cells_error_estimate == est && a.cells_error_estimate == est,
+                  "%s: cells, %s on %d thread(s): estimate %.17g against %.17g", s->name, names[k], threads,
+                  b.cells_error_estimate, est);
+            // The session is over: samples and files are refused, a finer integral is not
+            CHECK_RES(ctx, lensrt_render_run(r, 256, NULL, NULL), LENSRT_ERROR_INVALID_ARGUMENT);
+            lensrt_render_destroy(r);
+        }
+    // A tile session over an integral (or over samples) is refused, as integrate is
+    CHECK_RES(ctx, lensrt_render_tiles_begin_cells(ref, 1, 1), LENSRT_ERROR_INVALID_ARGUMENT);
+    CHECK_RES(ctx, lensrt_render_tiles_begin(ref, 256), LENSRT_ERROR_INVALID_ARGUMENT);
+    printf("test_tiles: %s: cells tiles of %d rings equal lensrt_render_integrate (4 tilings x 1 and 4 threads, "
+           "estimate %.3g)\n", s->name, rings, est);
+    lensrt_render_destroy(ref);
+    for (k = 0; k < 4; k++) free(shapes[k].r);
+    free(ia);
+    free(ib);
+}
+
 /* Tiles then run() equal run() then run(); run() then tiles too. */
 static void test_sequences(lensrt_context ctx, const scene *s)
 {
@@ -505,6 +565,11 @@ static void test_gl_refused(lensrt_context ctx, const scene *s)
     if (res != LENSRT_SUCCESS) return;
     CHECK_RES(ctx, lensrt_render_tiles_begin(r, 100), LENSRT_ERROR_UNSUPPORTED);
     CHECK(strstr(lensrt_context_last_error(ctx), "device cpu") != NULL, "GL refusal: '%s'", lensrt_context_last_error(ctx));
+    // The cells integrator too: refused with a message, never a silent fallback
+    CHECK_RES(ctx, lensrt_render_integrate(r, 8, NULL, NULL, NULL), LENSRT_ERROR_UNSUPPORTED);
+    CHECK(strstr(lensrt_context_last_error(ctx), "device cpu") != NULL, "GL cells refusal: '%s'",
+          lensrt_context_last_error(ctx));
+    CHECK_RES(ctx, lensrt_render_tiles_begin_cells(r, 8, 1), LENSRT_ERROR_UNSUPPORTED);
     CHECK_RES(ctx, lensrt_render_tile(r, 0, 0, 1, 1), LENSRT_ERROR_INVALID_ARGUMENT);
     CHECK_RES(ctx, lensrt_render_run(r, 100, NULL, NULL), LENSRT_SUCCESS); /* the render is untouched */
     printf("test_tiles: the GL device refuses tiles\n");
@@ -546,11 +611,14 @@ int main(int argc, char **argv)
     test_sequences(ctx, &s);
     test_refusals(ctx, &s);
     test_gl_refused(ctx, &s);
+    test_cells_equal_to_integrate(ctx, &s, 8);
     scene_double(fitted, &s);
     test_equal_to_run(ctx, &s, s.n, 0x3f);
+    test_cells_equal_to_integrate(ctx, &s, 6);
     scene_analytic(perfect, &s);
     test_equal_to_run(ctx, &s, s.n, 0x3f);
     test_sequences(ctx, &s);
+    test_cells_equal_to_integrate(ctx, &s, 8);
 
     lensrt_lens_destroy(ctx, perfect);
     lensrt_lens_destroy(ctx, fitted);

@@ -15,6 +15,7 @@
 #include "tiles.h"
 
 #include "../c_numbers.h"
+#include "cells.h"
 #include "atomic.h"
 #include "device.h"
 
@@ -98,6 +99,15 @@ void lensrt_tiles_free(lensrt_render r)
     lensrt_free(r->ctx, t->cover);
     lensrt_free(r->ctx, t->sum0);
     lensrt_free(r->ctx, t->sumsq0);
+    if (t->job) {
+        int j;
+        for (j = 0; j < t->job->n_mesh; j++) {
+            if (t->job->mesh[j]) lensrt_mesh_free(r->ctx, (lensrt_mesh *)t->job->mesh[j]);
+            lensrt_free(r->ctx, (void *)t->job->mesh[j]);
+            lensrt_free(r->ctx, t->job->U[j]);
+        }
+        lensrt_free(r->ctx, t->job);
+    }
     lensrt_free(r->ctx, t);
     r->tiles = NULL;
 }
@@ -147,6 +157,54 @@ lensrt_result lensrt_render_tiles_begin(lensrt_render r, uint64_t samples_per_wa
     return LENSRT_SUCCESS;
 }
 
+lensrt_result lensrt_render_tiles_begin_cells(lensrt_render r, int32_t rings, int32_t estimate)
+{
+    const size_t npix = r ? (size_t)r->width * (size_t)r->height : 0, ns = r ? n_sums(r) : 0;
+    lensrt_tiles *t;
+    lensrt_cells_job *job;
+    lensrt_result res;
+    int levels[LENSRT_CELLS_MAX_MESHES], n = 1, k;
+    if (!r) return LENSRT_ERROR_INVALID_ARGUMENT;
+    if ((res = lensrt_tiles_idle(r, "tiles_begin_cells")) != LENSRT_SUCCESS ||
+        (res = lensrt_cells_check(r, "tiles_begin_cells", rings, estimate != 0)) != LENSRT_SUCCESS)
+        return res;
+    if (!r->device->integrate_tile)
+        return lensrt_fail(r->ctx, LENSRT_ERROR_UNSUPPORTED,
+                           "tiles_begin_cells: the %s device has no host-scheduled cells tiles: render with device cpu",
+                           r->device->name);
+    // The meshes of lensrt_render_integrate on a fresh render: rings, and with the
+    // estimate rings / 2 and rings / 4
+    levels[0] = rings;
+    if (estimate) {
+        levels[n++] = rings / 2;
+        if (rings / 4 >= 1) levels[n++] = rings / 4;
+    }
+    t = lensrt_calloc(r->ctx, 1, sizeof *t);
+    job = lensrt_calloc(r->ctx, 1, sizeof *job);
+    if (!t || !job) {
+        lensrt_free(r->ctx, t);
+        lensrt_free(r->ctx, job);
+        return lensrt_fail(r->ctx, LENSRT_ERROR_OUT_OF_MEMORY, "tiles_begin_cells: out of memory");
+    }
+    r->tiles = t;
+    t->job = job;
+    t->cells_rings = rings;
+    t->cells_estimate = estimate != 0;
+    t->t0 = lensrt_seconds();
+    t->cover = lensrt_calloc(r->ctx, npix, sizeof *t->cover);
+    res = t->cover ? LENSRT_SUCCESS : lensrt_fail(r->ctx, LENSRT_ERROR_OUT_OF_MEMORY, "tiles_begin_cells: out of memory");
+    for (k = 0; k < n && res == LENSRT_SUCCESS; k++) {
+        lensrt_mesh *m = lensrt_calloc(r->ctx, 1, sizeof *m);
+        job->mesh[k] = m;
+        job->U[k] = lensrt_calloc(r->ctx, ns * 2, sizeof(double));
+        job->n_mesh = k + 1;
+        if (!m || !job->U[k]) res = lensrt_fail(r->ctx, LENSRT_ERROR_OUT_OF_MEMORY, "tiles_begin_cells: out of memory");
+        else res = lensrt_mesh_build(r->ctx, &r->desc.aperture, r->stop_radius, levels[k], m);
+    }
+    if (res != LENSRT_SUCCESS) lensrt_tiles_free(r);
+    return res;
+}
+
 lensrt_result lensrt_render_tile(lensrt_render r, int x0, int y0, int width, int height)
 {
     lensrt_tiles *t = r ? r->tiles : NULL;
@@ -169,6 +227,14 @@ lensrt_result lensrt_render_tile(lensrt_render r, int x0, int y0, int width, int
         return lensrt_tiles_fail(r, LENSRT_ERROR_INVALID_ARGUMENT,
                                  "tile %d x %d at (%d, %d): pixel (%d, %d) was already covered by another tile",
                                  width, height, x0, y0, tx, ty);
+    if (t->cells_rings) {
+        // A cells session: the tile's pixels on every mesh, into the session's fields
+        lensrt_result res = r->device->integrate_tile(r, t->job, x0, y0, width, height);
+        if (res != LENSRT_SUCCESS)
+            return lensrt_tiles_fail(r, res, "tile %d x %d at (%d, %d): out of memory for the cells integrator's scratch",
+                                     width, height, x0, y0);
+        return LENSRT_SUCCESS;
+    }
     return r->device->tile(r, x0, y0, width, height);
 }
 
@@ -196,8 +262,27 @@ lensrt_result lensrt_render_tiles_end(lensrt_render r)
     else if (t->failed)
         res = lensrt_fail(r->ctx, t->failure, "%s (the sums are as before tiles_begin)", t->message);
     if (res != LENSRT_SUCCESS) {
-        memcpy(r->sum, t->sum0, ns * 2 * sizeof(double));
-        if (r->sumsq) memcpy(r->sumsq, t->sumsq0, ns * sizeof(double));
+        if (t->sum0) memcpy(r->sum, t->sum0, ns * 2 * sizeof(double));
+        if (r->sumsq && t->sumsq0) memcpy(r->sumsq, t->sumsq0, ns * sizeof(double));
+        lensrt_tiles_free(r);
+        return res;
+    }
+    if (t->cells_rings) {
+        // A cells session: the fields become the sums as lensrt_render_integrate's do
+        lensrt_cells_job *job = t->job;
+        double est;
+        res = lensrt_cells_finish(r, t->cells_rings, job->U[0], job->n_mesh > 1 ? job->U[1] : NULL,
+                                  job->n_mesh > 2 ? job->U[2] : NULL, t->cells_estimate ? &est : NULL);
+        if (res == LENSRT_SUCCESS) {
+            // The render keeps this field and the one half as fine, as integrate does
+            lensrt_free(r->ctx, r->cells_field);
+            lensrt_free(r->ctx, r->cells_coarse);
+            r->cells_field = job->U[0];
+            r->cells_coarse = job->n_mesh > 1 ? job->U[1] : NULL;
+            job->U[0] = NULL;
+            if (job->n_mesh > 1) job->U[1] = NULL;
+        }
+        r->seconds += lensrt_seconds() - t->t0;
         lensrt_tiles_free(r);
         return res;
     }

@@ -35,6 +35,10 @@ typedef struct lensrt_tiles {
     double *sum0, *sumsq0;     /* the sums at begin, put back when the session fails */
     /* the pixels' set-up statistics of one pass, integers summed atomically by the tiles */
     uint64_t terms, clip, tau, dark;
+    /* A cells session (lensrt_render_tiles_begin_cells): its rings (0: a samples
+     * session), the meshes and the fields the tiles write (job, pixel by pixel) */
+    int cells_rings, cells_estimate;
+    struct lensrt_cells_job *job;
     int32_t failed;            /* turned to 1 by the first failing tile (atomic) */
     lensrt_result failure;     /* its result and message, written by that tile only */
     char message[LENSRT_ERROR_SIZE];
