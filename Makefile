@@ -3,10 +3,11 @@
 #   make runtime the C99 runtime lensrt (library, lensrt-psf, C tests) in build/runtime
 #   make demo    the default lens (0001): paraxial table, drawings, its polynomial fit with
 #                the fit-error report, the demo scene's specialised code, and its point
-#                spread function at f/2, f/8 and f/32 to 1% Monte Carlo error (EXR, PNG and
-#                a sheet of the three with scale bars, build/demo/psf/), at f/8 on the GL
-#                device, and the paper's Figure 10: full-frame flares of 0001 and 2004,
-#                coated against uncoated (build/demo/flare/)
+#                spread function at f/2, f/8 and f/32 to 1% error by the cells integrator
+#                (EXR, PNG and a sheet of the three with scale bars, build/demo/psf/), at
+#                f/8 on the GL device (Monte Carlo), and the paper's Figure 10: full-frame
+#                flares of 0001 and 2004, coated against uncoated, every image to 1%
+#                (build/demo/flare/)
 #   make test    lint, the C tests and examples/embed (also under ASan/UBSan, and a minimal
 #                build without EXR, OpenMP and GL), the C parsers under libFuzzer for 15 s
 #                each, and the Python test suite (the TOML loaders under hypothesis too)
@@ -67,13 +68,13 @@ demo: setup runtime
 	$(VENV)/bin/lensfit scene $(DEMO_LENS) scenes/demo.toml -o build/demo/scene-demo
 	@mkdir -p build/demo/psf
 	@# The paper's Figure 7: an off-axis light through the default lens, 7 curved blades.
-	@# Sample counts that reach 1% Monte Carlo error (measured; --target-error doubles them
-	@# if the printed estimate were above), then the three side by side with scale bars
+	@# The cells integrator with meshes that reach 1% (measured; --target-error doubles
+	@# the rings if the printed estimate were above), then the three side by side
 	panels=; for fn in 2 8 32; do \
-		case $$fn in 2) size=0.2 n=131072;; 8) size=0.1 n=16384;; 32) size=0.16 n=4096;; esac; \
+		case $$fn in 2) size=0.2 rings=28;; 8) size=0.1 rings=8;; 32) size=0.16 rings=4;; esac; \
 		$(PSF) --lens $(DEMO_LENS) --light -6,-4 --focus 0.2 --f-number $$fn --blades 7 \
 			--curvature 0.3 --rotation 10 --size $$size --resolution 256x256 \
-			--samples $$n --target-error 0.01 \
+			--integrator cells --rings $$rings --target-error 0.01 \
 			-o build/demo/psf/f$$fn.exr --png build/demo/psf/f$$fn.png || exit 1; \
 		panels="$$panels --panel build/demo/psf/f$$fn.png $$size f/$$fn"; \
 	done; \
@@ -87,18 +88,19 @@ demo: setup runtime
 		|| { rc=$$?; [ $$rc -eq 3 ] && echo "demo: no GL device here, the CPU renders above stand"; [ $$rc -eq 3 ]; }
 	@# The paper's Figure 10: full-frame flares of the default lens and of the anamorphic
 	@# 2004, coated (the lens files' MgF2 quarter waves) and uncoated, each ghost fitted
-	@# (generated/<lens>[-uncoated]/ghosts/) and rendered where its footprint is; at f/16,
-	@# where their Monte Carlo floors stay within a few percent in this budget
+	@# (generated/<lens>[-uncoated]/ghosts/) and rendered where its footprint is, at f/16,
+	@# every image by the cells integrator to a 1% error estimate
 	$(PY) runtime/tools/flare_figure.py -o build/demo/flare/figure10.png --light=-6,-4 \
-		--wavelengths 8 --splats 2e9 \
+		--wavelengths 8 --target-error 0.01 \
 		--panel generated/0001-angenieux-double-gauss 16 "0001 coated" \
 		--panel generated/0001-angenieux-double-gauss-uncoated 16 "0001 uncoated" \
 		--panel generated/2004-schneider-anamorphic 16 "2004 coated" \
 		--panel generated/2004-schneider-anamorphic-uncoated 16 "2004 uncoated"
 	@# lensrt-psf with the default lens's ghosts around its first: one EXR, the total with
-	@# layers direct. and flare.
+	@# layers direct. and flare.; 64 rings each (the estimates printed: the large ghosts'
+	@# faint edges in this small window are at 2-5%, 27 s; 1% takes 256 rings, 3.6 min)
 	$(PSF) --lens $(DEMO_LENS) --light -6,-4 --f-number 16 --center -10.1,-6.7 --size 1.2x0.8 \
-		--resolution 96x64 --wavelengths 4 --samples 16384 --quiet \
+		--resolution 96x64 --wavelengths 4 --integrator cells --rings 64 --quiet \
 		--flares generated/0001-angenieux-double-gauss/ghosts \
 		-o build/demo/flare/flares.exr --png build/demo/flare/flares.png
 

@@ -240,7 +240,14 @@ def test_integrated_render_refuses_samples_and_files(rt, tmp_path):
         assert "cells integral" in str(e.value)
     assert not (tmp_path / "x.phasors").exists()
     # A finer call replaces the field, its estimate from the last (coarser) one
-    assert r.integrate(16) < est
+    est16 = r.integrate(16)
+    assert est16 < est
+    # The EXR says how it was integrated
+    from lensrt_exr import read_spectral_exr
+    r.write_exr(tmp_path / "c.exr")
+    attrs = read_spectral_exr(tmp_path / "c.exr").attributes
+    assert attrs["lensrt/integrator"] == "cells" and attrs["lensrt/cellsRings"] == 16
+    assert attrs["lensrt/errorEstimate"] == pytest.approx(est16, rel=1e-15)
     # Monte Carlo sums cannot be turned into a cells integral
     m = rt.create(lens, width=8, height=8, width_mm=0.05, f_number=8.0, wavelengths=[550.0])
     m.run(256)

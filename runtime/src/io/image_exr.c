@@ -41,7 +41,8 @@
  *
  * lensrt metadata, namespaced "lensrt/...": strings, doubles, v2d (x, y pairs) and one
  * int; 64-bit counts (samples per wavelength, seed) are decimal strings because EXR has
- * no 64-bit integer attribute. Every name is at most 31 characters, so the file needs
+ * no 64-bit integer attribute; "lensrt/integrator" is "montecarlo" or "cells", the latter
+ * with "lensrt/cellsRings" and "lensrt/errorEstimate". Every name is at most 31 characters, so the file needs
  * no long-name support.
  *
  * Memory: OpenEXRCore's allocator hooks (exr_context_initializer_t alloc_fn / free_fn)
@@ -518,6 +519,14 @@ lensrt_result lensrt_write_exr_layers(const lensrt_allocator *allocator, const c
             snprintf(text, sizeof text, "%llu", (unsigned long long)meta->seed);
             rv = exr_attr_set_string(ctxt, part, "lensrt/seed", text);
         }
+        // How the image was integrated: Monte Carlo samples, or the cells integrator's
+        // mesh and its error estimate (issue 22)
+        if (rv == EXR_ERR_SUCCESS)
+            rv = exr_attr_set_string(ctxt, part, "lensrt/integrator", meta->cells_rings ? "cells" : "montecarlo");
+        if (rv == EXR_ERR_SUCCESS && meta->cells_rings)
+            rv = exr_attr_set_int(ctxt, part, "lensrt/cellsRings", meta->cells_rings);
+        if (rv == EXR_ERR_SUCCESS && meta->cells_rings && meta->error_estimate >= 0.0)
+            rv = exr_attr_set_double(ctxt, part, "lensrt/errorEstimate", meta->error_estimate);
         if (rv == EXR_ERR_SUCCESS)
             rv = exr_attr_set_int(ctxt, part, "lensrt/nLights", meta->n_lights);
         if (rv == EXR_ERR_SUCCESS) {

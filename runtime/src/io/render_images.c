@@ -153,6 +153,8 @@ static void image_meta(const lensrt_render r, lensrt_image_meta *out, char *aper
     meta.estimator = r->desc.estimator == LENSRT_ESTIMATOR_UNBIASED ? "unbiased" : "paper";
     meta.aperture = aperture;
     meta.seed = r->desc.seed;
+    meta.cells_rings = r->cells_rings;
+    meta.error_estimate = r->cells_rings ? r->cells_error : -1.0;
     meta.n_lights = r->n_lights;
     meta.lights = r->lights;
     *out = meta;
