@@ -16,7 +16,8 @@
 #   make bench   ray-tracer throughput, generated-code speed, fit report, lensrt splat rate
 #                (and tile-scheduled against run()), per-ray evaluation against exact tracing,
 #                compiled-in Horner code against lensrt's set-up,
-#                per-ray evaluation against the exact tracer, error against run time, and per generated lens the fit time and the worst
+#                per-ray evaluation against the exact tracer, error against run time (the
+#                cells integrator against Monte Carlo too: cells_bench.py), and per generated lens the fit time and the worst
 #                PSF cell against exactly traced rays (build/bench/)
 
 PYTHON ?= /usr/bin/python3
@@ -136,6 +137,7 @@ bench: setup runtime
 	$(RUNTIME_BUILD)/runtime/lensrt-compiled-bench | tee build/bench/compiled.txt
 	$(PY) runtime/bench/error_vs_time.py --out build/bench --lensrt-json build/bench/lensrt.json
 	$(PY) runtime/bench/flare_bench.py --library $(RUNTIME_BUILD)/runtime/liblensrt.so --out build/bench
+	$(PY) runtime/bench/cells_bench.py --library $(RUNTIME_BUILD)/runtime/liblensrt.so --out build/bench
 	$(PY) -m lensfit.bench --out build/bench
 	$(PY) -m lensfit.codegen.bench | tee build/bench/codegen.txt
 	$(VENV)/bin/lensfit report $(DEMO_LENS) -o build/bench/fit-$(DEMO_LENS) --json \

@@ -733,8 +733,11 @@ int main(int argc, char **argv)
     ps.round_start = now_seconds();
     if (cells) {
         if ((res = integrate_cells(render, (int)rings, (int)max_rings, target, &ps, "direct", &cells_rings,
-                                   &mc_error)) != LENSRT_SUCCESS)
+                                   &mc_error)) != LENSRT_SUCCESS) {
+            // A device or lens the integrator does not take (GL, one-dimensional): exit 3
+            if (res == LENSRT_ERROR_UNSUPPORTED) goto fail_input;
             goto fail;
+        }
     } else if (!estimate) {
         ps.base = 0.0;
         ps.span = 1.0;

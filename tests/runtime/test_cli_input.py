@@ -179,3 +179,42 @@ def _dead_pid() -> int:
     p = subprocess.Popen(["true"])
     p.wait()
     return p.pid
+
+
+# ------------------------------------------------- the cells integrator's options -----
+
+
+@pytest.mark.parametrize("extra", [
+    ("--resume", "x.phasors"), ("--merge", "x.phasors"), ("--save-phasors", "x.phasors"),
+    ("--no-estimate",), ("--estimator", "unbiased"), ("--max-samples", "1024"),
+])
+def test_cells_refuses_monte_carlo_options(tmp_path: Path, extra) -> None:
+    out = tmp_path / "out.exr"
+    refused(run("--integrator", "cells", *extra, "-o", str(out)), "--integrator cells")
+    assert not out.exists()
+
+
+@pytest.mark.parametrize("args,word", [
+    (("--integrator", "quadrature"), "montecarlo or cells"), (("--rings", "1"), "2..4096"),
+    (("--rings", "5000"), "2..4096"), (("--max-rings", "1"), "2..4096"),
+    (("--max-rings", "64"), "--max-rings goes with --integrator cells"),
+    (("--integrator", "cells", "--rings", "64", "--max-rings", "32"), "below --rings"),
+])
+def test_cells_option_values_are_refused(tmp_path: Path, args, word) -> None:
+    out = tmp_path / "out.exr"
+    refused(run(*args, "-o", str(out)), word)
+    assert not out.exists()
+
+
+def test_cells_render_and_gl_refusal(tmp_path: Path) -> None:
+    # A small cells render prints its estimate on stdout and writes the EXR; the GL device
+    # has no cells integrator: exit 3 with the library's message, nothing written
+    out = tmp_path / "out.exr"
+    r = run("--integrator", "cells", "--rings", "4", "--quiet", "-o", str(out))
+    assert r.returncode == 0, r.stderr
+    assert "Cells error estimate:" in r.stdout and out.is_file()
+    gl = tmp_path / "gl.exr"
+    r = run("--integrator", "cells", "--rings", "4", "--device", "gl", "--quiet", "-o", str(gl))
+    assert r.returncode == 3, (r.returncode, r.stderr)
+    assert "cells" in r.stderr or "GL" in r.stderr or "no GL" in r.stderr
+    assert not gl.exists()

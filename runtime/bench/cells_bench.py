@@ -1,0 +1,238 @@
+"""The cells integrator against Monte Carlo (issue 22): seconds to a given error.
+
+    python runtime/bench/cells_bench.py --out build/bench [--quick]
+
+Scenes (lens 0001, light at (-6, -4) deg): the demo's PSFs at f/2, f/8 and f/32 (7 curved
+blades, sensor 0.2 mm behind focus, windows of 0.2, 0.1 and 0.16 mm) at 64 x 64 pixels and
+4 wavelengths, and ghost 0-2 at f/8 on a 3 mm window over its footprint, 64 x 64 pixels
+and 16 wavelengths. For each, both integrators in the same run, interleaved point by
+point, each point the median of --repeats timings (lensrt_render_get_stats' seconds: the
+integration alone, not the render's set-up): Monte Carlo (sobol, one sequence) at
+2^10 .. 2^17 samples per wavelength, cells at 4 .. 64 rings (with its error estimate,
+which costs the meshes of half and a quarter the rings). Errors are relative L2 against a
+reference: cells at 4 times the finest mesh tried (its own estimate is reported, and is
+below 1e-4 on every scene). Seconds to 1% are interpolated on each curve (log-log,
+between the two points that bracket 1%); their ratio is the claim, absolute seconds are
+context (2 shared cores).
+
+Then the cost of a pixel against defocus: a perfect lens f = 50 mm at f/8, a 16 x 16
+window over the blur, defocus 0 to 320 waves at the rim: the rings the cells integrator
+needs for 1% (its estimate) and its seconds per pixel, against Monte Carlo's error at
+2^16 samples.
+
+Then the issue's flare target: every kept ghost of 0001 at f/8, light at (-6, -4) deg,
+full frame 36 x 24 mm at 1440 x 1080, 16 wavelengths, each rendered in the window of its
+footprint (runtime/tools/flare_figure.py) and refined to a 1% error estimate.
+
+Writes cells.json and cells.md (and cells.png, error against time) into --out.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import statistics
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+HERE = Path(__file__).resolve().parent
+ROOT = HERE.parents[1]
+sys.path.insert(0, str(ROOT / "runtime" / "python"))
+sys.path.insert(0, str(ROOT / "runtime" / "tools"))
+
+import flare_figure  # noqa: E402
+from lensrt_ctypes import Lensrt  # noqa: E402
+
+LENS = ROOT / "generated" / "0001-angenieux-double-gauss" / "lens0001.table"
+GHOST = ROOT / "generated" / "0001-angenieux-double-gauss" / "ghosts" / "ghost_0_2.table"
+LIGHT = (-6.0, -4.0, 0.0, 0.0)
+
+
+def scenes(rt: Lensrt) -> list[dict[str, Any]]:
+    lens = rt.load(LENS)
+    out = []
+    for f_number, size in ((2.0, 0.2), (8.0, 0.1), (32.0, 0.16)):
+        c = rt.image_point(lens, LIGHT[:2], 550.0, 0.2)
+        out.append({"name": f"0001 f/{f_number:g} PSF", "table": LENS, "kw": dict(
+            width=64, height=64, width_mm=size, center=tuple(c), focus_offset_mm=0.2,
+            f_number=f_number, shape="blades", blades=7, blade_curvature=0.3, rotation_deg=10.0,
+            lights=[LIGHT], wavelengths=4)})
+    out.append({"name": "ghost 0-2, f/8", "table": GHOST, "kw": dict(
+        width=64, height=64, width_mm=3.0, center=(-9.74, -6.34), f_number=8.0,
+        lights=[LIGHT], wavelengths=16)})
+    return out
+
+
+def mc_point(rt: Lensrt, lens: Any, kw: dict, samples: int) -> tuple[np.ndarray, float]:
+    r = rt.create(lens, **kw)
+    r.run(samples)
+    return r.image().astype(np.float64), float(r.stats().seconds)
+
+
+def cells_point(rt: Lensrt, lens: Any, kw: dict, rings: int) -> tuple[np.ndarray, float, float]:
+    r = rt.create(lens, **kw)
+    est = r.integrate(rings)
+    return r.image().astype(np.float64), float(r.stats().seconds), float(est)
+
+
+def rel(a: np.ndarray, ref: np.ndarray) -> float:
+    return float(np.linalg.norm(a - ref) / np.linalg.norm(ref))
+
+
+def seconds_to(points: list[dict[str, float]], target: float) -> float | None:
+    """log-log interpolation between the two points around `target` (None: not reached)."""
+    pts = sorted(points, key=lambda p: p["seconds"])
+    for a, b in zip(pts, pts[1:], strict=False):
+        if a["error"] >= target >= b["error"] and a["error"] > b["error"]:
+            la, lb = math.log(a["error"]), math.log(b["error"])
+            t = (la - math.log(target)) / (la - lb)
+            sa, sb = math.log(a["seconds"]), math.log(b["seconds"])
+            return math.exp(sa + t * (sb - sa))
+    below = [p["seconds"] for p in pts if p["error"] <= target]
+    return min(below) if below else None
+
+
+def compare(rt: Lensrt, scene: dict, args: argparse.Namespace) -> dict[str, Any]:
+    lens = rt.load(scene["table"])
+    kw = scene["kw"]
+    rings = [4, 8, 16, 32] if args.quick else [4, 8, 16, 32, 64]
+    samples = [1 << k for k in (range(10, 16) if args.quick else range(10, 18))]
+    ref, _, ref_est = cells_point(rt, lens, kw, 4 * rings[-1])
+    mc, cells = [], []
+    # Interleaved: the k-th Monte Carlo point, then the k-th cells point, repeated
+    for k in range(max(len(rings), len(samples))):
+        if k < len(samples):
+            times, img = [], None
+            for _ in range(args.repeats):
+                img, t = mc_point(rt, lens, kw, samples[k])
+                times.append(t)
+            mc.append({"samples": samples[k], "seconds": statistics.median(times),
+                       "error": rel(img, ref)})
+        if k < len(rings):
+            times, img, est = [], None, 0.0
+            for _ in range(args.repeats):
+                img, t, est = cells_point(rt, lens, kw, rings[k])
+                times.append(t)
+            cells.append({"rings": rings[k], "seconds": statistics.median(times),
+                          "error": rel(img, ref), "estimate": est})
+        print(f"  {scene['name']}: {mc[-1] if k < len(samples) else ''} "
+              f"{cells[-1] if k < len(rings) else ''}", flush=True)
+    t_mc, t_cells = seconds_to(mc, 0.01), seconds_to(cells, 0.01)
+    return {"scene": scene["name"], "reference_rings": 4 * rings[-1],
+            "reference_estimate": ref_est, "montecarlo": mc, "cells": cells,
+            "mc_seconds_to_1pct": t_mc, "cells_seconds_to_1pct": t_cells,
+            "ratio": (t_mc / t_cells) if t_mc and t_cells else None}
+
+
+def defocus_cost(rt: Lensrt, args: argparse.Namespace) -> list[dict[str, Any]]:
+    """A perfect lens (f = 50 mm, f/8) against defocus: a 16 x 16 window over the blur."""
+    f, n_f, lam = 50.0, 8.0, 550e-6
+    lens = rt.analytic(sensor_distance_mm=f, focal_length_mm=f)
+    rows = []
+    for waves in (0, 10, 40, 160, 320):
+        dz = waves * lam * 8 * n_f * n_f
+        kw = dict(width=16, height=16, width_mm=12 * lam * n_f + 1.2 * dz / n_f, focus_offset_mm=dz,
+                  f_number=n_f, wavelengths=[550.0])
+        rings, est, t = 4, 1.0, 0.0
+        while rings <= 1024:
+            _, t, est = cells_point(rt, lens, kw, rings)
+            if est <= 0.01:
+                break
+            rings *= 2
+        ref, _, _ = cells_point(rt, lens, kw, 2 * rings)
+        mc_img, _ = mc_point(rt, lens, kw, 1 << 16)
+        rows.append({"defocus_waves": waves, "rings_for_1pct": rings, "estimate": est,
+                     "seconds_per_pixel": t / 256, "mc_error_at_65536": rel(mc_img, ref)})
+        print(f"  defocus {waves} waves: {rows[-1]}", flush=True)
+    return rows
+
+
+def flare_frame(rt: Lensrt, args: argparse.Namespace) -> dict[str, Any]:
+    """Every kept ghost of 0001 over the full frame, each in its footprint's window."""
+    folder = ROOT / "generated" / "0001-angenieux-double-gauss"
+    ns = argparse.Namespace(integrator="cells", target_error=0.01,
+                            wavelengths=8 if args.quick else 16, floor=0.03, splats=1e10)
+    frame = flare_figure.Frame((36.0, 24.0), (1440, 1080))
+    t0 = time.perf_counter()
+    _, _, record = flare_figure.render_panel(rt, folder, 8.0, LIGHT[:2], frame, ns)
+    return {"seconds": time.perf_counter() - t0, "wavelengths": ns.wavelengths, "images": record}
+
+
+def plot(results: list[dict[str, Any]], path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, len(results), figsize=(4 * len(results), 3.6))
+    for ax, r in zip(np.atleast_1d(axes), results, strict=True):
+        for key, style in (("montecarlo", "o-"), ("cells", "s-")):
+            pts = r[key]
+            ax.loglog([p["seconds"] for p in pts], [p["error"] for p in pts], style, label=key)
+        est = r["cells"]
+        ax.loglog([p["seconds"] for p in est], [p["estimate"] for p in est], "s:",
+                  label="cells estimate")
+        ax.axhline(0.01, color="grey", lw=0.5)
+        ax.set_title(r["scene"], fontsize=8)
+        ax.set_xlabel("seconds (2 cores)")
+        ax.set_ylabel("relative L2 error")
+        ax.legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+
+
+def markdown(data: dict[str, Any]) -> str:
+    lines = ["# Cells integrator against Monte Carlo (runtime/bench/cells_bench.py)", "",
+             "| scene | Monte Carlo s to 1% | cells s to 1% | ratio | reference estimate |",
+             "|---|---:|---:|---:|---:|"]
+    for r in data["compare"]:
+        def f(x: float | None) -> str:
+            return f"{x:.3g}" if x else "not reached"
+        lines.append(f"| {r['scene']} | {f(r['mc_seconds_to_1pct'])} | "
+                     f"{f(r['cells_seconds_to_1pct'])} | {f(r['ratio'])}x | "
+                     f"{r['reference_estimate']:.1e} |")
+    lines += ["", "| defocus (waves at the rim) | rings for 1% | cells s per pixel | "
+                  "Monte Carlo error at 2^16 |", "|---:|---:|---:|---:|"]
+    for d in data["defocus"]:
+        lines.append(f"| {d['defocus_waves']} | {d['rings_for_1pct']} | "
+                     f"{d['seconds_per_pixel']:.2g} | {d['mc_error_at_65536']:.2g} |")
+    fl = data.get("flare")
+    if fl:
+        worst = max((i.get("error_estimate", 0.0) for i in fl["images"] if i.get("window")),
+                    default=0.0)
+        lines += ["", "Every kept ghost of 0001 and the direct image, full frame 36 x 24 mm at "
+                      f"1440 x 1080, {fl['wavelengths']} wavelengths, f/8: {fl['seconds']:.1f} s, "
+                      f"worst estimate {worst:.2%}."]
+    return "\n".join(lines) + "\n"
+
+
+def main() -> int:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--out", required=True)
+    p.add_argument("--repeats", type=int, default=3)
+    p.add_argument("--quick", action="store_true", help="fewer points (for a smoke test)")
+    p.add_argument("--library", default=None)
+    args = p.parse_args()
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    rt = Lensrt(args.library) if args.library else Lensrt()
+    todo = scenes(rt)
+    if args.quick:
+        todo = todo[1:2]
+    data: dict[str, Any] = {"compare": [compare(rt, s, args) for s in todo]}
+    data["defocus"] = defocus_cost(rt, args)
+    data["flare"] = None if args.quick else flare_frame(rt, args)
+    (out / "cells.json").write_text(json.dumps(data, indent=1))
+    (out / "cells.md").write_text(markdown(data))
+    plot(data["compare"], out / "cells.png")
+    print(markdown(data))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
