@@ -84,17 +84,26 @@ def rel(a: np.ndarray, ref: np.ndarray) -> float:
     return float(np.linalg.norm(a - ref) / np.linalg.norm(ref))
 
 
-def seconds_to(points: list[dict[str, float]], target: float) -> float | None:
-    """log-log interpolation between the two points around `target` (None: not reached)."""
+def seconds_to(points: list[dict[str, float]], target: float) -> tuple[float | None, bool]:
+    """Seconds to `target`: log-log interpolation between the two points around it; when
+    no point reaches it, extrapolated along the slope of the last three (then True)."""
     pts = sorted(points, key=lambda p: p["seconds"])
     for a, b in zip(pts, pts[1:], strict=False):
         if a["error"] >= target >= b["error"] and a["error"] > b["error"]:
             la, lb = math.log(a["error"]), math.log(b["error"])
             t = (la - math.log(target)) / (la - lb)
             sa, sb = math.log(a["seconds"]), math.log(b["seconds"])
-            return math.exp(sa + t * (sb - sa))
+            return math.exp(sa + t * (sb - sa)), False
     below = [p["seconds"] for p in pts if p["error"] <= target]
-    return min(below) if below else None
+    if below:
+        return min(below), False
+    tail = pts[-3:]
+    x = np.log([p["seconds"] for p in tail])
+    y = np.log([p["error"] for p in tail])
+    k, c = np.polyfit(x, y, 1)
+    if k >= 0:
+        return None, True
+    return float(math.exp((math.log(target) - c) / k)), True
 
 
 def compare(rt: Lensrt, scene: dict, args: argparse.Namespace) -> dict[str, Any]:
@@ -122,11 +131,15 @@ def compare(rt: Lensrt, scene: dict, args: argparse.Namespace) -> dict[str, Any]
                           "error": rel(img, ref), "estimate": est})
         print(f"  {scene['name']}: {mc[-1] if k < len(samples) else ''} "
               f"{cells[-1] if k < len(rings) else ''}", flush=True)
-    t_mc, t_cells = seconds_to(mc, 0.01), seconds_to(cells, 0.01)
-    return {"scene": scene["name"], "reference_rings": 4 * rings[-1],
-            "reference_estimate": ref_est, "montecarlo": mc, "cells": cells,
-            "mc_seconds_to_1pct": t_mc, "cells_seconds_to_1pct": t_cells,
-            "ratio": (t_mc / t_cells) if t_mc and t_cells else None}
+    return summarise(scene["name"], 4 * rings[-1], ref_est, mc, cells)
+
+
+def summarise(name: str, ref_rings: int, ref_est: float, mc: list, cells: list) -> dict[str, Any]:
+    (t_mc, mc_x), (t_cells, cells_x) = seconds_to(mc, 0.01), seconds_to(cells, 0.01)
+    return {"scene": name, "reference_rings": ref_rings, "reference_estimate": ref_est,
+            "montecarlo": mc, "cells": cells, "mc_seconds_to_1pct": t_mc,
+            "mc_extrapolated": mc_x, "cells_seconds_to_1pct": t_cells,
+            "cells_extrapolated": cells_x, "ratio": (t_mc / t_cells) if t_mc and t_cells else None}
 
 
 def defocus_cost(rt: Lensrt, args: argparse.Namespace) -> list[dict[str, Any]]:
@@ -190,12 +203,14 @@ def markdown(data: dict[str, Any]) -> str:
     lines = ["# Cells integrator against Monte Carlo (runtime/bench/cells_bench.py)", "",
              "| scene | Monte Carlo s to 1% | cells s to 1% | ratio | reference estimate |",
              "|---|---:|---:|---:|---:|"]
+    def f(x: float | None, extrapolated: bool = False) -> str:
+        return (f"{x:.3g}" + (" (extrapolated)" if extrapolated else "")) if x else "not reached"
+
     for r in data["compare"]:
-        def f(x: float | None) -> str:
-            return f"{x:.3g}" if x else "not reached"
-        lines.append(f"| {r['scene']} | {f(r['mc_seconds_to_1pct'])} | "
-                     f"{f(r['cells_seconds_to_1pct'])} | {f(r['ratio'])}x | "
-                     f"{r['reference_estimate']:.1e} |")
+        t_mc = f(r["mc_seconds_to_1pct"], r.get("mc_extrapolated", False))
+        t_cells = f(r["cells_seconds_to_1pct"], r.get("cells_extrapolated", False))
+        lines.append(f"| {r['scene']} | {t_mc} | {t_cells} | "
+                     f"{f(r['ratio'])}x | {r['reference_estimate']:.1e} |")
     lines += ["", "| defocus (waves at the rim) | rings for 1% | cells s per pixel | "
                   "Monte Carlo error at 2^16 |", "|---:|---:|---:|---:|"]
     for d in data["defocus"]:
@@ -217,9 +232,20 @@ def main() -> int:
     p.add_argument("--repeats", type=int, default=3)
     p.add_argument("--quick", action="store_true", help="fewer points (for a smoke test)")
     p.add_argument("--library", default=None)
+    p.add_argument("--summary-only", action="store_true",
+                   help="rewrite cells.md and cells.png from the cells.json already in --out")
     args = p.parse_args()
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
+    if args.summary_only:
+        data = json.loads((out / "cells.json").read_text())
+        data["compare"] = [summarise(r["scene"], r["reference_rings"], r["reference_estimate"],
+                                     r["montecarlo"], r["cells"]) for r in data["compare"]]
+        (out / "cells.json").write_text(json.dumps(data, indent=1))
+        (out / "cells.md").write_text(markdown(data))
+        plot(data["compare"], out / "cells.png")
+        print(markdown(data))
+        return 0
     rt = Lensrt(args.library) if args.library else Lensrt()
     todo = scenes(rt)
     if args.quick:
