@@ -69,7 +69,7 @@ demo: setup runtime
 	$(VENV)/bin/lensfit scene $(DEMO_LENS) scenes/demo.toml -o build/demo/scene-demo
 	@mkdir -p build/demo/psf
 	@# The paper's Figure 7: an off-axis light through the default lens, 7 curved blades.
-	@# The cells integrator with meshes that reach 1% (measured; --target-error doubles
+	@# The cells integrator with meshes that reach 1% (measured; --target-error refines
 	@# the rings if the printed estimate were above), then the three side by side
 	panels=; for fn in 2 8 32; do \
 		case $$fn in 2) size=0.2 rings=28;; 8) size=0.1 rings=8;; 32) size=0.16 rings=4;; esac; \

@@ -164,13 +164,22 @@ CELLS_FIRST_RINGS = 8  # the cells integrator's first mesh; doubled while the es
 CELLS_MAX_RINGS = 512
 
 
+def next_rings(rings: int, estimate: float, target: float) -> int:
+    """The mesh that should bring an estimate to the target, the error falling as
+    1 / rings^2: rings sqrt(estimate / target) with 10% to spare, 1.25 to 2 times rings
+    (doubling reuses the previous meshes for the estimate, so it costs no more than
+    1.6 times)."""
+    factor = min(2.0, max(1.25, 1.1 * math.sqrt(estimate / target)))
+    return 2 * rings if factor > 1.6 else int(math.ceil(rings * factor))
+
+
 def integrate_to_target(r, target: float) -> tuple[int, float]:
-    """Refine a render's cells mesh until its error estimate is within ``target`` (each
-    refinement reuses the previous meshes for its estimate); its rings and estimate."""
+    """Refine a render's cells mesh until its error estimate is within ``target``; its
+    rings and estimate."""
     rings = CELLS_FIRST_RINGS
     est = r.integrate(rings)
-    while est > target and 2 * rings <= CELLS_MAX_RINGS:
-        rings *= 2
+    while est > target and next_rings(rings, est, target) <= CELLS_MAX_RINGS:
+        rings = next_rings(rings, est, target)
         est = r.integrate(rings)
     return rings, float(est)
 
