@@ -50,7 +50,7 @@ static void strip_triangles(int n, const double *restrict area, const double *re
     int k;
     // The outputs never overlap the inputs (restrict; the pragma says so to GCC once the
     // function is inlined, where it forgets)
-#ifdef __GNUC__
+#if defined(__GNUC__) && !defined(__clang__)
 #pragma GCC ivdep
 #endif
     for (k = 0; k < n; k++) {
