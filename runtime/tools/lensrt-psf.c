@@ -813,7 +813,10 @@ int main(int argc, char **argv)
         }
     }
     lensrt_render_get_stats(render, &st);
-    if (!quiet)
+    if (!quiet && cells)
+        fprintf(stderr, "lensrt-psf: %.2f s, cells integrator (%d rings), f/%.3g, stop radius %.4g mm\n", st.seconds,
+                cells_rings, st.f_number, st.stop_radius_mm);
+    else if (!quiet)
         fprintf(stderr, "lensrt-psf: %.2f s, %.3g splats/s, f/%.3g, stop radius %.4g mm\n", st.seconds,
                 st.splats_per_second, st.f_number, st.stop_radius_mm);
     // Ghosts: as many samples per wavelength as the direct image has, one sequence each
