@@ -22,6 +22,7 @@ ROOT = Path(__file__).resolve().parents[2]
 LENS0001 = ROOT / "generated" / "0001-angenieux-double-gauss" / "lens0001.table"
 GHOST02 = ROOT / "generated" / "0001-angenieux-double-gauss" / "ghosts" / "ghost_0_2.table"
 WL_NM = 550.0
+AIRY_ZERO = 1.2196698912665045  # first zero of J1 / pi: 3.8317059702 / pi
 LAM = WL_NM * 1e-6
 K = 2.0 * np.pi / LAM
 
@@ -125,6 +126,27 @@ def test_thin_lens_against_quadrature(rt, shape, defocus_waves):
         # pre-asymptotic there, see runtime/README.md). Where the truth is below the float
         # image's rounding (1e-6) nothing is asserted.
         assert 0.5 * err <= est <= (2.0 if defocus_waves == 0 else 8.0) * err or err < 1e-6
+
+
+def test_airy_first_dark_ring(rt):
+    # Free space, a disc of radius 0.1 mm, sensor 5 m away (Fresnel number 3.6e-3): the
+    # Fraunhofer pattern's first zero at sin(theta) = 1.21967 lambda / D. The neglected
+    # quadratic phase (<= 0.011 rad) and the parabola through 41 pixels within +-0.5%
+    # move it by ~3e-5 relative (the converged cells value, 128 rings: +2.8e-5); the mesh's
+    # polygon of 6 x 64 chords adds ~2e-5 (measured: +3.8e-4 at 16 rings, +1.1e-4 at 32,
+    # +4.5e-5 at 64). Deterministic, no Monte Carlo error: tolerance 1e-4, where
+    # test_validation.py's Monte Carlo needs 3e-3.
+    z, radius = 5000.0, 0.1
+    lens = rt.analytic(sensor_distance_mm=z)
+    x0 = z * np.tan(np.arcsin(AIRY_ZERO * LAM / (2 * radius)))
+    n_px, width = 41, 0.01 * x0
+    row, est = rt.integrate(lens, rings=64, width=n_px, height=1, width_mm=width,
+                            center=(x0, 0.0), radius_mm=radius, wavelengths=[WL_NM])
+    xs = centres(n_px, width, x0)
+    c2, c1, _ = np.polyfit((xs - x0) / (0.5 * width), row[0, 0], 2)
+    zero = x0 - 0.5 * width * c1 / (2 * c2)
+    print(f"Airy, cells: first dark ring at {zero / x0 - 1:+.2e} relative (estimate {est:.1e})")
+    assert abs(zero / x0 - 1.0) < 1e-4
 
 
 @pytest.mark.parametrize("separation", [0.0, 0.3])
