@@ -139,6 +139,24 @@ def test_never_blocking_ghost_doubles_the_direct_image(tmp_path, tables):
     assert a.max() > 200  # not a black image
 
 
+def test_never_blocking_ghost_with_cells(tmp_path, tables):
+    # The cells integrator on the same pair: a P_clip that never blocks gives the direct
+    # field on the same meshes, so the flare layer is the direct layer bit for bit, and
+    # each prints its estimate (the ghost's equal to the direct one's)
+    out = tmp_path / "cells.exr"
+    base = [a for a in BASE if a != "--no-estimate"]  # the cells integrator always estimates
+    r = subprocess.run([str(PSF), "--lens", str(LENS0001), *base, "--ghost", str(tables["never"]),
+                        "--integrator", "cells", "--rings", "8", "-o", str(out), "--quiet"],
+                       capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stderr
+    direct_layer, flare_layer = read_spectral_exr(out, "direct"), read_spectral_exr(out, "flare")
+    assert np.array_equal(direct_layer.spectral, flare_layer.spectral)
+    assert direct_layer.spectral.max() > 0
+    ghost = re.search(r"Cells error estimate, ghost 4-8: (\S+)% relative L2 \(8 rings\)", r.stdout)
+    direct = re.search(r"Cells error estimate: (\S+)% relative L2 \(8 rings against 4\)", r.stdout)
+    assert ghost and direct and ghost.group(1) == direct.group(1), r.stdout
+
+
 def test_flares_folder_renders_every_ghost_sorted(tmp_path, tables):
     r = run("--flares", str(tables["both"]), "-o", str(tmp_path / "f.exr"))
     assert r.returncode == 0, r.stderr
