@@ -17,6 +17,16 @@
 #include <omp.h>
 #endif
 
+/* The calling thread's index in its OpenMP team (0 without OpenMP). */
+static int thread_id(void)
+{
+#ifdef LENSRT_OPENMP
+    return omp_get_thread_num();
+#else
+    return 0;
+#endif
+}
+
 /* Log amplitudes below this (amplitude 0: intensity 0 or no transmittance) are held
  * there: e^-80 is 2e-35 of a unit amplitude, nothing in a float image. */
 #define LOG_AMP_FLOOR (-80.0)
@@ -84,7 +94,7 @@ static void prepare_vertex(const lensrt_render r, int w, const lensrt_mesh *m, c
         int n_lev = 0;
         if (ops->sample_levels) n_lev = ops->sample_levels(r, w, l, mono, &amp, &opl, cv->lev_o + at * (1 + LENSRT_MAX_CLIP_PAIRS));
         else ops->sample_wave(r, w, l, x, y, mono, &amp, &opl);
-        cv->n_lev_o = n_lev;
+        if (v == 0) cv->n_lev_o = n_lev; /* the same at every vertex: one writer */
         cv->sph[at] = opl / lambda_mm;
         cv->samp[at] = amp > 0.0 ? amp : 0.0;
         cv->lna[at] = amp > 0.0 ? fmax(log(amp), LOG_AMP_FLOOR) : LOG_AMP_FLOOR;
@@ -358,12 +368,7 @@ static void prepare_meshes(lensrt_render r, int w, const lensrt_cells_job *job, 
 #pragma omp parallel for schedule(static) num_threads(st->nthreads)
 #endif
         for (v = 0; v < nv; v++) {
-            int th =
-#ifdef LENSRT_OPENMP
-                omp_get_thread_num();
-#else
-                0;
-#endif
+            const int th = thread_id();
             prepare_vertex(r, w, job->mesh[k], &st->cv[k], v, st->rows_f + (size_t)th * (size_t)r->n_rows);
         }
     }
@@ -392,12 +397,7 @@ lensrt_result lensrt_cpu_cells(lensrt_render r, const lensrt_cells_job *job, len
 #pragma omp parallel for schedule(dynamic, 4) num_threads(nthreads)
 #endif
         for (p = 0; p < npix; p++) {
-            int th =
-#ifdef LENSRT_OPENMP
-                omp_get_thread_num();
-#else
-                0;
-#endif
+            const int th = thread_id();
             cells_pixel_all(r, w, p, job, st.cv, st.scratch + st.per_thread * (size_t)th, st.nv_max, st.nt_max);
         }
         if (progress) {

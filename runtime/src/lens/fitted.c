@@ -148,7 +148,8 @@ static void sample_rows(const lensrt_render r, int w, double x, double y, double
  * front group's transmittance and the OPL from the light minus its distance. Returns
  * the number of levels: 1 + the ghost's pairs on side P_o. *pass says whether every
  * test passes, decided as the Monte Carlo samples always were (x^2 + y^2 against the
- * limit squared, a shaped stop crossing by lensrt_aperture_contains). */
+ * limit squared, a shaped stop crossing by lensrt_aperture_contains); levels NULL: only
+ * those (the Monte Carlo samples' hot path computes no level). */
 static int po_levels(const lensrt_render r, int w, int l, const double *mono, double *tau_out, double *opl_out,
                      double *levels, int *pass)
 {
@@ -166,7 +167,7 @@ static int po_levels(const lensrt_render r, int w, int l, const double *mono, do
         opl += cp[k] * mono[k];
     }
     *pass = !(xo * xo + yo * yo > h * h);
-    levels[0] = (h * h - (xo * xo + yo * yo)) / (2.0 * (h > 0.0 ? h : 1.0));
+    if (levels) levels[0] = (h * h - (xo * xo + yo * yo)) / (2.0 * (h > 0.0 ? h : 1.0));
     // A ghost's P_clip on this side: every pair must pass (x^2 + y^2 <= its limit^2, or
     // a stop crossing inside the aperture's shape)
     if (r->clip_o) {
@@ -180,12 +181,13 @@ static int po_levels(const lensrt_render r, int w, int l, const double *mono, do
                 hy += qy[k] * mono[k];
             }
             if (r->clip_shaped[q]) {
-                levels[n++] = lensrt_stop_shape_level(&r->stop, hx, hy);
+                if (levels) levels[n] = lensrt_stop_shape_level(&r->stop, hx, hy);
                 if (!lensrt_aperture_contains(&r->desc.aperture, r->stop_radius, hx, hy)) *pass = 0;
             } else {
-                levels[n++] = (lim * lim - (hx * hx + hy * hy)) / (2.0 * (lim > 0.0 ? lim : 1.0));
+                if (levels) levels[n] = (lim * lim - (hx * hx + hy * hy)) / (2.0 * (lim > 0.0 ? lim : 1.0));
                 if (hx * hx + hy * hy > lim * lim) *pass = 0;
             }
+            n++;
         }
     }
     if (r->desc.precision == LENSRT_PRECISION_NAIVE_FLOAT) opl += r->light_d[l];
@@ -198,11 +200,11 @@ static int po_levels(const lensrt_render r, int w, int l, const double *mono, do
 static void sample_wave(const lensrt_render r, int w, int l, double x, double y, const double *mono, double *amp,
                         double *opl_out)
 {
-    double levels[1 + LENSRT_MAX_CLIP_PAIRS], tau;
+    double tau;
     int pass;
     (void)x;
     (void)y;
-    po_levels(r, w, l, mono, &tau, opl_out, levels, &pass);
+    po_levels(r, w, l, mono, &tau, opl_out, NULL, &pass);
     if (!pass) *amp = 0.0;
     *amp *= sqrt(tau > 0 ? tau : 0.0);
 }
