@@ -411,7 +411,8 @@ static void test_cells_equal_to_integrate(lensrt_context ctx, const scene *scene
             CHECK_RES(ctx, lensrt_render_run(r, 256, NULL, NULL), LENSRT_ERROR_INVALID_ARGUMENT);
             lensrt_render_destroy(r);
         }
-    // A tile session over an integral (or over samples) is refused, as integrate is
+    // A cells session with an estimate needs 2 rings, as integrate does; a samples
+    // session over an integral is refused
     CHECK_RES(ctx, lensrt_render_tiles_begin_cells(ref, 1, 1), LENSRT_ERROR_INVALID_ARGUMENT);
     CHECK_RES(ctx, lensrt_render_tiles_begin(ref, 256), LENSRT_ERROR_INVALID_ARGUMENT);
     printf("test_tiles: %s: cells tiles of %d rings equal lensrt_render_integrate (4 tilings x 1 and 4 threads, "

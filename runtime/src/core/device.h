@@ -34,12 +34,12 @@ typedef struct lensrt_device_ops {
      * set-up's statistics to lensrt_tiles_add_stats (never to the context). */
     lensrt_result (*tile)(lensrt_render r, int x0, int y0, int width, int height);
     /* The cells integrator (core/cells.h), NULL when the device has none: the job's
-     * fields of every light, wavelength and pixel; progress is told fractions
-     * frac0 .. frac1. integrate_tile: the same for pixels x0 .. x0 + width - 1 of rows
+     * fields of every light, wavelength and pixel, progress told after each wavelength.
+     * integrate_tile: the same for pixels x0 .. x0 + width - 1 of rows
      * y0 .. y0 + height - 1 alone, on the calling thread (no OpenMP, no context
      * errors: the result code says what failed). */
     lensrt_result (*integrate)(lensrt_render r, const struct lensrt_cells_job *job, lensrt_progress_fn progress,
-                               void *user_data, double frac0, double frac1);
+                               void *user_data);
     lensrt_result (*integrate_tile)(lensrt_render r, const struct lensrt_cells_job *job, int x0, int y0, int width,
                                     int height);
 } lensrt_device_ops;

@@ -308,7 +308,7 @@ static lensrt_result cells_fields(lensrt_render r, int n, const int *rings, doub
         job.U[k] = U[k];
     }
     job.n_mesh = n;
-    if (res == LENSRT_SUCCESS) res = r->device->integrate(r, &job, progress, user_data, 0.0, 1.0);
+    if (res == LENSRT_SUCCESS) res = r->device->integrate(r, &job, progress, user_data);
     for (k = 0; k < built; k++) lensrt_mesh_free(r->ctx, &mesh[k]);
     return res;
 }
@@ -389,12 +389,7 @@ lensrt_result lensrt_render_integrate(lensrt_render r, int32_t rings, double *er
         double *coarse2 = reuse ? r->cells_coarse : n > 2 ? U[2] : NULL;
         res = lensrt_cells_finish(r, rings, U[0], coarse, coarse2, error_estimate);
         if (res == LENSRT_SUCCESS) {
-            // The render keeps this field and the one half as fine
-            if (r->cells_coarse != coarse) lensrt_free(r->ctx, r->cells_coarse);
-            if (r->cells_field != coarse) lensrt_free(r->ctx, r->cells_field);
-            r->cells_field = U[0];
-            r->cells_coarse = coarse;
-            U[0] = NULL;
+            U[0] = NULL; /* the render's now, and the coarse field with it */
             if (!reuse && n > 1) U[1] = NULL;
         }
     }
@@ -428,7 +423,7 @@ lensrt_result lensrt_cells_check(lensrt_render r, const char *what, int rings, i
     return LENSRT_SUCCESS;
 }
 
-lensrt_result lensrt_cells_finish(lensrt_render r, int rings, const double *Uf, const double *Uc, const double *Uc2,
+lensrt_result lensrt_cells_finish(lensrt_render r, int rings, double *Uf, double *Uc, const double *Uc2,
                                   double *error_estimate)
 {
     const size_t nsum = 2 * (size_t)r->n_lights * (size_t)r->n_wl * (size_t)r->width * (size_t)r->height;
@@ -446,6 +441,12 @@ lensrt_result lensrt_cells_finish(lensrt_render r, int rings, const double *Uf, 
     for (i = 0; i < nsum; i++) r->sum[i] = Uf[i] / r->measure;
     r->samples = 1;
     r->cells_rings = rings;
+    // The render keeps this field and the one half as fine (the next, doubled call's
+    // coarse levels); Uc may be the field it kept before
+    if (r->cells_coarse != Uc) lensrt_free(r->ctx, r->cells_coarse);
+    if (r->cells_field != Uc) lensrt_free(r->ctx, r->cells_field);
+    r->cells_field = Uf;
+    r->cells_coarse = Uc;
     return LENSRT_SUCCESS;
 }
 

@@ -157,8 +157,10 @@ lensrt_result lensrt_cells_idle(lensrt_render r, const char *what);
 lensrt_result lensrt_cells_check(lensrt_render r, const char *what, int rings, int estimate);
 
 /* The sums become field Uf of `rings` rings (checked finite), with the estimate from the
- * fields of rings / 2 and rings / 4 (Uc, Uc2; NULL: none) into *error_estimate. */
-lensrt_result lensrt_cells_finish(lensrt_render r, int rings, const double *Uf, const double *Uc, const double *Uc2,
+ * fields of rings / 2 and rings / 4 (Uc, Uc2; NULL: none) into *error_estimate. On
+ * success the render owns Uf and Uc (kept for a later, doubled call); on failure the
+ * caller still does. */
+lensrt_result lensrt_cells_finish(lensrt_render r, int rings, double *Uf, double *Uc, const double *Uc2,
                                   double *error_estimate);
 
 /* "sobol", "random" or "stratified" (core/sampler.c). */

@@ -274,12 +274,7 @@ lensrt_result lensrt_render_tiles_end(lensrt_render r)
         res = lensrt_cells_finish(r, t->cells_rings, job->U[0], job->n_mesh > 1 ? job->U[1] : NULL,
                                   job->n_mesh > 2 ? job->U[2] : NULL, t->cells_estimate ? &est : NULL);
         if (res == LENSRT_SUCCESS) {
-            // The render keeps this field and the one half as fine, as integrate does
-            lensrt_free(r->ctx, r->cells_field);
-            lensrt_free(r->ctx, r->cells_coarse);
-            r->cells_field = job->U[0];
-            r->cells_coarse = job->n_mesh > 1 ? job->U[1] : NULL;
-            job->U[0] = NULL;
+            job->U[0] = NULL; /* the render's now, and the coarse field with it */
             if (job->n_mesh > 1) job->U[1] = NULL;
         }
         r->seconds += lensrt_seconds() - t->t0;

@@ -375,7 +375,7 @@ static void prepare_meshes(lensrt_render r, int w, const lensrt_cells_job *job, 
 }
 
 lensrt_result lensrt_cpu_cells(lensrt_render r, const lensrt_cells_job *job, lensrt_progress_fn progress,
-                               void *user_data, double frac0, double frac1)
+                               void *user_data)
 {
     const long npix = (long)r->width * r->height;
     const int nthreads =
@@ -401,8 +401,8 @@ lensrt_result lensrt_cpu_cells(lensrt_render r, const lensrt_cells_job *job, len
             cells_pixel_all(r, w, p, job, st.cv, st.scratch + st.per_thread * (size_t)th, st.nv_max, st.nt_max);
         }
         if (progress) {
-            const double frac = frac0 + (frac1 - frac0) * (w + 1) / r->n_wl, el = lensrt_seconds() - t0;
-            if (progress(frac, el * (frac1 - frac0 - (frac - frac0)) / (frac - frac0), user_data)) failed = 1;
+            const double frac = (double)(w + 1) / r->n_wl, el = lensrt_seconds() - t0;
+            if (progress(frac, el * (1.0 - frac) / frac, user_data)) failed = 1;
         }
     }
     free_state(r, &st, job->n_mesh);

@@ -76,7 +76,7 @@ int lensrt_cpu_setup_pixel(const lensrt_render r, int w, double x, double y, len
 /* The CPU device's cells integrator (cpu/cells.c; lensrt_device_ops.integrate and
  * integrate_tile). */
 lensrt_result lensrt_cpu_cells(lensrt_render r, const struct lensrt_cells_job *job, lensrt_progress_fn progress,
-                               void *user_data, double frac0, double frac1);
+                               void *user_data);
 lensrt_result lensrt_cpu_cells_tile(lensrt_render r, const struct lensrt_cells_job *job, int x0, int y0, int width,
                                     int height);
 
