@@ -376,6 +376,10 @@ typedef struct lensrt_eval_desc {
  * batches from the table are summed in double (float only in memory). An
  * input that is not finite, or a wavelength <= 0, refuses the whole batch before anything
  * is written (LENSRT_ERROR_INVALID_ARGUMENT, the message naming the ray and the input).
+ * Finite inputs far outside the fitted domain may overflow the polynomials: a batch with
+ * any output or Jacobian entry that is not finite fails as a whole with
+ * LENSRT_ERROR_OUT_OF_DOMAIN, its outputs and Jacobians zeroed, the message naming the
+ * ray, the output and the input farthest outside its range (no NaN or inf is returned).
  * Batches of 32 rays or more run at full speed; about 30 KB of stack. */
 LENSRT_API lensrt_result lensrt_lens_eval(lensrt_context ctx, lensrt_lens lens, const lensrt_eval_desc *desc);
 

@@ -227,20 +227,55 @@ static void remove_stale_estimates(const char *base)
     closedir(d);
 }
 
-/* Find generated/<ID>-*\/lens<ID>.table. */
-static int find_table(const char *dir, const char *id, char *path, size_t size)
+/* Find the table of a lens named by its id ID (generated/<ID>-*\/lens<ID>.table) or by
+ * its whole folder name (generated/<ID>-<name>/lens<ID>.table: an exact folder name wins).
+ * Returns how many folders match (0: none, 1: path holds its table, more: ambiguous, and
+ * `choices` lists them, comma-separated, in name order for a stable message). */
+static int find_table(const char *dir, const char *arg, char *path, size_t size, char *choices, size_t csize)
 {
     DIR *d = opendir(dir);
     struct dirent *e;
-    size_t n = strlen(id);
-    int found = 0;
+    char names[16][256];
+    size_t n = strlen(arg);
+    int found = 0, exact = -1, k, j;
+    if (choices && csize) choices[0] = '\0';
     if (!d) return 0;
-    while (!found && (e = readdir(d)) != NULL) {
-        if (strncmp(e->d_name, id, n) != 0 || (e->d_name[n] != '-' && e->d_name[n] != '\0')) continue;
-        snprintf(path, size, "%s/%s/lens%s.table", dir, e->d_name, id);
-        found = file_exists(path);
+    while ((e = readdir(d)) != NULL) {
+        const char *dash = strchr(e->d_name, '-');
+        const size_t id_len = dash ? (size_t)(dash - e->d_name) : strlen(e->d_name);
+        char candidate[4096];
+        int is_exact = strcmp(e->d_name, arg) == 0;
+        // The id is the folder name's part before its first '-'
+        if (!is_exact && (strncmp(e->d_name, arg, n) != 0 || n != id_len)) continue;
+        if (snprintf(candidate, sizeof candidate, "%s/%s/lens%.*s.table", dir, e->d_name, (int)id_len, e->d_name) >=
+                (int)sizeof candidate ||
+            !file_exists(candidate) || strlen(e->d_name) >= sizeof names[0])
+            continue;
+        if (is_exact) {
+            exact = found < 16 ? found : 15;
+            snprintf(path, size, "%s", candidate);
+        }
+        if (found < 16) snprintf(names[found], sizeof names[0], "%s", e->d_name);
+        if (found == 0 && exact < 0) snprintf(path, size, "%s", candidate);
+        found++;
     }
     closedir(d);
+    if (exact >= 0) return 1;
+    if (found > 1 && choices && csize) {
+        // Sorted (insertion: a handful of names), so the message does not depend on readdir
+        const int m = found < 16 ? found : 16;
+        char tmp[256];
+        for (k = 1; k < m; k++)
+            for (j = k; j > 0 && strcmp(names[j - 1], names[j]) > 0; j--) {
+                memcpy(tmp, names[j], sizeof tmp);
+                memcpy(names[j], names[j - 1], sizeof tmp);
+                memcpy(names[j - 1], tmp, sizeof tmp);
+            }
+        for (k = 0; k < m; k++) {
+            const size_t at = strlen(choices);
+            snprintf(choices + at, csize - at, "%s%s", k ? ", " : "", names[k]);
+        }
+    }
     return found;
 }
 
@@ -627,11 +662,21 @@ int main(int argc, char **argv)
         }
         snprintf(table, sizeof table, "%s", lens_arg);
     }
-    else if (!find_table(gen, lens_arg, table, sizeof table)) {
-        fprintf(stderr, "lensrt-psf: --lens: unknown lens '%s': no %s/%s-*/lens%s.table (see --generated)\n",
-                lens_arg, gen, lens_arg, lens_arg);
-        rc = 2;
-        goto done;
+    else {
+        char choices[2048];
+        const int matches = find_table(gen, lens_arg, table, sizeof table, choices, sizeof choices);
+        if (matches == 0) {
+            fprintf(stderr, "lensrt-psf: --lens: unknown lens '%s': no %s/%s-*/lens%s.table (see --generated)\n",
+                    lens_arg, gen, lens_arg, lens_arg);
+            rc = 2;
+            goto done;
+        }
+        if (matches > 1) {
+            fprintf(stderr, "lensrt-psf: --lens: '%s' is ambiguous: %d folders of %s match (%s); name one whole\n",
+                    lens_arg, matches, gen, choices);
+            rc = 2;
+            goto done;
+        }
     }
     if ((res = lensrt_lens_load(ctx, table, &lens)) != LENSRT_SUCCESS) goto fail_input;
     // Each ghost: a ghost table of this lens (the same lens name and focal length)

@@ -218,3 +218,23 @@ def test_cells_render_and_gl_refusal(tmp_path: Path) -> None:
     assert r.returncode == 3, (r.returncode, r.stderr)
     assert "cells" in r.stderr or "GL" in r.stderr or "no GL" in r.stderr
     assert not gl.exists()
+
+
+def test_an_ambiguous_lens_id_is_refused_with_its_choices(tmp_path: Path) -> None:
+    # Two folders share the id 2004 (a lens and its uncoated variant, as in generated/):
+    # the id alone is refused naming both, sorted; a whole folder name picks exactly one
+    gen = tmp_path / "gen"
+    for name in ("2004-anamorphic-uncoated", "2004-anamorphic", "20040-other"):
+        (gen / name).mkdir(parents=True)
+        (gen / name / f"lens{name.split('-')[0]}.table").write_bytes(LENS0001.read_bytes())
+    out = tmp_path / "out.exr"
+    r = run("--generated", str(gen), "-o", str(out), lens="2004")
+    refused(r, "--lens", "'2004' is ambiguous", "2 folders",
+            "(2004-anamorphic, 2004-anamorphic-uncoated)")
+    assert not out.exists()
+    for name in ("2004-anamorphic", "2004-anamorphic-uncoated", "20040"):
+        r = run("--generated", str(gen), "-o", str(out), lens=name)
+        assert r.returncode == 0, (name, r.stderr)
+        out.unlink()
+    refused(run("--generated", str(gen), "-o", str(out), lens="2004-anamorph"),
+            "unknown lens '2004-anamorph'")

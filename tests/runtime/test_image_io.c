@@ -1329,7 +1329,22 @@ static void test_png(void)
 #undef PIX
     }
     {
-        /* An all-zero image: black, no division by zero. decades <= 0 means 5. */
+        /* NaN, a negative or an infinite tone-map range is refused (it used to become 5
+         * silently), naming the value; nothing is written. */
+        const double bad_decades[3] = {NAN, -3.0, INFINITY};
+        float rgb[3] = {1.0f, 1.0f, 1.0f};
+        struct stat st;
+        int k;
+        remove(path);
+        for (k = 0; k < 3; k++) {
+            r = lensrt_write_png(&alloc, path, 1, 1, rgb, bad_decades[k], err, sizeof err);
+            CHECK(r == LENSRT_ERROR_INVALID_ARGUMENT && strstr(err, "decades") != NULL,
+                  "decades %g: result %d, '%s'", bad_decades[k], (int)r, err);
+            CHECK(stat(path, &st) != 0, "decades %g: a PNG was written", bad_decades[k]);
+        }
+    }
+    {
+        /* An all-zero image: black, no division by zero. decades 0 means 5. */
         float rgb[3 * 3 * 2];
         size_t i;
         memset(rgb, 0, sizeof rgb);

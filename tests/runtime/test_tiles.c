@@ -18,6 +18,7 @@
 #include "lensrt.h"
 
 #include <errno.h>
+#include <limits.h>
 #include <stdint.h>
 #include <pthread.h>
 #include <stdarg.h>
@@ -525,6 +526,8 @@ static void test_refusals(lensrt_context ctx, const scene *s)
     CHECK_RES(ctx, lensrt_render_tile(r, W - 1, 0, 2, 1), LENSRT_ERROR_INVALID_ARGUMENT);
     CHECK_RES(ctx, lensrt_render_tile(r, 0, -1, 1, 1), LENSRT_ERROR_INVALID_ARGUMENT);
     CHECK_RES(ctx, lensrt_render_tile(r, 0, 0, 0, 1), LENSRT_ERROR_INVALID_ARGUMENT);
+    // At INT_MAX the refusal's pixel range is formatted in 64 bits (UBSan: no overflow)
+    CHECK_RES(ctx, lensrt_render_tile(r, INT_MAX, INT_MAX, INT_MAX, INT_MAX), LENSRT_ERROR_INVALID_ARGUMENT);
     for (k = 0; k < t.n; k++)
         CHECK_RES(ctx, lensrt_render_tile(r, t.r[k].x0, t.r[k].y0, t.r[k].w, t.r[k].h), LENSRT_SUCCESS);
     CHECK_RES(ctx, lensrt_render_tiles_end(r), LENSRT_ERROR_INVALID_ARGUMENT);

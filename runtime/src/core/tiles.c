@@ -212,8 +212,10 @@ lensrt_result lensrt_render_tile(lensrt_render r, int x0, int y0, int width, int
     if (!t) return LENSRT_ERROR_INVALID_ARGUMENT; /* no session: nowhere to record why */
     if (x0 < 0 || y0 < 0 || width <= 0 || height <= 0 || x0 > r->width - width || y0 > r->height - height)
         return lensrt_tiles_fail(r, LENSRT_ERROR_INVALID_ARGUMENT,
-                                 "tile: pixels %d .. %d of rows %d .. %d (%d x %d at (%d, %d)) are not inside the %d x %d window",
-                                 x0, x0 + width - 1, y0, y0 + height - 1, width, height, x0, y0, r->width, r->height);
+                                 "tile: pixels %lld .. %lld of rows %lld .. %lld (%d x %d at (%d, %d)) are not inside the %d x %d "
+                                 "window", /* in 64 bits: x0 + width overflows int near INT_MAX */
+                                 (long long)x0, (long long)x0 + width - 1, (long long)y0, (long long)y0 + height - 1, width,
+                                 height, x0, y0, r->width, r->height);
     // Claim every pixel first; if another tile has one, render nothing (only one tile
     // ever writes a pixel's sums, so overlapping calls do not race on them)
     for (y = y0; y < y0 + height; y++)

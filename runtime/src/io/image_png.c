@@ -287,8 +287,14 @@ lensrt_result lensrt_write_png(const lensrt_allocator *allocator, const char *pa
         png_set_error(err, err_size, "PNG '%s': size %d x %d is too large", path, width, height);
         return LENSRT_ERROR_INVALID_ARGUMENT;
     }
-    if (!(decades > 0.0) || !isfinite(decades))
+    /* 0 asks for the default; NaN, a negative or an infinite range has no tone map. */
+    if (decades == 0.0)
         decades = PNG_DEFAULT_DECADES;
+    else if (!(decades > 0.0) || !isfinite(decades)) {
+        png_set_error(err, err_size, "PNG '%s': decades %g, expected a finite number > 0 (0: %g)", path, decades,
+                      (double)PNG_DEFAULT_DECADES);
+        return LENSRT_ERROR_INVALID_ARGUMENT;
+    }
     row_bytes = 1 + 3 * (size_t)width;
     total_raw = row_bytes * (size_t)height;
     n_pixels = (size_t)width * (size_t)height;

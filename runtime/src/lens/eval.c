@@ -180,6 +180,44 @@ static lensrt_result check_inputs(lensrt_context ctx, const lensrt_system *sys, 
     return LENSRT_SUCCESS;
 }
 
+/* Far outside the fitted domain a polynomial overflows (inputs of 1e100, a wavelength
+ * of 1e-300 whose 1 / lambda^2 is inf, values beyond float): no NaN or inf leaves the
+ * library. A batch with a non-finite output or Jacobian entry fails as a whole, its
+ * outputs and Jacobians zeroed, naming the ray, the output and the input farthest from
+ * its fitted range (in units of that range). */
+static lensrt_result check_outputs(lensrt_context ctx, const lensrt_system *sys, const lensrt_eval_desc *d)
+{
+    const int is_float = d->type == LENSRT_TYPE_FLOAT;
+    const size_t n_out = (size_t)sys->n_outputs, n_val = d->n_rays * n_out;
+    const size_t size = is_float ? sizeof(float) : sizeof(double);
+    size_t at, bad = (size_t)-1, k;
+    int i, far = 0;
+    double worst = -1.0;
+    for (at = 0; at < n_val && bad == (size_t)-1; at++)
+        if (!isfinite(is_float ? (double)((const float *)d->outputs)[at] : ((const double *)d->outputs)[at])) bad = at;
+    for (at = 0; d->jacobians && at < n_val * N_IN && bad == (size_t)-1; at++)
+        if (!isfinite(is_float ? (double)((const float *)d->jacobians)[at] : ((const double *)d->jacobians)[at]))
+            bad = (at / N_IN);
+    if (bad == (size_t)-1) return LENSRT_SUCCESS;
+    k = bad / n_out;
+    for (i = 0; i < N_IN; i++) {
+        const lensrt_input *in = &sys->inputs[i];
+        const double v = raw_input(d->inputs, is_float, k, i), span = in->hi > in->lo ? in->hi - in->lo : 1.0;
+        const double out = v < in->lo ? (in->lo - v) / span : v > in->hi ? (v - in->hi) / span : 0.0;
+        if (out > worst) {
+            worst = out;
+            far = i;
+        }
+    }
+    memset(d->outputs, 0, n_val * size);
+    if (d->jacobians) memset(d->jacobians, 0, n_val * N_IN * size);
+    return lensrt_fail(ctx, LENSRT_ERROR_OUT_OF_DOMAIN,
+                       "lensrt_lens_eval: %s ray %zu: output %s is not finite in %s: input %s = %g is outside its "
+                       "fitted range [%g, %g]; the batch's outputs were zeroed", sys->name, k,
+                       sys->outputs[bad % n_out].name, is_float ? "float" : "double", sys->inputs[far].name,
+                       raw_input(d->inputs, is_float, k, far), sys->inputs[far].lo, sys->inputs[far].hi);
+}
+
 /* ------------------------------------------------------------- evaluation ----- */
 
 lensrt_result lensrt_lens_eval(lensrt_context ctx, lensrt_lens lens, const lensrt_eval_desc *desc_in)
@@ -240,12 +278,12 @@ lensrt_result lensrt_lens_eval(lensrt_context ctx, lensrt_lens lens, const lensr
         if (!is_float && horner_d) {
             for (k = 0; k < d.n_rays; k++)
                 horner_d((const double *)d.inputs + k * N_IN, (double *)d.outputs + k * n_out);
-            return LENSRT_SUCCESS;
+            return check_outputs(ctx, sys, &d);
         }
         if (is_float && horner_f) {
             for (k = 0; k < d.n_rays; k++)
                 horner_f((const float *)d.inputs + k * N_IN, (float *)d.outputs + k * n_out);
-            return LENSRT_SUCCESS;
+            return check_outputs(ctx, sys, &d);
         }
     }
 
@@ -275,5 +313,5 @@ lensrt_result lensrt_lens_eval(lensrt_context ctx, lensrt_lens lens, const lensr
             for (r = 0; r < n; r++) store(d.outputs, is_float, (k + (size_t)r) * n_out + (size_t)o, v[r]);
         }
     }
-    return LENSRT_SUCCESS;
+    return check_outputs(ctx, sys, &d);
 }
