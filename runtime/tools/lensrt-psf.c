@@ -87,7 +87,9 @@ static void usage(FILE *f)
         "                         until the estimate is <= E\n"
         "  --max-rings N          cells: stop doubling there (default 1024)\n"
         "  --quiet                no progress (the error estimate is still printed on stdout)\n"
-        "exit status: 0 done, 1 failed, 2 bad input, 3 no GL device (--device gl) or unsupported\n",
+        "  --allow-empty          write an image that is zero everywhere (else refused: exit 4)\n"
+        "exit status: 0 done, 1 failed, 2 bad input, 3 no GL device (--device gl) or unsupported,\n"
+        "             4 the image is zero everywhere (no light passes: nothing written)\n",
         LENSRT_GENERATED_DIR);
 }
 
@@ -194,9 +196,19 @@ static int writable(const char *path)
     return 1;
 }
 
-/* Remove `<base>.mc-<pid>-a.phasors` and `-b.phasors` left by runs of this tool that were
- * killed (kill -9) during an error estimate: those whose process no longer exists. */
-static void remove_stale_estimates(const char *base)
+/* Whether `end` (what follows `<prefix><pid>`) names one of this tool's own files:
+ * `suffix`, or the library's temporary of it (`suffix.tmp-...`, io/atomic_file.c). */
+static int own_suffix(const char *end, const char *suffix)
+{
+    const size_t n = strlen(suffix);
+    return strncmp(end, suffix, n) == 0 && (end[n] == '\0' || strncmp(end + n, ".tmp-", 5) == 0);
+}
+
+/* Remove what runs of this tool that were killed (kill -9) left next to `base`: the error
+ * estimate's halves `<base>.mc-<pid>-a.phasors` and `-b.phasors`, the staged outputs
+ * `<base>.stage-<pid>`, and the library's temporaries of either: those whose process no
+ * longer exists (a live run's files are never touched). */
+static void remove_stale(const char *base, const char *kind)
 {
     char dir[4096], prefix[4096], path[8300];
     const char *slash = strrchr(base, '/');
@@ -211,7 +223,7 @@ static void remove_stale_estimates(const char *base)
     } else {
         strcpy(dir, ".");
     }
-    if (snprintf(prefix, sizeof prefix, "%s.mc-", slash ? slash + 1 : base) >= (int)sizeof prefix) return;
+    if (snprintf(prefix, sizeof prefix, "%s.%s-", slash ? slash + 1 : base, kind) >= (int)sizeof prefix) return;
     np = strlen(prefix);
     if (!(d = opendir(dir))) return;
     while ((e = readdir(d)) != NULL) {
@@ -219,7 +231,9 @@ static void remove_stale_estimates(const char *base)
         long pid;
         if (strncmp(e->d_name, prefix, np) != 0) continue;
         pid = strtol(e->d_name + np, &end, 10);
-        if (pid <= 0 || (strcmp(end, "-a.phasors") != 0 && strcmp(end, "-b.phasors") != 0)) continue;
+        if (pid <= 0 || end == e->d_name + np || (pid_t)pid == getpid()) continue;
+        if (strcmp(kind, "mc") == 0 ? !own_suffix(end, "-a.phasors") && !own_suffix(end, "-b.phasors")
+                                    : !own_suffix(end, "")) continue;
         // Only a process that no longer exists: kill(pid, 0) fails with ESRCH
         if (kill((pid_t)pid, 0) == 0 || errno != ESRCH) continue;
         if (snprintf(path, sizeof path, "%s/%s", dir, e->d_name) < (int)sizeof path) remove(path);
@@ -432,7 +446,7 @@ int main(int argc, char **argv)
     double size[2] = {0.2, 0.0}, center[2] = {0, 0}, decades = 5.0, focus = 0.0, fnum = 0.0;
     double wl[MAX_WAVELENGTHS];
     lensrt_light lights[MAX_LIGHTS];
-    int n_lights = 0, n_wl = 0, have_center = 0, width = 256, height = 256, quiet = 0, i, rc = 1;
+    int n_lights = 0, n_wl = 0, have_center = 0, width = 256, height = 256, quiet = 0, i, rc = 1, allow_empty = 0;
     long long samples = 65536, seed = 1, threads = 0, blades = 0, max_samples = 0;
     double target = 0.0;
     int estimate = 1, cells = 0;
@@ -447,7 +461,8 @@ int main(int argc, char **argv)
     lensrt_lens lens = NULL;
     lensrt_render render = NULL, render_b = NULL;
     float *img_a = NULL, *img_b = NULL, *img_all = NULL;
-    char tmp_a[4200] = "", tmp_b[4200] = "";
+    char tmp_a[4200] = "", tmp_b[4200] = "", stage[3][4200] = {"", "", ""};
+    const char *targets[3] = {NULL, NULL, NULL}; /* --save-phasors, -o, --png */
     double mc_error = -1.0;
     int cells_rings = 0;
     uint64_t mc_samples = 0;
@@ -476,6 +491,7 @@ int main(int argc, char **argv)
         if (strcmp(a, "-h") == 0 || strcmp(a, "--help") == 0) { usage(stdout); return 0; }
         if (strcmp(a, "--quiet") == 0) { quiet = 1; continue; }
         if (strcmp(a, "--no-estimate") == 0) { estimate = 0; continue; }
+        if (strcmp(a, "--allow-empty") == 0) { allow_empty = 1; continue; }
         if (!v) return bad(a, NULL, "needs a value");
         i++;
         if (strcmp(a, "--lens") == 0) lens_arg = v;
@@ -627,9 +643,9 @@ int main(int argc, char **argv)
     {
         const char *outs[3];
         int k;
-        outs[0] = out;
-        outs[1] = png;
-        outs[2] = save;
+        outs[0] = targets[1] = out;
+        outs[1] = targets[2] = png;
+        outs[2] = targets[0] = save;
         for (k = 0; k < 3; k++)
             if (outs[k] && !writable(outs[k])) {
                 fprintf(stderr, "lensrt-psf: cannot write '%s': %s\n", outs[k],
@@ -815,7 +831,7 @@ int main(int argc, char **argv)
             fprintf(stderr, "lensrt-psf: out of memory for the error estimate (3 x %zu floats)\n", n);
             goto done;
         }
-        remove_stale_estimates(base);
+        remove_stale(base, "mc");
         snprintf(tmp_a, sizeof tmp_a, "%s.mc-%ld-a.phasors", base, (long)getpid());
         snprintf(tmp_b, sizeof tmp_b, "%s.mc-%ld-b.phasors", base, (long)getpid());
         for (;;) {
@@ -919,8 +935,43 @@ int main(int argc, char **argv)
 
     // Outputs, each written atomically; with ghosts one EXR whose unprefixed channels are
     // the total and whose layers are the direct image and the flare (the ghosts' sum)
-    if (save && (res = lensrt_render_save(render, save)) != LENSRT_SUCCESS) goto fail;
-    if (out && !n_ghosts && (res = lensrt_render_write_exr(render, out)) != LENSRT_SUCCESS) goto fail;
+    // An image that is zero everywhere (an absurd stop, a light outside every pupil) is
+    // refused, not written, unless asked for
+    if (!allow_empty) {
+        lensrt_render_stats es = LENSRT_RENDER_STATS_INIT;
+        size_t n, k;
+        float *sum;
+        int empty = 1;
+        lensrt_render_get_stats(render, &es);
+        n = (size_t)es.n_wavelengths * (size_t)es.width * (size_t)es.height;
+        if (!(sum = malloc(n * sizeof *sum))) {
+            fprintf(stderr, "lensrt-psf: out of memory for the image (%zu floats)\n", n);
+            goto done;
+        }
+        if ((res = lensrt_renders_image(renders, n_ghosts + 1, sum, n)) != LENSRT_SUCCESS) {
+            free(sum);
+            goto fail;
+        }
+        for (k = 0; k < n && empty; k++) empty = sum[k] == 0.0f;
+        free(sum);
+        if (empty) {
+            char why[64] = "";
+            if (fnum > 0) snprintf(why, sizeof why, "a stop of f/%g, ", fnum);
+            fprintf(stderr, "lensrt-psf: the image is zero everywhere: no light reaches the window (%slights outside "
+                    "every pupil, or the window off the image); nothing written (--allow-empty writes it)\n", why);
+            rc = 4;
+            goto done;
+        }
+    }
+    // Each is staged as `<target>.stage-<pid>` and renamed over its target only when
+    // every one is written: a failed run leaves no output (nor a stage)
+    for (i = 0; i < 3; i++)
+        if (targets[i]) {
+            remove_stale(targets[i], "stage");
+            snprintf(stage[i], sizeof stage[i], "%s.stage-%ld", targets[i], (long)getpid());
+        }
+    if (save && (res = lensrt_render_save(render, stage[0])) != LENSRT_SUCCESS) goto fail;
+    if (out && !n_ghosts && (res = lensrt_render_write_exr(render, stage[1])) != LENSRT_SUCCESS) goto fail;
     if (out && n_ghosts) {
         lensrt_exr_layer layers[2] = {LENSRT_EXR_LAYER_INIT, LENSRT_EXR_LAYER_INIT};
         layers[0].name = "direct";
@@ -929,9 +980,21 @@ int main(int argc, char **argv)
         layers[1].name = "flare";
         layers[1].renders = renders + 1;
         layers[1].n_renders = n_ghosts;
-        if ((res = lensrt_layers_write_exr(layers, 2, out)) != LENSRT_SUCCESS) goto fail;
+        if ((res = lensrt_layers_write_exr(layers, 2, stage[1])) != LENSRT_SUCCESS) goto fail;
     }
-    if (png && (res = lensrt_renders_write_png(renders, n_ghosts + 1, png, decades)) != LENSRT_SUCCESS) goto fail;
+    if (png && (res = lensrt_renders_write_png(renders, n_ghosts + 1, stage[2], decades)) != LENSRT_SUCCESS) goto fail;
+    for (i = 0; i < 3; i++) {
+        struct stat tst;
+        if (!targets[i]) continue;
+        // The target's permission bits, as the library keeps them when it replaces a file
+        if (stat(targets[i], &tst) == 0 && S_ISREG(tst.st_mode)) chmod(stage[i], tst.st_mode & 07777);
+        if (rename(stage[i], targets[i]) != 0) {
+            fprintf(stderr, "lensrt-psf: cannot rename '%s' to '%s': %s\n", stage[i], targets[i], strerror(errno));
+            rc = 1;
+            goto done;
+        }
+        stage[i][0] = '\0';
+    }
     if (cells)
         printf("Cells error estimate: %.3g%% relative L2 (%d rings against %d)\n", 100.0 * mc_error, cells_rings,
                cells_rings / 2);
@@ -948,6 +1011,8 @@ fail:
     fprintf(stderr, "lensrt-psf: %s\n", lensrt_context_last_error(ctx)[0] ? lensrt_context_last_error(ctx)
                                                                         : lensrt_result_string(res));
 done:
+    for (i = 0; i < 3; i++)
+        if (stage[i][0]) remove(stage[i]);
     if (tmp_a[0]) remove(tmp_a);
     if (tmp_b[0]) remove(tmp_b);
     free(img_a);

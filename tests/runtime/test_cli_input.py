@@ -238,3 +238,48 @@ def test_an_ambiguous_lens_id_is_refused_with_its_choices(tmp_path: Path) -> Non
         out.unlink()
     refused(run("--generated", str(gen), "-o", str(out), lens="2004-anamorph"),
             "unknown lens '2004-anamorph'")
+
+
+def _dead_pid() -> int:
+    """The pid of a process that has exited (and been reaped): no such process now."""
+    p = subprocess.Popen(["true"])
+    p.wait()
+    return p.pid
+
+
+def test_an_image_zero_everywhere_is_refused_and_nothing_is_written(tmp_path: Path) -> None:
+    # A stop of f/1e20 lets no light through in double: exit 4, one line, no EXR, no PNG,
+    # no phasor file, and the outputs of an earlier run are left as they were
+    out, png, sums = tmp_path / "a.exr", tmp_path / "a.png", tmp_path / "a.phasors"
+    for f in (out, png, sums):
+        f.write_bytes(b"earlier")
+    outs = ("-o", str(out), "--png", str(png), "--save-phasors", str(sums))
+    r = subprocess.run([str(PSF), "--lens", str(LENS0001), *BASE[2:], "--f-number", "1e20", *outs],
+                       capture_output=True, text=True, timeout=120)
+    assert r.returncode == 4, r.stderr
+    assert "zero everywhere" in r.stderr and "f/1e+20" in r.stderr and "--allow-empty" in r.stderr
+    assert all(f.read_bytes() == b"earlier" for f in (out, png, sums))
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a.exr", "a.phasors", "a.png"]
+    # Asked for, it is written
+    r = subprocess.run([str(PSF), "--lens", str(LENS0001), *BASE[2:], "--f-number", "1e20", *outs,
+                        "--allow-empty"], capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0, r.stderr
+    assert all(f.read_bytes() != b"earlier" for f in (out, png, sums))
+
+
+def test_stale_files_of_killed_runs_are_removed_and_live_ones_kept(tmp_path: Path) -> None:
+    # What a run killed by kill -9 leaves next to its outputs: a staged output, an estimate
+    # half and the library's temporary of one. A dead pid's are removed by the next run
+    # that writes there; a live process's (this test's) and foreign names are kept
+    out = tmp_path / "a.exr"
+    dead, live = _dead_pid(), os.getpid()
+    stale = [f"a.exr.stage-{dead}", f"a.exr.mc-{dead}-a.phasors",
+             f"a.exr.mc-{dead}-b.phasors.tmp-{dead}-123-0"]
+    kept = [f"a.exr.stage-{live}", f"a.exr.mc-{live}-a.phasors", f"a.exr.stage-{dead}x",
+            "a.exr.stage-notes"]
+    for name in stale + kept:
+        (tmp_path / name).write_bytes(b"x" * 1000)
+    r = run("-o", str(out))
+    assert r.returncode == 0, r.stderr
+    left = sorted(p.name for p in tmp_path.iterdir())
+    assert left == sorted(["a.exr", *kept]), left
