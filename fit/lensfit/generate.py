@@ -22,7 +22,6 @@ folded systems to ``scenes/<name>/``; its table carries the same lens lines.
 
 from __future__ import annotations
 
-import json
 import os
 import re
 import tempfile
@@ -32,7 +31,16 @@ from typing import Any
 
 from lensfit.codegen import emit_c, emit_glsl, write_table
 from lensfit.codegen.c_horner import file_stem
-from lensfit.codegen.table import GhostLines, Table, read_table
+from lensfit.codegen.checked_json import checked_json_text, load_checked_json
+from lensfit.codegen.table import (
+    LEGACY,
+    REGENERATE,
+    GhostLines,
+    Table,
+    read_table,
+    with_checksum,
+)
+from lensfit.codegen.table import VERSION as TABLE_VERSION
 from lensfit.errors import InputError
 from lensfit.facts import LensFacts, lens_facts
 from lensfit.poly import System
@@ -117,7 +125,13 @@ def regenerate(folder: Path) -> tuple[Lens, list[str]]:
     fit_file = folder / "fit.json"
     if not fit_file.is_file():
         raise InputError(f"{fit_file}: no fit.json to regenerate from; run `lensfit fit`")
-    systems, meta = read_fit_json(fit_file)
+    # Tables of an earlier version (no checksum) first: the lens's, its ghosts' and its
+    # scenes' (their coefficients carried over bit for bit)
+    upgraded = [str(p.relative_to(folder)) for p in sorted(folder.rglob("*.table"))
+                if upgrade_table(p)]
+    upgraded += [str(p.relative_to(folder)) for p in sorted(folder.rglob("*.json"))
+                 if p.name in ("fit.json", "ghosts.json") and upgrade_json(p)]
+    systems, meta = read_fit_json(fit_file, legacy=True)
     trust = getattr(systems, "trust", None)
     if trust is None:
         raise InputError(f"{fit_file}: its table predates the trust figures (version 3); "
@@ -133,7 +147,7 @@ def regenerate(folder: Path) -> tuple[Lens, list[str]]:
     meta = {k: v for k, v in meta.items() if k not in ("format", "table")}
     files = lens_files(lens, list(systems), meta, trust)
     write_folder(folder, files)
-    return lens, sorted(files)
+    return lens, sorted(set(files) | set(upgraded))
 
 
 def scene_files(lens: Lens, special: Sequence[System], scene_name: str,
@@ -178,22 +192,18 @@ def write_folder(folder: Path, files: dict[str, str]) -> None:
 
 
 def fit_json(meta: dict[str, Any]) -> str:
-    """The machine-readable record of a fit (deterministic: sorted keys, fixed format).
-    The systems themselves are in the table it names (key ``table``), bit for bit."""
-    doc = {"format": "lensfit-fit 2", **meta}
-    return json.dumps(doc, indent=1, sort_keys=True, allow_nan=False) + "\n"
+    """The machine-readable record of a fit (deterministic: sorted keys, fixed format,
+    its own checksum: :mod:`lensfit.codegen.checked_json`). The systems themselves are
+    in the table it names (key ``table``), bit for bit."""
+    return checked_json_text({"format": "lensfit-fit 2", **meta})
 
 
-def read_fit_json(path: Path) -> tuple[Table, dict[str, Any]]:
+def read_fit_json(path: Path, *, legacy: bool = False) -> tuple[Table, dict[str, Any]]:
     """(the systems, from the table fit.json names, with its lens facts and trust; the
-    rest of fit.json)."""
+    rest of fit.json). Its checksum is verified; ``legacy`` reads one without a checksum
+    and a version-3 table, as :func:`regenerate` does."""
     path = Path(path)
-    try:
-        doc = json.loads(path.read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError, RecursionError) as e:
-        raise InputError(f"{path}: cannot read fit.json: {e or 'nested too deeply'}") from None
-    if not isinstance(doc, dict):
-        raise InputError(f"{path}: expected a JSON object, found {type(doc).__name__}")
+    doc = load_checked_json(path, f"regenerate the folder with {REGENERATE}", legacy=legacy)
     if doc.get("format") != "lensfit-fit 2":
         raise InputError(f"{path}: key 'format': expected 'lensfit-fit 2', "
                          f"found {doc.get('format')!r}; run `lensfit fit` to refit")
@@ -203,7 +213,36 @@ def read_fit_json(path: Path) -> tuple[Table, dict[str, Any]]:
                          f"{name!r}")
     table = path.parent / name
     try:
-        systems = read_table(table.read_text(encoding="utf-8"))
-    except (OSError, ValueError) as e:
+        systems = read_table(table.read_text(encoding="utf-8"), legacy=legacy)
+    except (OSError, ValueError, UnicodeDecodeError) as e:
         raise InputError(f"{table}: {e}") from None
     return systems, doc
+
+
+def upgrade_json(path: Path) -> bool:
+    """Give a JSON record written before checksums (fit.json, ghosts.json) its checksum,
+    the content unchanged. Returns whether it changed."""
+    doc = load_checked_json(path, "", legacy=True)
+    text = checked_json_text(doc)
+    if path.read_text(encoding="utf-8") == text:
+        return False
+    write_folder(path.parent, {path.name: text})
+    return True
+
+
+def upgrade_table(path: Path) -> bool:
+    """Rewrite a version-3 table (no checksum) as version 4 in place: the same bytes
+    after the header, and the checksum line. The coefficients are proven unchanged (the
+    systems of both texts written again compare equal). Returns whether it changed."""
+    text = path.read_text(encoding="utf-8")
+    head, sep, rest = text.partition("\n")
+    if head.split() != ["lensfit-poly-table", str(LEGACY)]:
+        return False
+    new = with_checksum(f"lensfit-poly-table {TABLE_VERSION}{sep}{rest}")
+    try:
+        if write_table(read_table(text, legacy=True)) != write_table(read_table(new)):
+            raise ValueError("the systems differ after the upgrade")
+    except ValueError as e:
+        raise InputError(f"{path}: cannot upgrade to version {TABLE_VERSION}: {e}") from None
+    write_folder(path.parent, {path.name: new})
+    return True

@@ -23,7 +23,7 @@ from lensfit.cli import main
 from lensfit.codegen import call_c, check_compiles, emit_c, load_c, read_table
 from lensfit.codegen.c_horner import file_stem
 from lensfit.codegen.common import check_prefix
-from lensfit.codegen.table import TRUST_KEYS, write_table
+from lensfit.codegen.table import TRUST_KEYS, with_checksum, write_table
 from lensfit.facts import lens_facts
 from lensfit.fitting import FitOptions
 from lensfit.generate import (
@@ -130,7 +130,7 @@ def test_regenerating_from_fit_json_is_byte_identical(folder):
     assert folder.name == lens_folder_name(lens)
     assert meta["format"] == "lensfit-fit 2" and "systems" not in meta
     assert meta["table"] == f"{file_stem(lens_prefix(lens))}.table"
-    assert systems.version == 3 and systems.trust is not None
+    assert systems.version == 4 and systems.trust is not None
     files = sources_for(list(systems), lens_prefix(lens), header_comment(lens),
                         facts=lens_facts(lens), trust=systems.trust,
                         c=not lens.variant)  # a coating variant: no C (test_coating_variant)
@@ -223,7 +223,7 @@ def test_compiled_c_agrees_with_system_evaluate(c_folder):
 def test_table_carries_the_lens_facts(folder):
     _, meta = read_fit_json(folder / "fit.json")
     table = read_table((folder / meta["table"]).read_text(encoding="utf-8"))
-    assert (table.version, table.lens) == (3, lens_facts(lens_of(meta)))
+    assert (table.version, table.lens) == (4, lens_facts(lens_of(meta)))
 
 
 def test_table_reads_back_as_the_fitted_systems(quick_run):
@@ -274,7 +274,7 @@ def test_committed_scene_folders_are_what_lensfit_scene_writes(scene_dir):
     for name, text in files.items():
         assert (scene_dir / name).read_bytes() == text.encode("utf-8"), name
     table = read_table(files[f"{lens_prefix(lens)}{scene_dir.name}.table"])
-    assert (table.version, table.lens, table.trust) == (3, lens_facts(lens), systems.trust)
+    assert (table.version, table.lens, table.trust) == (4, lens_facts(lens), systems.trust)
 
 
 def test_cli_regenerate_rewrites_a_folder_from_fit_json(quick_dir, tmp_path, capsys):
@@ -301,6 +301,8 @@ def test_cli_regenerate_rewrites_a_folder_from_fit_json(quick_dir, tmp_path, cap
     # before the trust figures (version 2) cannot be regenerated, only refitted
     table = folder / "lens0001.table"
     table.write_text("lensfit-poly-table 1\n", encoding="utf-8")
+    refused(f"{table}: table line 1: expected the last line 'checksum crc32")  # cut short
+    table.write_text(with_checksum("lensfit-poly-table 1\n"), encoding="utf-8")
     refused(f"{table}: table line 2: no system in the table")
     systems = read_table(before["lens0001.table"].decode("utf-8"))
     table.write_text(write_table(list(systems), lens=systems.lens), encoding="utf-8")

@@ -492,8 +492,8 @@ static void test_null_arguments(void)
     CHECK_RES(ctx, LENSRT_ERROR_INVALID_ARGUMENT, lensrt_lens_load(ctx, NULL, &out_lens));
     CHECK_RES(ctx, LENSRT_ERROR_INVALID_ARGUMENT, lensrt_lens_load(ctx, g_table, NULL));
     CHECK_RES(ctx, LENSRT_ERROR_INVALID_ARGUMENT, lensrt_lens_load_text(NULL, text, strlen(text), "t", &out_lens));
-    CHECK_RES(ctx, LENSRT_ERROR_INVALID_ARGUMENT, lensrt_lens_load_text(ctx, NULL, 10, "t", &out_lens));
-    CHECK_RES(ctx, LENSRT_ERROR_INVALID_ARGUMENT, lensrt_lens_load_text(ctx, text, strlen(text), "t", NULL));
+    CHECK_RES(ctx, LENSRT_ERROR_INVALID_ARGUMENT, load_stamped(ctx, NULL, 10, "t", &out_lens));
+    CHECK_RES(ctx, LENSRT_ERROR_INVALID_ARGUMENT, load_stamped(ctx, text, strlen(text), "t", NULL));
     CHECK_RES(ctx, LENSRT_ERROR_INVALID_ARGUMENT, lensrt_lens_create_analytic(NULL, &m, &out_lens));
     CHECK_RES(ctx, LENSRT_ERROR_INVALID_ARGUMENT, lensrt_lens_create_analytic(ctx, NULL, &out_lens));
     CHECK_RES(ctx, LENSRT_ERROR_INVALID_ARGUMENT, lensrt_lens_create_analytic(ctx, &m, NULL));
@@ -721,7 +721,7 @@ static void test_lens_tables(void)
     for (i = 0; i < (int)(sizeof bad_tables / sizeof bad_tables[0]); i++) {
         lensrt_lens bad = NULL;
         CHECK_RES(ctx, LENSRT_ERROR_PARSE,
-                  lensrt_lens_load_text(ctx, bad_tables[i][0], strlen(bad_tables[i][0]), "bad.table", &bad));
+                  load_stamped(ctx, bad_tables[i][0], strlen(bad_tables[i][0]), "bad.table", &bad));
         CHECK(has_line_location(lensrt_context_last_error(ctx)) || strstr(lensrt_context_last_error(ctx), "line"),
               "bad table %d: no line in '%s'", i, lensrt_context_last_error(ctx));
         CHECK_MSG(ctx, bad_tables[i][1]);
@@ -730,7 +730,7 @@ static void test_lens_tables(void)
     }
     {
         const char *v1 = "lensfit-poly-table 1\n";
-        CHECK_RES(ctx, LENSRT_ERROR_PARSE, lensrt_lens_load_text(ctx, v1, strlen(v1), "old.table", &lens));
+        CHECK_RES(ctx, LENSRT_ERROR_PARSE, load_stamped(ctx, v1, strlen(v1), "old.table", &lens));
         CHECK_MSG(ctx, "version 1");
         CHECK_MSG(ctx, "regenerate");
     }
@@ -753,7 +753,7 @@ static void test_lens_tables(void)
         text = read_text(g_table, &size);
         CHECK(text != NULL, "cannot read %s", g_table);
         if (text) {
-            CHECK_RES(ctx, LENSRT_SUCCESS, lensrt_lens_load_text(ctx, text, size, "memory.table", &again));
+            CHECK_RES(ctx, LENSRT_SUCCESS, load_stamped(ctx, text, size, "memory.table", &again));
             if (again) {
                 CHECK_RES(ctx, LENSRT_SUCCESS, lensrt_lens_get_info(again, &info2));
                 CHECK(info2.f_number_min == info.f_number_min && info2.focal_length_mm == info.focal_length_mm &&
@@ -763,7 +763,7 @@ static void test_lens_tables(void)
             // Truncated at half: a parse error with a line
             {
                 lensrt_lens half = NULL;
-                CHECK_RES(ctx, LENSRT_ERROR_PARSE, lensrt_lens_load_text(ctx, text, size / 2, "half.table", &half));
+                CHECK_RES(ctx, LENSRT_ERROR_PARSE, load_stamped(ctx, text, size / 2, "half.table", &half));
                 CHECK(has_line_location(lensrt_context_last_error(ctx)) || strstr(lensrt_context_last_error(ctx), "line"),
                       "truncated table: no line in '%s'", lensrt_context_last_error(ctx));
                 lensrt_lens_destroy(ctx, half);
@@ -791,7 +791,7 @@ static void expect_table_error(int line, lensrt_context ctx, const char *text, c
         check_at(0, __FILE__, line, "out of memory making a table");
         return;
     }
-    res = lensrt_lens_load_text(ctx, text, strlen(text), name, &lens);
+    res = load_stamped(ctx, text, strlen(text), name, &lens);
     e = lensrt_context_last_error(ctx);
     check_at(res == LENSRT_ERROR_PARSE, __FILE__, line, "load_text: got %s, expected parse error; last error '%s'",
              lensrt_result_string(res), e);
@@ -860,15 +860,46 @@ static void test_table_trust(void)
     CHECK_MSG(ctx, "regenerate it with `lensfit fit 0042`");
     EXPECT_TABLE_ERROR(text, "v2.table", 0, "regenerate it with `lensfit fit LENS`");
     free(text);
-    text = table_without_trust(real, 4);
-    EXPECT_TABLE_ERROR(text, "v4.table", 0, "table version 4 is newer than this lensrt reads (3)");
+    text = table_without_trust(real, 5);
+    EXPECT_TABLE_ERROR(text, "v5.table", 0, "table version 5 is newer than this lensrt reads (4)");
     free(text);
+
+    // Version 4's checksum (issue 25), unstamped here: a version-3 table is refused with
+    // the command that rewrites its folder, a changed byte and a missing checksum line
+    // (a table cut short) are refused naming the line
+    {
+        lensrt_lens lens3 = NULL;
+        size_t n = strlen(real), k;
+        char *copy = malloc(n + 1);
+        CHECK(copy != NULL, "out of memory");
+        if (copy) {
+            memcpy(copy, real, n + 1);
+            copy[19] = '3'; /* "lensfit-poly-table 3" */
+            CHECK_RES(ctx, LENSRT_ERROR_PARSE,
+                      lensrt_lens_load_text(ctx, copy, n, "generated/0042-x/ghosts/ghost_1_2.table", &lens3));
+            CHECK_MSG(ctx, "table version 3 carries no checksum");
+            CHECK_MSG(ctx, "`lensfit regenerate 0042-x`");
+            copy[19] = '4';
+            for (k = n - 2; k > 0 && copy[k - 1] != '\n'; k--) continue; /* the checksum line */
+            copy[k / 2] ^= 0x01;
+            CHECK_RES(ctx, LENSRT_ERROR_PARSE, lensrt_lens_load_text(ctx, copy, n, "flip.table", &lens3));
+            CHECK_MSG(ctx, "does not match the content");
+            copy[k / 2] ^= 0x01;
+            CHECK_RES(ctx, LENSRT_ERROR_PARSE, lensrt_lens_load_text(ctx, copy, k, "cut.table", &lens3));
+            CHECK_MSG(ctx, "expected the last line 'checksum crc32 <8 lowercase hex digits>'");
+            copy[n - 2] = (char)(copy[n - 2] >= 'a' ? copy[n - 2] - 32 : copy[n - 2]); /* upper case: refused */
+            if (copy[n - 2] >= 'A' && copy[n - 2] <= 'F') {
+                CHECK_RES(ctx, LENSRT_ERROR_PARSE, lensrt_lens_load_text(ctx, copy, n, "upper.table", &lens3));
+            }
+            free(copy);
+        }
+    }
 
     // A version 3 table: the figures arrive in the info, the log says them
     text = table_with_trust(real, good, &line);
     CHECK(text != NULL, "out of memory");
     n_warnings = h.n_warning_logs;
-    if (text) CHECK_RES(ctx, LENSRT_SUCCESS, lensrt_lens_load_text(ctx, text, strlen(text), "lens0001.table", &lens));
+    if (text) CHECK_RES(ctx, LENSRT_SUCCESS, load_stamped(ctx, text, strlen(text), "lens0001.table", &lens));
     if (lens) {
         CHECK_RES(ctx, LENSRT_SUCCESS, lensrt_lens_get_info(lens, &info));
         CHECK(info.psf_vs_exact == 0.0041 && info.psf_target == 0.01, "trust figures %g, %g: expected 0.0041, 0.01",
@@ -887,7 +918,7 @@ static void test_table_trust(void)
     // Worse than its target: a WARNING too, with the same figures and what to do
     text = table_with_trust(real, "trust psf_vs_exact 0.023\ntrust psf_vs_exact_cell f/2%20edge\ntrust psf_target 0.01\n", &line);
     n_warnings = h.n_warning_logs;
-    if (text) CHECK_RES(ctx, LENSRT_SUCCESS, lensrt_lens_load_text(ctx, text, strlen(text), "worse.table", &lens));
+    if (text) CHECK_RES(ctx, LENSRT_SUCCESS, load_stamped(ctx, text, strlen(text), "worse.table", &lens));
     CHECK(h.n_warning_logs == n_warnings + 1, "%d warnings on loading a table worse than its target", h.n_warning_logs - n_warnings);
     CHECK(strstr(h.last_warning, "worse.table: PSF against exactly traced rays: worst 2.3% relative L2 (f/2 edge), target 1%") &&
               strstr(h.last_warning, "exceeds the fit's target: regenerate with a tighter `lensfit fit --psf-target` "
@@ -1026,7 +1057,7 @@ static lensrt_result step_load_text(lensrt_context ctx, void *arg, void **made)
 {
     oom_args *a = arg;
     lensrt_lens lens = NULL;
-    lensrt_result res = lensrt_lens_load_text(ctx, a->text, a->size, "oom.table", &lens);
+    lensrt_result res = load_stamped(ctx, a->text, a->size, "oom.table", &lens);
     *made = lens;
     return res;
 }
@@ -1102,7 +1133,7 @@ static void test_failing_allocator(void)
     if (!text || !ctx) goto done;
 
     oom_sweep("lens_load_text", &h, ctx, step_load_text, undo_lens, &a);
-    CHECK_RES(ctx, LENSRT_SUCCESS, lensrt_lens_load_text(ctx, a.text, a.size, "lens0001", &fitted));
+    CHECK_RES(ctx, LENSRT_SUCCESS, load_stamped(ctx, a.text, a.size, "lens0001", &fitted));
     lens = perfect_lens(ctx);
     if (!fitted || !lens) goto done;
 

@@ -133,7 +133,7 @@ static const char *const GHOST_P_S = "ghost first 4\nghost second 8\nghost label
 static void expect_parse_error(lensrt_context ctx, const char *what, char *text, const char *n1, const char *n2)
 {
     lensrt_lens lens = NULL;
-    lensrt_result res = lensrt_lens_load_text(ctx, text, strlen(text), "ghost_4_8.table", &lens);
+    lensrt_result res = load_stamped(ctx, text, strlen(text), "ghost_4_8.table", &lens);
     CHECK(res == LENSRT_ERROR_PARSE, "%s: expected a parse error, got %s", what, lensrt_result_string(res));
     CHECK(strstr(lensrt_context_last_error(ctx), "ghost_4_8.table") != NULL, "%s: message '%s' names no file", what,
           lensrt_context_last_error(ctx));
@@ -158,7 +158,7 @@ static void test_reader(lensrt_context ctx)
 
     // A ghost table on side P_s with a housing pair and a stop pair
     t = ghost_table(GHOST_P_S, 1, four, 4, NULL, &n);
-    CHECK_OK(ctx, lensrt_lens_load_text(ctx, t, n, "ghost_4_8.table", &lens));
+    CHECK_OK(ctx, load_stamped(ctx, t, n, "ghost_4_8.table", &lens));
     if (lens) {
         CHECK_OK(ctx, lensrt_lens_get_info(lens, &info));
         CHECK(info.ghost == 1 && info.ghost_first == 4 && info.ghost_second == 8 && info.ghost_clip_pairs == 2 &&
@@ -170,7 +170,7 @@ static void test_reader(lensrt_context ctx)
     free(t);
     // A ghost without P_clip (K = 0) on side P_o; the direct table reads as no ghost
     t = ghost_table(GHOST_P_O, 0, NULL, 0, NULL, &n);
-    CHECK_OK(ctx, lensrt_lens_load_text(ctx, t, n, "ghost_0_2.table", &lens));
+    CHECK_OK(ctx, load_stamped(ctx, t, n, "ghost_0_2.table", &lens));
     if (lens) {
         CHECK_OK(ctx, lensrt_lens_get_info(lens, &info));
         CHECK(info.ghost == 1 && info.ghost_first == 0 && info.ghost_second == 2 && info.ghost_clip_pairs == 0 &&
@@ -180,7 +180,7 @@ static void test_reader(lensrt_context ctx)
         lensrt_lens_destroy(ctx, lens);
     }
     free(t);
-    CHECK_OK(ctx, lensrt_lens_load_text(ctx, g_text, g_size, "lens0001.table", &lens));
+    CHECK_OK(ctx, load_stamped(ctx, g_text, g_size, "lens0001.table", &lens));
     if (lens) {
         CHECK_OK(ctx, lensrt_lens_get_info(lens, &info));
         CHECK(info.ghost == 0 && info.ghost_clip_pairs == 0 && info.ghost_label && info.ghost_label[0] == '\0',
@@ -325,7 +325,7 @@ static void test_reader(lensrt_context ctx)
 static lensrt_lens load(lensrt_context ctx, const char *what, char *text)
 {
     lensrt_lens lens = NULL;
-    lensrt_result res = lensrt_lens_load_text(ctx, text, strlen(text), "ghost_test.table", &lens);
+    lensrt_result res = load_stamped(ctx, text, strlen(text), "ghost_test.table", &lens);
     CHECK(res == LENSRT_SUCCESS, "%s: load: %s", what, lensrt_context_last_error(ctx));
     free(text);
     return lens;
@@ -1003,7 +1003,7 @@ int main(int argc, char **argv)
     test_reader(ctx);
     {
         lensrt_lens direct = NULL;
-        CHECK_OK(ctx, lensrt_lens_load_text(ctx, g_text, g_size, "lens0001.table", &direct));
+        CHECK_OK(ctx, load_stamped(ctx, g_text, g_size, "lens0001.table", &direct));
         if (direct) {
             test_smaller_stop(ctx, direct);
             test_basis_clip(ctx, direct);

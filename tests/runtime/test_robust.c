@@ -67,7 +67,7 @@ static void expect_refused(lensrt_context ctx, const char *text, size_t size, in
     const char *needle;
     CHECK(t != NULL, "%s: line %d holds '%s'", what, line, old);
     if (!t) return;
-    CHECK_RES(ctx, LENSRT_ERROR_PARSE, lensrt_lens_load_text(ctx, t, n, "lens0001.table", &lens));
+    CHECK_RES(ctx, LENSRT_ERROR_PARSE, load_stamped(ctx, t, n, "lens0001.table", &lens));
     CHECK(lens == NULL, "%s: no lens handed out", what);
     va_start(args, what);
     while ((needle = va_arg(args, const char *)) != NULL)
@@ -87,7 +87,7 @@ static void expect_loaded(lensrt_context ctx, const char *text, size_t size, int
     lensrt_lens lens = NULL;
     CHECK(t != NULL, "%s: line %d holds '%s'", what, line, old);
     if (!t) return;
-    CHECK_OK(ctx, lensrt_lens_load_text(ctx, t, n, "lens0001.table", &lens));
+    CHECK_OK(ctx, load_stamped(ctx, t, n, "lens0001.table", &lens));
     lensrt_lens_destroy(ctx, lens);
     free(t);
 }
@@ -354,7 +354,7 @@ int main(int argc, char **argv)
     CHECK_OK(NULL, lensrt_context_create(&cd, &ctx));
     if (!text || !ctx) return 1;
     test_table(ctx, text, size);
-    CHECK_OK(ctx, lensrt_lens_load_text(ctx, text, size, "lens0001.table", &lens));
+    CHECK_OK(ctx, load_stamped(ctx, text, size, "lens0001.table", &lens));
     if (lens) {
         test_intensity(ctx, lens);
         test_splat_far(ctx, lens);

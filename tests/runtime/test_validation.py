@@ -21,6 +21,7 @@ form. Lengths in mm, wavelengths in nm.
 from __future__ import annotations
 
 import re
+import zlib
 from functools import lru_cache
 from pathlib import Path
 
@@ -798,7 +799,11 @@ def test_bad_input_raises_with_parameter_named(rt, tmp_path):
         rt.load(missing)
     assert info.value.code == IO
     bad = tmp_path / "bad.table"
-    bad.write_text("lensfit-poly-table 3\nlens focal_length_mm fifty\n")
+    # Hand-written tables, given the checksum line lensfit ends them with (issue 25)
+    def stamped(text: str) -> str:
+        return text + f"checksum crc32 {zlib.crc32(text.encode()) & 0xFFFFFFFF:08x}\n"
+
+    bad.write_text(stamped("lensfit-poly-table 4\nlens focal_length_mm fifty\n"))
     with pytest.raises(LensrtError, match=r"bad\.table:2:.*fifty") as info:
         rt.load(bad)
     assert info.value.code == PARSE
@@ -809,8 +814,8 @@ def test_bad_input_raises_with_parameter_named(rt, tmp_path):
                                           r"with `lensfit fit 0042`") as info:
         rt.load(old)
     assert info.value.code == PARSE
-    bad.write_text("lensfit-poly-table 3\nlens focal_length_mm 50\ntrust psf_vs_exact 0.01\n"
-                   "trust psf_target 0.01\n")
+    bad.write_text(stamped("lensfit-poly-table 4\nlens focal_length_mm 50\n"
+                           "trust psf_vs_exact 0.01\ntrust psf_target 0.01\n"))
     with pytest.raises(LensrtError, match=r"bad\.table:4:.*trust psf_vs_exact_cell") as info:
         rt.load(bad)
     assert info.value.code == PARSE

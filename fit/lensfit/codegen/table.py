@@ -1,6 +1,6 @@
 """Coefficient tables: polynomial systems as plain text a small C evaluator can parse.
 
-Format ``lensfit-poly-table``, version 3 (the reader also reads versions 1 and 2). UTF-8 text,
+Format ``lensfit-poly-table``, version 4 (the reader also reads versions 1 and 2). UTF-8 text,
 lines end with '\\n'; fields are separated by one or more spaces or tabs (only those:
 other Unicode blanks belong to a field), and a '\r' before the '\n' is ignored. Lines that
 are empty or start with '#' (after optional blanks) are comments and are skipped anywhere.
@@ -60,12 +60,11 @@ loads the table. Exactly these keys, in this order, one line each:
     trust psf_vs_exact_cell  which cell was worst, e.g. f/2%20axis%20450%20nm (a text field)
     trust psf_target         the PSF error the fit was made for (relative L2)
 
-The two numbers are finite and non-negative. The writer emits version 3 when it is given
-trust figures, version 2 with lens facts only, version 1 with neither; lensrt reads
-version 3 only.
+The two numbers are finite and non-negative. The writer emits version 4 (below) when it
+is given trust figures, version 2 with lens facts only, version 1 with neither.
 
 A ghost table (issue 13: one two-reflection path of the lens, rendered as its own lens)
-is a version-3 table with ghost lines after the trust lines, exactly these keys in this
+is a version-4 table with ghost lines after the trust lines, exactly these keys in this
 order, and a third system ``P_clip``:
 
     ghost first <i>          model surface index of the first reflection (in path order,
@@ -81,6 +80,18 @@ y_s<c>`` (unit ``mm``), a further crossing of the stop plane, passes inside the 
 aperture. The ghost side's own x, y outputs keep their clip against the housing lens
 line. :class:`GhostLines` holds the ghost lines (``Table.ghost``; None in a direct table).
 
+Version 4 is version 3 with a last line that every version the writer emits now ends
+with (issue 25: integrity):
+
+    checksum crc32 <8 lowercase hex digits>
+
+the CRC-32 (zlib's and PNG's polynomial) of every byte before that line, so that a
+table changed after lensfit wrote it (a bit flip, an edit, a table cut short: the line
+is then missing) is refused by both readers, naming the file. lensrt reads version 4
+only; a version-3 table (no checksum) is refused by both with the command that rewrites
+it, `lensfit regenerate <lens id>` (which alone reads version 3: ``legacy=True``; the
+coefficients are carried over bit for bit, no refit). Comments are inside the checksum.
+
 A system's ``info`` (provenance) is not stored. ``read_table(write_table(s))`` gives back
 the names, units, domains, transforms, exponents and coefficients bit for bit, terms in
 their order, and the lens facts exactly (:class:`Table`). Malformed text raises ValueError
@@ -91,6 +102,7 @@ from __future__ import annotations
 
 import math
 import re
+import zlib
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -102,8 +114,33 @@ from lensfit.poly import Input, Polynomial, System
 from lensfit.poly.polynomial import TRANSFORMS
 
 FORMAT = "lensfit-poly-table"
-VERSION = 3  # what the writer emits when given lens facts and trust figures
-READS = (1, 2, 3)  # versions the reader accepts
+VERSION = 4  # what the writer emits when given lens facts and trust figures
+READS = (1, 2, 4)  # versions the reader accepts (3: only to regenerate, ``legacy=True``)
+LEGACY = 3  # trust figures but no checksum line: `lensfit regenerate` rewrites it as 4
+CHECKSUM = "checksum crc32"  # the last line: ``checksum crc32 <8 lowercase hex digits>``
+_CHECKSUM_LINE = re.compile(rb"checksum crc32 ([0-9a-f]{8})\n\Z")
+REGENERATE = ("`lensfit regenerate <lens id or generated folder name>` (rewrites "
+              "generated/<lens>/ with checksums, no refit)")
+
+
+def table_checksum(body: bytes) -> str:
+    """The checksum line's value for the bytes before it: CRC-32 (the polynomial of zlib
+    and PNG) as 8 lowercase hex digits. A CRC detects every error burst of up to 32 bits,
+    so every single-bit flip of a table."""
+    return f"{zlib.crc32(body) & 0xFFFFFFFF:08x}"
+
+
+def with_checksum(body: str) -> str:
+    """``body`` (a table's text up to its checksum line, ending with a newline) followed
+    by that line, as the writer ends every table."""
+    return body + f"{CHECKSUM} {table_checksum(body.encode('utf-8'))}\n"
+
+
+def split_checksum(data: bytes) -> tuple[bytes, str | None]:
+    """(the bytes before the checksum line, its value), or (data, None) without one."""
+    at = data.rfind(b"\n", 0, len(data) - 1) + 1
+    m = _CHECKSUM_LINE.fullmatch(data, at)
+    return (data[:at], m.group(1).decode()) if m else (data, None)
 TRUST_KEYS = ("psf_vs_exact", "psf_vs_exact_cell", "psf_target")
 GHOST_KEYS = ("first", "second", "label", "side")
 CLIP_SYSTEM = "P_clip"
@@ -219,7 +256,7 @@ def write_table(systems: Sequence[System], comment: str = "",
             raise ValueError("write_table: a ghost table needs the lens facts and trust "
                              "figures (version 3)")
         _check_ghost_systems(ghost, list(systems))
-    version = 1 if lens is None else 2 if trust is None else 3
+    version = 1 if lens is None else 2 if trust is None else VERSION
     lines = [f"{FORMAT} {version}"]
     lines += [f"# {line}".rstrip() for line in comment.splitlines()]
     if lens is not None:
@@ -248,7 +285,7 @@ def write_table(systems: Sequence[System], comment: str = "",
             for e, coef in zip(p.exponents.tolist(), p.coefficients.tolist(), strict=True):
                 lines.append(" ".join([*map(str, e), fmt_real(coef)]))
         lines.append("end")
-    return "\n".join(lines) + "\n"
+    return with_checksum("\n".join(lines) + "\n")
 
 
 class _Lines:
@@ -442,17 +479,33 @@ def _check_ghost_systems(ghost: GhostLines, systems: list[System]) -> None:
                                  f"x_h<k>, y_h<k> (unit 1) or x_s<c>, y_s<c> (unit mm)")
 
 
-def read_table(text: str) -> Table:
+def read_table(text: str, *, legacy: bool = False) -> Table:
     """Parse a ``lensfit-poly-table`` text (see the module doc) into systems (a
-    :class:`Table`: a list of the systems, with the lens facts as ``.lens``)."""
-    lines = _Lines(text)
+    :class:`Table`: a list of the systems, with the lens facts as ``.lens``). The last
+    line's checksum is verified first; ``legacy`` also reads version 3 (no checksum), as
+    `lensfit regenerate` does to rewrite it."""
+    data = text.encode("utf-8")
+    body, checksum = split_checksum(data)
+    lines = _Lines(body.decode("utf-8"))
     n, f = lines.next(f"the header '{FORMAT} {VERSION}'")
     if len(f) != 2 or f[0] != FORMAT:
         raise _fail(n, f"expected the header '{FORMAT} {VERSION}', found {' '.join(f)!r}")
-    if f[1] not in map(str, READS):
+    if f[1] == str(LEGACY) and not legacy:
+        raise _fail(n, f"table version {LEGACY} carries no checksum; regenerate it with "
+                       f"{REGENERATE}")
+    if f[1] not in map(str, READS) and not (legacy and f[1] == str(LEGACY)):
         raise _fail(n, f"format version {f[1]!r} is not supported (this reader: "
                        f"{', '.join(map(str, READS))})")
     version = int(f[1])
+    if version != LEGACY:
+        last = data.count(b"\n") + (not data.endswith(b"\n"))
+        if checksum is None:
+            raise _fail(last, f"expected the last line '{CHECKSUM} <8 hex digits>' (a table "
+                              "cut short, or edited): refused")
+        if checksum != table_checksum(body):
+            raise _fail(last, f"checksum {checksum} does not match the content "
+                              f"({table_checksum(body)}): the table was changed after lensfit "
+                              "wrote it; refused")
     lens = _lens(lines) if version >= 2 else None
     trust = _trust(lines) if version >= 3 else None
     ghost = _ghost(lines) if version >= 3 else None

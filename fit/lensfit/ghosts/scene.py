@@ -16,9 +16,9 @@ systems are (:func:`lensfit.scene.specialise`, P_clip folded with its ghost side
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
+from lensfit.codegen.checked_json import REFIT_GHOSTS, load_checked_json
 from lensfit.codegen.table import Table, read_table
 from lensfit.errors import InputError
 from lensfit.ghosts.enumerate import DEFAULT_THRESHOLD, enumerate_ghosts, parse_ghost
@@ -33,10 +33,10 @@ def fitted_ghosts(folder: Path, lens_arg: str) -> dict[str, Table]:
     if not index.is_file():
         raise InputError(f"{index}: not found: the lens has no fitted ghosts; run "
                          f"`lensfit ghosts {lens_arg} --fit` (with --count or --ghost)")
+    doc = load_checked_json(index, REFIT_GHOSTS)
     try:
-        doc = json.loads(index.read_text(encoding="utf-8"))
         entries = [(g["label"], g["first"], g["second"]) for g in doc["ghosts"]]
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError, KeyError, TypeError) as e:
+    except (KeyError, TypeError) as e:
         raise InputError(f"{index}: cannot read the fitted ghosts: {e}") from None
     out = {}
     for label, i, j in entries:

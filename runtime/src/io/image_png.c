@@ -44,6 +44,7 @@
 #endif
 
 #include "image_io.h"
+#include "../core/crc32.h"
 
 #include <errno.h>
 #include <fcntl.h>
@@ -79,34 +80,11 @@ static void png_set_error(char *err, size_t err_size, const char *fmt, ...)
 
 /* ------------------------------------------------------------ checksums ----- */
 
-/* CRC-32 as PNG uses it (ISO 3309 / ITU-T V.42: reflected polynomial 0xEDB88320,
- * initial value and final XOR 0xFFFFFFFF). The 256-entry table lives in the writer's
- * state, not in a global, and is built once per file. */
+/* CRC-32 as PNG uses it: core/crc32.h (shared with the coefficient tables), its table
+ * in the writer's state, built once per file. */
 typedef struct png_crc {
     uint32_t table[256];
 } png_crc;
-
-static void png_crc_init(png_crc *crc)
-{
-    uint32_t n;
-    for (n = 0; n < 256; ++n) {
-        uint32_t c = n;
-        int k;
-        for (k = 0; k < 8; ++k)
-            c = (c & 1u) ? 0xEDB88320u ^ (c >> 1) : c >> 1;
-        crc->table[n] = c;
-    }
-}
-
-/* Continue a CRC over `size` bytes; start from 0xFFFFFFFF, finish with ~state. */
-static uint32_t png_crc_update(const png_crc *crc, uint32_t state, const unsigned char *data,
-                               size_t size)
-{
-    size_t i;
-    for (i = 0; i < size; ++i)
-        state = crc->table[(state ^ data[i]) & 0xFFu] ^ (state >> 8);
-    return state;
-}
 
 /* Adler-32 (RFC 1950, section 8.2): two sums modulo 65521, the largest prime below 2^16.
  * 5552 is the most bytes that can be summed before a 32-bit sum may overflow. */
@@ -236,8 +214,8 @@ static void png_chunk(png_writer *w, const char type[4], const unsigned char *da
     uint32_t crc = 0xFFFFFFFFu;
     png_put_u32(head, (uint32_t)size);
     memcpy(head + 4, type, 4);
-    crc = png_crc_update(&w->crc, crc, head + 4, 4);
-    crc = png_crc_update(&w->crc, crc, data, size);
+    crc = lensrt_crc32_update(w->crc.table, crc, head + 4, 4);
+    crc = lensrt_crc32_update(w->crc.table, crc, data, size);
     png_put_u32(tail, ~crc);
     png_put(w, head, 8);
     png_put(w, data, size);
@@ -317,7 +295,7 @@ lensrt_result lensrt_write_png(const lensrt_allocator *allocator, const char *pa
         goto cleanup;
     }
     memset(&w, 0, sizeof w);
-    png_crc_init(&w.crc);
+    lensrt_crc32_table(w.crc.table);
     if ((refusal = lensrt_target_refusal(path)) != NULL) {
         png_set_error(err, err_size, "PNG '%s' %s", path, refusal);
         result = LENSRT_ERROR_IO;

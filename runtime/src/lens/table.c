@@ -1,4 +1,5 @@
-/* Fitted lenses: the `lensfit-poly-table` reader (version 3).
+/* Fitted lenses: the `lensfit-poly-table` reader (version 4: version 3's lines, then a
+ * last line with the CRC-32 of everything before it, fit/lensfit/codegen/table.py).
  *
  * Reentrant and independent of the host's locale: lines are split by split_fields (not
  * strtok, whose hidden state a host's own strtok loop or another thread would share),
@@ -7,6 +8,7 @@
  * as ASCII, not by the locale's <ctype.h> tables. */
 #include "../c_numbers.h"
 #include "../internal.h"
+#include "../core/crc32.h"
 
 #include <errno.h>
 #include <math.h>
@@ -498,6 +500,28 @@ static lensrt_result check_clip(lensrt_context ctx, const char *file, lensrt_len
 }
 
 /* What to pass to `lensfit fit` for a table file: the ID of lens<ID>.table, else LENS. */
+/* The generated/<lens> folder a table lives in, for `lensfit regenerate <folder>`: the
+ * table's folder, or the one above ghosts/, or two above scenes/<name>/ and
+ * scene-fits/<name>/ ("LENS" when the path does not say). */
+static void lens_folder_of(const char *file, char *folder, size_t size)
+{
+    const char *part[4] = {NULL, NULL, NULL, NULL}; /* the last folders, innermost first */
+    size_t len[4] = {0, 0, 0, 0};
+    const char *end = strrchr(file, '/'), *p;
+    int n = 0, k;
+    while (end && n < 4) {
+        for (p = end; p > file && p[-1] != '/'; p--) continue;
+        part[n] = p;
+        len[n++] = (size_t)(end - p);
+        end = p > file ? p - 1 : NULL;
+    }
+    k = n > 1 && len[0] == 6 && strncmp(part[0], "ghosts", 6) == 0 ? 1
+        : n > 2 && ((len[1] == 6 && strncmp(part[1], "scenes", 6) == 0) ||
+                    (len[1] == 10 && strncmp(part[1], "scene-fits", 10) == 0)) ? 2 : 0;
+    if (n > k && len[k] > 0 && len[k] < size) snprintf(folder, size, "%.*s", (int)len[k], part[k]);
+    else snprintf(folder, size, "LENS");
+}
+
 static void lens_id_of(const char *file, char *id, size_t size)
 {
     const char *base = strrchr(file, '/');
@@ -558,6 +582,40 @@ static void fill_info(lensrt_lens lens)
     info->ghost_clip_pairs = lens->n_clip_pairs;
 }
 
+/* Version 4's last line, `checksum crc32 <8 lowercase hex digits>\n` exactly, against the
+ * CRC-32 of every byte before it (core/crc32.h). On success *body_end is where that line
+ * starts (the parser stops there). */
+static lensrt_result check_checksum(lensrt_context ctx, const char *name, const char *text, size_t size,
+                                    const char **body_end)
+{
+    static const char prefix[] = "checksum crc32 ";
+    const size_t np = sizeof prefix - 1;
+    size_t start = size, k, line = 1;
+    uint32_t want = 0, got;
+    int ok;
+    // The last line's start: after the last '\n' before the final one
+    if (size > 0 && text[size - 1] == '\n')
+        for (start = size - 1; start > 0 && text[start - 1] != '\n'; start--) continue;
+    for (k = 0; k < start; k++) line += text[k] == '\n';
+    ok = start < size && size - start == np + 9 && memcmp(text + start, prefix, np) == 0;
+    for (k = 0; ok && k < 8; k++) {
+        const char c = text[start + np + k];
+        ok = (c >= '0' && c <= '9') || (c >= 'a' && c <= 'f');
+        want = want << 4 | (uint32_t)(c <= '9' ? c - '0' : c - 'a' + 10);
+    }
+    if (!ok)
+        return lensrt_fail(ctx, LENSRT_ERROR_PARSE,
+                           "%s:%zu: expected the last line 'checksum crc32 <8 lowercase hex digits>' (a table cut "
+                           "short, or edited): refused", name, line);
+    got = lensrt_crc32(text, start);
+    if (got != want)
+        return lensrt_fail(ctx, LENSRT_ERROR_PARSE,
+                           "%s:%zu: checksum %08x does not match the content (%08x): the table was changed after "
+                           "lensfit wrote it; refused", name, line, (unsigned)want, (unsigned)got);
+    *body_end = text + start;
+    return LENSRT_SUCCESS;
+}
+
 lensrt_result lensrt_lens_load_text(lensrt_context ctx, const char *text, size_t size,
                                     const char *name, lensrt_lens *out)
 {
@@ -566,7 +624,7 @@ lensrt_result lensrt_lens_load_text(lensrt_context ctx, const char *text, size_t
     lensrt_result res;
     unsigned seen = 0;
     int version, n_lens = 0, n_trust = 0, n_ghost = 0, n_systems = 0;
-    char id[64];
+    char id[64], folder[256];
     if (!ctx || !text || !out) return lensrt_fail(ctx, LENSRT_ERROR_INVALID_ARGUMENT, "lensrt_lens_load_text: NULL argument");
     *out = NULL;
     memset(&r, 0, sizeof r);
@@ -578,16 +636,24 @@ lensrt_result lensrt_lens_load_text(lensrt_context ctx, const char *text, size_t
     if (!next_line(&r) || r.n_tok != 2 || strcmp(r.tok[0], "lensfit-poly-table") != 0 ||
         !parse_int(r.tok[1], 1, 1000, &version))
         return lensrt_fail(ctx, LENSRT_ERROR_PARSE,
-                           "%s:%d: not a lens table: expected 'lensfit-poly-table 3'", r.name, r.line);
+                           "%s:%d: not a lens table: expected 'lensfit-poly-table 4'", r.name, r.line);
     lens_id_of(r.name, id, sizeof id);
+    lens_folder_of(r.name, folder, sizeof folder);
     if (version < 3)
         return lensrt_fail(ctx, LENSRT_ERROR_PARSE,
                            "%s: table version %d predates the trust figures (the PSF against exactly "
                            "traced rays) that version 3 carries; regenerate it with `lensfit fit %s`",
                            r.name, version, id);
-    if (version > 3)
+    if (version == 3)
         return lensrt_fail(ctx, LENSRT_ERROR_PARSE,
-                           "%s: table version %d is newer than this lensrt reads (3)", r.name, version);
+                           "%s: table version 3 carries no checksum (a table changed or cut short could not be "
+                           "told); regenerate it with `lensfit regenerate %s` (rewrites generated/<lens>/ with "
+                           "checksums, no refit)", r.name, folder);
+    if (version > 4)
+        return lensrt_fail(ctx, LENSRT_ERROR_PARSE,
+                           "%s: table version %d is newer than this lensrt reads (4)", r.name, version);
+    // The last line is the checksum of every byte before it: verify, then parse the rest
+    if ((res = check_checksum(ctx, r.name, text, size, &r.end)) != LENSRT_SUCCESS) return res;
     lens = lensrt_calloc(ctx, 1, sizeof *lens);
     if (!lens) return lensrt_fail(ctx, LENSRT_ERROR_OUT_OF_MEMORY, "%s: out of memory", r.name);
     lens->ctx = ctx;

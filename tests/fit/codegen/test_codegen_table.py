@@ -1,14 +1,15 @@
 """Coefficient tables: exact round trip, the documented layout, errors with line numbers,
-the lens lines of version 2, the trust lines of version 3, and versions 1 and 2 still
-read."""
+the lens lines of version 2, the trust lines of version 3 (now 4, with its checksum),
+and versions 1 and 2 still read."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from lensfit.codegen import read_table, write_table
-from lensfit.codegen.table import decode_field, encode_field
+from lensfit.codegen import write_table
+from lensfit.codegen.table import decode_field, encode_field, split_checksum, with_checksum
+from lensfit.codegen.table import read_table as read_checked
 from lensfit.facts import LensFacts
 from lensfit.poly import Input, Polynomial, System
 
@@ -16,6 +17,19 @@ FACTS = LensFacts(name="Test lens, 50 mm f/2 (100%)", focal_length_mm=49.9999999
                   stop_radius_max_mm=9.5, stop_radius_f1_mm=18.75, housing_first_mm=14.0,
                   housing_last_mm=1.0 / 3.0, sensor_defocus_mm=-0.0125,
                   front_focal_distance_mm=-1e-300, squeeze=1.0)
+
+
+def stamp(text: str) -> str:
+    """The text with the checksum line the writer ends every table with (an old one
+    dropped): these tests write and edit tables by hand to check the layout and the
+    parser, not the checksum (test_table_checksum.py checks that)."""
+    lines = [t for t in text.splitlines(keepends=True) if not t.startswith("checksum crc32 ")]
+    body = "".join(lines)
+    return with_checksum(body if body.endswith("\n") or not body else body + "\n")
+
+
+def read_table(text: str):
+    return read_checked(stamp(text))
 
 
 def assert_same(a: list[System], b: list[System]) -> None:
@@ -56,7 +70,7 @@ def test_documented_layout():
     s = System("P_o", (Input("x", "mm", -2.0, 2.0), Input("λ", "nm", 400.0, 800.0,
                                                           "inverse_square")),
                (Polynomial("y", "mm", [[0, 0], [1, 2]], [0.5, -1.0 / 3.0]),))
-    assert write_table([s]) == (
+    assert write_table([s]) == stamp(
         "lensfit-poly-table 1\n"
         "system P_o 2 1\n"
         "input x mm -2 2 affine 0 2\n"
@@ -68,7 +82,7 @@ def test_documented_layout():
 
 
 def test_comments_blank_lines_tabs_and_crlf_are_accepted(systems):
-    text = write_table(systems[2:])
+    text = split_checksum(write_table(systems[2:]).encode())[0].decode()  # stamped again
     messy = "# leading comment\n\n" + text.replace(" ", " \t ").replace("\n", "\r\n  # c\r\n")
     assert_same(read_table(messy), systems[2:])
 
@@ -84,7 +98,7 @@ GOOD = ("lensfit-poly-table 1\n"          # 1
 
 
 @pytest.mark.parametrize(("old", "new", "line", "message"), [
-    ("lensfit-poly-table 1", "lensfit-poly-table 4", 1, "version '4' is not supported"),
+    ("lensfit-poly-table 1", "lensfit-poly-table 5", 1, "version '5' is not supported"),
     ("lensfit-poly-table 1", "poly 1", 1, "expected the header"),
     ("system S 2 1", "system S two 1", 2, "n_inputs: expected a non-negative integer"),
     ("system S 2 1", "sys S 2 1", 2, "expected 'system"),
@@ -113,7 +127,7 @@ def test_malformed_tables_name_the_line(old, new, line, message):
 
 def test_empty_table_is_an_error():
     with pytest.raises(ValueError, match="table line 1: unexpected end of text"):
-        read_table("")
+        read_checked("")
     with pytest.raises(ValueError, match="table line 2: no system"):
         read_table("lensfit-poly-table 1\n")
 
@@ -132,7 +146,7 @@ def test_lens_lines_round_trip(systems):
 
 def test_lens_lines_layout():
     s = System("S", (Input("x", "mm", -2.0, 2.0),), (Polynomial("y", "mm", [[1]], [0.5]),))
-    assert write_table([s], comment="c", lens=FACTS) == (
+    assert write_table([s], comment="c", lens=FACTS) == stamp(
         "lensfit-poly-table 2\n"
         "# c\n"
         "lens name Test%20lens,%2050%20mm%20f/2%20(100%25)\n"
@@ -155,7 +169,7 @@ def test_version_1_tables_still_read():
     table = read_table(GOOD)
     assert (table.version, table.lens) == (1, None)
     assert [s.name for s in table] == ["S"]
-    assert write_table(table) == GOOD.replace("-2.5e-3", "-0.0025000000000000001")  # v1
+    assert write_table(table) == stamp(GOOD.replace("-2.5e-3", "-0.0025000000000000001"))
 
 
 def test_writer_refuses_facts_it_cannot_write(systems):
@@ -227,7 +241,7 @@ TRUST = {"psf_vs_exact": 0.0017753640198416778, "psf_vs_exact_cell": "f/2 80% co
 def test_trust_lines_round_trip(systems):
     text = write_table(systems, comment="lens 0001", lens=FACTS, trust=TRUST)
     table = read_table(text)
-    assert (table.version, table.lens, table.trust) == (3, FACTS, TRUST)  # exactly
+    assert (table.version, table.lens, table.trust) == (4, FACTS, TRUST)  # exactly
     assert_same(table, systems)
     assert write_table(table, comment="lens 0001") == text  # a Table keeps its trust
     # Without trust figures the same systems and facts are version 2, without both 1
@@ -240,7 +254,7 @@ def test_trust_lines_layout():
     s = System("S", (Input("x", "mm", -2.0, 2.0),), (Polynomial("y", "mm", [[1]], [0.5]),))
     text = write_table([s], comment="c", lens=FACTS, trust=TRUST)
     lines = text.split("\n")
-    assert lines[0] == "lensfit-poly-table 3"
+    assert lines[0] == "lensfit-poly-table 4"
     assert lines[2].startswith("lens name ") and lines[10].startswith("lens squeeze ")
     assert lines[11:15] == ["trust psf_vs_exact 0.0017753640198416778",
                             "trust psf_vs_exact_cell f/2%2080%25%20corner%20450%20nm",
@@ -267,7 +281,7 @@ def test_writer_refuses_trust_without_lens_facts(systems):
         write_table(systems, trust=TRUST)
 
 
-GOOD3 = (GOOD2.replace("lensfit-poly-table 2", "lensfit-poly-table 3")
+GOOD3 = (GOOD2.replace("lensfit-poly-table 2", "lensfit-poly-table 4")
          .replace("lens squeeze 1\n",
                   "lens squeeze 1\n"                              # 11
                   "trust psf_vs_exact 0.002\n"                    # 12

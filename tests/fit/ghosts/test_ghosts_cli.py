@@ -8,6 +8,7 @@ import json
 import pytest
 
 from lensfit.cli import main
+from lensfit.codegen.checked_json import checked_json_text
 from lensfit.ghosts import enumerate as ghost_enum
 from lensfit.prescription import load_lens
 
@@ -119,7 +120,7 @@ def test_fit_writes_ghost_tables_and_merges_named_ones(singlet, tmp_path, capsys
                  "--no-timing"]) == 0
     out = gen / "singlet" / "ghosts"
     out.mkdir()
-    (out / "ghosts.json").write_text(json.dumps(
+    (out / "ghosts.json").write_text(checked_json_text(
         {"format": "lensfit-ghosts 1", "ghosts": [{"label": "9-9", "first": 9, "second": 9}]}))
     (out / "ghost_9_9.table").write_text("stand-in")
     args = ["ghosts", singlet, "--f-number", "8", "--rays", "2000", "--count", "1", "--fit",
