@@ -29,6 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
+from lensfit.atomic import check_target, write_atomic, write_files
 from lensfit.errors import InputError, LensError
 from lensfit.glass import UnknownGlassError
 
@@ -56,7 +57,19 @@ def _check_folder(path: str | Path, option: str) -> Path:
         raise InputError(f"{option} {p}: {base} is a file, not a folder")
     if not os.access(base, os.W_OK | os.X_OK):
         raise InputError(f"{option} {p}: {base} is not writable")
+    _probe_folder(base, f"{option} {p}")
     return p
+
+
+def _probe_folder(base: Path, what: str) -> None:
+    """Create and remove a folder in ``base``: access() says yes to root anywhere, and
+    /proc or a read-only mount refuse only when tried."""
+    import tempfile
+
+    try:
+        os.rmdir(tempfile.mkdtemp(prefix=".lensfit-probe-", dir=base))
+    except OSError as e:
+        raise InputError(f"{what}: cannot write in {base}: {e.strerror or e}") from None
 
 
 def _check_file(path: str | Path, option: str) -> Path:
@@ -70,7 +83,8 @@ def _check_file(path: str | Path, option: str) -> Path:
         raise InputError(f"{option} {p}: the folder {parent} does not exist")
     if not os.access(parent, os.W_OK | os.X_OK):
         raise InputError(f"{option} {p}: the folder {parent} is not writable")
-    return p
+    # A link or special file is refused, and a temporary must be creatable (lensfit.atomic)
+    return check_target(p, option)
 
 
 def _fmt(v: float | None, unit: str = "", digits: int = 4) -> str:
@@ -205,6 +219,7 @@ def _fit_ghosts(lens, ghosts, info: dict, light: tuple[float, float],
     The folder then holds exactly the kept ghosts; with --add, the kept ones are added or
     replaced and the others fitted before stay."""
     from lensfit.codegen import emit_c, emit_glsl
+    from lensfit.codegen.checked_json import REFIT_GHOSTS, checked_json_text, load_checked_json
     from lensfit.codegen.table import write_table
     from lensfit.generate import header_comment, lens_prefix, write_folder
     from lensfit.ghosts.tables import fit_with_trust, ghost_report
@@ -240,16 +255,15 @@ def _fit_ghosts(lens, ghosts, info: dict, light: tuple[float, float],
     if args.add and index.is_file():
         # Keep the ghosts fitted before that were not named this time
         try:
-            before = json.loads(index.read_text(encoding="utf-8"))["ghosts"]
-        except (OSError, ValueError, KeyError, TypeError) as e:
+            before = load_checked_json(index, REFIT_GHOSTS)["ghosts"]
+        except (KeyError, TypeError) as e:
             raise InputError(f"{index}: cannot read the ghosts fitted before: {e}") from None
         names = {e["label"] for e in report}
         report = [e for e in before if e.get("label") not in names] + report
         files.update({p.name: p.read_text(encoding="utf-8") for e in before
                       if e.get("label") not in names
                       for p in out.glob(f"*ghost_{e['first']}_{e['second']}.*")})
-    files["ghosts.json"] = json.dumps({"format": "lensfit-ghosts 1", "ghosts": report},
-                                      indent=1, sort_keys=True, allow_nan=False) + "\n"
+    files["ghosts.json"] = checked_json_text({"format": "lensfit-ghosts 1", "ghosts": report})
     write_folder(out, files)
     for old in out.glob("*ghost_*"):  # ghosts no longer kept
         if old.name not in files:
@@ -400,16 +414,15 @@ def cmd_import(args: argparse.Namespace) -> int:
     outdir = _check_folder(args.output or "lensdb", "-o")
     data = load_lentil_json(args.json_file)
     ids = args.id or sorted(data)
-    outdir.mkdir(parents=True, exist_ok=True)
-    for lens_id in ids:
+    files: dict[str, str] = {}
+    for lens_id in ids:  # every entry converted and validated before the first write
         if lens_id not in data:
             raise LensError(f"no entry with id {lens_id!r}", file=args.json_file, key="--id")
         conv = convert_entry(lens_id, data[lens_id], source=args.json_file)
-        lens_from_dict(conv, file=f"{args.json_file}#{lens_id}")  # validate before writing
-        path = outdir / f"{slug(conv)}.toml"
-        tmp = path.with_suffix(".toml.tmp")
-        tmp.write_text(to_toml(conv), encoding="utf-8")
-        tmp.replace(path)
+        with np.errstate(over="ignore", invalid="ignore"):  # an inf is refused, not warned
+            lens_from_dict(conv, file=f"{args.json_file}#{lens_id}")
+        files[f"{slug(conv)}.toml"] = to_toml(conv)
+    for path in write_files(outdir, files, option="-o"):
         print(f"wrote {path}")
     return 0
 
@@ -417,7 +430,7 @@ def cmd_import(args: argparse.Namespace) -> int:
 def _import_lens_file(args: argparse.Namespace, kind: str) -> int:
     """lensfit import of a .zmx or Optiland file: every problem on its own line (exit 2,
     nothing written), the notes on what was not mapped on stderr, the TOML atomically."""
-    from lensfit.interchange import ImportProblems, read_optiland, read_zmx, write_atomic
+    from lensfit.interchange import ImportProblems, read_optiland, read_zmx
     from lensfit.prescription.lentil import to_toml
 
     src = Path(args.json_file)
@@ -440,13 +453,13 @@ def _import_lens_file(args: argparse.Namespace, kind: str) -> int:
         return 2
     for line in result.notes:
         print(f"lensfit: note: {line}", file=sys.stderr)
-    write_atomic(out, to_toml(result.data))
+    write_atomic(out, to_toml(result.data), option="-o")
     print(f"wrote {out}")
     return 0
 
 
 def cmd_export(args: argparse.Namespace) -> int:
-    from lensfit.interchange import write_atomic, write_zmx
+    from lensfit.interchange import write_zmx
     from lensfit.prescription import load_lens
 
     out = _check_file(args.output, "-o")
@@ -459,7 +472,7 @@ def cmd_export(args: argparse.Namespace) -> int:
         raise LensError(f"cannot export: {e}", file=lens.source_file) from None
     for line in notes:
         print(f"lensfit: note: {lens.source_file}: {line}", file=sys.stderr)
-    write_atomic(out, text)
+    write_atomic(out, text, option="-o")
     print(f"wrote {out}")
     return 0
 
@@ -624,7 +637,6 @@ def cmd_scene(args: argparse.Namespace) -> int:
         lens_prefix,
         read_fit_json,
         scene_files,
-        write_folder,
     )
     from lensfit.prescription import load_lens
     from lensfit.report import ns_per_eval
@@ -653,9 +665,9 @@ def cmd_scene(args: argparse.Namespace) -> int:
             table = fitted[label]
             ghost_files |= scene_files(lens, sc.specialise(table, scene), scene.name,
                                        args.scene, table.trust, table.ghost, glsl=args.glsl)
-    write_folder(out, files)
+    write_files(out, files, option="-o")
     if ghost_files or (out / "ghosts").exists():
-        write_folder(out / "ghosts", ghost_files)
+        write_files(out / "ghosts", ghost_files, option="-o")
         for old in (out / "ghosts").iterdir():  # ghosts the scene no longer keeps
             if old.name not in ghost_files:
                 old.unlink()
@@ -694,8 +706,12 @@ def cmd_regenerate(args: argparse.Namespace) -> int:
     from lensfit.generate import GENERATED_DIR, lens_folder_name, regenerate
     from lensfit.prescription import load_lens
 
-    lens = load_lens(args.lens)
-    folder = (Path(args.generated) if args.generated else GENERATED_DIR) / lens_folder_name(lens)
+    gen = Path(args.generated) if args.generated else GENERATED_DIR
+    # A generated folder's whole name (e.g. a coating variant's), else a lens id or file
+    if "/" not in args.lens and (gen / args.lens / "fit.json").is_file():
+        folder = gen / args.lens
+    else:
+        folder = gen / lens_folder_name(load_lens(args.lens))
     _, names = regenerate(folder)
     print(f"wrote {folder}/ from its fit.json ({', '.join(names)})")
     return 0
@@ -838,7 +854,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("regenerate",
                        help="rewrite generated/<lens>/ from its fit.json, without fitting")
-    p.add_argument("lens")
+    p.add_argument("lens", help="lens id or file, or a generated folder's name "
+                   "(e.g. 0001-angenieux-double-gauss-uncoated)")
     p.add_argument("--generated", default=None, help="folder of generated code")
     p.set_defaults(func=cmd_regenerate)
 

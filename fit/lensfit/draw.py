@@ -8,6 +8,7 @@ up to the point where they are stopped, marked with a cross.
 
 from __future__ import annotations
 
+import io
 import math
 from pathlib import Path
 
@@ -17,6 +18,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
+from lensfit.atomic import write_atomic  # noqa: E402
 from lensfit.errors import InputError  # noqa: E402
 from lensfit.paraxial import D_LINE_NM, paraxial, stop_radius_for_f_number  # noqa: E402
 from lensfit.prescription.model import Lens  # noqa: E402
@@ -181,8 +183,9 @@ def draw_lens(
         )
     fig.tight_layout()
     out = Path(output)
-    tmp = out.with_name(out.name + ".tmp.png")
-    fig.savefig(tmp, dpi=130)
-    plt.close(fig)
-    tmp.replace(out)
-    return out
+    buf = io.BytesIO()
+    try:
+        fig.savefig(buf, format="png", dpi=130)
+    finally:
+        plt.close(fig)
+    return write_atomic(out, buf.getvalue(), option="-o")

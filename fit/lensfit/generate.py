@@ -22,13 +22,12 @@ folded systems to ``scenes/<name>/``; its table carries the same lens lines.
 
 from __future__ import annotations
 
-import os
 import re
-import tempfile
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
+from lensfit.atomic import write_files
 from lensfit.codegen import emit_c, emit_glsl, write_table
 from lensfit.codegen.c_horner import file_stem
 from lensfit.codegen.checked_json import checked_json_text, load_checked_json
@@ -177,18 +176,10 @@ def header_comment(lens: Lens, extra: str = "") -> str:
 
 
 def write_folder(folder: Path, files: dict[str, str]) -> None:
-    """Write all files atomically (each to a temporary name, then renamed)."""
-    folder.mkdir(parents=True, exist_ok=True)
-    for name, text in sorted(files.items()):
-        fd, tmp = tempfile.mkstemp(dir=folder, prefix=f".{name}.", suffix=".tmp")
-        try:
-            with os.fdopen(fd, "w", encoding="utf-8", newline="\n") as f:
-                f.write(text)
-            os.chmod(tmp, 0o644)  # mkstemp makes files private; these are for everyone
-            os.replace(tmp, folder / name)
-        except BaseException:
-            Path(tmp).unlink(missing_ok=True)
-            raise
+    """Write all files atomically, each through lensfit's one checked atomic write
+    (:func:`lensfit.atomic.write_files`: a temporary then a rename, a link or a special
+    file refused; every target checked before the first write)."""
+    write_files(folder, files, mode=0o644)  # for everyone, whatever the umask
 
 
 def fit_json(meta: dict[str, Any]) -> str:

@@ -32,6 +32,7 @@ constant phase). Scene file (TOML)::
 from __future__ import annotations
 
 import math
+import re
 import tomllib
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -43,6 +44,13 @@ from lensfit.errors import regular_file_problem, toml_overflow
 from lensfit.poly import Polynomial, System
 
 APERTURE_INPUTS = ("x_a", "y_a")
+
+
+# A scene's name names its folder and is part of C symbols: ASCII only, short enough
+# for file names (lens<id>_<name>.table) and C identifiers
+SCENE_NAME = re.compile(r"[A-Za-z][A-Za-z0-9_-]{0,63}")
+SCENE_NAME_RULE = ("expected a name of 1 to 64 ASCII letters, digits, '_' or '-', starting "
+                   "with a letter (it names a folder and C symbols)")
 
 
 class SceneError(ValueError):
@@ -101,7 +109,8 @@ class Scene:
     @classmethod
     def from_dict(cls, d: dict[str, Any], source: str = "<memory>") -> Scene:
         def fail(key: str, value: Any, want: str) -> SceneError:
-            return SceneError(f"{source}: key '{key}': {want}, found {value!r}")
+            shown = str(value).lower() if isinstance(value, bool) else repr(value)  # TOML's
+            return SceneError(f"{source}: key '{key}': {want}, found {shown}")
 
         known = {"name", "wavelengths_nm", "light", "focus_offset_mm", "clip",
                  "transmittance", "flares", "f_number", "ghosts", "ghost_count",
@@ -115,8 +124,10 @@ class Scene:
             raise fail(".".join(str(p) for p in big[0]), big[1],
                        "expected a number within a float's range")
         name = d.get("name")
-        if not isinstance(name, str) or not name or not name.replace("-", "_").isidentifier():
-            raise fail("name", name, "expected a name of letters, digits, '_' or '-'")
+        if not isinstance(name, str) or not SCENE_NAME.fullmatch(name):
+            # The name becomes a folder name and part of C symbols (lens0001_<name>_P_s)
+            raise fail("name", name if not isinstance(name, str) or len(name) <= 80
+                       else f"{name[:40]}... ({len(name)} characters)", SCENE_NAME_RULE)
         lam = d.get("wavelengths_nm")
         if (not isinstance(lam, list) or not lam
                 or not all(isinstance(v, int | float) and not isinstance(v, bool)
@@ -134,6 +145,12 @@ class Scene:
                 if k not in light_keys:
                     raise fail(f"light[{i}].{k}", lt[k], "unknown key in [[light]] (known: "
                                f"{', '.join(sorted(light_keys))})")
+            # Booleans are not numbers (float(true) would be 1 mm or 1 degree)
+            for k in light_keys:
+                v = lt.get(k) if isinstance(lt, dict) else None
+                if isinstance(v, bool):
+                    raise fail(f"light[{i}].{k}", v, "expected a number"
+                               + (' or "inf"' if k == "distance_mm" else ""))
             try:
                 dist = lt.get("distance_mm", "inf")
                 dist = math.inf if dist == "inf" else float(dist)

@@ -39,7 +39,9 @@ static void usage(FILE *f)
 {
     fprintf(f,
         "usage: lensrt-psf --lens ID|TABLE -o OUT.exr [options]\n"
-        "  --lens ID|TABLE        lens id in the generated folder (e.g. 0001) or a .table file\n"
+        "  --lens ID|TABLE        lens id in the generated folder (e.g. 0001: its lens's folder), a\n"
+        "                         folder's whole name (a variant's: 0001-angenieux-double-gauss-uncoated)\n"
+        "                         or a .table file\n"
         "  --generated DIR        folder of generated lenses (default: $LENSRT_GENERATED or %s)\n"
         "  -o, --output FILE      spectral EXR to write\n"
         "  --png FILE             PNG preview (log tone map) to write\n"
@@ -63,7 +65,10 @@ static void usage(FILE *f)
         "                         (e.g. 0.01), starting from --samples\n"
         "  --max-samples N        stop doubling there (default 16777216); warns if E was not reached\n"
         "  --no-estimate          one sample sequence, no halves and no error estimate\n"
-        "  --seed S               (default 1; the second half uses S + 0x9E3779B97F4A7C15)\n"
+        "  --seed S               (default 1; the second half uses S + 0x9E3779B97F4A7C15)\n",
+        LENSRT_GENERATED_DIR);
+    /* In two parts: C99 compilers need take no string literal over 4095 characters */
+    fprintf(f,
         "  --sampler sobol|random|stratified (default sobol; random with --estimator unbiased)\n"
         "  --estimator paper|unbiased (default paper; unbiased needs independent samples)\n"
         "  --threads N            OpenMP threads (default: all)\n"
@@ -89,8 +94,7 @@ static void usage(FILE *f)
         "  --quiet                no progress (the error estimate is still printed on stdout)\n"
         "  --allow-empty          write an image that is zero everywhere (else refused: exit 4)\n"
         "exit status: 0 done, 1 failed, 2 bad input, 3 no GL device (--device gl) or unsupported,\n"
-        "             4 the image is zero everywhere (no light passes: nothing written)\n",
-        LENSRT_GENERATED_DIR);
+        "             4 the image is zero everywhere (no light passes: nothing written)\n");
 }
 
 static int bad(const char *option, const char *value, const char *expected)
@@ -243,7 +247,9 @@ static void remove_stale(const char *base, const char *kind)
 
 /* Find the table of a lens named by its id ID (generated/<ID>-*\/lens<ID>.table) or by
  * its whole folder name (generated/<ID>-<name>/lens<ID>.table: an exact folder name wins).
- * Returns how many folders match (0: none, 1: path holds its table, more: ambiguous, and
+ * Of the folders of one id, a lens's variants are named after it (`<folder>-uncoated`):
+ * the id names the folder every other one extends. Returns how many folders match (0:
+ * none, 1: path holds its table, more: ambiguous (two lenses share the id), and
  * `choices` lists them, comma-separated, in name order for a stable message). */
 static int find_table(const char *dir, const char *arg, char *path, size_t size, char *choices, size_t csize)
 {
@@ -275,6 +281,21 @@ static int find_table(const char *dir, const char *arg, char *path, size_t size,
     }
     closedir(d);
     if (exact >= 0) return 1;
+    if (found > 1 && found <= 16) {
+        // The lens of its variants: the one name each other name extends with '-...'
+        for (k = 0; k < found; k++) {
+            const size_t nk = strlen(names[k]);
+            int all = 1;
+            for (j = 0; j < found && all; j++)
+                all = j == k || (strncmp(names[j], names[k], nk) == 0 && names[j][nk] == '-');
+            if (all) {
+                const char *dash = strchr(names[k], '-');
+                const int id_len = dash ? (int)(dash - names[k]) : (int)strlen(names[k]);
+                snprintf(path, size, "%s/%s/lens%.*s.table", dir, names[k], id_len, names[k]);
+                return 1;
+            }
+        }
+    }
     if (found > 1 && choices && csize) {
         // Sorted (insertion: a handful of names), so the message does not depend on readdir
         const int m = found < 16 ? found : 16;

@@ -205,3 +205,136 @@ def test_a_closed_pipe_ends_quietly():
     p.stdout.close()  # long before the interpreter has imported lensfit
     _, err = p.communicate(timeout=120)
     assert (p.returncode, err.decode()) == (141, "")
+
+
+# Issue 25: the last tracebacks, each one line with exit 2 naming the key or path
+
+OPTILAND = (ROOT / "tests" / "fit" / "fixtures" / "optiland" / "cooke_triplet.json"
+            ).read_text(encoding="utf-8")
+LENTIL = json.dumps({"0001": {"optical-elements-patent": [
+    {"radius": 50.0, "thickness": 5.0, "material": "BK7", "ior": 1.5168, "abbe": 64.17,
+     "housing-radius": 10.0},
+    {"radius": -50.0, "thickness": 5.0, "material": "air", "housing-radius": 10.0},
+    {"radius": 0, "thickness": 5.0, "material": "iris", "housing-radius": 8.0},
+    {"radius": 1e5, "thickness": 40.0, "material": "air", "housing-radius": 10.0}]}})
+BIG = "1" + "0" * 400
+
+
+def _import_refused(capsys, tmp_path: Path, name: str, raw: bytes) -> list[str]:
+    """lensfit import exits 2, the output (a .toml or a folder) is not created."""
+    src, out = tmp_path / name, tmp_path / "x.toml"
+    src.write_bytes(raw)
+    assert main(["import", str(src), "-o", str(out)]) == 2
+    assert not out.exists() and sorted(p.name for p in tmp_path.iterdir()) == [name]
+    return capsys.readouterr().err.strip().splitlines()
+
+
+@pytest.mark.parametrize("old,new,line", [
+    ('"radius": 22.01359', f'"radius": {BIG}',
+     "o.json:103: key 'radius': number 100000000000...000000: an integer of 401 digits, "
+     "beyond a float's range"),
+    ('"radius": 22.01359', '"radius": ' + "1" * 5001,
+     "o.json:103: key 'radius': number 111111111111...111111: an integer of 5001 digits, "
+     "beyond a float's range"),
+    ('"radius": 22.01359', '"radius": 1e400',
+     "o.json:103: key 'radius': number 1e400: beyond a float's range"),
+    ('"value": 10.0', f'"value": {BIG}',
+     "o.json:6: key 'value': number 100000000000...000000: an integer of 401 digits, "
+     "beyond a float's range"),
+    ('"pickups": []', '"pickups": ' + "[" * 5000 + "]" * 5000,
+     "o.json:58: malformed JSON: nested deeper than 64 arrays and objects"),
+])
+def test_optiland_bad_json(capsys, tmp_path, old, new, line):
+    err = _import_refused(capsys, tmp_path, "o.json", OPTILAND.replace(old, new, 1).encode())
+    assert err == [f"lensfit: error: {tmp_path}/{line}",
+                   "lensfit: error: 1 problem(s); nothing written"]
+
+
+def test_optiland_encodings(capsys, tmp_path):
+    # UTF-16 with its byte-order mark is read (as the .zmx importer reads OpticStudio's)
+    ok = tmp_path / "ok"
+    ok.mkdir()
+    src, out = ok / "u.json", ok / "u.toml"
+    src.write_bytes(OPTILAND.encode("utf-16"))
+    assert main(["import", str(src), "-o", str(out)]) == 0
+    assert out.read_text(encoding="utf-8").startswith("# Lens prescription")
+    capsys.readouterr()
+    bad = tmp_path / "bad"
+    bad.mkdir()
+    err = _import_refused(capsys, bad, "l.json",
+                          OPTILAND.replace("Cooke", "Cook\u00e9").encode("latin-1"))
+    assert err[0] == (f"lensfit: error: {bad}/l.json: cannot read: not UTF-8 text (byte "
+                      "0xe9 at offset 39); save it as UTF-8")
+
+
+def test_optiland_surface_group_list_writes_nothing(capsys, tmp_path):
+    doc = json.loads(OPTILAND)
+    doc["surface_group"] = [doc["surface_group"]]
+    err = _import_refused(capsys, tmp_path, "g.json", json.dumps(doc).encode())
+    assert err == [f"lensfit: error: {tmp_path}/g.json: surface_group: expected an object "
+                   "(Optiland's surface group), found list",
+                   "lensfit: error: 1 problem(s); nothing written"]
+
+
+@pytest.mark.parametrize("old,new,line", [
+    ('"radius": 50.0', f'"radius": {BIG}',
+     "l.json: line 1: key 'radius': number 100000000000...000000: an integer of 401 digits, "
+     "beyond a float's range"),
+    ('"ior": 1.5168', '"ior": "1.5"',
+     "l.json: surface 0: key 'ior': entry 0001: expected a finite number, found '1.5'"),
+    ('"thickness": 5.0', '"thickness": ' + "[" * 5000 + "]" * 5000,
+     "l.json: line 1: malformed JSON: nested deeper than 64 arrays and objects"),
+])
+def test_lentil_bad_json(capsys, tmp_path, old, new, line):
+    err = _import_refused(capsys, tmp_path, "l.json", LENTIL.replace(old, new, 1).encode())
+    assert err == [f"lensfit: error: {tmp_path}/{line}"]
+
+
+@pytest.mark.parametrize("name,shown", [
+    ("sc\u00e9ne", "'sc\u00e9ne'"),
+    ("a" * 300, "'" + "a" * 40 + "... (300 characters)'"),
+    ("9lives", "'9lives'"),
+])
+def test_scene_names_become_symbols(capsys, tmp_path, name, shown):
+    path, out = tmp_path / "scene.toml", tmp_path / "out"
+    path.write_text(SCENE.replace('"t"', json.dumps(name, ensure_ascii=False)),
+                    encoding="utf-8")
+    line = refused(capsys, ["scene", "0001", str(path), "-o", str(out), "--no-timing"])
+    assert line == (f"lensfit: error: {path}: key 'name': expected a name of 1 to 64 ASCII "
+                    "letters, digits, '_' or '-', starting with a letter (it names a folder "
+                    f"and C symbols), found {shown}")
+    assert not out.exists()
+
+
+@pytest.mark.parametrize("old,new,key", [
+    ("distance_mm = 5000.0", "distance_mm = true", "light[0].distance_mm"),
+    ("field_y_deg = 2.0", "field_y_deg = true", "light[0].field_y_deg"),
+])
+def test_scene_booleans_are_not_numbers(capsys, tmp_path, old, new, key):
+    path, out = tmp_path / "scene.toml", tmp_path / "out"
+    path.write_text(SCENE.replace(old, new), encoding="utf-8")
+    line = refused(capsys, ["scene", "0001", str(path), "-o", str(out), "--no-timing"])
+    what = 'a number or "inf"' if key.endswith("distance_mm") else "a number"
+    assert line == f"lensfit: error: {path}: key '{key}': expected {what}, found true"
+
+
+@pytest.mark.parametrize("old,new,line", [
+    ("thickness = 10.99", "thickness = true",
+     "surface 0: key 'thickness': expected number, found true"),
+    ("focal_length_mm = 100.0", "focal_length_mm = false",
+     "key 'lens.focal_length_mm': expected number, found false"),
+    ('id = "0001"', 'id = "' + "a" * 300 + '"',
+     "key 'lens.id': expected 1 to 64 ASCII letters, digits or '_' (the id names generated "
+     "files and C symbols), found 300 characters"),
+    ('shape = "sphere"\nradius = 164.13', 'shape = "asphere"\nradius = 164.13\nconic = 0.0\n'
+     "aspheric = [" + ", ".join(["1e-12"] * 200) + "]",
+     "surface 0: key 'aspheric': aspheric[79] (A162) = 1e-12 scaled by lens.scale = 0.01 "
+     "(times scale^-161) is beyond a float's range"),
+])
+def test_lens_booleans_ids_and_scaled_aspheres(capsys, tmp_path, old, new, line):
+    path = tmp_path / "lens.toml"
+    text = LENS.replace(old, new, 1)
+    if "aspheric" in new:
+        text = text.replace("focal_length_mm = 100.0", "focal_length_mm = 100.0\nscale = 0.01")
+    path.write_text(text, encoding="utf-8")
+    assert refused(capsys, ["info", str(path)]) == f"lensfit: error: {path}: {line}"

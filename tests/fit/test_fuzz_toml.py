@@ -246,3 +246,32 @@ def test_scene_loader_random_documents(tmp_path: Path, doc: dict[str, Any]) -> N
 def test_committed_files_load(path: Path) -> None:
     # The unmutated seeds load: otherwise every mutation would fail for the same reason.
     (load_scene if path.parent.name == "scenes" else load_lens)(path)
+
+
+# Issue 25: booleans are not numbers in any TOML input (float(true) is 1.0: a scene's
+# `distance_mm = true` was read as 1 mm). Every numeric value of a lens and of each
+# scene, set to true or false, is refused with the file, the key and the value.
+
+def _numeric_lines(text: str) -> list[int]:
+    import re
+
+    return [i for i, line in enumerate(text.splitlines())
+            if re.fullmatch(r"\s*[A-Za-z_]+\s*=\s*-?[0-9][0-9.eE+-]*\s*(#.*)?", line)]
+
+
+BOOL_CASES = [("lens", 0, i) for i in _numeric_lines(LENS_TEXTS[0])] + [
+    ("scene", k, i) for k, text in enumerate(SCENE_TEXTS) for i in _numeric_lines(text)]
+
+
+@pytest.mark.parametrize("kind,k,line", BOOL_CASES)
+@pytest.mark.parametrize("word", ["true", "false"])
+def test_booleans_are_not_numbers(tmp_path, kind, k, line, word):
+    text = (LENS_TEXTS[0] if kind == "lens" else SCENE_TEXTS[k]).splitlines()
+    key = text[line].split("=")[0].strip()
+    text[line] = f"{key} = {word}"
+    path = tmp_path / "x.toml"
+    path.write_text("\n".join(text) + "\n", encoding="utf-8")
+    with pytest.raises(PROJECT_ERRORS) as e:
+        (load_lens if kind == "lens" else load_scene)(path)
+    msg = str(e.value)
+    assert msg.startswith(str(path)) and key in msg and f"found {word}" in msg, msg

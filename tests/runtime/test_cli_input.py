@@ -221,30 +221,29 @@ def test_cells_render_and_gl_refusal(tmp_path: Path) -> None:
 
 
 def test_an_ambiguous_lens_id_is_refused_with_its_choices(tmp_path: Path) -> None:
-    # Two folders share the id 2004 (a lens and its uncoated variant, as in generated/):
-    # the id alone is refused naming both, sorted; a whole folder name picks exactly one
+    # Two lenses that share the id 2004 (and a variant of one, named after its folder):
+    # the id alone is refused naming the lenses' folders, sorted; a whole folder name
+    # picks exactly one. Of a lens and its variants only, the id names the lens (0001 in
+    # generated/ has its uncoated variant beside it)
     gen = tmp_path / "gen"
-    for name in ("2004-anamorphic-uncoated", "2004-anamorphic", "20040-other"):
+    for name in ("2004-b", "2004-a-uncoated", "2004-a", "20040-other", "0001-x",
+                 "0001-x-uncoated"):
         (gen / name).mkdir(parents=True)
         (gen / name / f"lens{name.split('-')[0]}.table").write_bytes(LENS0001.read_bytes())
     out = tmp_path / "out.exr"
     r = run("--generated", str(gen), "-o", str(out), lens="2004")
-    refused(r, "--lens", "'2004' is ambiguous", "2 folders",
-            "(2004-anamorphic, 2004-anamorphic-uncoated)")
+    refused(r, "--lens", "'2004' is ambiguous", "3 folders", "(2004-a, 2004-a-uncoated, 2004-b)")
     assert not out.exists()
-    for name in ("2004-anamorphic", "2004-anamorphic-uncoated", "20040"):
-        r = run("--generated", str(gen), "-o", str(out), lens=name)
+    for name, table in (("2004-a", "2004-a"), ("2004-a-uncoated", "2004-a-uncoated"),
+                        ("20040", "20040-other"), ("0001", "0001-x"),
+                        ("0001-x-uncoated", "0001-x-uncoated")):
+        r = subprocess.run([str(PSF), "--lens", name, "--generated", str(gen), *BASE[:-1],
+                            "-o", str(out)], capture_output=True, text=True, timeout=120)
         assert r.returncode == 0, (name, r.stderr)
+        assert f"/{table}/lens" in r.stderr, (name, r.stderr)  # the progress line names it
         out.unlink()
-    refused(run("--generated", str(gen), "-o", str(out), lens="2004-anamorph"),
-            "unknown lens '2004-anamorph'")
-
-
-def _dead_pid() -> int:
-    """The pid of a process that has exited (and been reaped): no such process now."""
-    p = subprocess.Popen(["true"])
-    p.wait()
-    return p.pid
+    refused(run("--generated", str(gen), "-o", str(out), lens="2004-a-unc"),
+            "unknown lens '2004-a-unc'")
 
 
 def test_an_image_zero_everywhere_is_refused_and_nothing_is_written(tmp_path: Path) -> None:
@@ -283,3 +282,35 @@ def test_stale_files_of_killed_runs_are_removed_and_live_ones_kept(tmp_path: Pat
     assert r.returncode == 0, r.stderr
     left = sorted(p.name for p in tmp_path.iterdir())
     assert left == sorted(["a.exr", *kept]), left
+
+
+@pytest.mark.parametrize("decades", ["nan", "inf", "-3", "0"])
+def test_decades_must_be_finite_and_positive(tmp_path: Path, decades: str) -> None:
+    # The PNG's log range: NaN, inf and non-positive values were turned into 5; now exit 2
+    r = run("-o", str(tmp_path / "o.exr"), "--png", str(tmp_path / "o.png"), "--decades", decades)
+    refused(r, "--decades", "expected a positive number", f"'{decades}'")
+    assert not list(tmp_path.iterdir())
+
+
+def test_a_failed_resume_or_merge_writes_nothing(tmp_path: Path) -> None:
+    # A resume from a corrupted file, or a merge of sums the render already holds, fails
+    # after the outputs were checked: nothing is written (no EXR, PNG or --save-phasors
+    # file, no stage), and the outputs of an earlier run are left as they were
+    sums = tmp_path / "s.phasors"
+    r = run("--no-estimate", "-o", str(tmp_path / "s.exr"), "--save-phasors", str(sums))
+    assert r.returncode == 0, r.stderr
+    bad = tmp_path / "bad.phasors"
+    data = bytearray(sums.read_bytes())
+    data[len(data) // 2] ^= 1
+    bad.write_bytes(bytes(data))
+    out, png, save = tmp_path / "a.exr", tmp_path / "a.png", tmp_path / "a.phasors"
+    for f in (out, png, save):
+        f.write_bytes(b"earlier")
+    outs = ("-o", str(out), "--png", str(png), "--save-phasors", str(save))
+    before = sorted(p.name for p in tmp_path.iterdir())
+    r = run(*outs, "--resume", str(bad))
+    refused(r, "bad.phasors", "fails its checksum")
+    r = run(*outs, "--resume", str(sums), "--merge", str(sums))
+    refused(r, "s.phasors", "would be counted twice")
+    assert all(f.read_bytes() == b"earlier" for f in (out, png, save))
+    assert sorted(p.name for p in tmp_path.iterdir()) == before

@@ -210,11 +210,20 @@ def _normalise(name: str) -> str:
     return "".join(ch for ch in name.upper() if ch not in "-_ \t")
 
 
+def _number(entry: dict[str, object], key: str, value: object) -> float:
+    """A catalog number; booleans are not numbers (float(true) would be 1)."""
+    if isinstance(value, bool) or not isinstance(value, int | float):
+        shown = str(value).lower() if isinstance(value, bool) else repr(value)
+        raise ValueError(f"{catalog_path()}: glass {entry.get('name')!r}: key '{key}': "
+                         f"expected a number, found {shown}")
+    return float(value)
+
+
 def _triple(entry: dict[str, object], key: str) -> tuple[float, float, float]:
     values = entry[key]
     if not isinstance(values, list) or len(values) != 3:
         raise ValueError(f"glass {entry.get('name')!r}: {key} must be a list of 3 numbers")
-    a, b, c = (float(v) for v in values)
+    a, b, c = (_number(entry, key, v) for v in values)
     return a, b, c
 
 
@@ -225,14 +234,14 @@ def _load_catalog(path: pathlib.Path) -> dict[str, SellmeierGlass]:
         data = tomllib.load(fh)
     glasses: dict[str, SellmeierGlass] = {}
     for entry in data.get("glass", []):
-        lo, hi = (float(v) for v in entry["range_nm"])
+        lo, hi = (_number(entry, "range_nm", v) for v in entry["range_nm"])
         glass = SellmeierGlass(
             name=str(entry["name"]),
             maker=str(entry["maker"]),
             B=_triple(entry, "B"),
             C=_triple(entry, "C"),
-            nd=float(entry["nd"]),
-            vd=float(entry["vd"]),
+            nd=_number(entry, "nd", entry["nd"]),
+            vd=_number(entry, "vd", entry["vd"]),
             range_nm=(lo, hi),
             source=str(entry["source"]),
         )

@@ -5,9 +5,9 @@ notes (see ``zemax`` and ``optiland``)."""
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
+from lensfit import strict_json
 from lensfit.errors import regular_file_problem
 from lensfit.interchange.common import ImportProblems, ImportResult, write_atomic
 from lensfit.interchange.optiland import convert_optiland, looks_like_optiland, read_optiland
@@ -37,8 +37,14 @@ def file_kind(path: str | Path) -> str:
         if regular_file_problem(p):
             return "optiland"  # its reader says why the file cannot be read
         try:
-            data = json.loads(p.read_bytes().decode("utf-8"))
-        except (OSError, ValueError, RecursionError):
-            return "lentil"  # its reader reports the problem
-        return "optiland" if looks_like_optiland(data) else "lentil"
+            data = strict_json.read(p, str(p))
+        except strict_json.JSONInputError:
+            # Its reader reports the problem: Optiland's when the text names a surface group
+            try:
+                return "optiland" if b"surface_group" in p.read_bytes().replace(b"\x00", b"") \
+                    else "lentil"
+            except OSError:
+                return "lentil"
+        # An object with a surface group of any type: Optiland's reader says what is wrong
+        return "optiland" if isinstance(data, dict) and "surface_group" in data else "lentil"
     return "unknown"

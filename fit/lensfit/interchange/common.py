@@ -145,12 +145,13 @@ def validate(data: dict[str, Any], label: str, where_surface: list[str]) -> Any:
                               "the converted lens; nothing written)"]) from None
 
 
-def write_atomic(path: Path, text: str) -> None:
-    """Write ``text`` to ``path`` through a temporary file in the same folder and a
-    rename (lensfit.generate.write_folder): a reader never sees half a file."""
-    from lensfit.generate import write_folder
+def write_atomic(path: Path, text: str, *, option: str = "") -> None:
+    """Write ``text`` to ``path`` with lensfit's one checked atomic write
+    (:func:`lensfit.atomic.write_atomic`: special files and links refused, a temporary
+    in the same folder, fsync, rename; the file's mode kept; OutputError on failure)."""
+    from lensfit.atomic import write_atomic as _write
 
-    write_folder(path.absolute().parent, {path.name: text})
+    _write(path, text, option=option)
 
 
 D_LINE_NM = 587.5618

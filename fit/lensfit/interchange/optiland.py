@@ -45,7 +45,7 @@ import math
 from pathlib import Path
 from typing import Any
 
-from lensfit.errors import regular_file_problem
+from lensfit import strict_json
 from lensfit.glass import UnknownGlassError, catalog_glass
 from lensfit.interchange.common import (
     MANUFACTURERS,
@@ -75,20 +75,31 @@ def looks_like_optiland(data: Any) -> bool:
 def read_optiland(path: str | Path, *, lens_id: str | None = None) -> ImportResult:
     p = Path(path)
     label = str(path)
-    problem = regular_file_problem(p)
-    if problem:
-        raise ImportProblems([f"{label}: cannot read: {problem}"])
-    try:
-        text = p.read_text(encoding="utf-8")
-    except (OSError, UnicodeDecodeError) as e:
-        raise ImportProblems([f"{label}: cannot read: {e}"]) from None
-    try:
-        data = json.loads(text)
-    except json.JSONDecodeError as e:
-        raise ImportProblems([f"{label}:{e.lineno}: malformed JSON: {e.msg}"]) from None
-    except RecursionError:
-        raise ImportProblems([f"{label}: malformed JSON: nested too deeply"]) from None
+    try:  # encodings, huge numbers and deep nesting: lensfit.strict_json
+        data = strict_json.read(p, label)
+    except strict_json.JSONInputError as e:
+        raise ImportProblems([str(e)]) from None
     return convert_optiland(data, label=label, lens_id=lens_id or p.stem)
+
+
+def _show(v: Any) -> str:
+    """A value as JSON, cut to 40 characters; an integer too long to print (Python stops
+    at 4,300 digits) or nesting too deep to print is described instead."""
+    if isinstance(v, int) and not isinstance(v, bool) and v.bit_length() > 128:
+        return f"an integer of about {int(v.bit_length() * 0.30103) + 1} digits"
+    try:
+        return json.dumps(v)[:40]
+    except (ValueError, TypeError, RecursionError):
+        return f"a {type(v).__name__}"
+
+
+def _finite_number(v: Any) -> bool:
+    """A number (not a bool) that a float holds, finite."""
+    if isinstance(v, bool) or not isinstance(v, int | float):
+        return False
+    if isinstance(v, int):
+        return v.bit_length() <= 1023
+    return math.isfinite(v)
 
 
 class _Ctx:
@@ -111,7 +122,7 @@ class _Ctx:
         v = obj[key]
         if not isinstance(v, kinds) or isinstance(v, bool) and bool not in kinds:
             names = " or ".join(k.__name__ for k in kinds)
-            self.bad(f"{path}.{key}", f"expected {names}, found {json.dumps(v)[:40]}")
+            self.bad(f"{path}.{key}", f"expected {names}, found {_show(v)[:40]}")
             return default
         return v
 
@@ -119,6 +130,10 @@ class _Ctx:
                default: float | None = None, allow_inf: bool = False) -> float | None:
         v = self.get(obj, key, path, (int, float), required=required, default=None)
         if v is None:
+            return default
+        if isinstance(v, int) and v.bit_length() > 1023:  # float() would overflow
+            self.bad(f"{path}.{key}", f"expected a number within a float's range, found "
+                     f"{_show(v)}")
             return default
         v = float(v)
         if math.isnan(v) or (math.isinf(v) and not allow_inf) or abs(v) > 1e300 and \
@@ -133,8 +148,10 @@ def convert_optiland(data: Any, *, label: str = "<optiland>", lens_id: str = "im
     """Convert parsed Optiland JSON to lensfit's TOML layout (validated by the loader)."""
     ctx = _Ctx(label)
     if not looks_like_optiland(data):
-        raise ImportProblems([f"{label}: not an Optiland lens file (no 'surface_group' "
-                              "object)"])
+        found = (f"found {type(data.get('surface_group')).__name__}"
+                 if isinstance(data, dict) and "surface_group" in data else "found none")
+        raise ImportProblems([f"{label}: surface_group: expected an object (Optiland's "
+                              f"surface group), {found}"])
     for key in data:
         if key in IGNORED or key in ("surface_group", "aperture", "fields", "name"):
             continue
@@ -174,7 +191,7 @@ def convert_optiland(data: Any, *, label: str = "<optiland>", lens_id: str = "im
     if isinstance(first, dict):
         if first.get("type") != "ObjectSurface":
             ctx.bad("surface_group.surfaces[0].type", f"expected ObjectSurface, found "
-                    f"{json.dumps(first.get('type'))[:40]}")
+                    f"{_show(first.get('type'))[:40]}")
         mat = first.get("material_post")
         if isinstance(mat, dict) and not _is_air(mat):
             ctx.bad("surface_group.surfaces[0].material_post", "object space in glass: "
@@ -187,7 +204,7 @@ def convert_optiland(data: Any, *, label: str = "<optiland>", lens_id: str = "im
     if isinstance(last, dict):
         if last.get("type") != "ImageSurface":
             ctx.bad(f"surface_group.surfaces[{n_last}].type", "expected ImageSurface, found "
-                    f"{json.dumps(last.get('type'))[:40]}")
+                    f"{_show(last.get('type'))[:40]}")
         g = last.get("geometry")
         if isinstance(g, dict) and g.get("type") not in ("Plane", None):
             r = g.get("radius")
@@ -267,7 +284,7 @@ def _surface(ctx: _Ctx, s: Any, path: str, zs: list[float | None], i: int
         return None
     typ = s.get("type")
     if typ != "Surface":
-        ctx.bad(f"{path}.type", f"surface type {json.dumps(typ)[:40]}: unsupported "
+        ctx.bad(f"{path}.type", f"surface type {_show(typ)[:40]}: unsupported "
                 "(not imported)")
         return None
     d: dict[str, Any] = {}
@@ -302,7 +319,7 @@ def _surface(ctx: _Ctx, s: Any, path: str, zs: list[float | None], i: int
         ctx.bad(f"{hpath}.is_reflective", "a mirror: unsupported (lensfit traces refracting "
                 "lenses)")
     if isinstance(im, dict) and im.get("type") not in (None, "RefractiveReflectiveModel"):
-        ctx.bad(f"{hpath}.type", f"interaction {json.dumps(im.get('type'))[:40]}: "
+        ctx.bad(f"{hpath}.type", f"interaction {_show(im.get('type'))[:40]}: "
                 "unsupported")
     if holder.get("coating") is not None:
         ctx.notes.add(f"{hpath}.coating", "coating", "not mapped (the lens is written "
@@ -315,7 +332,7 @@ def _surface(ctx: _Ctx, s: Any, path: str, zs: list[float | None], i: int
     if ap is not None:
         if not isinstance(ap, dict) or ap.get("type") != "RadialAperture":
             kind = ap.get("type") if isinstance(ap, dict) else ap
-            ctx.bad(f"{path}.aperture", f"aperture {json.dumps(kind)[:40]}: unsupported "
+            ctx.bad(f"{path}.aperture", f"aperture {_show(kind)[:40]}: unsupported "
                     "(lensfit's apertures are centred circles)")
         else:
             rmin = ctx.number(ap, "r_min", f"{path}.aperture", required=False, default=0.0)
@@ -327,7 +344,7 @@ def _surface(ctx: _Ctx, s: Any, path: str, zs: list[float | None], i: int
                 d["semi_diameter"] = rmax
     stop = s.get("is_stop", False)
     if not isinstance(stop, bool):
-        ctx.bad(f"{path}.is_stop", f"expected true or false, found {json.dumps(stop)[:40]}")
+        ctx.bad(f"{path}.is_stop", f"expected true or false, found {_show(stop)[:40]}")
     elif stop:
         d["stop"] = True
     if len(ctx.problems) > before:
@@ -348,10 +365,9 @@ def _geometry(ctx: _Ctx, g: dict[str, Any], path: str) -> dict[str, Any] | None:
         if typ == "EvenAsphere":
             raw = ctx.get(g, "coefficients", path, (list,), required=False, default=[])
             for j, c in enumerate(raw or []):
-                if isinstance(c, bool) or not isinstance(c, int | float) or \
-                        not math.isfinite(float(c)):
+                if not _finite_number(c):
                     ctx.bad(f"{path}.coefficients[{j}]", f"expected a finite number, found "
-                            f"{json.dumps(c)[:40]}")
+                            f"{_show(c)[:40]}")
                     return None
                 coeffs.append(float(c))
             if coeffs and coeffs[0]:
@@ -400,7 +416,7 @@ def _geometry(ctx: _Ctx, g: dict[str, Any], path: str) -> dict[str, Any] | None:
         ctx.bad(path, f"a toroid with radius {ry:g} in y and {rx:g} in x: not representable "
                 "(lensfit has spheres and cylinders)")
         return None
-    ctx.bad(f"{path}.type", f"geometry {json.dumps(typ)[:40]}: unsupported surface type "
+    ctx.bad(f"{path}.type", f"geometry {_show(typ)[:40]}: unsupported surface type "
             "(not imported)")
     return None
 
@@ -446,7 +462,7 @@ def _material(ctx: _Ctx, m: dict[str, Any], path: str) -> dict[str, Any]:
         if outside:
             ctx.notes.add(f"{path}.name", "glass", outside)
         return spec
-    ctx.bad(f"{path}.type", f"material {json.dumps(typ)[:40]}: unsupported (not imported)")
+    ctx.bad(f"{path}.type", f"material {_show(typ)[:40]}: unsupported (not imported)")
     return {}
 
 

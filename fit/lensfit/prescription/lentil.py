@@ -39,11 +39,14 @@ COATED_FROM_YEAR = 1940  # single-layer MgF2 became common in the 1940s
 
 
 def load_lentil_json(path: str | Path) -> dict[str, Any]:
+    from lensfit import strict_json
+
     p = Path(path)
+    # Encodings, huge numbers and deep nesting are one line naming the file (strict_json)
     try:
-        data = json.loads(p.read_text(encoding="utf-8"))
-    except (OSError, json.JSONDecodeError) as e:
-        raise LensError(f"cannot read lentil JSON: {e}", file=str(p)) from None
+        data = strict_json.read(p, str(p))
+    except strict_json.JSONInputError as e:
+        raise LensError(e.place, file=str(p)) from None
     if not isinstance(data, dict):
         raise LensError("expected an object of lens entries keyed by id", file=str(p))
     return data
@@ -67,9 +70,12 @@ def _glass(name: str, nd: float | None, vd: float | None) -> tuple[dict[str, Any
 
 def _number(value: Any, source: str, i: int | None, key: str, lens_id: str) -> float:
     """A finite number from an element field, or a LensError naming file, element and key."""
-    if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
+    if isinstance(value, bool) or not isinstance(value, int | float) or (
+            isinstance(value, int) and value.bit_length() > 1023) or not math.isfinite(value):
+        shown = (f"an integer of about {int(value.bit_length() * 0.30103) + 1} digits"
+                 if isinstance(value, int) and value.bit_length() > 128 else f"{value!r:.60}")
         raise LensError(
-            f"entry {lens_id}: expected a finite number, found {value!r}",
+            f"entry {lens_id}: expected a finite number, found {shown}",
             file=source,
             surface=i,
             key=key,
@@ -124,8 +130,10 @@ def convert_entry(
             s["nd"] = _number(e.get("ior"), source, i, "ior", lens_id)
             s["vd"] = _number(e.get("abbe"), source, i, "abbe", lens_id)
         else:
+            nd_vd = [None if e.get(k) is None else _number(e[k], source, i, k, lens_id)
+                     for k in ("ior", "abbe")]
             try:
-                keys, note = _glass(mat, e.get("ior"), e.get("abbe"))
+                keys, note = _glass(mat, *nd_vd)
             except ValueError as exc:
                 raise LensError(
                     f"entry {lens_id}: {exc}", file=source, surface=i, key="material"
@@ -150,9 +158,14 @@ def convert_entry(
             s["stop"] = True
         surfaces.append(s)
 
-    if not any(s.get("stop") for s in surfaces):
-        _add_front_stop(surfaces, notes, source)
-    _separate_crossing(surfaces, notes, source)
+    import numpy as np
+
+    # Sizes near the float limit (1e308) overflow in the sag checks; the overflow is an
+    # inf there, which the loader refuses, not a warning
+    with np.errstate(over="ignore", invalid="ignore"):
+        if not any(s.get("stop") for s in surfaces):
+            _add_front_stop(surfaces, notes, source)
+        _separate_crossing(surfaces, notes, source)
 
     year = entry.get("year") or 0
     if isinstance(year, bool) or not isinstance(year, int) or not 0 <= year <= 9999:

@@ -38,6 +38,8 @@ from lensfit.prescription.model import BARE, Coating, Layer, Lens, Surface
 
 # Surfaces may touch (cemented doublets) but not overlap: 1 nm of slack for rounding.
 CROSSING_TOLERANCE_MM = 1e-6
+# lens.id names files (lens<id>.table) and C symbols (lens<id>_P_o_d): short enough for both
+MAX_ID_LENGTH = 64
 
 
 def repo_root() -> Path:
@@ -96,6 +98,11 @@ def load_lens(name: str | os.PathLike[str]) -> Lens:
     return lens_from_dict(data, file=label)
 
 
+def _toml_text(value: Any) -> str:
+    """A value as the person wrote it in TOML (true, not Python's True)."""
+    return str(value).lower() if isinstance(value, bool) else repr(value)
+
+
 def _schema_error(err: jsonschema.ValidationError, file: str) -> LensError:
     """Turn a JSON-schema error into a message with surface index and key."""
     path = list(err.absolute_path)
@@ -140,14 +147,14 @@ def _schema_error(err: jsonschema.ValidationError, file: str) -> LensError:
                 kinds.append("a table" if e.validator_value == "object" else str(e.validator_value))
         accepted = " or ".join([", ".join(values), *kinds] if values else kinds)
         return LensError(
-            f"expected {accepted}; found {err.instance!r}",
+            f"expected {accepted}; found {_toml_text(err.instance)}",
             file=file,
             surface=surface,
             key=key,
         )
     if err.validator == "type":
         return LensError(
-            f"expected {err.validator_value}, found {err.instance!r}",
+            f"expected {err.validator_value}, found {_toml_text(err.instance)}",
             file=file,
             surface=surface,
             key=key,
@@ -155,7 +162,7 @@ def _schema_error(err: jsonschema.ValidationError, file: str) -> LensError:
     if err.validator in ("enum", "const"):
         allowed = err.validator_value
         return LensError(
-            f"expected one of {allowed!r}, found {err.instance!r}",
+            f"expected one of {allowed!r}, found {_toml_text(err.instance)}",
             file=file,
             surface=surface,
             key=key,
@@ -206,6 +213,10 @@ def lens_from_dict(data: dict[str, Any], *, file: str = "<memory>") -> Lens:
         raise _schema_error(errors[0], file)
 
     info = data["lens"]
+    if len(info["id"]) > MAX_ID_LENGTH:  # the schema's pattern holds the characters
+        raise LensError(f"expected 1 to {MAX_ID_LENGTH} ASCII letters, digits or '_' (the id "
+                        f"names generated files and C symbols), found {len(info['id'])} "
+                        "characters", file=file, key="lens.id")
     scale = float(info.get("scale", 1.0))
     if scale <= 0:
         raise LensError(f"expected a positive number, found {scale}", file=file, key="lens.scale")
@@ -318,6 +329,27 @@ def make_lens(
     return lens_from_dict(data, file=file)
 
 
+def _scaled_aspheric(a: float, j: int, scale: float, err: Any) -> float:
+    """Aspheric coefficient A(2j+4) of a lens scaled by ``scale``: a * scale^-(2j+3).
+    A large power of a small scale overflows a float (scale 0.01, 200 terms: 1e802):
+    a zero stays zero, and a result beyond a float's range is refused."""
+    try:
+        v = a * scale ** (-(2 * j + 3))
+    except OverflowError:
+        v = math.inf
+    if math.isfinite(v):
+        return v
+    if a == 0.0:
+        return 0.0
+    from fractions import Fraction
+
+    try:  # exact, for a tiny coefficient times a huge power
+        return float(Fraction(a) * Fraction(scale) ** (-(2 * j + 3)))
+    except OverflowError:
+        raise err(f"aspheric[{j}] (A{2 * j + 4}) = {a:g} scaled by lens.scale = {scale:g} "
+                  f"(times scale^-{2 * j + 3}) is beyond a float's range", "aspheric") from None
+
+
 def _surface(s: dict[str, Any], i: int, file: str, scale: float) -> Surface:
     shape = s["shape"]
 
@@ -352,7 +384,7 @@ def _surface(s: dict[str, Any], i: int, file: str, scale: float) -> Surface:
         )
     conic = float(s.get("conic", 0.0))
     aspheric = tuple(
-        float(a) * scale ** (-(2 * j + 3)) for j, a in enumerate(s.get("aspheric", []))
+        _scaled_aspheric(float(a), j, scale, err) for j, a in enumerate(s.get("aspheric", []))
     )
     if shape != "asphere" and ("conic" in s or "aspheric" in s):
         key = "conic" if "conic" in s else "aspheric"
