@@ -35,6 +35,8 @@ sys.path.insert(0, str(ROOT / "runtime" / "python"))
 
 from lensrt_exr import exr_layers, read_spectral_exr  # noqa: E402
 
+from lensfit.codegen.table import with_checksum  # noqa: E402
+
 PSF = Path(os.environ.get("LENSRT_PSF", ROOT / "build" / "runtime" / "runtime" / "lensrt-psf"))
 LENS0001 = ROOT / "generated" / "0001-angenieux-double-gauss" / "lens0001.table"
 # f/4: the stop radius is stop_radius_f1_mm / 4; the window holds the whole defocused PSF
@@ -54,7 +56,9 @@ def lens_value(text: str, key: str) -> float:
 
 def ghost_table(text: str, side: str, clip: list[tuple[str, str, list[str]]],
                 first: int = 4, second: int = 8) -> str:
-    """lens0001's table with ghost lines and a P_clip taking `side`'s inputs."""
+    """lens0001's table with ghost lines and a P_clip taking `side`'s inputs, ending with
+    its checksum line as lensfit writes it (the source's own is dropped first)."""
+    text = "".join(t for t in text.splitlines(keepends=True) if not t.startswith("checksum crc32 "))
     head, rest = text.split("\nsystem P_o ", 1)
     ghost = (f"ghost first {first}\nghost second {second}\nghost label {first}-{second}\n"
              f"ghost side {side}\n")
@@ -67,7 +71,7 @@ def ghost_table(text: str, side: str, clip: list[tuple[str, str, list[str]]],
     out += f"system P_clip 6 {len(clip)}\n" + "\n".join(inputs) + "\n"
     for name, unit, terms in clip:
         out += f"output {name} {unit} {len(terms)}\n" + "".join(t + "\n" for t in terms)
-    return out + "end\n"
+    return with_checksum(out + "end\n")
 
 
 @pytest.fixture(scope="module")
@@ -90,8 +94,8 @@ def tables(tmp_path_factory) -> dict[str, Path]:
     paths["crossing"].write_text(ghost_table(text, "P_s", [
         ("x_s1", "mm", [f"0 0 0 1 0 0 {s!r}"]), ("y_s1", "mm", [f"0 0 0 0 1 0 {s!r}"])]))
     # the same ghost of another lens (its name changed)
-    paths["other"].write_text(ghost_table(text, "P_s", never).replace(
-        "lens name Angenieux", "lens name Other", 1))
+    paths["other"].write_text(ghost_table(text.replace("lens name Angenieux", "lens name Other", 1),
+                                          "P_s", never))
     # both in one folder, for --flares
     both = folder / "both"
     both.mkdir()
