@@ -340,9 +340,24 @@ static void test_refusals(lensrt_context ctx)
     BAD(LENSRT_ERROR_INVALID_ARGUMENT, "no name");
     c.sensor_f = NULL;
     BAD(LENSRT_ERROR_INVALID_ARGUMENT, "sensor_f is NULL");
-    // A truncated table: half of it ends inside the first system
+    // A truncated table: half of it ends inside the first system (its checksum line gone)
     c.table_size = lensrt_lens_0001_demo.table_size / 2;
     BAD(LENSRT_ERROR_PARSE, "0001-angenieux-double-gauss/scene-fits/demo");
+    c.table_size = lensrt_lens_0001_demo.table_size / 2;
+    BAD(LENSRT_ERROR_PARSE, "expected the last line 'checksum crc32");
+    // The embedded table with one bit flipped (a binary patched, memory corrupted): its
+    // checksum refuses it as a file's would (issue 25)
+    {
+        char *flipped = malloc(lensrt_lens_0001_demo.table_size);
+        CHECK(flipped != NULL, "out of memory");
+        if (flipped) {
+            memcpy(flipped, lensrt_lens_0001_demo.table_text, lensrt_lens_0001_demo.table_size);
+            flipped[lensrt_lens_0001_demo.table_size / 3] ^= 0x04;
+            c.table_text = flipped;
+            BAD(LENSRT_ERROR_PARSE, "does not match the content");
+            free(flipped);
+        }
+    }
     // Not a table at all
     c.table_text = "not a lens table\n";
     c.table_size = strlen(c.table_text);
