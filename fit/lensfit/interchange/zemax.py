@@ -368,7 +368,11 @@ def _design_aperture(data: dict[str, Any], lens: Any, top: dict[str, tuple[list[
     if not (math.isfinite(value) and value > 0):
         notes.add(str(lineno), kw, "aperture not mapped (not a positive number)")
         return
-    efl = float(paraxial_table(lens)["efl_mm"])
+    efl = paraxial_table(lens)["efl_mm"]  # None: no finite focal length (afocal)
+    if efl is None or not math.isfinite(efl) or efl == 0.0:
+        notes.add(str(lineno), kw, "aperture not mapped (the lens has no finite focal "
+                                   "length: an f-number means nothing)")
+        return
     f_number = abs(efl) / value if kw == "ENPD" else value
     try:
         stop_radius_for_f_number(lens, f_number)

@@ -94,6 +94,10 @@ def _check_zmx(text: str) -> None:
 @FUZZ
 @given(text=mutated_zmx())
 @example(text="SURF 0\nSURF 1\nSURF 2\n")
+# No glass anywhere: no power, no finite focal length for FNUM to map (found by make fuzz)
+@example(text="MODE SEQ\nUNIT MM\nFNUM 4 0\nSURF 0\n  DISZ INFINITY\nSURF 1\n  STOP\n  DISZ 1.5\n"
+              "  DIAM 6 1 0 0 1 \"\"\nSURF 2\n  CURV 0.05\n  DISZ 5\n  DIAM 8 1 0 0 1 \"\"\n"
+              "SURF 3\n  CURV -0.0125\n  DISZ 28\n  DIAM 8 1 0 0 1 \"\"\nSURF 4\n  DISZ 0\n")
 @example(text="MODE SEQ\nSURF 0\n  DISZ INFINITY\nSURF 1\n  STOP\n  DISZ 1e308\n  DIAM 1e308\n"
               "SURF 2\n  DISZ 0\n")
 def test_zmx_mutations(text: str) -> None:
