@@ -373,6 +373,7 @@ def _design_aperture(data: dict[str, Any], lens: Any, top: dict[str, tuple[list[
         notes.add(str(lineno), kw, "aperture not mapped (the lens has no finite focal "
                                    "length: an f-number means nothing)")
         return
+    efl = float(efl)  # a Python float (the TOML writer takes no numpy scalar)
     f_number = abs(efl) / value if kw == "ENPD" else value
     try:
         stop_radius_for_f_number(lens, f_number)
