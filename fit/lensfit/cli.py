@@ -219,7 +219,7 @@ def _fit_ghosts(lens, ghosts, info: dict, light: tuple[float, float],
     The folder then holds exactly the kept ghosts; with --add, the kept ones are added or
     replaced and the others fitted before stay."""
     from lensfit.codegen import emit_c, emit_glsl
-    from lensfit.codegen.checked_json import REFIT_GHOSTS, checked_json_text, load_checked_json
+    from lensfit.codegen.checked_json import REGENERATE_FOLDER, checked_json_text, load_checked_json
     from lensfit.codegen.table import write_table
     from lensfit.generate import header_comment, lens_prefix, write_folder
     from lensfit.ghosts.tables import fit_with_trust, ghost_report
@@ -255,7 +255,7 @@ def _fit_ghosts(lens, ghosts, info: dict, light: tuple[float, float],
     if args.add and index.is_file():
         # Keep the ghosts fitted before that were not named this time
         try:
-            before = load_checked_json(index, REFIT_GHOSTS)["ghosts"]
+            before = load_checked_json(index, REGENERATE_FOLDER)["ghosts"]
         except (KeyError, TypeError) as e:
             raise InputError(f"{index}: cannot read the ghosts fitted before: {e}") from None
         names = {e["label"] for e in report}

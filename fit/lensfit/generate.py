@@ -30,10 +30,9 @@ from typing import Any
 from lensfit.atomic import write_files
 from lensfit.codegen import emit_c, emit_glsl, write_table
 from lensfit.codegen.c_horner import file_stem
-from lensfit.codegen.checked_json import checked_json_text, load_checked_json
+from lensfit.codegen.checked_json import REGENERATE_FOLDER, checked_json_text, load_checked_json
 from lensfit.codegen.table import (
     LEGACY,
-    REGENERATE,
     GhostLines,
     Table,
     read_table,
@@ -194,7 +193,7 @@ def read_fit_json(path: Path, *, legacy: bool = False) -> tuple[Table, dict[str,
     rest of fit.json). Its checksum is verified; ``legacy`` reads one without a checksum
     and a version-3 table, as :func:`regenerate` does."""
     path = Path(path)
-    doc = load_checked_json(path, f"regenerate the folder with {REGENERATE}", legacy=legacy)
+    doc = load_checked_json(path, REGENERATE_FOLDER, legacy=legacy)
     if doc.get("format") != "lensfit-fit 2":
         raise InputError(f"{path}: key 'format': expected 'lensfit-fit 2', "
                          f"found {doc.get('format')!r}; run `lensfit fit` to refit")

@@ -228,11 +228,11 @@ def render_panel(rt, folder: Path, f_number: float, light, frame: Frame, args):
     index = folder / "ghosts" / "ghosts.json"
     if not index.is_file():
         raise SystemExit(f"flare_figure: {index}: not found; run `lensfit ghosts LENS --fit`")
-    from lensfit.codegen.checked_json import REFIT_GHOSTS, load_checked_json
+    from lensfit.codegen.checked_json import REGENERATE_FOLDER, load_checked_json
     from lensfit.errors import InputError
 
     try:
-        ghosts = load_checked_json(index, REFIT_GHOSTS)["ghosts"]
+        ghosts = load_checked_json(index, REGENERATE_FOLDER)["ghosts"]
     except (InputError, KeyError) as e:
         raise SystemExit(f"flare_figure: {index}: {e}") from None
     direct = np.zeros((frame.ny, frame.nx, 3), dtype=np.float64)

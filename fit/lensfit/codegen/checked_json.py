@@ -15,11 +15,11 @@ import zlib
 from pathlib import Path
 from typing import Any
 
+from lensfit.codegen.table import REGENERATE
 from lensfit.errors import InputError
 
 KEY = "checksum"
-REFIT_GHOSTS = ("regenerate the folder with `lensfit regenerate <lens id or generated folder "
-                "name>` (no refit)")
+REGENERATE_FOLDER = f"regenerate the folder with {REGENERATE}"  # for a record without a checksum
 
 
 def _canonical(doc: dict[str, Any]) -> str:

@@ -493,7 +493,7 @@ def read_table(text: str, *, legacy: bool = False) -> Table:
     if f[1] == str(LEGACY) and not legacy:
         raise _fail(n, f"table version {LEGACY} carries no checksum; regenerate it with "
                        f"{REGENERATE}")
-    if f[1] not in map(str, READS) and not (legacy and f[1] == str(LEGACY)):
+    if f[1] not in map(str, READS) and f[1] != str(LEGACY):
         raise _fail(n, f"format version {f[1]!r} is not supported (this reader: "
                        f"{', '.join(map(str, READS))})")
     version = int(f[1])

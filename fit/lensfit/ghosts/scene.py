@@ -18,7 +18,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from lensfit.codegen.checked_json import REFIT_GHOSTS, load_checked_json
+from lensfit.codegen.checked_json import REGENERATE_FOLDER, load_checked_json
 from lensfit.codegen.table import Table, read_table
 from lensfit.errors import InputError
 from lensfit.ghosts.enumerate import DEFAULT_THRESHOLD, enumerate_ghosts, parse_ghost
@@ -33,7 +33,7 @@ def fitted_ghosts(folder: Path, lens_arg: str) -> dict[str, Table]:
     if not index.is_file():
         raise InputError(f"{index}: not found: the lens has no fitted ghosts; run "
                          f"`lensfit ghosts {lens_arg} --fit` (with --count or --ghost)")
-    doc = load_checked_json(index, REFIT_GHOSTS)
+    doc = load_checked_json(index, REGENERATE_FOLDER)
     try:
         entries = [(g["label"], g["first"], g["second"]) for g in doc["ghosts"]]
     except (KeyError, TypeError) as e:
