@@ -160,30 +160,6 @@ def samples_for(radius_mm: float, f_number: float, pixels: int, args) -> tuple[i
     return n, 1.0 / (s * n)
 
 
-CELLS_FIRST_RINGS = 8  # the cells integrator's first mesh; doubled while the estimate is high
-CELLS_MAX_RINGS = 512
-
-
-def next_rings(rings: int, estimate: float, target: float) -> int:
-    """The mesh that should bring an estimate to the target, the error falling as
-    1 / rings^2: rings sqrt(estimate / target) with 10% to spare, 1.25 to 2 times rings
-    (doubling reuses the previous meshes for the estimate, so it costs no more than
-    1.6 times)."""
-    factor = min(2.0, max(1.25, 1.1 * math.sqrt(estimate / target)))
-    return 2 * rings if factor > 1.6 else int(math.ceil(rings * factor))
-
-
-def integrate_to_target(r, target: float) -> tuple[int, float]:
-    """Refine a render's cells mesh until its error estimate is within ``target``; its
-    rings and estimate."""
-    rings = CELLS_FIRST_RINGS
-    est = r.integrate(rings)
-    while est > target and next_rings(rings, est, target) <= CELLS_MAX_RINGS:
-        rings = next_rings(rings, est, target)
-        est = r.integrate(rings)
-    return rings, float(est)
-
-
 def render_window(rt, table: Path, frame: Frame, win, f_number: float,
                   light: tuple[float, float], args, samples: int) -> tuple[np.ndarray, float, dict]:
     """Linear sRGB of one image over the pixel rectangle ``win``, and its power (the
@@ -198,7 +174,7 @@ def render_window(rt, table: Path, frame: Frame, win, f_number: float,
                   lights=[light], wavelengths=args.wavelengths)
     how: dict = {}
     if args.integrator == "cells":
-        how["rings"], how["error_estimate"] = integrate_to_target(r, args.target_error)
+        how["rings"], how["error_estimate"] = r.integrate_to(args.target_error)
     else:
         r.run(samples)
         how["samples"] = samples
@@ -214,7 +190,7 @@ def direct_power(rt, table: Path, centre: tuple[float, float], f_number: float,
     r = rt.create(lens, width=128, height=128, width_mm=0.2, center=centre,
                   f_number=f_number, lights=[light], wavelengths=args.wavelengths)
     if args.integrator == "cells":
-        integrate_to_target(r, args.target_error)
+        r.integrate_to(args.target_error)
     else:
         r.run(MIN_SAMPLES)
     return float(r.image().sum(axis=(1, 2)).mean()) * (0.2 / 128) ** 2
