@@ -40,7 +40,7 @@ CMAKE_FLAGS   ?= -DCMAKE_BUILD_TYPE=Release -DLENSRT_NATIVE=ON
 
 setup: $(STAMP)
 
-$(STAMP): fit/requirements.lock fit/pyproject.toml scripts/setup-system.sh
+$(STAMP): fit/requirements.lock fit/pyproject.toml runtime/python/pyproject.toml scripts/setup-system.sh
 	bash scripts/setup-system.sh
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --quiet --disable-pip-version-check -r fit/requirements.lock
@@ -48,6 +48,8 @@ $(STAMP): fit/requirements.lock fit/pyproject.toml scripts/setup-system.sh
 	@# of opticalglass; --no-deps because its declared deps pull in PySide6 (a GUI of
 	@# hundreds of MB) and pandas, which lensfit does not use: xlrd and openpyxl are locked
 	$(PY) -m pip install --quiet --disable-pip-version-check --no-deps opticalglass==1.1.1
+	@# lensrt's Python binding, an installable package (Dask workers pip install it too)
+	$(PY) -m pip install --quiet --disable-pip-version-check --no-deps -e runtime/python
 	$(PY) -m pip install --quiet --disable-pip-version-check --no-deps -e fit
 	touch $@
 

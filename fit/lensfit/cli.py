@@ -717,6 +717,27 @@ def cmd_regenerate(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_bank(args: argparse.Namespace) -> int:
+    from lensfit.banks.engine import TaskError
+    from lensfit.banks.run import run_bank
+
+    if args.workers is not None and args.workers < 0:
+        raise InputError(f"--workers {args.workers}: expected 0 (this process) or more")
+    if args.scheduler is not None and args.workers is not None:
+        raise InputError("--workers and --scheduler: the cluster at the address has its own "
+                         "workers; give one of them")
+    out = Path(args.out) if args.out else Path("build") / "banks" / Path(args.spec).stem
+    try:
+        summary = run_bank(args.spec, out, scheduler=args.scheduler, workers=args.workers,
+                           restart=args.restart, progress=not args.no_progress,
+                           sheet=not args.no_sheet)
+    except TaskError as e:
+        print(f"lensfit: error: {e}; rerun the same command to resume", file=sys.stderr)
+        return 1
+    print(summary.line())
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(prog="lensfit", description=__doc__.split("\n\n")[0])
     sub = ap.add_subparsers(dest="cmd", required=True)
@@ -858,6 +879,22 @@ def build_parser() -> argparse.ArgumentParser:
                    "(e.g. 0001-angenieux-double-gauss-uncoated)")
     p.add_argument("--generated", default=None, help="folder of generated code")
     p.set_defaults(func=cmd_regenerate)
+
+    p = sub.add_parser("bank", help="render a bank of PSFs (field points x focus x stops x "
+                       "wavelengths) on Dask; a rerun resumes")
+    p.add_argument("spec", help="bank spec TOML (see lensfit.banks.spec; banks/demo.toml)")
+    p.add_argument("-o", "--out", default=None,
+                   help="bank folder (default: build/banks/<spec file's stem>)")
+    p.add_argument("--scheduler", default=None,
+                   help="address of a running Dask scheduler (default: a LocalCluster here)")
+    p.add_argument("--workers", type=int, default=None,
+                   help="LocalCluster worker processes (default: one per core; 0: render "
+                        "in this process without Dask)")
+    p.add_argument("--restart", action="store_true",
+                   help="discard the nodes of a bank of another spec or table in the folder")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.add_argument("--no-sheet", action="store_true", help="no contact-sheet PNG")
+    p.set_defaults(func=cmd_bank)
 
     p = sub.add_parser("scene", help="specialise a fitted lens for one scene")
     p.add_argument("lens")

@@ -115,3 +115,14 @@ def read_spectral_exr(path: str | Path, layer: str = "") -> SpectralExr:
                                          ).astype(np.float32),
                        rgb=rgb, channels={w: spectral[w] for w in wavelengths},
                        attributes=attributes, layers=layers)
+
+
+def tone_map(rgb: np.ndarray, white: float, decades: float = 2.5) -> np.ndarray:
+    """Linear sRGB (..., 3) to display values in [0, 1] (gamma 2.2): a log tone map of the
+    luminance over ``decades`` below ``white``, the hue kept."""
+    lum = 0.2126 * rgb[..., 0] + 0.7152 * rgb[..., 1] + 0.0722 * rgb[..., 2]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        level = np.clip(1.0 + np.log10(np.maximum(lum, 1e-300) / white) / decades, 0.0, 1.0)
+        scale = np.where(lum > 0, level / np.maximum(lum / white, 1e-300), 0.0)
+    out = np.clip(rgb / white * scale[..., None], 0.0, 1.0)
+    return out ** (1 / 2.2)

@@ -52,6 +52,7 @@ ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT / "runtime" / "python"))
 
 from lensrt_ctypes import Lensrt  # noqa: E402  (needs the path above)
+from lensrt_exr import tone_map  # noqa: E402
 
 DECADES = 2.5  # of the tone map below white
 MIN_SAMPLES = 4096  # per wavelength and image
@@ -257,16 +258,6 @@ def render_panel(rt, folder: Path, f_number: float, light, frame: Frame, args):
     return direct, flare, record
 
 
-def tone_map(rgb: np.ndarray, white: float) -> np.ndarray:
-    """Log tone map of linear sRGB over DECADES below ``white`` (luminance), hue kept."""
-    lum = 0.2126 * rgb[..., 0] + 0.7152 * rgb[..., 1] + 0.0722 * rgb[..., 2]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        level = np.clip(1.0 + np.log10(np.maximum(lum, 1e-300) / white) / DECADES, 0.0, 1.0)
-        scale = np.where(lum > 0, level / np.maximum(lum / white, 1e-300), 0.0)
-    out = np.clip(rgb / white * scale[..., None], 0.0, 1.0)
-    return out ** (1 / 2.2)
-
-
 def main(argv: list[str] | None = None) -> int:
     args = parse_args(argv)
     light = pair(args.light, "--light")
@@ -292,7 +283,7 @@ def main(argv: list[str] | None = None) -> int:
                              squeeze=False, facecolor="black")
     for ax, p in zip(axes.flat, panels, strict=False):
         white = groups[p["folder"].name.removesuffix("-uncoated")] or 1.0
-        ax.imshow(tone_map(p["direct"] + p["flare"], white),
+        ax.imshow(tone_map(p["direct"] + p["flare"], white, DECADES),
                   extent=(-frame.w_mm / 2, frame.w_mm / 2, -frame.h_mm / 2, frame.h_mm / 2))
         shown = [r for r in p["record"] if r["image"] != "direct" and r["window"]]
         if args.integrator == "cells":

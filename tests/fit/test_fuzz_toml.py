@@ -1,6 +1,6 @@
 """Property-based fuzzing of the TOML loaders (issue 14): the lens prescription loader
-(``lensfit.prescription.load.load_lens``, what ``lensfit info`` uses) and the scene loader
-(``lensfit.scene.load_scene``).
+(``lensfit.prescription.load.load_lens``, what ``lensfit info`` uses), the scene loader
+(``lensfit.scene.load_scene``) and the bank spec loader (``lensfit.banks.spec.load_spec``).
 
 Property: loading any file either succeeds or raises one of the errors the command line
 reports as one line (``lensfit.cli.main`` catches exactly these); any other exception
@@ -31,6 +31,7 @@ import pytest
 from hypothesis import HealthCheck, event, example, given, settings
 from hypothesis import strategies as st
 
+from lensfit.banks.spec import load_spec
 from lensfit.errors import InputError, LensError
 from lensfit.glass import UnknownGlassError
 from lensfit.prescription.load import load_lens
@@ -42,6 +43,8 @@ LENS_FILES = sorted((ROOT / "lensdb").glob("*.toml"))
 SCENE_FILES = sorted((ROOT / "scenes").glob("*.toml"))
 LENS_TEXTS = [p.read_text(encoding="utf-8") for p in LENS_FILES]
 SCENE_TEXTS = [p.read_text(encoding="utf-8") for p in SCENE_FILES]
+BANK_FILES = sorted((ROOT / "banks").glob("*.toml"))
+BANK_TEXTS = [p.read_text(encoding="utf-8") for p in BANK_FILES]
 
 # The errors lensfit.cli.main turns into one line and exit status 2.
 PROJECT_ERRORS = (InputError, LensError, SceneError, SamplingError, UnknownGlassError)
@@ -97,7 +100,7 @@ def dumps(doc: dict[str, Any]) -> str:
 def test_writer_round_trips_the_committed_files() -> None:
     # The writer must reproduce what tomllib read, or the structural mutations below
     # would test the writer instead of the loaders.
-    for text in LENS_TEXTS + SCENE_TEXTS:
+    for text in LENS_TEXTS + SCENE_TEXTS + BANK_TEXTS:
         doc = tomllib.loads(text)
         assert tomllib.loads(dumps(doc)) == doc
 
@@ -117,7 +120,8 @@ def _all_keys(obj: Any) -> set[str]:
 
 # Keys the loaders know (taken from the committed files), so random documents get past the
 # unknown-key checks, mixed with arbitrary ones.
-KNOWN_KEYS = sorted(set().union(*(_all_keys(tomllib.loads(t)) for t in LENS_TEXTS + SCENE_TEXTS)))
+KNOWN_KEYS = sorted(set().union(*(_all_keys(tomllib.loads(t))
+                                  for t in LENS_TEXTS + SCENE_TEXTS + BANK_TEXTS)))
 keys = st.one_of(st.sampled_from(KNOWN_KEYS), text_no_surrogates)
 scalars = st.one_of(
     st.booleans(),
@@ -242,10 +246,24 @@ def test_scene_loader_random_documents(tmp_path: Path, doc: dict[str, Any]) -> N
     _check(load_scene, tmp_path / "fuzz.toml", dumps(doc))
 
 
-@pytest.mark.parametrize("path", LENS_FILES + SCENE_FILES, ids=lambda p: p.name)
+@FUZZ
+@given(text=mutated(BANK_TEXTS))
+@example(text=DEEP)
+@example(text=BANK_TEXTS[0].replace("f_numbers = [8]", "f_numbers = [" + "9" * 400 + "]"))
+def test_bank_spec_loader_mutations(tmp_path: Path, text: str) -> None:
+    _check(load_spec, tmp_path / "fuzz.toml", text)
+
+
+@FUZZ
+@given(doc=documents)
+def test_bank_spec_loader_random_documents(tmp_path: Path, doc: dict[str, Any]) -> None:
+    _check(load_spec, tmp_path / "fuzz.toml", dumps(doc))
+
+
+@pytest.mark.parametrize("path", LENS_FILES + SCENE_FILES + BANK_FILES, ids=lambda p: p.name)
 def test_committed_files_load(path: Path) -> None:
     # The unmutated seeds load: otherwise every mutation would fail for the same reason.
-    (load_scene if path.parent.name == "scenes" else load_lens)(path)
+    {"scenes": load_scene, "banks": load_spec}.get(path.parent.name, load_lens)(path)
 
 
 # Issue 25: booleans are not numbers in any TOML input (float(true) is 1.0: a scene's

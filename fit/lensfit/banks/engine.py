@@ -1,0 +1,106 @@
+"""Tasks on Dask: a LocalCluster on this machine by default, an existing cluster by address.
+
+This is the one place lensfit starts distributed work (banks of PSFs, ghost fits over many
+lenses). A task is a plain function of one picklable job that writes its own result
+atomically and returns a small record; the caller decides what is already done (resume)
+before it submits. Dask's scheduler retries a task whose worker died (SIGKILL, out of
+memory: its ``distributed.scheduler.allowed-failures``, 3 by default), and ``retries``
+reruns a task that raised. ``workers=0`` runs the tasks one after another in this
+process, with no Dask at all: the reference a distributed run must equal.
+
+To use a farm, start a Dask cluster with Dask's own deployers and pass its scheduler's
+address, e.g. on Slurm with dask-jobqueue::
+
+    from dask_jobqueue import SLURMCluster
+    cluster = SLURMCluster(cores=1, processes=1, memory="4GB", walltime="02:00:00")
+    cluster.scale(jobs=100)
+    print(cluster.scheduler_address)   # lensfit bank SPEC --scheduler tcp://...
+
+Each worker must be able to import lensfit and the lensrt binding (``pip install fit/
+runtime/python`` in the workers' environment) and to read the lens table and write the
+bank folder (a shared file system), with LENSRT_LIBRARY naming lensrt's shared library
+where it is not in the source tree's build folder.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import time
+from collections.abc import Callable, Sequence
+from typing import Any
+
+
+class TaskError(RuntimeError):
+    """Tasks that failed after their retries, each named with its error."""
+
+
+def default_workers() -> int:
+    return max(1, len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity")
+               else os.cpu_count() or 1)
+
+
+def run_tasks(fn: Callable[[dict[str, Any]], dict[str, Any]], jobs: Sequence[dict[str, Any]],
+              keys: Sequence[str], *, scheduler: str | None = None, workers: int | None = None,
+              retries: int = 2, progress: bool = True, label: str = "tasks"
+              ) -> list[dict[str, Any]]:
+    """``fn(job)`` for every job, on Dask (or in this process with ``workers=0``); the
+    results in the jobs' order. Raises :class:`TaskError` naming every task that failed
+    (after the others finished)."""
+    from tqdm import tqdm
+
+    if len(keys) != len(jobs) or len(set(keys)) != len(keys):
+        raise ValueError("run_tasks: one distinct key per job")
+    if not jobs:
+        return []
+    bar = tqdm(total=len(jobs), desc=label, unit="task", disable=not progress,
+               dynamic_ncols=True)
+    results: list[dict[str, Any] | None] = [None] * len(jobs)
+    failures: list[str] = []
+    try:
+        if workers == 0 and scheduler is None:
+            for i, job in enumerate(jobs):
+                try:
+                    results[i] = fn(job)
+                except Exception as e:  # noqa: BLE001  (named in the TaskError)
+                    failures.append(f"{keys[i]}: {e}")
+                bar.update(1)
+        else:
+            _run_dask(fn, jobs, keys, scheduler, workers, retries, bar, results, failures)
+    finally:
+        bar.close()
+    if failures:
+        raise TaskError(f"{len(failures)} of {len(jobs)} {label} failed: "
+                        + "; ".join(failures[:5]) + (" ..." if len(failures) > 5 else ""))
+    return [r for r in results if r is not None]
+
+
+def _run_dask(fn, jobs, keys, scheduler, workers, retries, bar, results, failures) -> None:
+    from distributed import Client, LocalCluster, as_completed
+
+    cluster = None
+    if scheduler is None:
+        # The embedded default: worker processes on this machine, one thread each (lensrt
+        # has its own threads, set by the job)
+        cluster = LocalCluster(n_workers=workers or default_workers(), threads_per_worker=1,
+                               processes=True, dashboard_address=None,
+                               silence_logs=logging.ERROR)
+    try:
+        with Client(cluster if cluster is not None else scheduler) as client:
+            futures = client.map(fn, jobs, key=list(keys), pure=False, retries=retries)
+            where = {f.key: i for i, f in enumerate(futures)}
+            for future in as_completed(futures):
+                i = where[future.key]
+                try:
+                    results[i] = future.result()
+                except Exception as e:  # noqa: BLE001  (named in the TaskError)
+                    failures.append(f"{keys[i]}: {e}")
+                bar.update(1)
+    finally:
+        if cluster is not None:
+            cluster.close()
+
+
+def empty_task(job: dict[str, Any]) -> dict[str, Any]:
+    """A task that does nothing: the scheduler's overhead per task (make bench)."""
+    return {"i": job["i"], "t": time.perf_counter()}

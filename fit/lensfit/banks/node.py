@@ -1,0 +1,182 @@
+"""One node of a bank: the task a Dask worker (or the driver itself) runs.
+
+A node is one light (field point and distance), one f-number and one focus offset, every
+wavelength of the bank, rendered by lensrt through its Python binding into a window
+centred on the chief ray's image point. What it leaves, in this order:
+
+1. ``nodes/<stem>.exr``: the spectral EXR (lensrt writes it atomically, without timings,
+   so the same node gives the same bytes on any worker);
+2. ``nodes/<stem>.json``: its record (checked JSON, written atomically): the lens and its
+   table's CRC-32, the spec's digest, the node's coordinates, how it was integrated, the
+   error estimate, seconds, and the EXR's CRC-32.
+
+The record comes last: a node is finished when its record exists, matches the spec and
+the table, and its EXR has the CRC-32 the record gives. A Monte Carlo node also saves its
+phasor sums (``nodes/<stem>.phasors``, lensrt's own atomic save) at each checkpoint, and
+a rerun resumes from them (the sums add, so the finished node is the same bytes).
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import time
+import zlib
+from pathlib import Path
+from typing import Any
+
+from lensfit.atomic import write_atomic
+from lensfit.codegen.checked_json import checked_json_text, load_checked_json
+from lensfit.errors import InputError
+
+RECORD_VERSION = 1
+
+# One lensrt context per (library, threads) and one loaded lens per (table, CRC-32) in
+# each worker process: a task reuses what the previous task of the same bank loaded
+_CONTEXTS: dict[tuple[str, int], Any] = {}
+_LENSES: dict[tuple[str, int, str, int], Any] = {}
+
+
+def file_crc32(path: str | os.PathLike[str]) -> int:
+    crc = 0
+    with open(path, "rb") as f:
+        while chunk := f.read(1 << 20):
+            crc = zlib.crc32(chunk, crc)
+    return crc & 0xFFFFFFFF
+
+
+def stem(indices: tuple[int, ...]) -> str:
+    f, z, d, y, x = indices
+    return f"nodes/f{f}-z{z}-d{d}-y{y}-x{x}"
+
+
+def node_coordinates(spec: dict[str, Any], indices: tuple[int, ...]) -> dict[str, float]:
+    g = spec["grid"]
+    f, z, d, y, x = indices
+    dist = g["distances_mm"][d]
+    return {"f_number": g["f_numbers"][f], "focus_offset_mm": g["focus_offsets_mm"][z],
+            "distance_mm": math.inf if dist == "inf" else dist,
+            "field_y_deg": g["field_y_deg"][y], "field_x_deg": g["field_x_deg"][x]}
+
+
+def finished_record(job: dict[str, Any]) -> dict[str, Any] | None:
+    """The node's record when the node is finished for this job (spec, table, EXR bytes);
+    None when it must be rendered."""
+    out = Path(job["out"])
+    record, exr = out / f"{job['stem']}.json", out / f"{job['stem']}.exr"
+    if not record.exists():
+        return None
+    try:
+        doc = load_checked_json(record, "render the node again")
+    except InputError:
+        return None  # damaged or foreign: rendered again, then replaced
+    if (doc.get("version") != RECORD_VERSION or doc.get("spec_digest") != job["digest"]
+            or doc.get("table_crc32") != f"{job['table_crc32']:08x}"
+            or doc.get("k") != job["k"]):
+        return None
+    try:
+        if f"{file_crc32(exr):08x}" != doc.get("exr_crc32"):
+            return None
+    except OSError:
+        return None
+    return doc
+
+
+def _lens(job: dict[str, Any]):
+    from lensrt_ctypes import Lensrt
+
+    threads = int(job["spec"]["render"]["threads"])
+    key = (job["library"], threads)
+    if key not in _CONTEXTS:
+        _CONTEXTS[key] = Lensrt(job["library"], threads=threads)
+    rt = _CONTEXTS[key]
+    lkey = (job["library"], threads, job["table"], job["table_crc32"])
+    if lkey not in _LENSES:
+        # The table must be the one the bank was planned with (never mix two tables)
+        crc = file_crc32(job["table"])
+        if crc != job["table_crc32"]:
+            raise InputError(f"{job['table']}: the table changed since the bank was planned "
+                             f"(CRC-32 {crc:08x}, planned {job['table_crc32']:08x}); run the "
+                             "bank again")
+        _LENSES[lkey] = rt.load(job["table"])
+    return rt, _LENSES[lkey]
+
+
+def render_node(job: dict[str, Any]) -> dict[str, Any]:
+    """Render one node unless it is finished; its record."""
+    done = finished_record(job)
+    if done is not None:
+        return {**done, "skipped": True}
+    from lensrt_ctypes import write_exr_reproducible
+
+    spec, out = job["spec"], Path(job["out"])
+    rt, lens = _lens(job)
+    c = node_coordinates(spec, job["indices"])
+    dist = 0.0 if math.isinf(c["distance_mm"]) else c["distance_mm"]
+    light = (c["field_x_deg"], c["field_y_deg"], dist, 1.0)
+    wavelengths = spec["grid"]["wavelengths_nm"]
+
+    # Register the window on the chief ray: its image point at every wavelength, the
+    # window centred on the middle wavelength's
+    chief = [rt.image_point(lens, light, lam, c["focus_offset_mm"]) for lam in wavelengths]
+    centre = chief[len(chief) // 2]
+    w, a, r_spec = spec["window"], spec["aperture"], spec["render"]
+    r = rt.create(lens, width=w["pixels"][0], height=w["pixels"][1],
+                  width_mm=w["size_mm"][0], height_mm=w["size_mm"][1], center=centre,
+                  focus_offset_mm=c["focus_offset_mm"], f_number=c["f_number"],
+                  shape=a["shape"], blades=a["blades"], blade_curvature=a["blade_curvature"],
+                  rotation_deg=a["rotation_deg"], lights=[light], wavelengths=wavelengths,
+                  seed=r_spec["seed"])
+    t0 = time.perf_counter()
+    how: dict[str, Any] = {"integrator": r_spec["integrator"]}
+    if r_spec["integrator"] == "cells":
+        how["rings"], how["error_estimate"] = r.integrate_to(r_spec["target_error"],
+                                                             max_rings=r_spec["max_rings"])
+    else:
+        how["samples"] = _monte_carlo(r, out / f"{job['stem']}.phasors", r_spec)
+        how["error_estimate"] = -1.0
+    seconds = time.perf_counter() - t0
+
+    # The EXR first, then the record that declares the node finished
+    exr = out / f"{job['stem']}.exr"
+    write_exr_reproducible(r, exr)
+    record = {"version": RECORD_VERSION, "k": job["k"], "indices": list(job["indices"]),
+              "lens": job["lens_name"], "table_crc32": f"{job['table_crc32']:08x}",
+              "spec_digest": job["digest"], **{k: _json_number(v) for k, v in c.items()},
+              "wavelengths_nm": wavelengths, "centre_mm": list(centre),
+              "chief_mm": [list(xy) for xy in chief], **how, "seconds": seconds,
+              "exr": f"{job['stem']}.exr", "exr_crc32": f"{file_crc32(exr):08x}"}
+    write_atomic(out / f"{job['stem']}.json", checked_json_text(record))
+    (out / f"{job['stem']}.phasors").unlink(missing_ok=True)
+    return {**record, "skipped": False}
+
+
+def _json_number(v: float) -> float | str:
+    return "inf" if math.isinf(v) else v
+
+
+def _monte_carlo(r, phasors: Path, r_spec: dict[str, Any]) -> int:
+    """Run Monte Carlo to the spec's samples in ``checkpoints`` steps, saving the sums
+    after each and resuming from a saved sum of the same scene; the samples run."""
+    from lensrt_ctypes import LensrtError
+
+    total, steps = int(r_spec["samples"]), int(r_spec["checkpoints"])
+    done = 0
+    if phasors.exists():
+        try:
+            r.load(phasors)  # lensrt refuses the sums of another scene or seed
+            done = int(r.stats().samples_per_wavelength)
+        except LensrtError:
+            phasors.unlink(missing_ok=True)
+            done = 0
+        if done > total:  # saved by a spec with more samples: start again
+            raise InputError(f"{phasors}: holds {done} samples per wavelength, more than the "
+                             f"spec's {total}; remove it")
+    for step in range(1, steps + 1):
+        goal = total * step // steps
+        if goal > done:
+            r.run(goal - done)
+            done = goal
+            if step < steps:
+                r.save(phasors)
+    return done

@@ -1,0 +1,216 @@
+"""Run a bank: plan its nodes, skip the finished ones, render the rest on Dask, index it.
+
+The bank folder holds ``bank.json`` (the spec, the lens, its table's CRC-32: checked
+JSON), ``nodes/`` (per node an EXR and its record, node.py), ``bank.index`` (index.py,
+written when every node is finished) and ``contact-sheet.png``. A rerun of the same spec
+renders only what is not finished (and resumes a Monte Carlo node's saved sums); a
+folder holding a bank of another spec or table is refused (``restart`` empties it), so
+two banks are never mixed.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import re
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from lensfit.atomic import OutputError, make_folder, write_atomic
+from lensfit.banks.engine import run_tasks
+from lensfit.banks.index import INDEX_NAME, index_text
+from lensfit.banks.node import file_crc32, finished_record, render_node, stem
+from lensfit.banks.spec import BankSpec, SpecError, load_spec
+from lensfit.codegen.checked_json import checked_json_text, load_checked_json
+from lensfit.errors import InputError
+
+BANK_RECORD = "bank.json"
+SHEET_NAME = "contact-sheet.png"
+
+
+@dataclass
+class Summary:
+    nodes: int
+    rendered: int
+    skipped: int
+    worst_error: float
+    cpu_seconds: float
+    wall_seconds: float
+    index: Path
+
+    def line(self) -> str:
+        worst = f"{self.worst_error:.2%}" if self.worst_error >= 0 else "none (Monte Carlo)"
+        return (f"bank {self.index.parent}: {self.nodes} nodes ({self.rendered} rendered, "
+                f"{self.skipped} already finished), worst error estimate {worst}, "
+                f"{self.cpu_seconds:.1f} CPU-seconds of rendering, {self.wall_seconds:.1f} s")
+
+
+def resolve_table(lens: str, base: Path, generated: Path | None = None) -> Path:
+    """The coefficient table a spec's ``lens`` names: a ``.table`` file or a folder
+    (relative to the spec's folder), else a lens id or folder name of generated/ (an id
+    shared by a lens and its variants, ``<folder>-uncoated``, names the lens)."""
+    from lensfit.generate import GENERATED_DIR
+
+    gen = generated or GENERATED_DIR
+    as_path = (base / lens) if not Path(lens).is_absolute() else Path(lens)
+    if lens.endswith(".table") or "/" in lens:
+        folder_or_table = as_path
+    else:
+        names = sorted(p.name for p in gen.iterdir() if p.is_dir()) if gen.is_dir() else []
+        hits = [n for n in names if n == lens] or [n for n in names if n.startswith(lens + "-")]
+        lenses = [n for n in hits if not any(n.startswith(h + "-") for h in hits if h != n)]
+        if len(lenses) != 1:
+            why = ("no such lens" if not lenses
+                   else f"names {len(lenses)} lenses ({', '.join(lenses)})")
+            raise SpecError(f"key 'lens': {lens!r}: {why} in {gen}")
+        folder_or_table = gen / lenses[0]
+    if folder_or_table.is_dir():
+        tables = sorted(folder_or_table.glob("lens*.table"))
+        if len(tables) != 1:
+            raise SpecError(f"key 'lens': {folder_or_table}: expected one lens*.table, found "
+                            f"{len(tables)}")
+        return tables[0].resolve()
+    if not folder_or_table.is_file():
+        raise SpecError(f"key 'lens': {lens!r}: {folder_or_table} is not a table file")
+    return folder_or_table.resolve()
+
+
+def _check_domain(spec: BankSpec, rt, lens, src: str) -> None:
+    """Every node inside the lens's fitted domain, checked before any task starts."""
+    info = rt.info(lens)
+    g = spec.grid
+    for i, lam in enumerate(g.wavelengths_nm):
+        if not info["wavelength_min_nm"] - 1e-9 <= lam <= info["wavelength_max_nm"] + 1e-9:
+            raise SpecError(f"{src}: key 'grid.wavelengths_nm[{i}]': {lam!r} nm is outside the "
+                            f"lens's {info['wavelength_min_nm']:g}-{info['wavelength_max_nm']:g}"
+                            " nm")
+    for i, n in enumerate(g.f_numbers):
+        if n < info["f_number_min"] * (1 - 1e-9):
+            raise SpecError(f"{src}: key 'grid.f_numbers[{i}]': f/{n:g} is wider than the "
+                            f"lens's f/{info['f_number_min']:.3g}")
+    for i, z in enumerate(g.focus_offsets_mm):
+        if not info["focus_offset_min_mm"] - 1e-9 <= z <= info["focus_offset_max_mm"] + 1e-9:
+            raise SpecError(f"{src}: key 'grid.focus_offsets_mm[{i}]': {z!r} mm is outside the "
+                            f"lens's {info['focus_offset_min_mm']:g} to "
+                            f"{info['focus_offset_max_mm']:g} mm")
+    for i, d in enumerate(g.distances_mm):
+        if math.isfinite(d) and info["distance_min_mm"] > 0 and d < info["distance_min_mm"]:
+            raise SpecError(f"{src}: key 'grid.distances_mm[{i}]': {d!r} mm is closer than the "
+                            f"lens's {info['distance_min_mm']:g} mm")
+    for key, values, limit, axis in (("grid.field_x_deg", g.field_x_deg, info["field_x"], 0),
+                                     ("grid.field_y_deg", g.field_y_deg, info["field_y"], 1)):
+        for i, v in enumerate(values):
+            cos = rt.light_direction_cosines((v if axis == 0 else 0.0,
+                                              v if axis == 1 else 0.0))
+            if abs(cos[axis]) > limit * (1 + 1e-9):
+                raise SpecError(f"{src}: key '{key}[{i}]': {v!r} deg is outside the lens's "
+                                f"fitted field (direction cosine {abs(cos[axis]):.4g} > "
+                                f"{limit:.4g})")
+
+
+def plan(spec: BankSpec, out: Path, table: Path, crc: int, lens_name: str, library: str
+         ) -> list[dict[str, Any]]:
+    """One job per node, in index order (f-number slowest, field x fastest)."""
+    digest, spec_dict = spec.digest(), spec.to_dict()
+    jobs = []
+    for k, idx in enumerate(_indices(spec.grid.shape)):
+        jobs.append({"k": k, "indices": idx, "stem": stem(idx), "out": str(out),
+                     "table": str(table), "table_crc32": crc, "lens_name": lens_name,
+                     "library": library, "spec": spec_dict, "digest": digest})
+    return jobs
+
+
+def _indices(shape: tuple[int, ...]) -> list[tuple[int, ...]]:
+    out: list[tuple[int, ...]] = [()]
+    for n in shape:
+        out = [i + (j,) for i in out for j in range(n)]
+    return out
+
+
+def _bank_record(out: Path, doc: dict[str, Any], restart: bool) -> None:
+    """Refuse a folder that holds another bank (or empty it with ``restart``), then
+    record this one."""
+    path = out / BANK_RECORD
+    if path.exists() and not restart:
+        old = load_checked_json(path, "remove the folder or run with --restart")
+        for key in ("spec_digest", "table_crc32", "lens"):
+            if old.get(key) != doc[key]:
+                raise InputError(
+                    f"{path}: this folder holds a bank of another {key.split('_')[0]} "
+                    f"({key} {old.get(key)!r}, now {doc[key]!r}); run with --restart to "
+                    "discard its nodes, or give another folder")
+        return
+    if restart:
+        for p in sorted((out / "nodes").glob("*")) if (out / "nodes").is_dir() else []:
+            if p.is_file() and p.suffix in (".exr", ".json", ".phasors"):
+                p.unlink()
+        for name in (INDEX_NAME, SHEET_NAME):
+            (out / name).unlink(missing_ok=True)
+    write_atomic(path, checked_json_text(doc))
+
+
+def run_bank(spec_path: str | Path, out: str | Path, *, scheduler: str | None = None,
+             workers: int | None = None, restart: bool = False, progress: bool = True,
+             sheet: bool = True, generated: Path | None = None) -> Summary:
+    """Render every unfinished node of a bank and write its index (and contact sheet)."""
+    from lensrt_ctypes import LIBRARY, Lensrt, LensrtError
+
+    t0 = time.perf_counter()
+    spec = load_spec(spec_path)
+    src = spec.source_file
+    try:
+        table = resolve_table(spec.lens, Path(spec_path).resolve().parent, generated)
+    except SpecError as e:
+        raise SpecError(f"{src}: {e}") from None
+    crc = file_crc32(table)
+
+    # Load the lens once here: a damaged table or a grid outside its domain is refused
+    # before any task starts
+    library = str(Path(os.environ.get("LENSRT_LIBRARY") or LIBRARY).resolve())
+    try:
+        rt = Lensrt(library, threads=1)
+        lens = rt.load(table)
+    except (FileNotFoundError, LensrtError) as e:
+        raise InputError(f"{src}: lens {spec.lens!r}: {e}") from None
+    _check_domain(spec, rt, lens, src)
+    # The lens's name in the index: its generated folder's (a symbol: no spaces)
+    lens_name = table.parent.name if table.stem.startswith("lens") else table.stem
+    if not re.fullmatch(r"[A-Za-z0-9._+-]{1,128}", lens_name):
+        raise InputError(f"{table}: the lens name {lens_name!r} (its folder's) cannot be "
+                         "written in a bank index: rename the folder to [A-Za-z0-9._+-]")
+
+    out = Path(out)
+    if out.exists() and not out.is_dir():
+        raise OutputError(f"{out}: not a folder")
+    make_folder(out / "nodes", "bank folder")
+    _bank_record(out, {"version": 1, "name": spec.name, "lens": lens_name,
+                       "table": str(table), "table_crc32": f"{crc:08x}",
+                       "spec_digest": spec.digest(), "spec": spec.to_dict()}, restart)
+
+    jobs = plan(spec, out.resolve(), table, crc, lens_name, library)
+    pending = [j for j in jobs if finished_record(j) is None]
+    keys = [f"bank-{j['digest'][:12]}-{j['stem'].split('/')[-1]}" for j in pending]
+    done = run_tasks(render_node, pending, keys, scheduler=scheduler, workers=workers,
+                     progress=progress, label=f"bank {spec.name}")
+
+    # Every node finished: the index, from the records as written
+    records = []
+    for j in jobs:
+        rec = finished_record(j)
+        if rec is None:
+            raise OutputError(f"{out / j['stem']}.json: node {j['k']} did not finish")
+        records.append(rec)
+    index = write_atomic(out / INDEX_NAME, index_text(spec, lens_name, crc, records))
+    if sheet:
+        from lensfit.banks.sheet import contact_sheet
+
+        write_atomic(out / SHEET_NAME, contact_sheet(spec, out, records))
+    rendered = [r for r in done if not r.get("skipped")]
+    errors = [r["error_estimate"] for r in records]
+    return Summary(nodes=len(records), rendered=len(rendered),
+                   skipped=len(records) - len(rendered),
+                   worst_error=max(errors) if min(errors) >= 0 else -1.0,
+                   cpu_seconds=sum(r["seconds"] for r in rendered),
+                   wall_seconds=time.perf_counter() - t0, index=index)
