@@ -52,7 +52,7 @@ extern "C" {
  * when a program built against one header runs with a newer shared library, which the
  * versioned structs below allow within one major version. */
 #define LENSRT_VERSION_MAJOR 0
-#define LENSRT_VERSION_MINOR 4
+#define LENSRT_VERSION_MINOR 5
 #define LENSRT_VERSION_PATCH 0
 #define LENSRT_VERSION \
     ((uint32_t)LENSRT_VERSION_MAJOR * 1000000u + (uint32_t)LENSRT_VERSION_MINOR * 1000u + \
@@ -659,6 +659,22 @@ LENSRT_API lensrt_result lensrt_render_merge(lensrt_render render, const char *p
 LENSRT_API lensrt_result lensrt_render_write_exr(lensrt_render render, const char *path);
 LENSRT_API lensrt_result lensrt_render_write_png(lensrt_render render, const char *path, double decades);
 
+/* How lensrt_render_write_exr_with writes (since 0.5.0). Versioned: start from
+ * LENSRT_EXR_OPTIONS_INIT; zero means the defaults, lensrt_render_write_exr's file. */
+typedef struct lensrt_exr_options {
+    size_t struct_size;      /* sizeof(lensrt_exr_options): LENSRT_EXR_OPTIONS_INIT */
+    /* 1: leave out what differs between two runs of the same render (the attributes
+     * lensrt/seconds, lensrt/splatsPerSecond and lensrt/lensFile), so that the same
+     * render gives the same bytes (a PSF bank's nodes, whose index holds their CRC-32);
+     * 0: write them. Other values are refused. */
+    int32_t reproducible;
+} lensrt_exr_options;
+#define LENSRT_EXR_OPTIONS_INIT {sizeof(lensrt_exr_options), 0}
+
+/* lensrt_render_write_exr with options (NULL: the same as lensrt_render_write_exr). */
+LENSRT_API lensrt_result lensrt_render_write_exr_with(lensrt_render render, const char *path,
+                                                      const lensrt_exr_options *options);
+
 /* Images that add: a light's direct image plus its ghosts' (each ghost its own render,
  * its own phasor sums; intensities add, never phasors). The sum of the renders' images
  * (lensrt_render_image each, summed in double), as an image, an EXR (the first render's
@@ -699,6 +715,126 @@ typedef struct lensrt_exr_layer {
  * struct_size or a first render: LENSRT_ERROR_INVALID_ARGUMENT with no context to hold a
  * message (the messages go to the first render's context). */
 LENSRT_API lensrt_result lensrt_layers_write_exr(const lensrt_exr_layer *layers, int n_layers, const char *path);
+
+/* ------------------------------------------------------------- PSF banks ----- */
+
+/* A PSF bank (since 0.5.0): a lens's point spread functions rendered ahead of time on a
+ * grid of f-numbers, focus offsets, light distances and field angles, for renderers
+ * that look PSFs up instead of integrating them. A bank is a folder:
+ *
+ *   bank.index            text, below
+ *   nodes/<name>.exr      one EXR per node, written by lensrt_render_write_exr_with
+ *                         (reproducible): spectral channels S0.<lambda>nm (FLOAT) at the
+ *                         index's wavelengths, plus R, G, B (ignored here)
+ *
+ * The index (version 1): one item per line, tokens separated by single spaces, numbers
+ * as "C"-locale decimal text (Python's repr(float) writes them), LF line ends, no blank
+ * lines, the keys in this order:
+ *
+ *   lensrt-bank 1
+ *   lens <name, printable ASCII without spaces>
+ *   table_crc32 <8 lowercase hex digits: the lens table's checksum>
+ *   width <pixels>
+ *   height <pixels>
+ *   pixel_mm <pitch x> <pitch y>                     > 0
+ *   wavelengths_nm <n> <l_1> ... <l_n>               strictly increasing, > 0
+ *   f_numbers <n> <v_1> ... <v_n>                    distinct, > 0
+ *   focus_offsets_mm <n> <v_1> ... <v_n>             distinct
+ *   distances_mm <n> <v_1> ... <v_n>                 distinct, >= 0 (0: infinity)
+ *   field_x_deg <n> <v_1> ... <v_n>                  strictly increasing
+ *   field_y_deg <n> <v_1> ... <v_n>                  strictly increasing
+ *   nodes <N>                                        N = the product of the five counts
+ *   node <k> <i_f> <i_z> <i_d> <i_y> <i_x> <center_x_mm> <center_y_mm> <error_estimate>
+ *        <crc32 of the EXR file, 8 hex> <path of the EXR relative to the index's folder>
+ *   chief <k> <x_1> <y_1> ... <x_n> <y_n>            the chief ray's image point (mm) at
+ *                                                    each wavelength
+ *   ... a node line and its chief line for each k = 0 .. N-1, in order
+ *   checksum crc32 <8 lowercase hex digits>          CRC-32 of every byte before this line
+ *
+ * Every index tuple (i_f, i_z, i_d, i_y, i_x) appears exactly once. A node's EXR is
+ * width x height pixels of the bank's pitch centred on (center_x_mm, center_y_mm), as a
+ * render's window (lensrt_sensor) is: row 0 at the top (+y), pixel (i, j)'s centre at
+ * (center_x + (i + 0.5 - width / 2) pitch_x, center_y + (height / 2 - j - 0.5) pitch_y).
+ * error_estimate is the node's relative L2 error estimate (finite, >= 0). Paths use
+ * only [A-Za-z0-9._/-], and are relative (no leading '/', no "..", no empty component).
+ * At most LENSRT_MAX_BANK_NODES nodes and LENSRT_MAX_WAVELENGTHS wavelengths.
+ *
+ * lensrt_bank_open checks everything it reads as the table reader does: the checksum
+ * line first, then every line (keys in order, counts, finite numbers, ranges, node
+ * indices, duplicates, paths); then each node's EXR, whose bytes must have the CRC-32 the
+ * index gives, and whose image must be width x height FLOAT pixels (one scanline part,
+ * data window from 0, 0) with exactly the index's spectral channels (plus R, G, B),
+ * every value finite and >= 0. Any failure is LENSRT_ERROR_PARSE (or _IO for a file
+ * that cannot be read; _UNSUPPORTED in a build without OpenEXR) with a message naming
+ * the file (the index or the EXR), the line or the node, the key and the value. The
+ * node images are kept in memory (through the context's allocator) until the bank is
+ * closed. A bank is used from one thread at a time (its messages go to its context);
+ * close it before destroying that context. */
+#define LENSRT_MAX_BANK_NODES 65536
+
+typedef struct lensrt_bank_s *lensrt_bank;
+
+typedef struct lensrt_bank_info {
+    size_t struct_size;          /* sizeof(lensrt_bank_info): LENSRT_BANK_INFO_INIT */
+    const char *lens_name;       /* valid while the bank lives, as are the arrays below */
+    uint32_t table_crc32;
+    int32_t width, height;       /* pixels of every node image */
+    double pixel_x_mm, pixel_y_mm;
+    int32_t n_wavelengths;
+    const double *wavelengths_nm;
+    int32_t n_f_numbers;
+    const double *f_numbers;
+    int32_t n_focus_offsets;
+    const double *focus_offsets_mm;
+    int32_t n_distances;
+    const double *distances_mm;
+    int32_t n_field_x;
+    const double *field_x_deg;
+    int32_t n_field_y;
+    const double *field_y_deg;
+    int32_t n_nodes;
+    double worst_error_estimate; /* the largest of the nodes' error estimates */
+} lensrt_bank_info;
+#define LENSRT_BANK_INFO_INIT {sizeof(lensrt_bank_info), NULL, 0, 0, 0, 0, 0, 0, NULL, 0, NULL, 0, NULL, \
+                               0, NULL, 0, NULL, 0, NULL, 0, 0}
+
+typedef struct lensrt_bank_query {
+    size_t struct_size;          /* sizeof(lensrt_bank_query): LENSRT_BANK_QUERY_INIT */
+    double field_x_deg, field_y_deg; /* within the bank's field grid (interpolated) */
+    double wavelength_nm;        /* within the bank's wavelengths (interpolated) */
+    double f_number;             /* one of the bank's f-numbers; 0: the first */
+    double focus_offset_mm;      /* one of the bank's (exact) */
+    double distance_mm;          /* one of the bank's (exact; 0: infinity) */
+} lensrt_bank_query;
+#define LENSRT_BANK_QUERY_INIT {sizeof(lensrt_bank_query), 0, 0, 0, 0, 0, 0}
+
+/* Open the bank whose index is index_path (node paths are relative to its folder). */
+LENSRT_API lensrt_result lensrt_bank_open(lensrt_context ctx, const char *index_path, lensrt_bank *out);
+/* Free the bank (NULL: nothing). */
+LENSRT_API void lensrt_bank_close(lensrt_bank bank);
+LENSRT_API lensrt_result lensrt_bank_get_info(lensrt_bank bank, lensrt_bank_info *out);
+
+/* The PSF at a field point and wavelength: width x height floats (the node images' units
+ * and row order, row 0 at the top, out[j * width + i]), on the bank's pixel grid centred
+ * on the interpolated chief-ray image point, which is written to chief_mm (may be NULL).
+ *
+ * The f-number, focus offset and distance pick a slice of the bank by exact match (f_number
+ * 0: the first); a value the bank does not hold is LENSRT_ERROR_OUT_OF_DOMAIN with a
+ * message listing the bank's values. In the slice, the field point's cell gives bilinear
+ * weights over the up to 4 nodes around it (along an axis with one value the query must
+ * equal it); each node's image at the wavelength is the linear blend of its two bracketing
+ * channels, each channel registered on its own chief point: output pixel (i, j), at
+ * offset o = ((i + 0.5 - width / 2) pitch_x, (height / 2 - j - 0.5) pitch_y) from the
+ * output's centre, takes channel c at the point chief_c + o, by bilinear interpolation
+ * between the node's pixel centres (zero outside the node image). The nodes' images are
+ * blended with the field weights, and the output's centre (chief_mm) is the same
+ * weights applied to the nodes' chief points (linear in wavelength, bilinear in field).
+ * At a node and one of its wavelengths whose chief point is the node's centre, the output
+ * is that channel of the node's EXR bit for bit. A field angle or wavelength outside the
+ * bank's range: LENSRT_ERROR_OUT_OF_DOMAIN naming the value and the range; one that is
+ * not finite, or count other than width x height: LENSRT_ERROR_INVALID_ARGUMENT. */
+LENSRT_API lensrt_result lensrt_bank_psf(lensrt_bank bank, const lensrt_bank_query *query, float *out, size_t count,
+                                         double chief_mm[2]);
 
 #ifdef __cplusplus
 }

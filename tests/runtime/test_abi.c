@@ -58,6 +58,9 @@ static void test_init_macros(void)
     EXPECT_INIT(lensrt_system_info, LENSRT_SYSTEM_INFO_INIT);
     EXPECT_INIT(lensrt_eval_desc, LENSRT_EVAL_DESC_INIT);
     EXPECT_INIT(lensrt_exr_layer, LENSRT_EXR_LAYER_INIT);
+    EXPECT_INIT(lensrt_exr_options, LENSRT_EXR_OPTIONS_INIT);
+    EXPECT_INIT(lensrt_bank_info, LENSRT_BANK_INFO_INIT);
+    EXPECT_INIT(lensrt_bank_query, LENSRT_BANK_QUERY_INIT);
 }
 
 static void test_version(void)

@@ -19,4 +19,13 @@ uint32_t lensrt_crc32_update(const uint32_t table[256], uint32_t state, const vo
 /* The CRC-32 of one buffer (zlib's crc32(0, data, size)). */
 uint32_t lensrt_crc32(const void *data, size_t size);
 
+/* The checksum line that ends coefficient tables and PSF bank indexes:
+ * `checksum crc32 <8 lowercase hex digits>\n` exactly, as the text's last line. Always
+ * sets *start (where the last line starts: the end of the checksummed bytes) and *line
+ * (its 1-based line number); returns 1 with *stated (the CRC the line states) and
+ * *actual (the CRC-32 of the bytes before it) when the last line has that form, 0 when
+ * not (a text cut short, or edited). Callers word their own messages. */
+int lensrt_crc32_checksum_line(const char *text, size_t size, size_t *start, size_t *line, uint32_t *stated,
+                               uint32_t *actual);
+
 #endif

@@ -43,7 +43,10 @@
  * int; 64-bit counts (samples per wavelength, seed) are decimal strings because EXR has
  * no 64-bit integer attribute; "lensrt/integrator" is "montecarlo" or "cells", the latter
  * with "lensrt/cellsRings" and "lensrt/errorEstimate". Every name is at most 31 characters, so the file needs
- * no long-name support.
+ * no long-name support. A reproducible file (lensrt_image_meta.reproducible,
+ * lensrt_render_write_exr_with) leaves out "lensrt/seconds", "lensrt/splatsPerSecond" and
+ * "lensrt/lensFile": nothing else in the file depends on the run, so the same render
+ * gives the same bytes.
  *
  * Memory: OpenEXRCore's allocator hooks (exr_context_initializer_t alloc_fn / free_fn)
  * take no user pointer in 3.1, so they cannot forward to a lensrt_allocator; OpenEXRCore
@@ -101,6 +104,13 @@ const char *lensrt_exr_layer_name_refusal(const char *name)
     return NULL;
 }
 
+void lensrt_exr_spectral_name(double wavelength_nm, char *out)
+{
+    // From integers (units of 1e-6 nm), so that the locale's decimal point cannot leak in
+    long long micro = (long long)floor(wavelength_nm * 1.0e6 + 0.5);
+    snprintf(out, LENSRT_EXR_SPECTRAL_NAME_SIZE, "S0.%lld,%06lldnm", micro / 1000000, micro % 1000000);
+}
+
 #ifndef LENSRT_EXR
 
 /* Built without OpenEXR (LENSRT_WITH_EXR=OFF): say so. */
@@ -137,11 +147,11 @@ lensrt_result lensrt_write_exr_layers(const lensrt_allocator *allocator, const c
 #include <unistd.h>
 
 /* Room for one spectral channel name "S0.<digits>,<6 digits>nm" (bytes, with the NUL). */
-#define EXR_SPECTRAL_NAME_SIZE 32
+#define EXR_SPECTRAL_NAME_SIZE LENSRT_EXR_SPECTRAL_NAME_SIZE
 /* Room for one channel name: "<layer>." and a spectral name (bytes, with the NUL). */
 #define EXR_CHANNEL_NAME_SIZE (LENSRT_MAX_LAYER_NAME + 1 + EXR_SPECTRAL_NAME_SIZE)
 /* Largest wavelength we format (nm): keeps the integer part of a name to 9 digits. */
-#define EXR_MAX_WAVELENGTH_NM 1.0e9
+#define EXR_MAX_WAVELENGTH_NM LENSRT_EXR_MAX_WAVELENGTH_NM
 /* Room for one light in the "lensrt/lights" string (bytes). */
 #define EXR_LIGHT_TEXT_SIZE 128
 /* Room for the "comments" summary (bytes). */
@@ -199,8 +209,7 @@ static int64_t exr_write_to_fd(exr_const_context_t ctxt, void *userdata, const v
  * locale's decimal point cannot leak in. */
 static void exr_channel_name(double wavelength_nm, char *out)
 {
-    long long micro = (long long)floor(wavelength_nm * 1.0e6 + 0.5); /* units of 1e-6 nm */
-    snprintf(out, EXR_SPECTRAL_NAME_SIZE, "S0.%lld,%06lldnm", micro / 1000000, micro % 1000000);
+    lensrt_exr_spectral_name(wavelength_nm, out);
 }
 
 /* A channel's name in a layer: "<layer>.<name>", or `name` itself for the unprefixed image. */
@@ -479,7 +488,8 @@ lensrt_result lensrt_write_exr_layers(const lensrt_allocator *allocator, const c
         }
         if (rv == EXR_ERR_SUCCESS && meta->lens_name)
             rv = exr_attr_set_string(ctxt, part, "lensrt/lens", meta->lens_name);
-        if (rv == EXR_ERR_SUCCESS && meta->lens_file)
+        // A reproducible file leaves out the table's path (the same table may lie elsewhere)
+        if (rv == EXR_ERR_SUCCESS && meta->lens_file && !meta->reproducible)
             rv = exr_attr_set_string(ctxt, part, "lensrt/lensFile", meta->lens_file);
         if (rv == EXR_ERR_SUCCESS)
             rv = exr_attr_set_double(ctxt, part, "lensrt/focalLengthMm", meta->focal_length_mm);
@@ -503,9 +513,10 @@ lensrt_result lensrt_write_exr_layers(const lensrt_allocator *allocator, const c
             snprintf(text, sizeof text, "%llu", (unsigned long long)meta->samples_per_wavelength);
             rv = exr_attr_set_string(ctxt, part, "lensrt/samplesPerWavelength", text);
         }
-        if (rv == EXR_ERR_SUCCESS)
+        // ... and the timings, which differ from run to run
+        if (rv == EXR_ERR_SUCCESS && !meta->reproducible)
             rv = exr_attr_set_double(ctxt, part, "lensrt/seconds", meta->seconds);
-        if (rv == EXR_ERR_SUCCESS)
+        if (rv == EXR_ERR_SUCCESS && !meta->reproducible)
             rv = exr_attr_set_double(ctxt, part, "lensrt/splatsPerSecond", meta->splats_per_second);
         if (rv == EXR_ERR_SUCCESS && meta->sampler)
             rv = exr_attr_set_string(ctxt, part, "lensrt/sampler", meta->sampler);

@@ -58,6 +58,9 @@ typedef struct lensrt_image_meta {
     uint64_t seed;
     int n_lights;
     const lensrt_light *lights;
+    /* Non-zero: leave out what differs between two runs of the same render (seconds,
+     * splats_per_second, lens_file), so that the same render gives the same bytes */
+    int reproducible;
 } lensrt_image_meta;
 
 /* Linear sRGB (D65) of spectra sampled at `wavelengths_nm` (any order, any count >= 1):
@@ -78,6 +81,14 @@ lensrt_result lensrt_write_exr(const lensrt_allocator *allocator, const char *pa
                                const double *wavelengths_nm, const float *spectral,
                                const float *rgb, const lensrt_image_meta *meta,
                                char *err, size_t err_size);
+
+/* The spectral layout's name of a wavelength's channel, "S0.<lambda>nm" with 6 decimals
+ * and a comma ("S0.550,000000nm"), as lensrt_write_exr names them, into out (at least
+ * LENSRT_EXR_SPECTRAL_NAME_SIZE bytes); wavelength_nm must be > 0 and below
+ * LENSRT_EXR_MAX_WAVELENGTH_NM. */
+#define LENSRT_EXR_SPECTRAL_NAME_SIZE 32
+#define LENSRT_EXR_MAX_WAVELENGTH_NM 1.0e9
+void lensrt_exr_spectral_name(double wavelength_nm, char *out);
 
 /* One image of a layered EXR: a spectral image and its RGB preview, as for
  * lensrt_write_exr, and its layer's name (NULL: the unprefixed channels). */

@@ -160,9 +160,10 @@ static void image_meta(const lensrt_render r, lensrt_image_meta *out, char *aper
     *out = meta;
 }
 
-/* The image (the sum of the renders' images) as EXR, with the first render's metadata,
- * or PNG. */
-static lensrt_result write_image(const lensrt_render *rs, int n, const char *path, int exr, double decades)
+/* The image (the sum of the renders' images) as EXR, with the first render's metadata
+ * (without what differs from run to run when `reproducible`), or PNG. */
+static lensrt_result write_image_as(const lensrt_render *rs, int n, const char *path, int exr, double decades,
+                                   int reproducible)
 {
     float *spectral = NULL, *rgb = NULL;
     lensrt_render r = rs ? rs[0] : NULL;
@@ -174,6 +175,7 @@ static lensrt_result write_image(const lensrt_render *rs, int n, const char *pat
     if (res == LENSRT_SUCCESS && exr) {
         lensrt_image_meta meta;
         image_meta(r, &meta, aperture);
+        meta.reproducible = reproducible;
         res = lensrt_write_exr(&r->ctx->allocator, path, r->width, r->height, r->n_wl, r->wavelengths,
                                spectral, rgb, &meta, err, sizeof err);
     } else if (res == LENSRT_SUCCESS) {
@@ -185,7 +187,28 @@ static lensrt_result write_image(const lensrt_render *rs, int n, const char *pat
     return res;
 }
 
+static lensrt_result write_image(const lensrt_render *rs, int n, const char *path, int exr, double decades)
+{
+    return write_image_as(rs, n, path, exr, decades, 0);
+}
+
 lensrt_result lensrt_render_write_exr(lensrt_render r, const char *path) { return write_image(&r, 1, path, 1, 0.0); }
+
+lensrt_result lensrt_render_write_exr_with(lensrt_render r, const char *path, const lensrt_exr_options *options)
+{
+    lensrt_exr_options o;
+    lensrt_result res;
+    if (!r) return LENSRT_ERROR_INVALID_ARGUMENT;
+    if (!options) return write_image(&r, 1, path, 1, 0.0);
+    // Read the options by their struct_size (ABI rules), then check the flag
+    if ((res = lensrt_struct_in(r->ctx, "lensrt_exr_options", options, &o, sizeof o)) != LENSRT_SUCCESS)
+        return res;
+    if (o.reproducible != 0 && o.reproducible != 1)
+        return lensrt_fail(r->ctx, LENSRT_ERROR_INVALID_ARGUMENT,
+                           "EXR '%s': lensrt_exr_options.reproducible is %d; expected 0 or 1", path ? path : "(null)",
+                           (int)o.reproducible);
+    return write_image_as(&r, 1, path, 1, 0.0, o.reproducible);
+}
 
 lensrt_result lensrt_render_write_png(lensrt_render r, const char *path, double decades)
 {

@@ -588,26 +588,12 @@ static void fill_info(lensrt_lens lens)
 static lensrt_result check_checksum(lensrt_context ctx, const char *name, const char *text, size_t size,
                                     const char **body_end)
 {
-    static const char prefix[] = "checksum crc32 ";
-    const size_t np = sizeof prefix - 1;
-    size_t start = size, k, line = 1;
-    uint32_t want = 0, got;
-    int ok;
-    // The last line's start: after the last '\n' before the final one
-    if (size > 0 && text[size - 1] == '\n')
-        for (start = size - 1; start > 0 && text[start - 1] != '\n'; start--) continue;
-    for (k = 0; k < start; k++) line += text[k] == '\n';
-    ok = start < size && size - start == np + 9 && memcmp(text + start, prefix, np) == 0;
-    for (k = 0; ok && k < 8; k++) {
-        const char c = text[start + np + k];
-        ok = (c >= '0' && c <= '9') || (c >= 'a' && c <= 'f');
-        want = want << 4 | (uint32_t)(c <= '9' ? c - '0' : c - 'a' + 10);
-    }
-    if (!ok)
+    size_t start, line;
+    uint32_t want = 0, got = 0;
+    if (!lensrt_crc32_checksum_line(text, size, &start, &line, &want, &got))
         return lensrt_fail(ctx, LENSRT_ERROR_PARSE,
                            "%s:%zu: expected the last line 'checksum crc32 <8 lowercase hex digits>' (a table cut "
                            "short, or edited): refused", name, line);
-    got = lensrt_crc32(text, start);
     if (got != want)
         return lensrt_fail(ctx, LENSRT_ERROR_PARSE,
                            "%s:%zu: checksum %08x does not match the content (%08x): the table was changed after "
