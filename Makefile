@@ -7,7 +7,8 @@
 #                (EXR, PNG and a sheet of the three with scale bars, build/demo/psf/), at
 #                f/8 on the GL device (Monte Carlo), and the paper's Figure 10: full-frame
 #                flares of 0001 and 2004, coated against uncoated, every image to 1%
-#                (build/demo/flare/)
+#                (build/demo/flare/), and a bank of PSFs over the frame on a Dask
+#                LocalCluster with its contact sheet (build/demo/bank/)
 #   make test    lint, the C tests and examples/embed (also under ASan/UBSan, and a minimal
 #                build without EXR, OpenMP and GL), the C parsers under libFuzzer for 15 s
 #                each, and the Python test suite (the TOML loaders under hypothesis too)
@@ -17,7 +18,8 @@
 #                (and tile-scheduled against run()), per-ray evaluation against exact tracing,
 #                compiled-in Horner code against lensrt's set-up,
 #                per-ray evaluation against the exact tracer, error against run time (the
-#                cells integrator against Monte Carlo too: cells_bench.py), and per generated lens the fit time and the worst
+#                cells integrator against Monte Carlo too: cells_bench.py), banks on Dask
+#                (scaling 1 -> 2 workers, the scheduler's overhead: banks.md), and per generated lens the fit time and the worst
 #                PSF cell against exactly traced rays (build/bench/)
 
 PYTHON ?= /usr/bin/python3
@@ -106,6 +108,12 @@ demo: setup runtime
 		--resolution 96x64 --wavelengths 4 --integrator cells --rings 64 --quiet \
 		--flares generated/0001-angenieux-double-gauss/ghosts \
 		-o build/demo/flare/flares.exr --png build/demo/flare/flares.png
+	@# A bank (issue 23): lens 0001 at f/8, 5 x 3 field points over the frame, 8
+	@# wavelengths, each node to 1%, on a Dask LocalCluster; bank.index is what
+	@# lensrt_bank_open reads, contact-sheet.png the picture to look at first. A rerun
+	@# resumes (renders only unfinished nodes)
+	LENSRT_LIBRARY=$(CURDIR)/$(RUNTIME_BUILD)/runtime/liblensrt.so \
+		$(VENV)/bin/lensfit bank banks/demo.toml -o build/demo/bank --restart
 
 lint: setup
 	$(VENV)/bin/ruff check --config fit/pyproject.toml fit tests runtime/python runtime/bench runtime/tools
@@ -140,6 +148,7 @@ bench: setup runtime
 	$(PY) runtime/bench/error_vs_time.py --out build/bench --lensrt-json build/bench/lensrt.json
 	$(PY) runtime/bench/flare_bench.py --library $(RUNTIME_BUILD)/runtime/liblensrt.so --out build/bench
 	$(PY) runtime/bench/cells_bench.py --library $(RUNTIME_BUILD)/runtime/liblensrt.so --out build/bench
+	LENSRT_LIBRARY=$(CURDIR)/$(RUNTIME_BUILD)/runtime/liblensrt.so $(PY) -m lensfit.banks.bench --out build/bench
 	$(PY) -m lensfit.bench --out build/bench
 	$(PY) -m lensfit.codegen.bench | tee build/bench/codegen.txt
 	$(VENV)/bin/lensfit report $(DEMO_LENS) -o build/bench/fit-$(DEMO_LENS) --json \

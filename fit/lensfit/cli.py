@@ -25,6 +25,7 @@ import math
 import os
 import re
 import sys
+import zlib
 from pathlib import Path
 
 import numpy as np
@@ -191,7 +192,7 @@ def _light_arg(text: str) -> tuple[float, float]:
     return x, y
 
 
-def _direct_fit(lens, args: argparse.Namespace):
+def _direct_fit(lens, args: argparse.Namespace, lens_arg: str):
     """For `lensfit ghosts --fit`: the lens folder, its direct table and domain, read
     before any work (the ghosts are fitted over the direct fit's domain)."""
     from lensfit.generate import lens_folder_name, read_fit_json
@@ -201,7 +202,7 @@ def _direct_fit(lens, args: argparse.Namespace):
     fit_file = folder / "fit.json"
     if not fit_file.is_file():
         raise InputError(f"{fit_file}: not found: the ghosts are fitted over the direct "
-                         f"fit's domain; run `lensfit fit {args.lens} --generated "
+                         f"fit's domain; run `lensfit fit {lens_arg} --generated "
                          f"{args.generated}` first")
     direct, meta = read_fit_json(fit_file)
     try:
@@ -211,93 +212,67 @@ def _direct_fit(lens, args: argparse.Namespace):
     return folder, direct, domain
 
 
-def _fit_ghosts(lens, ghosts, info: dict, light: tuple[float, float],
-                args: argparse.Namespace, source) -> int:
-    """`lensfit ghosts LENS --fit`: fit every kept ghost over the direct fit's domain, and
-    write its table (with --c its Horner C, with --glsl its GLSL) with ghosts.json under
-    <generated>/<lens folder>/ghosts/.
-    The folder then holds exactly the kept ghosts; with --add, the kept ones are added or
-    replaced and the others fitted before stay."""
-    from lensfit.codegen import emit_c, emit_glsl
-    from lensfit.codegen.checked_json import REGENERATE_FOLDER, checked_json_text, load_checked_json
-    from lensfit.codegen.table import write_table
-    from lensfit.generate import header_comment, lens_prefix, write_folder
-    from lensfit.ghosts.tables import fit_with_trust, ghost_report
-
-    folder, direct, domain = source
-    out = folder / "ghosts"
-    kept = [g for g in ghosts if g.kept]
-    files: dict[str, str] = {}
-    report = []
-    for g in kept:
-        fit, table, cells = fit_with_trust(lens, g, direct, domain, light, info["f_number"])
-        stem = f"ghost_{g.first}_{g.second}"
-        comment = header_comment(lens, f"Ghost {g.name} (reflect at surface {g.second_file}, "
-                                       f"then {g.first_file}): `lensfit ghosts --fit`.")
-        files[f"{stem}.table"] = write_table(table, comment=comment)
-        if args.c:  # megabytes a ghost; lensrt loads the table
-            files.update(emit_c(list(table), f"{lens_prefix(lens)}{stem}",
-                                header_comment=comment, which="horner"))
-        if args.glsl:  # P_o, P_s and P_clip for a renderer's own shaders
-            files.update(emit_glsl(list(table), f"{lens_prefix(lens)}{stem}",
-                                   header_comment=comment))
-        entry = ghost_report(fit, g.name, cells, g.to_dict())
-        entry.update(light_deg=list(light), f_number=info["f_number"])
-        report.append(entry)
-        worst = max(cells, key=lambda c: c.rel_l2)
-        print(f"ghost {g.name} ({g.case}, side {fit.half.system}): {fit.seconds:.1f} s, "
-              f"converged {fit.converged_test:.1%}, clip agreement "
-              f"{fit.agreement_housings:.2%} ({len(fit.clip_housings.outputs) // 2} pairs), "
-              f"PSF vs exact {worst.rel_l2:.2%} (f/{worst.f_number:g} "
-              f"{worst.wavelength_nm:g} nm), energy {worst.energy_ratio:.4f}, without "
-              f"P_clip {worst.energy_ratio_no_clip:.4f}", flush=True)
-    index = out / "ghosts.json"
-    if args.add and index.is_file():
-        # Keep the ghosts fitted before that were not named this time
-        try:
-            before = load_checked_json(index, REGENERATE_FOLDER)["ghosts"]
-        except (KeyError, TypeError) as e:
-            raise InputError(f"{index}: cannot read the ghosts fitted before: {e}") from None
-        names = {e["label"] for e in report}
-        report = [e for e in before if e.get("label") not in names] + report
-        files.update({p.name: p.read_text(encoding="utf-8") for e in before
-                      if e.get("label") not in names
-                      for p in out.glob(f"*ghost_{e['first']}_{e['second']}.*")})
-    files["ghosts.json"] = checked_json_text({"format": "lensfit-ghosts 1", "ghosts": report})
-    write_folder(out, files)
-    for old in out.glob("*ghost_*"):  # ghosts no longer kept
-        if old.name not in files:
-            old.unlink()
-    print(f"wrote {len(kept)} ghost table(s) and ghosts.json ({len(report)} ghosts) to {out}")
-    return 0
-
-
 def cmd_ghosts(args: argparse.Namespace) -> int:
-    """The ghosts of a lens ranked by peak irradiance relative to the direct PSF's
-    (lensfit.ghosts.enumerate): every check before the trace, the table or JSON after."""
+    """The ghosts of each lens named, ranked by peak irradiance relative to the direct
+    PSF's (lensfit.ghosts.enumerate): every check before the trace, the table or JSON
+    after; with --fit every kept ghost of every lens fitted as one task on Dask
+    (lensfit.ghosts.tasks)."""
+    if args.count is not None and args.count < 1:
+        raise InputError(f"--count {args.count}: expected a positive number of ghosts")
+    for flag in ("add", "c", "glsl", "scheduler", "workers"):
+        if getattr(args, flag) not in (None, False) and not args.fit:
+            what = {"add": "adds fitted ghosts to a lens folder", "c": "writes fitted ghosts' C",
+                    "glsl": "writes fitted ghosts' GLSL"}.get(flag, "runs the fits on Dask")
+            raise InputError(f"--{flag}: {what}, so it needs --fit")
+    if args.workers is not None and args.workers < 0:
+        raise InputError(f"--workers {args.workers}: expected 0 (this process) or more")
+    if args.scheduler is not None and args.workers is not None:
+        raise InputError("--workers and --scheduler: the cluster at the address has its own "
+                         "workers; give one of them")
+    if not (math.isfinite(args.threshold) and args.threshold > 0):
+        raise InputError(f"--threshold {args.threshold}: expected a positive relative peak")
+    if not 100 <= args.rays <= 10**7:
+        raise InputError(f"--rays {args.rays}: expected 100 to 10^7 rays per wavelength")
+    lens_args = list(args.lens)
+    if args.all:
+        if not args.fit:
+            raise InputError("--all: fits the ghosts of every fitted lens, so it needs --fit")
+        lens_args += _fitted_lenses(Path(args.generated))
+    if not lens_args:
+        raise InputError("no lens: name one or more, or --all with --fit")
+    plans = [_ghost_plan(lens_arg, args) for lens_arg in dict.fromkeys(lens_args)]
+    if not args.fit:
+        return 0
+    return _fit_ghost_plans([p for p in plans if p is not None], args)
+
+
+def _fitted_lenses(generated: Path) -> list[str]:
+    """--all: every lens file of lensdb with a direct fit (fit.json) in ``generated``."""
+    from lensfit.generate import lens_folder_name
+    from lensfit.prescription import list_lenses, load_lens
+
+    out = []
+    for path in list_lenses():
+        if (generated / lens_folder_name(load_lens(path)) / "fit.json").is_file():
+            out.append(str(path))
+    return out
+
+
+def _ghost_plan(lens_arg: str, args: argparse.Namespace):
+    """One lens: checks, enumeration and ranking; the listing (without --fit) or the
+    plan of its fits."""
     from lensfit.ghosts.enumerate import (
         check_light,
         enumerate_ghosts,
         parse_ghost,
         select_ghosts,
     )
+    from lensfit.ghosts.tasks import LensPlan
     from lensfit.paraxial import stop_radius_for_f_number
     from lensfit.prescription import load_lens
 
-    lens = _coated(load_lens(args.lens), args)
+    lens = _coated(load_lens(lens_arg), args)
     light = _light_arg(args.light)
-    if args.count is not None and args.count < 1:
-        raise InputError(f"--count {args.count}: expected a positive number of ghosts")
-    if args.add and not args.fit:
-        raise InputError("--add: adds fitted ghosts to a lens folder, so it needs --fit")
-    if args.c and not args.fit:
-        raise InputError("--c: writes fitted ghosts' C, so it needs --fit")
-    if args.glsl and not args.fit:
-        raise InputError("--glsl: writes fitted ghosts' GLSL, so it needs --fit")
-    if not (math.isfinite(args.threshold) and args.threshold > 0):
-        raise InputError(f"--threshold {args.threshold}: expected a positive relative peak")
-    if not 100 <= args.rays <= 10**7:
-        raise InputError(f"--rays {args.rays}: expected 100 to 10^7 rays per wavelength")
     if args.f_number is not None:
         try:
             stop_radius_for_f_number(lens, args.f_number)
@@ -314,19 +289,25 @@ def cmd_ghosts(args: argparse.Namespace) -> int:
         raise InputError(f"--distance {args.distance:g}: {e}") from None
     pairs = ([parse_ghost(lens, name, "--ghost") for arg in args.ghost
               for name in arg.split(",")] if args.ghost else None)
-    source = _direct_fit(lens, args) if args.fit else None
+    source = _direct_fit(lens, args, lens_arg) if args.fit else None
     ghosts = enumerate_ghosts(lens, f_number=args.f_number, light=light, pairs=pairs,
                               distance_mm=args.distance, rays=args.rays,
                               fine_rays=max(100, args.rays // 5))
     select_ghosts(ghosts, count=args.count, threshold=args.threshold)
     info = ghosts[0].info
-    if args.fit:
-        return _fit_ghosts(lens, ghosts, info, light, args, source)
+    if source is not None:
+        folder, direct, domain = source
+        fit_file = folder / "fit.json"
+        return LensPlan(lens=lens, ghosts=[g for g in ghosts if g.kept], info=info,
+                        light=light, folder=folder, direct=direct, domain=domain,
+                        lens_bytes=Path(lens.source_file).read_bytes(),
+                        fit_json_crc=zlib.crc32(fit_file.read_bytes()),
+                        distance_mm=args.distance, rays=args.rays)
     if args.json:
         print(json.dumps({**info, "threshold": None if args.count else args.threshold,
                           "count": args.count, "ghosts": [g.to_dict() for g in ghosts]},
                          indent=2))
-        return 0
+        return None
     lams = info["wavelengths_nm"]
     at = "/".join(f"{v:g}" for v in lams)
     print(f"{lens.name}  ({lens.source_file})")
@@ -346,6 +327,39 @@ def cmd_ghosts(args: argparse.Namespace) -> int:
         energy = " ".join(f"{e:9.2e}" for e in g.energy)
         print(f"  {g.name:>7s} {g.case:4s}  {energy:36s}{centre:>17s} {g.radius_mm[k]:7.3f} "
               f"{g.relative_peak:9.2e}  {'yes' if g.kept else 'no'}")
+    return None
+
+
+def _fit_ghost_plans(plans: list, args: argparse.Namespace) -> int:
+    """`lensfit ghosts LENS... --fit`: every kept ghost of every lens as one task on Dask
+    (by default a LocalCluster; --workers 0 in this process), then each lens's
+    <generated>/<lens folder>/ghosts/ written from the tasks' records. The folder then
+    holds exactly the kept ghosts; with --add, the kept ones are added or replaced and the
+    others fitted before stay. A failed ghost leaves its lens unwritten and the finished
+    ghosts' records for the next run of the same command."""
+    from lensfit.banks.engine import TaskError, run_tasks
+    from lensfit.ghosts.tasks import fit_ghost_task, plan_jobs, write_lens
+
+    jobs = [j for p in plans for j in plan_jobs(p, c=args.c, glsl=args.glsl)]
+    failed = None
+    try:
+        run_tasks(fit_ghost_task, jobs, [j.pop("key") for j in jobs],
+                  scheduler=args.scheduler, workers=args.workers, retries=0,
+                  progress=sys.stderr.isatty(), label="ghost fits")
+    except TaskError as e:
+        failed = e
+    for p in plans:
+        try:
+            lines = write_lens(p, c=args.c, glsl=args.glsl, add=args.add)
+        except InputError:
+            if failed is None:
+                raise
+            continue  # a ghost of this lens failed: its records stay for the next run
+        print("\n".join(lines), flush=True)
+    if failed is not None:
+        print(f"lensfit: error: {failed}; run the same command again to fit only those",
+              file=sys.stderr)
+        return 1
     return 0
 
 
@@ -757,7 +771,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("ghosts", help="ghosts of a lens ranked by their peak relative to "
                        "the PSF's (issue 13)")
-    p.add_argument("lens")
+    p.add_argument("lens", nargs="*", help="lens ids or files (one or more)")
     p.add_argument("--f-number", type=float, default=None,
                    help="stop the lens down to this f-number (default: wide open)")
     p.add_argument("--light", default="0,0", metavar="X,Y",
@@ -792,6 +806,15 @@ def build_parser() -> argparse.ArgumentParser:
                         "again) instead of writing exactly the kept ones")
     p.add_argument("--generated", default="generated", help="where the lens folders are "
                    "(with --fit; default generated)")
+    p.add_argument("--all", action="store_true",
+                   help="with --fit: also every lens of lensdb with a direct fit in "
+                        "--generated")
+    p.add_argument("--scheduler", default=None,
+                   help="with --fit: a running Dask scheduler's address (default: a "
+                        "LocalCluster here), one ghost per task")
+    p.add_argument("--workers", type=int, default=None,
+                   help="with --fit: LocalCluster worker processes (default: one per core; "
+                        "0: fit in this process without Dask)")
     p.set_defaults(func=cmd_ghosts)
 
     p = sub.add_parser("draw", help="draw the cross-section with ray fans")
@@ -891,7 +914,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="LocalCluster worker processes (default: one per core; 0: render "
                         "in this process without Dask)")
     p.add_argument("--restart", action="store_true",
-                   help="discard the nodes of a bank of another spec or table in the folder")
+                   help="discard the nodes of a bank of another spec or table in the "
+                        "folder (the same bank resumes either way)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.add_argument("--no-sheet", action="store_true", help="no contact-sheet PNG")
     p.set_defaults(func=cmd_bank)

@@ -130,19 +130,21 @@ def _indices(shape: tuple[int, ...]) -> list[tuple[int, ...]]:
 
 
 def _bank_record(out: Path, doc: dict[str, Any], restart: bool) -> None:
-    """Refuse a folder that holds another bank (or empty it with ``restart``), then
-    record this one."""
+    """Record this bank in its folder. A folder that holds another bank (another lens,
+    table or spec) is refused, or with ``restart`` emptied of its nodes; the same bank
+    resumes."""
     path = out / BANK_RECORD
-    if path.exists() and not restart:
+    if path.exists():
         old = load_checked_json(path, "remove the folder or run with --restart")
-        for key in ("spec_digest", "table_crc32", "lens"):
-            if old.get(key) != doc[key]:
-                raise InputError(
-                    f"{path}: this folder holds a bank of another {key.split('_')[0]} "
-                    f"({key} {old.get(key)!r}, now {doc[key]!r}); run with --restart to "
-                    "discard its nodes, or give another folder")
-        return
-    if restart:
+        changed = [k for k in ("lens", "table_crc32", "spec_digest") if old.get(k) != doc[k]]
+        if not changed:
+            return
+        if not restart:
+            key = changed[0]
+            raise InputError(
+                f"{path}: this folder holds a bank of another {key.split('_')[0]} "
+                f"({key} {old.get(key)!r}, now {doc[key]!r}); run with --restart to "
+                "discard its nodes, or give another folder")
         for p in sorted((out / "nodes").glob("*")) if (out / "nodes").is_dir() else []:
             if p.is_file() and p.suffix in (".exr", ".json", ".phasors"):
                 p.unlink()

@@ -1,0 +1,203 @@
+"""`lensfit ghosts --fit` on Dask: one ghost per task, over one lens or many.
+
+The driver (``cmd_ghosts``) enumerates and ranks each lens's ghosts in its own process,
+then hands every kept ghost of every lens to :func:`lensfit.banks.engine.run_tasks` as
+one task (a LocalCluster by default, ``--scheduler`` for a cluster, ``--workers 0`` in
+this process). A task fits its ghost (``fit_with_trust``) and writes what it made (the
+table's text, C and GLSL when asked, the ghosts.json entry and the line to print) to a
+checked JSON record ``<lens folder>/.ghost-tasks/<stem>-<digest>.json``, atomically.
+
+The digest covers everything the fit depends on (the lens file's bytes and coating
+variant, the light, the f-number, the ghost, the enumeration's rays, the direct fit's
+record, the code asked for), so nothing is mixed:
+
+* a rerun after a crash or a SIGKILL (of a worker: the scheduler retries the task; of the
+  driver: the same command again) fits only the ghosts without a record;
+* a ghost whose entry in the folder's ghosts.json carries the same digest, with its table
+  unchanged, is not fitted again either;
+* when every kept ghost of a lens is done, its folder is written (write_folder) and its
+  records removed; a lens with a failed ghost keeps its records for the next run.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import zlib
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from lensfit.atomic import make_folder, write_atomic
+from lensfit.codegen.checked_json import REGENERATE_FOLDER, checked_json_text, load_checked_json
+from lensfit.errors import InputError
+
+TASKS_FOLDER = ".ghost-tasks"
+
+
+@dataclass
+class LensPlan:
+    """One lens's kept ghosts and what their fits need, made by the driver."""
+
+    lens: Any
+    ghosts: list  # GhostEstimate, kept ones
+    info: dict[str, Any]
+    light: tuple[float, float]
+    folder: Path  # <generated>/<lens folder>
+    direct: Any  # the direct fit's table
+    domain: Any
+    lens_bytes: bytes  # the lens file, for the digest
+    fit_json_crc: int
+    distance_mm: float
+    rays: int
+    jobs: list[dict[str, Any]] = field(default_factory=list)
+
+
+def _digest(plan: LensPlan, g, c: bool, glsl: bool) -> str:
+    key = {"lens": hashlib.sha256(plan.lens_bytes).hexdigest(), "variant": plan.lens.variant,
+           "light": list(plan.light), "f_number": plan.info["f_number"],
+           "distance_mm": repr(plan.distance_mm), "rays": plan.rays,
+           "ghost": [g.first, g.second], "fit_json_crc32": plan.fit_json_crc, "c": c,
+           "glsl": glsl}
+    return hashlib.sha256(json.dumps(key, sort_keys=True).encode()).hexdigest()[:16]
+
+
+def stem_of(g) -> str:
+    return f"ghost_{g.first}_{g.second}"
+
+
+def fit_ghost_task(job: dict[str, Any]) -> dict[str, Any]:
+    """Fit one ghost and write its record (the worker's side)."""
+    from lensfit.codegen import emit_c, emit_glsl
+    from lensfit.codegen.table import write_table
+    from lensfit.ghosts.tables import fit_with_trust, ghost_report
+
+    lens, g, light, f_number = job["lens"], job["ghost"], job["light"], job["f_number"]
+    fit, table, cells = fit_with_trust(lens, g, job["direct"], job["domain"], light, f_number)
+    stem, comment, prefix = stem_of(g), job["comment"], job["prefix"]
+    files = {f"{stem}.table": write_table(table, comment=comment)}
+    if job["c"]:  # megabytes a ghost; lensrt loads the table
+        files.update(emit_c(list(table), f"{prefix}{stem}", header_comment=comment,
+                            which="horner"))
+    if job["glsl"]:  # P_o, P_s and P_clip for a renderer's own shaders
+        files.update(emit_glsl(list(table), f"{prefix}{stem}", header_comment=comment))
+    entry = ghost_report(fit, g.name, cells, g.to_dict())
+    entry.update(light_deg=list(light), f_number=f_number, task_digest=job["digest"],
+                 table_crc32=f"{zlib.crc32(files[f'{stem}.table'].encode()) & 0xFFFFFFFF:08x}")
+    worst = max(cells, key=lambda c: c.rel_l2)
+    line = (f"ghost {g.name} ({g.case}, side {fit.half.system}): {fit.seconds:.1f} s, "
+            f"converged {fit.converged_test:.1%}, clip agreement "
+            f"{fit.agreement_housings:.2%} ({len(fit.clip_housings.outputs) // 2} pairs), "
+            f"PSF vs exact {worst.rel_l2:.2%} (f/{worst.f_number:g} "
+            f"{worst.wavelength_nm:g} nm), energy {worst.energy_ratio:.4f}, without "
+            f"P_clip {worst.energy_ratio_no_clip:.4f}")
+    write_atomic(job["record"], checked_json_text({"digest": job["digest"], "files": files,
+                                                   "entry": entry, "line": line}))
+    return {"record": job["record"], "line": line}
+
+
+def _record(path: Path, digest: str) -> dict[str, Any] | None:
+    if not path.is_file():
+        return None
+    try:
+        doc = load_checked_json(path, "it is fitted again")
+    except InputError:
+        return None  # damaged: fitted again, then replaced
+    return doc if doc.get("digest") == digest else None
+
+
+def _from_folder(out: Path, before: list[dict[str, Any]], g, digest: str
+                 ) -> dict[str, Any] | None:
+    """The ghost as the folder already holds it, when fitted for the same digest."""
+    for e in before:
+        if e.get("task_digest") == digest and e.get("label") == g.name:
+            table = out / f"{stem_of(g)}.table"
+            try:
+                text = table.read_text(encoding="utf-8")
+            except OSError:
+                return None
+            if f"{zlib.crc32(text.encode()) & 0xFFFFFFFF:08x}" != e.get("table_crc32"):
+                return None
+            files = {p.name: p.read_text(encoding="utf-8")
+                     for p in out.glob(f"*{stem_of(g)}.*")}
+            return {"files": files, "entry": e, "line": f"ghost {g.name}: as fitted before "
+                                                        f"({table})"}
+    return None
+
+
+def _before(out: Path) -> list[dict[str, Any]]:
+    index = out / "ghosts.json"
+    if not index.is_file():
+        return []
+    try:
+        return list(load_checked_json(index, REGENERATE_FOLDER)["ghosts"])
+    except (KeyError, TypeError) as e:
+        raise InputError(f"{index}: cannot read the ghosts fitted before: {e}") from None
+
+
+def plan_jobs(plan: LensPlan, *, c: bool, glsl: bool) -> list[dict[str, Any]]:
+    """The tasks of a lens's kept ghosts that are not done (no record, not in the folder
+    as fitted for the same digest)."""
+    from lensfit.generate import header_comment, lens_prefix
+
+    out, work = plan.folder / "ghosts", plan.folder / TASKS_FOLDER
+    before = _before(out)
+    jobs = []
+    for g in plan.ghosts:
+        digest = _digest(plan, g, c, glsl)
+        record = work / f"{stem_of(g)}-{digest}.json"
+        if _record(record, digest) or _from_folder(out, before, g, digest):
+            continue
+        comment = header_comment(plan.lens, f"Ghost {g.name} (reflect at surface "
+                                            f"{g.second_file}, then {g.first_file}): "
+                                            "`lensfit ghosts --fit`.")
+        jobs.append({"lens": plan.lens, "ghost": g, "direct": plan.direct,
+                     "domain": plan.domain, "light": plan.light,
+                     "f_number": plan.info["f_number"], "c": c, "glsl": glsl,
+                     "comment": comment, "prefix": lens_prefix(plan.lens),
+                     "digest": digest, "record": str(record),
+                     "key": f"ghost-{plan.folder.name}-{stem_of(g)}-{digest}"})
+    if jobs:
+        make_folder(work, "ghost task records")
+    return jobs
+
+
+def write_lens(plan: LensPlan, *, c: bool, glsl: bool, add: bool) -> list[str]:
+    """Write a lens's ghosts folder from its records (and what the folder held for the
+    same digests), then remove the records; the lines to print."""
+    from lensfit.generate import write_folder
+
+    out, work = plan.folder / "ghosts", plan.folder / TASKS_FOLDER
+    before = _before(out)
+    files: dict[str, str] = {}
+    report, lines, used = [], [], []
+    for g in plan.ghosts:
+        digest = _digest(plan, g, c, glsl)
+        record_path = work / f"{stem_of(g)}-{digest}.json"
+        done = _record(record_path, digest) or _from_folder(out, before, g, digest)
+        if done is None:
+            raise InputError(f"{record_path}: ghost {g.name} of {plan.folder.name} has no "
+                             "record: run the command again")
+        files.update(done["files"])
+        report.append(done["entry"])
+        lines.append(done["line"])
+        used.append(record_path)
+    if add and before:
+        # Keep the ghosts fitted before that were not named this time
+        names = {e["label"] for e in report}
+        report = [e for e in before if e.get("label") not in names] + report
+        files.update({p.name: p.read_text(encoding="utf-8") for e in before
+                      if e.get("label") not in names
+                      for p in out.glob(f"*ghost_{e['first']}_{e['second']}.*")})
+    files["ghosts.json"] = checked_json_text({"format": "lensfit-ghosts 1", "ghosts": report})
+    write_folder(out, files)
+    for old in out.glob("*ghost_*"):  # ghosts no longer kept
+        if old.name not in files:
+            old.unlink()
+    for p in used:
+        p.unlink(missing_ok=True)
+    if work.is_dir() and not any(work.iterdir()):
+        work.rmdir()
+    lines.append(f"wrote {len(plan.ghosts)} ghost table(s) and ghosts.json ({len(report)} "
+                 f"ghosts) to {out}")
+    return lines

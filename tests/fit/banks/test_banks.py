@@ -1,0 +1,232 @@
+"""Banks on Dask (issue 23): a LocalCluster bank equals the one-process bank byte for byte;
+a worker killed while it holds a task and a run killed mid-node both end in the same
+bank; a rerun renders nothing; bad specs, foreign folders and grids outside the lens are
+refused before any task starts.
+
+Lens 0001's committed table, tiny windows (24 x 24 pixels, 2 wavelengths) so that a node
+takes about a second of Monte Carlo (262144 samples per wavelength in 4 checkpoints, long
+enough to be killed mid-task) or a fraction of one by the cells integrator.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import signal
+import subprocess
+import sys
+import threading
+import time
+import zlib
+from pathlib import Path
+
+import pytest
+
+from lensfit.banks.run import run_bank
+from lensfit.banks.spec import SpecError, load_spec
+from lensfit.errors import InputError
+
+ROOT = Path(__file__).resolve().parents[3]
+sys.path.insert(0, str(ROOT / "runtime" / "python"))
+from lensrt_ctypes import LIBRARY  # noqa: E402
+
+pytestmark = pytest.mark.skipif(not LIBRARY.exists(),
+                                reason=f"needs {LIBRARY}: build it with `make runtime`")
+
+SPEC = """name = "{name}"
+lens = "0001"
+[grid]
+field_x_deg = [0, 5, 10]
+field_y_deg = [0]
+f_numbers = [8]
+wavelengths_nm = [500, 600]
+[window]
+pixels = [24, 24]
+size_mm = [0.06, 0.06]
+[render]
+{render}
+"""
+MONTE_CARLO = 'integrator = "monte-carlo"\nsamples = 262144\ncheckpoints = 4'
+CELLS = 'integrator = "cells"\ntarget_error = 0.02'
+
+
+def spec_file(tmp_path: Path, render: str = CELLS, name: str = "t", **replace: str) -> Path:
+    text = SPEC.format(name=name, render=render)
+    for old, new in replace.items():
+        assert old in text
+        text = text.replace(old, new)
+    p = tmp_path / f"{name}.toml"
+    p.write_text(text)
+    return p
+
+
+def bank_bytes(folder: Path) -> dict[str, int]:
+    """CRC-32 of every file a renderer reads (the index and the node EXRs)."""
+    files = [folder / "bank.index", *sorted((folder / "nodes").glob("*.exr"))]
+    return {p.name: zlib.crc32(p.read_bytes()) for p in files}
+
+
+def leftovers(folder: Path) -> list[str]:
+    """Anything in nodes/ but the finished nodes' EXRs and records."""
+    return sorted(p.name for p in (folder / "nodes").iterdir()
+                  if p.suffix not in (".exr", ".json") or ".tmp" in p.name
+                  or ".stage" in p.name)
+
+
+@pytest.fixture(scope="module")
+def reference_mc(tmp_path_factory) -> Path:
+    """The Monte Carlo bank rendered in one process, no Dask."""
+    tmp = tmp_path_factory.mktemp("ref")
+    out = tmp / "bank"
+    s = run_bank(spec_file(tmp, MONTE_CARLO, "mc"), out, workers=0, progress=False,
+                 sheet=False)
+    assert (s.nodes, s.rendered, s.skipped) == (3, 3, 0)
+    return out
+
+
+def test_local_cluster_equals_one_process(tmp_path: Path) -> None:
+    spec = spec_file(tmp_path)
+    one = run_bank(spec, tmp_path / "one", workers=0, progress=False)
+    two = run_bank(spec, tmp_path / "two", workers=2, progress=False)
+    assert (one.nodes, two.nodes, two.rendered) == (3, 3, 3)
+    assert bank_bytes(tmp_path / "one") == bank_bytes(tmp_path / "two")
+    assert (tmp_path / "two" / "contact-sheet.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    # Every node refined to the target (the cells estimate within 2%)
+    assert 0 <= two.worst_error <= 0.02
+    # A rerun of the same spec finds every node finished and renders nothing
+    again = run_bank(spec, tmp_path / "two", workers=0, progress=False)
+    assert (again.rendered, again.skipped) == (0, 3)
+    assert bank_bytes(tmp_path / "two") == bank_bytes(tmp_path / "one")
+    assert leftovers(tmp_path / "two") == []
+
+
+def test_worker_killed_while_it_holds_a_task(tmp_path: Path, reference_mc: Path) -> None:
+    from distributed import Client, LocalCluster
+
+    spec = spec_file(tmp_path, MONTE_CARLO, "mc")
+    out = tmp_path / "bank"
+    result: dict = {}
+    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
+                      dashboard_address=None, silence_logs=logging.ERROR) as cluster, \
+            Client(cluster) as client:
+        pids = client.run(os.getpid)
+        run = threading.Thread(target=lambda: result.update(summary=run_bank(
+            spec, out, scheduler=cluster.scheduler_address, progress=False, sheet=False)))
+        run.start()
+        # SIGKILL the worker process holding a node once its render is under way
+        killed = None
+        deadline = time.monotonic() + 120
+        while killed is None and time.monotonic() < deadline and run.is_alive():
+            busy = [w for w, keys in client.processing().items() if keys]
+            if busy:
+                time.sleep(0.3)
+                os.kill(pids[busy[0]], signal.SIGKILL)
+                killed = busy[0]
+            time.sleep(0.01)
+        run.join(240)
+    assert killed is not None, "no worker was seen holding a task"
+    assert "summary" in result, "the bank did not finish after a worker was killed"
+    assert result["summary"].nodes == 3
+    assert bank_bytes(out) == bank_bytes(reference_mc)
+    assert leftovers(out) == []
+
+
+def test_killed_run_resumes_to_the_same_bank(tmp_path: Path, reference_mc: Path) -> None:
+    spec = spec_file(tmp_path, MONTE_CARLO, "mc")
+    out = tmp_path / "bank"
+    cmd = [sys.executable, "-m", "lensfit.cli", "bank", str(spec), "-o", str(out),
+           "--workers", "0", "--no-progress", "--no-sheet"]
+    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    # Kill the run once the second node has saved a checkpoint (the first is finished)
+    deadline = time.monotonic() + 120
+    while time.monotonic() < deadline and proc.poll() is None:
+        if list((out / "nodes").glob("*-x1.phasors")):
+            break
+        time.sleep(0.005)
+    proc.send_signal(signal.SIGKILL)
+    proc.wait(30)
+    assert list((out / "nodes").glob("*-x1.phasors")), "the run was not killed mid-node"
+    assert not (out / "bank.index").exists()
+    s = run_bank(spec, out, workers=0, progress=False, sheet=False)
+    assert s.skipped >= 1 and s.rendered >= 1
+    assert bank_bytes(out) == bank_bytes(reference_mc)
+    assert leftovers(out) == []
+
+
+def test_changed_spec_or_table_is_never_mixed(tmp_path: Path) -> None:
+    spec = spec_file(tmp_path)
+    out = tmp_path / "bank"
+    run_bank(spec, out, workers=0, progress=False, sheet=False)
+    before = bank_bytes(out)
+    # Another spec in the same folder: refused, naming the folder's record; nothing touched
+    other = spec_file(tmp_path, CELLS.replace("0.02", "0.03"), "t")
+    with pytest.raises(InputError, match=r"bank\.json: this folder holds a bank of another "
+                                         r"spec .*--restart"):
+        run_bank(other, out, workers=0, progress=False, sheet=False)
+    assert bank_bytes(out) == before
+    # Another lens's table: refused the same way
+    lens9 = spec_file(tmp_path, CELLS, "t", **{'lens = "0001"': 'lens = "0009"'})
+    with pytest.raises(InputError, match=r"another (table|lens)"):
+        run_bank(lens9, out, workers=0, progress=False, sheet=False)
+    # --restart discards the old nodes and renders the new spec's
+    s = run_bank(other, out, workers=0, progress=False, sheet=False, restart=True)
+    assert (s.rendered, s.skipped) == (3, 0)
+
+
+def test_damaged_node_is_rendered_again(tmp_path: Path) -> None:
+    spec = spec_file(tmp_path)
+    out = tmp_path / "bank"
+    run_bank(spec, out, workers=0, progress=False, sheet=False)
+    before = bank_bytes(out)
+    exr = sorted((out / "nodes").glob("*.exr"))[1]
+    raw = bytearray(exr.read_bytes())
+    raw[len(raw) // 2] ^= 0x10
+    exr.write_bytes(bytes(raw))
+    s = run_bank(spec, out, workers=0, progress=False, sheet=False)
+    assert (s.rendered, s.skipped) == (1, 2)
+    assert bank_bytes(out) == before
+
+
+@pytest.mark.parametrize("change, message", [
+    ({"[render]": "[render]\nsampels = 3"}, r"key 'render.sampels': unknown key"),
+    ({"field_x_deg = [0, 5, 10]": "field_x_deg = []"}, r"key 'grid.field_x_deg': expected a "
+                                                       r"non-empty list"),
+    ({"field_x_deg = [0, 5, 10]": "field_x_deg = [0, nan]"}, r"grid.field_x_deg\[1\]': "
+                                                             r"expected angles"),
+    ({"field_x_deg = [0, 5, 10]": "field_x_deg = [5, 0]"}, r"expected increasing values"),
+    ({"f_numbers = [8]": "f_numbers = [true]"}, r"grid.f_numbers\[0\]': expected positive "
+                                               r"f-numbers, found true"),
+    ({"pixels = [24, 24]": "pixels = [24]"}, r"window.pixels"),
+    ({"[grid]": "[grid]\nfocus_offsets_mm = [0, 0]"}, r"expected distinct values"),
+])
+def test_bad_specs_are_refused(tmp_path: Path, change: dict, message: str) -> None:
+    spec = spec_file(tmp_path, CELLS, "t", **change)
+    with pytest.raises(SpecError, match=rf"t\.toml: {message}"):
+        load_spec(spec)
+    with pytest.raises(SpecError):
+        run_bank(spec, tmp_path / "bank", workers=0, progress=False)
+    assert not (tmp_path / "bank").exists()  # refused before any task (or folder)
+
+
+@pytest.mark.parametrize("change, message", [
+    ({"wavelengths_nm = [500, 600]": "wavelengths_nm = [300, 600]"},
+     r"grid.wavelengths_nm\[0\]': 300.0 nm is outside the lens's 380-780 nm"),
+    ({"f_numbers = [8]": "f_numbers = [1.5]"}, r"f/1.5 is wider than the lens's f/2"),
+    ({"field_x_deg = [0, 5, 10]": "field_x_deg = [0, 5, 40]"},
+     r"grid.field_x_deg\[2\]': 40.0 deg is outside the lens's fitted field"),
+    ({'lens = "0001"': 'lens = "99"'}, r"key 'lens': '99': no such lens"),
+])
+def test_grid_outside_the_lens_is_refused_before_any_task(tmp_path: Path, change: dict,
+                                                          message: str) -> None:
+    spec = spec_file(tmp_path, CELLS, "t", **change)
+    with pytest.raises(SpecError, match=message):
+        run_bank(spec, tmp_path / "bank", workers=0, progress=False)
+    assert not (tmp_path / "bank").exists()
+
+
+def test_cli_reports_a_bad_spec_in_one_line(tmp_path: Path) -> None:
+    spec = spec_file(tmp_path, CELLS, "t", **{"[render]": "[render]\nthreads = -1"})
+    r = subprocess.run([sys.executable, "-m", "lensfit.cli", "bank", str(spec), "-o",
+                        str(tmp_path / "b")], capture_output=True, text=True, timeout=120)
+    assert r.returncode == 2
+    assert r.stderr.count("\n") == 1 and "key 'render.threads'" in r.stderr, r.stderr

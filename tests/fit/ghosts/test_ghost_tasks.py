@@ -1,0 +1,128 @@
+"""`lensfit ghosts LENS... --fit` on Dask (issue 23, deliverable 5): every kept ghost of
+two lenses fitted as one task each on a LocalCluster of 2 workers; a rerun fits nothing
+(the folder holds each ghost for the same digest); a failed ghost leaves its lens
+unwritten, the other lens written, and a record of a finished ghost is used by the next
+run instead of fitting again.
+
+Two copies of an uncoated N-BK7 singlet (one ghost each) with quick direct fits; the two
+ghost fits (~40 s each on an idle core) run in parallel.
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+import zlib
+
+import pytest
+
+from lensfit.cli import main
+from lensfit.codegen.checked_json import checked_json_text
+from lensfit.ghosts import tables as ghost_tables
+from lensfit.ghosts.tasks import TASKS_FOLDER
+
+SINGLET = """schema_version = 1
+[lens]
+id = "{id}"
+name = "test singlet {id}"
+maker = "lensfit"
+year = 2026
+source = "tests/fit/ghosts"
+[coating]
+default = "none"
+[[surface]]
+shape = "sphere"
+radius = 60.0
+thickness = 6.0
+material = "N-BK7"
+semi_diameter = 10.0
+stop = true
+[[surface]]
+shape = "sphere"
+radius = -60.0
+thickness = 56.0
+material = "air"
+semi_diameter = 10.0
+"""
+
+
+def folder_bytes(folder):
+    return {p.name: zlib.crc32(p.read_bytes()) for p in sorted(folder.iterdir())}
+
+
+@pytest.fixture(scope="module")
+def fitted(tmp_path_factory):
+    """Both singlets' direct fits, then their ghosts fitted on a LocalCluster."""
+    tmp = tmp_path_factory.mktemp("tasks")
+    gen = tmp / "gen"
+    lenses = []
+    for name in ("singleta", "singletb"):
+        path = tmp / f"{name}.toml"
+        path.write_text(SINGLET.format(id=name), encoding="utf-8")
+        assert main(["fit", str(path), "--quick", "--f-number", "8", "--field", "5",
+                     "--generated", str(gen), "--report", str(tmp / f"r-{name}"),
+                     "--no-timing"]) == 0
+        lenses.append(str(path))
+    args = ["ghosts", *lenses, "--f-number", "8", "--rays", "2000", "--count", "1", "--fit",
+            "--generated", str(gen)]
+    assert main([*args, "--workers", "2"]) == 0
+    return gen, args
+
+
+def test_two_lenses_fitted_on_a_local_cluster(fitted, capsys) -> None:
+    gen, _ = fitted
+    for name in ("singleta", "singletb"):
+        out = gen / name / "ghosts"
+        assert sorted(p.name for p in out.iterdir()) == ["ghost_1_2.table", "ghosts.json"]
+        (entry,) = json.loads((out / "ghosts.json").read_text())["ghosts"]
+        # The fit met its target against exactly traced ghost rays (as the one-process
+        # fit does: test_ghosts_cli), and records what it was fitted for
+        assert entry["label"] == "0-1" and entry["psf_vs_exact"] <= 0.03
+        assert len(entry["task_digest"]) == 16
+        assert not (gen / name / TASKS_FOLDER).exists()  # records removed once written
+
+
+def test_rerun_fits_nothing(fitted, monkeypatch, capsys) -> None:
+    gen, args = fitted
+    before = {n: folder_bytes(gen / n / "ghosts") for n in ("singleta", "singletb")}
+
+    def refuse(*a, **k):
+        raise AssertionError("a ghost was fitted again")
+
+    monkeypatch.setattr(ghost_tables, "fit_with_trust", refuse)
+    assert main([*args, "--workers", "0"]) == 0
+    assert "as fitted before" in capsys.readouterr().out
+    assert {n: folder_bytes(gen / n / "ghosts") for n in before} == before
+
+
+def test_failed_ghost_keeps_its_lens_for_the_next_run(fitted, monkeypatch, capsys) -> None:
+    gen, args = fitted
+    out_b = gen / "singletb" / "ghosts"
+    keep = out_b.parent / "kept"
+    shutil.copytree(out_b, keep)
+    before_a = folder_bytes(gen / "singleta" / "ghosts")
+    shutil.rmtree(out_b)
+
+    def fail(*a, **k):
+        raise RuntimeError("fit failed on purpose")
+
+    monkeypatch.setattr(ghost_tables, "fit_with_trust", fail)
+    assert main([*args, "--workers", "0"]) == 1
+    err = capsys.readouterr().err
+    assert "1 of 1 ghost fits failed" in err and "fit failed on purpose" in err
+    assert "run the same command again" in err
+    assert folder_bytes(gen / "singleta" / "ghosts") == before_a  # the other lens: written
+    assert not (out_b / "ghosts.json").exists()
+
+    # A finished ghost's record (as a task writes it) is used instead of a fit
+    (entry,) = json.loads((keep / "ghosts.json").read_text())["ghosts"]
+    entry.pop("checksum", None)
+    record = gen / "singletb" / TASKS_FOLDER / f"ghost_1_2-{entry['task_digest']}.json"
+    record.parent.mkdir(exist_ok=True)
+    record.write_text(checked_json_text({
+        "digest": entry["task_digest"], "entry": entry, "line": "ghost 0-1: from its record",
+        "files": {"ghost_1_2.table": (keep / "ghost_1_2.table").read_text()}}))
+    assert main([*args, "--workers", "0"]) == 0
+    assert "ghost 0-1: from its record" in capsys.readouterr().out
+    assert folder_bytes(out_b) == folder_bytes(keep)
+    assert not record.parent.exists()
