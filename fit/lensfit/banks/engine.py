@@ -83,7 +83,7 @@ def _run_dask(fn, jobs, keys, scheduler, workers, retries, bar, results, failure
         # The embedded default: worker processes on this machine, one thread each (lensrt
         # has its own threads, set by the job)
         cluster = LocalCluster(n_workers=workers or default_workers(), threads_per_worker=1,
-                               processes=True, dashboard_address=None,
+                               processes=True, dashboard_address=":0",
                                silence_logs=logging.ERROR)
     try:
         with Client(cluster if cluster is not None else scheduler) as client:

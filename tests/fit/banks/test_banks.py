@@ -107,7 +107,7 @@ def test_worker_killed_while_it_holds_a_task(tmp_path: Path, reference_mc: Path)
     out = tmp_path / "bank"
     result: dict = {}
     with LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
-                      dashboard_address=None, silence_logs=logging.ERROR) as cluster, \
+                      dashboard_address=":0", silence_logs=logging.ERROR) as cluster, \
             Client(cluster) as client:
         pids = client.run(os.getpid)
         run = threading.Thread(target=lambda: result.update(summary=run_bank(
@@ -191,13 +191,13 @@ def test_damaged_node_is_rendered_again(tmp_path: Path) -> None:
     ({"[render]": "[render]\nsampels = 3"}, r"key 'render.sampels': unknown key"),
     ({"field_x_deg = [0, 5, 10]": "field_x_deg = []"}, r"key 'grid.field_x_deg': expected a "
                                                        r"non-empty list"),
-    ({"field_x_deg = [0, 5, 10]": "field_x_deg = [0, nan]"}, r"grid.field_x_deg\[1\]': "
+    ({"field_x_deg = [0, 5, 10]": "field_x_deg = [0, nan]"}, r"key 'grid.field_x_deg\[1\]': "
                                                              r"expected angles"),
-    ({"field_x_deg = [0, 5, 10]": "field_x_deg = [5, 0]"}, r"expected increasing values"),
-    ({"f_numbers = [8]": "f_numbers = [true]"}, r"grid.f_numbers\[0\]': expected positive "
+    ({"field_x_deg = [0, 5, 10]": "field_x_deg = [5, 0]"}, r"key 'grid.field_x_deg': expected increasing"),
+    ({"f_numbers = [8]": "f_numbers = [true]"}, r"key 'grid.f_numbers\[0\]': expected positive "
                                                r"f-numbers, found true"),
-    ({"pixels = [24, 24]": "pixels = [24]"}, r"window.pixels"),
-    ({"[grid]": "[grid]\nfocus_offsets_mm = [0, 0]"}, r"expected distinct values"),
+    ({"pixels = [24, 24]": "pixels = [24]"}, r"key 'window.pixels': expected \[width, height\]"),
+    ({"[grid]": "[grid]\nfocus_offsets_mm = [0, 0]"}, r"key 'grid.focus_offsets_mm': expected distinct"),
 ])
 def test_bad_specs_are_refused(tmp_path: Path, change: dict, message: str) -> None:
     spec = spec_file(tmp_path, CELLS, "t", **change)
