@@ -755,7 +755,7 @@ LENSRT_API lensrt_result lensrt_layers_write_exr(const lensrt_exr_layer *layers,
  * width x height pixels of the bank's pitch centred on (center_x_mm, center_y_mm), as a
  * render's window (lensrt_sensor) is: row 0 at the top (+y), pixel (i, j)'s centre at
  * (center_x + (i + 0.5 - width / 2) pitch_x, center_y + (height / 2 - j - 0.5) pitch_y).
- * error_estimate is the node's relative L2 error estimate (finite, >= 0). Paths use
+ * error_estimate is the node's relative L2 error estimate (>= 0; -1: none). Paths use
  * only [A-Za-z0-9._/-], and are relative (no leading '/', no "..", no empty component).
  * At most LENSRT_MAX_BANK_NODES nodes and LENSRT_MAX_WAVELENGTHS wavelengths.
  *
@@ -793,7 +793,8 @@ typedef struct lensrt_bank_info {
     int32_t n_field_y;
     const double *field_y_deg;
     int32_t n_nodes;
-    double worst_error_estimate; /* the largest of the nodes' error estimates */
+    double worst_error_estimate; /* the largest of the nodes' error estimates; -1 when a
+                                    node has none (the worst is then unknown) */
 } lensrt_bank_info;
 #define LENSRT_BANK_INFO_INIT {sizeof(lensrt_bank_info), NULL, 0, 0, 0, 0, 0, 0, NULL, 0, NULL, 0, NULL, \
                                0, NULL, 0, NULL, 0, NULL, 0, 0}

@@ -493,3 +493,113 @@ class EvalDesc(Versioned):
     _fields_ = [("struct_size", C.c_size_t), ("system", C.c_int32), ("type", C.c_int32),
                 ("n_rays", C.c_size_t), ("inputs", C.c_void_p), ("outputs", C.c_void_p),
                 ("jacobians", C.c_void_p)]
+
+
+# ---------------------------------------------------------------- PSF banks -----
+# (lensrt 0.5.0, issue 23: lensrt.h "PSF banks"; reproducible EXRs for a bank's nodes)
+
+
+class ExrOptions(Versioned):
+    _fields_ = [("struct_size", C.c_size_t), ("reproducible", C.c_int32)]
+
+
+class BankInfo(Versioned):
+    _fields_ = [("struct_size", C.c_size_t), ("lens_name", C.c_char_p),
+                ("table_crc32", C.c_uint32), ("width", C.c_int32), ("height", C.c_int32),
+                ("pixel_x_mm", C.c_double), ("pixel_y_mm", C.c_double),
+                ("n_wavelengths", C.c_int32), ("wavelengths_nm", C.POINTER(C.c_double)),
+                ("n_f_numbers", C.c_int32), ("f_numbers", C.POINTER(C.c_double)),
+                ("n_focus_offsets", C.c_int32), ("focus_offsets_mm", C.POINTER(C.c_double)),
+                ("n_distances", C.c_int32), ("distances_mm", C.POINTER(C.c_double)),
+                ("n_field_x", C.c_int32), ("field_x_deg", C.POINTER(C.c_double)),
+                ("n_field_y", C.c_int32), ("field_y_deg", C.POINTER(C.c_double)),
+                ("n_nodes", C.c_int32), ("worst_error_estimate", C.c_double)]
+
+
+class BankQuery(Versioned):
+    _fields_ = [("struct_size", C.c_size_t), ("field_x_deg", C.c_double),
+                ("field_y_deg", C.c_double), ("wavelength_nm", C.c_double),
+                ("f_number", C.c_double), ("focus_offset_mm", C.c_double),
+                ("distance_mm", C.c_double)]
+
+
+def _need(lib: Any, name: str) -> Any:
+    """The library's function `name`, or LensrtError(UNSUPPORTED) for a library before it."""
+    if not hasattr(lib, name):
+        raise LensrtError(Result.UNSUPPORTED, f"{name}: this lensrt library predates it (0.5.0)")
+    return getattr(lib, name)
+
+
+def write_exr_reproducible(render: Render, path: str | os.PathLike[str]) -> None:
+    """The render's EXR without what differs between runs (lensrt/seconds,
+    lensrt/splatsPerSecond, lensrt/lensFile): the same render gives the same bytes
+    (lensrt_render_write_exr_with, reproducible)."""
+    fn = _need(render.rt.lib, "lensrt_render_write_exr_with")
+    fn.argtypes = [C.c_void_p, C.c_char_p, C.POINTER(ExrOptions)]
+    options = ExrOptions(1)
+    render.rt._check(fn(render.handle, os.fsencode(path), C.byref(options)))
+
+
+class Bank:
+    """A PSF bank opened from its index (lensrt_bank_open): ``info()`` says what it holds,
+    ``psf()`` the PSF at a field point and wavelength. Close it (or let it go) before its
+    Lensrt."""
+
+    def __init__(self, rt: Lensrt, index_path: str | os.PathLike[str]) -> None:
+        lib = rt.lib
+        _need(lib, "lensrt_bank_open").argtypes = [C.c_void_p, C.c_char_p, C.POINTER(C.c_void_p)]
+        lib.lensrt_bank_close.argtypes = [C.c_void_p]
+        lib.lensrt_bank_get_info.argtypes = [C.c_void_p, C.POINTER(BankInfo)]
+        lib.lensrt_bank_psf.argtypes = [C.c_void_p, C.POINTER(BankQuery), C.POINTER(C.c_float),
+                                        C.c_size_t, C.POINTER(C.c_double)]
+        self.rt = rt
+        self.handle: C.c_void_p | None = None
+        handle = C.c_void_p()
+        rt._check(lib.lensrt_bank_open(rt.ctx, os.fsencode(index_path), C.byref(handle)))
+        self.handle = handle
+
+    def close(self) -> None:
+        if getattr(self, "handle", None) and getattr(self.rt, "ctx", None):
+            self.rt.lib.lensrt_bank_close(self.handle)
+        self.handle = None
+
+    def __del__(self) -> None:
+        self.close()
+
+    def __enter__(self) -> Bank:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def info(self) -> dict[str, Any]:
+        """lensrt_bank_info as a dict: lists for the grids, the lens name as str."""
+        info = BankInfo()
+        self.rt._check(self.rt.lib.lensrt_bank_get_info(self.handle, C.byref(info)))
+        d: dict[str, Any] = {"lens_name": info.lens_name.decode(), "table_crc32": info.table_crc32,
+                             "width": info.width, "height": info.height,
+                             "pixel_x_mm": info.pixel_x_mm, "pixel_y_mm": info.pixel_y_mm,
+                             "n_nodes": info.n_nodes,
+                             "worst_error_estimate": info.worst_error_estimate}
+        grids = (("n_wavelengths", "wavelengths_nm"), ("n_f_numbers", "f_numbers"),
+                 ("n_focus_offsets", "focus_offsets_mm"), ("n_distances", "distances_mm"),
+                 ("n_field_x", "field_x_deg"), ("n_field_y", "field_y_deg"))
+        for count, name in grids:
+            d[name] = [getattr(info, name)[i] for i in range(getattr(info, count))]
+        return d
+
+    def psf(self, field_x_deg: float, field_y_deg: float, wavelength_nm: float,
+            f_number: float = 0.0, focus_offset_mm: float = 0.0, distance_mm: float = 0.0
+            ) -> tuple[np.ndarray, tuple[float, float]]:
+        """The PSF (float32, (height, width), row 0 at +y) on the bank's pixel grid centred
+        on the interpolated chief point, and that point (mm)."""
+        info = BankInfo()
+        self.rt._check(self.rt.lib.lensrt_bank_get_info(self.handle, C.byref(info)))
+        out = np.zeros((info.height, info.width), dtype=np.float32)
+        chief = (C.c_double * 2)()
+        query = BankQuery(field_x_deg, field_y_deg, wavelength_nm, f_number, focus_offset_mm,
+                          distance_mm)
+        self.rt._check(self.rt.lib.lensrt_bank_psf(
+            self.handle, C.byref(query), out.ctypes.data_as(C.POINTER(C.c_float)),
+            C.c_size_t(out.size), chief))
+        return out, (chief[0], chief[1])

@@ -1,5 +1,6 @@
 #!/usr/bin/env bash
-# Fuzz lensrt's file parsers with libFuzzer (clang), each target for SECONDS (default 15):
+# Fuzz lensrt's file parsers (lens tables, phasor files, PSF bank indexes) with libFuzzer
+# (clang), each target for SECONDS (default 15):
 #   bash tests/fuzz/run.sh 20
 # The library is built with clang into build/fuzz, static, instrumented with ASan, UBSan and
 # libFuzzer's coverage (fuzzer-no-link); corpora and crash artifacts live under build/fuzz.
@@ -7,7 +8,7 @@
 set -euo pipefail
 seconds="${1:-15}"
 root="$(cd "$(dirname "$0")/../.." && pwd)"
-build="$root/build/fuzz"
+build="${LENSRT_FUZZ_BUILD:-$root/build/fuzz}" # another folder: LENSRT_FUZZ_BUILD
 command -v clang >/dev/null || { echo "fuzz: clang is missing (scripts/setup-system.sh installs it)" >&2; exit 1; }
 
 mkdir -p "$build"
@@ -18,21 +19,23 @@ cmake -S "$root/tests/fuzz" -B "$build" -DCMAKE_C_COMPILER=clang -DCMAKE_BUILD_T
   -DLENSRT_BUILD_TESTS=OFF -DLENSRT_SANITIZE=OFF \
   "-DCMAKE_C_FLAGS=-g -O1 -fno-omit-frame-pointer -fsanitize=address,undefined,fuzzer-no-link -fno-sanitize-recover=all" \
   >"$build/configure.log" 2>&1 || { cat "$build/configure.log" >&2; exit 1; }
-cmake --build "$build" -j 2 --target fuzz_table fuzz_phasors fuzz_seed >/dev/null
+cmake --build "$build" -j 2 --target fuzz_table fuzz_phasors fuzz_bank fuzz_seed >/dev/null
 
 # 2. Seed corpora: the shipped tables, and phasor files saved by the fuzz render itself
-mkdir -p "$build/corpus/table" "$build/corpus/phasors" "$build/artifacts"
+mkdir -p "$build/corpus/table" "$build/corpus/phasors" "$build/corpus/bank" "$build/artifacts"
 for t in "$root"/generated/*/lens*.table "$root"/generated/0001-angenieux-double-gauss/scene-fits/demo/*.table; do
   cp "$t" "$build/corpus/table/$(echo "${t#"$root"/generated/}" | tr / _)"
 done
 # ... and small hand-made tables (a ghost table with its ghost lines and P_clip, issue 13)
 cp "$root"/tests/fuzz/seeds/table/*.table "$build/corpus/table/"
+# ... PSF bank indexes (issue 23): a tiny hand-made one naming fuzz_bank's node files
+cp "$root"/tests/fuzz/seeds/bank/*.index "$build/corpus/bank/"
 ASAN_OPTIONS=detect_leaks=1 "$build/fuzz_seed" "$build/corpus/phasors/run.phasors" "$build/corpus/phasors/empty.phasors"
 
 # 3. Known crashers stay fixed: every input in tests/fuzz/regressions/<target>/ runs once
 export UBSAN_OPTIONS=halt_on_error=1:print_stacktrace=1
 export ASAN_OPTIONS=detect_leaks=1
-for target in table phasors; do
+for target in table phasors bank; do
   reg="$root/tests/fuzz/regressions/$target"
   if [ -d "$reg" ] && [ -n "$(ls -A "$reg")" ]; then
     "$build/fuzz_$target" -runs=0 "$reg"/* >"$build/regressions-$target.log" 2>&1 \
@@ -41,7 +44,7 @@ for target in table phasors; do
 done
 
 # 4. Fuzz each target for SECONDS; libFuzzer exits non-zero on any finding
-for target in table phasors; do
+for target in table phasors bank; do
   echo "fuzz: $target for ${seconds}s" >&2
   dict=()
   if [ -f "$root/tests/fuzz/$target.dict" ]; then dict=("-dict=$root/tests/fuzz/$target.dict"); fi

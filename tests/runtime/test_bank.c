@@ -11,7 +11,8 @@
  * its info is the index's; the PSF at a node and one of its wavelengths is that channel
  * bit for bit (the node centred on its chief point), and a quarter-pixel shift of a node's
  * window is registered back (the bilinear taps); between nodes the centre is the blend of
- * the chief points. Refused, each with a message naming the file: a flipped byte, a cut
+ * the chief points; a node without an error estimate (-1) makes the worst unknown (-1).
+ * Refused, each with a message naming the file: a flipped byte, a cut
  * or missing checksum line, an unknown or repeated key, a missing or repeated node, a
  * wrong node count, NaN, a path with '..', a list shorter than its count, CR line ends,
  * version 2; an EXR with a flipped byte (its CRC), one of the wrong size and one missing
@@ -579,6 +580,26 @@ static void test_bank(lensrt_context ctx)
         test_info(ctx, bank);
         test_psf(ctx, bank);
         lensrt_bank_close(bank);
+    }
+    // A node without an error estimate (-1): the worst is unknown; below -1 is refused
+    {
+        char a[128], b[128], *edited;
+        lensrt_bank_info info = LENSRT_BANK_INFO_INIT;
+        snprintf(a, sizeof a, " %.17g %08x ", g_nodes[3].error, (unsigned)g_nodes[3].crc);
+        snprintf(b, sizeof b, " -1 %08x ", (unsigned)g_nodes[3].crc);
+        if ((edited = replace_once(body, a, b)) != NULL) {
+            CHECK(strcmp(edited, body) != 0, "no '%s' in the index", a);
+            write_index(edited, "unknown.index", 1, path, sizeof path);
+            CHECK_OK(ctx, lensrt_bank_open(ctx, path, &bank));
+            if (bank) CHECK_OK(ctx, lensrt_bank_get_info(bank, &info));
+            CHECK(info.worst_error_estimate == -1.0, "worst estimate %g with a node of none",
+                  info.worst_error_estimate);
+            lensrt_bank_close(bank);
+            bank = NULL;
+            free(edited);
+        }
+        snprintf(b, sizeof b, " -0.5 %08x ", (unsigned)g_nodes[3].crc);
+        expect_refused(ctx, body, a, b, LENSRT_ERROR_PARSE, "node 3: error_estimate -0.5 is negative");
     }
     CHECK_RES(ctx, LENSRT_ERROR_INVALID_ARGUMENT, lensrt_bank_open(ctx, NULL, &bank));
     CHECK_RES(ctx, LENSRT_ERROR_INVALID_ARGUMENT, lensrt_bank_open(ctx, path, NULL));

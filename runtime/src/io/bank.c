@@ -387,8 +387,8 @@ static lensrt_result read_nodes(bank_reader *r, lensrt_bank b)
         if ((res = read_number(r, "node", 7, &cx)) != LENSRT_SUCCESS) break;
         if ((res = read_number(r, "node", 8, &cy)) != LENSRT_SUCCESS) break;
         if ((res = read_number(r, "node", 9, &err)) != LENSRT_SUCCESS) break;
-        if (!(err >= 0.0)) {
-            res = index_fail(r, "node %ld: error_estimate %.17g is negative", k, err);
+        if (!(err >= 0.0 || err == -1.0)) {
+            res = index_fail(r, "node %ld: error_estimate %.17g is negative (-1 alone says there is none)", k, err);
             break;
         }
         t = next_token(r);
@@ -409,7 +409,9 @@ static lensrt_result read_nodes(bank_reader *r, lensrt_bank b)
         node->error_estimate = err;
         node->crc = crc;
         snprintf(node->path, sizeof node->path, "%s", t);
-        if (err > b->worst_error) b->worst_error = err;
+        // The worst estimate: unknown (-1) once a node has none
+        if (err < 0.0) b->worst_error = -1.0;
+        else if (b->worst_error >= 0.0 && err > b->worst_error) b->worst_error = err;
         // The chief line: the chief ray's image point at each wavelength, inside the node's image
         if ((res = expect_line(r, "chief", 1 + 2 * nw, "k, then x y (mm) at each wavelength")) != LENSRT_SUCCESS) break;
         if ((res = read_integer(r, "chief", "number k", k, k, &v)) != LENSRT_SUCCESS) break;
