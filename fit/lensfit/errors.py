@@ -23,6 +23,25 @@ def regular_file_problem(path: str | object) -> str | None:
     return None if stat.S_ISREG(mode) else "not a regular file"
 
 
+def read_toml(path: str | object, what: str, error: type[Exception]) -> dict:
+    """The parsed TOML file ``path`` (a scene, a bank spec), or ``error`` with one line
+    "<path>: cannot read <what>: <why>" (a folder, a FIFO, bad UTF-8 or TOML, nesting
+    too deep for the parser)."""
+    import tomllib
+    from pathlib import Path
+
+    p = Path(path)  # type: ignore[arg-type]
+    problem = regular_file_problem(p)  # a FIFO would block the read
+    if problem:
+        raise error(f"{p}: cannot read {what}: {problem}")
+    try:
+        return tomllib.loads(p.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError) as e:
+        raise error(f"{p}: cannot read {what}: {e}") from None
+    except RecursionError:
+        raise error(f"{p}: cannot read {what}: nested too deeply") from None
+
+
 def toml_overflow(obj: object, path: tuple = ()) -> tuple[tuple, int] | None:
     """The first integer in parsed TOML too large for a float (TOML integers are
     unbounded in Python; float() of one raises OverflowError), with its key path."""

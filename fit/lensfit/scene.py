@@ -33,14 +33,13 @@ from __future__ import annotations
 
 import math
 import re
-import tomllib
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from lensfit.errors import regular_file_problem, toml_overflow
+from lensfit.errors import read_toml, toml_overflow
 from lensfit.poly import Polynomial, System
 
 APERTURE_INPUTS = ("x_a", "y_a")
@@ -218,17 +217,7 @@ def _ghost_choice(d: dict[str, Any], flares: bool, fail) -> dict[str, Any]:
 
 
 def load_scene(path: str | Path) -> Scene:
-    p = Path(path)
-    problem = regular_file_problem(p)  # a FIFO would block the read
-    if problem:
-        raise SceneError(f"{p}: cannot read scene: {problem}")
-    try:
-        doc = tomllib.loads(p.read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError) as e:
-        raise SceneError(f"{p}: cannot read scene: {e}") from None
-    except RecursionError:
-        raise SceneError(f"{p}: cannot read scene: nested too deeply") from None
-    return Scene.from_dict(doc, str(p))
+    return Scene.from_dict(read_toml(path, "scene", SceneError), str(path))
 
 
 def _check_domain(scene: Scene, system: System, fixed: dict[str, float], what: str) -> None:

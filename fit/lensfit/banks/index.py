@@ -10,6 +10,7 @@ a last line ``checksum crc32 <8 lowercase hex>`` over every byte before it::
     width <pixels>
     height <pixels>
     pixel_mm <px> <py>
+    registration chief|window          chief: each node on its chief ray; window: one window
     wavelengths_nm <n> <l_1> ... <l_n>
     f_numbers <n> ...
     focus_offsets_mm <n> ...
@@ -61,6 +62,7 @@ def index_text(spec: BankSpec, lens_name: str, table_crc32: int,
     lines = [FORMAT, f"lens {lens_name}", f"table_crc32 {table_crc32:08x}",
              f"width {w.pixels[0]}", f"height {w.pixels[1]}",
              f"pixel_mm {_num(w.pitch_mm[0])} {_num(w.pitch_mm[1])}",
+             f"registration {'chief' if w.center_mm is None else 'window'}",
              _list("wavelengths_nm", g.wavelengths_nm), _list("f_numbers", g.f_numbers),
              _list("focus_offsets_mm", g.focus_offsets_mm),
              _list("distances_mm", [0.0 if math.isinf(v) else v for v in g.distances_mm]),

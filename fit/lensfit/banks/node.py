@@ -72,7 +72,9 @@ def finished_record(job: dict[str, Any]) -> dict[str, Any] | None:
         return None  # damaged or foreign: rendered again, then replaced
     if (doc.get("version") != RECORD_VERSION or doc.get("spec_digest") != job["digest"]
             or doc.get("table_crc32") != f"{job['table_crc32']:08x}"
-            or doc.get("k") != job["k"]):
+            or doc.get("k") != job["k"]
+            or [g["table_crc32"] for g in doc.get("ghosts", [])]
+            != [f"{g['table_crc32']:08x}" for g in job.get("ghosts", [])]):
         return None
     try:
         if f"{file_crc32(exr):08x}" != doc.get("exr_crc32"):
@@ -82,24 +84,44 @@ def finished_record(job: dict[str, Any]) -> dict[str, Any] | None:
     return doc
 
 
-def _lens(job: dict[str, Any]):
+def _load(rt, threads: int, library: str, table: str, crc: int):
+    """A lens table loaded once per worker process, refused when it is not the table the
+    bank was planned with (never mix two tables)."""
+    key = (library, threads, table, crc)
+    if key not in _LENSES:
+        now = file_crc32(table)
+        if now != crc:
+            raise InputError(f"{table}: the table changed since the bank was planned "
+                             f"(CRC-32 {now:08x}, planned {crc:08x}); run the bank again")
+        _LENSES[key] = rt.load(table)
+    return _LENSES[key]
+
+
+def _context(job: dict[str, Any]):
     from lensrt_ctypes import Lensrt
 
-    threads = int(job["spec"]["render"]["threads"])
-    key = (job["library"], threads)
+    key = (job["library"], int(job["spec"]["render"]["threads"]))
     if key not in _CONTEXTS:
-        _CONTEXTS[key] = Lensrt(job["library"], threads=threads)
-    rt = _CONTEXTS[key]
-    lkey = (job["library"], threads, job["table"], job["table_crc32"])
-    if lkey not in _LENSES:
-        # The table must be the one the bank was planned with (never mix two tables)
-        crc = file_crc32(job["table"])
-        if crc != job["table_crc32"]:
-            raise InputError(f"{job['table']}: the table changed since the bank was planned "
-                             f"(CRC-32 {crc:08x}, planned {job['table_crc32']:08x}); run the "
-                             "bank again")
-        _LENSES[lkey] = rt.load(job["table"])
-    return rt, _LENSES[lkey]
+        _CONTEXTS[key] = Lensrt(key[0], threads=key[1])
+    return _CONTEXTS[key], key[1]
+
+
+def _integrate(r, r_spec: dict[str, Any], phasors: Path) -> dict[str, Any]:
+    """One render by the spec's integrator: how, and its error estimate (-1: none)."""
+    if r_spec["integrator"] == "cells":
+        rings, est = r.integrate_to(r_spec["target_error"], max_rings=r_spec["max_rings"])
+        return {"rings": rings, "error_estimate": est}
+    return {"samples": _monte_carlo(r, phasors, r_spec), "error_estimate": -1.0}
+
+
+def _total_estimate(parts: list[tuple[float, float]], total_norm: float) -> float:
+    """The relative L2 error of a sum of images from each image's (estimate, L2 norm):
+    at most sum(e_i |I_i|) / |sum I_i| (triangle inequality); -1 when any is unknown."""
+    if any(e < 0 for e, n in parts if n > 0):
+        return -1.0
+    if total_norm <= 0:
+        return 0.0
+    return sum(e * n for e, n in parts if n > 0) / total_norm
 
 
 def render_node(job: dict[str, Any]) -> dict[str, Any]:
@@ -107,47 +129,69 @@ def render_node(job: dict[str, Any]) -> dict[str, Any]:
     done = finished_record(job)
     if done is not None:
         return {**done, "skipped": True}
-    from lensrt_ctypes import write_exr_reproducible
+    import numpy as np
+    from lensrt_ctypes import write_exr_reproducible, write_layers_reproducible
 
-    spec, out = job["spec"], Path(job["out"])
-    rt, lens = _lens(job)
+    spec, out, stem_path = job["spec"], Path(job["out"]), Path(job["out"]) / job["stem"]
+    rt, threads = _context(job)
+    lens = _load(rt, threads, job["library"], job["table"], job["table_crc32"])
     c = node_coordinates(spec, job["indices"])
     dist = 0.0 if math.isinf(c["distance_mm"]) else c["distance_mm"]
     light = (c["field_x_deg"], c["field_y_deg"], dist, 1.0)
     wavelengths = spec["grid"]["wavelengths_nm"]
 
-    # Register the window on the chief ray: its image point at every wavelength, the
-    # window centred on the middle wavelength's
+    # Register the node on the chief ray: its image point at every wavelength, the window
+    # centred on the middle wavelength's (or the spec's one window for every node)
     chief = [rt.image_point(lens, light, lam, c["focus_offset_mm"]) for lam in wavelengths]
-    centre = chief[len(chief) // 2]
     w, a, r_spec = spec["window"], spec["aperture"], spec["render"]
-    r = rt.create(lens, width=w["pixels"][0], height=w["pixels"][1],
-                  width_mm=w["size_mm"][0], height_mm=w["size_mm"][1], center=centre,
-                  focus_offset_mm=c["focus_offset_mm"], f_number=c["f_number"],
-                  shape=a["shape"], blades=a["blades"], blade_curvature=a["blade_curvature"],
-                  rotation_deg=a["rotation_deg"], lights=[light], wavelengths=wavelengths,
-                  seed=r_spec["seed"])
+    centre = tuple(w["center_mm"]) if "center_mm" in w else chief[len(chief) // 2]
+
+    def create(table_lens):
+        return rt.create(table_lens, width=w["pixels"][0], height=w["pixels"][1],
+                         width_mm=w["size_mm"][0], height_mm=w["size_mm"][1], center=centre,
+                         focus_offset_mm=c["focus_offset_mm"], f_number=c["f_number"],
+                         shape=a["shape"], blades=a["blades"],
+                         blade_curvature=a["blade_curvature"],
+                         rotation_deg=a["rotation_deg"], lights=[light],
+                         wavelengths=wavelengths, seed=r_spec["seed"])
+
     t0 = time.perf_counter()
-    how: dict[str, Any] = {"integrator": r_spec["integrator"]}
-    if r_spec["integrator"] == "cells":
-        how["rings"], how["error_estimate"] = r.integrate_to(r_spec["target_error"],
-                                                             max_rings=r_spec["max_rings"])
-    else:
-        how["samples"] = _monte_carlo(r, out / f"{job['stem']}.phasors", r_spec)
-        how["error_estimate"] = -1.0
+    r = create(lens)
+    how = {"integrator": r_spec["integrator"],
+           **_integrate(r, r_spec, stem_path.with_suffix(".phasors"))}
+    # A flare bank: every ghost in the same window, in a layer of its own
+    ghosts, ghost_renders = [], []
+    for g in job.get("ghosts", []):
+        rg = create(_load(rt, threads, job["library"], g["table"], g["table_crc32"]))
+        ghosts.append({"label": g["label"], "table_crc32": f"{g['table_crc32']:08x}",
+                       **_integrate(rg, r_spec,
+                                    stem_path.with_suffix(f".ghost-{g['label']}.phasors"))})
+        ghost_renders.append(rg)
     seconds = time.perf_counter() - t0
+    if ghosts:
+        images = [x.image() for x in (r, *ghost_renders)]
+        how["direct_error_estimate"] = how["error_estimate"]
+        how["error_estimate"] = _total_estimate(
+            [(e, float(np.linalg.norm(im))) for e, im in
+             zip([how["error_estimate"], *(g["error_estimate"] for g in ghosts)], images,
+                 strict=True)], float(np.linalg.norm(np.sum(images, axis=0))))
 
     # The EXR first, then the record that declares the node finished
-    exr = out / f"{job['stem']}.exr"
-    write_exr_reproducible(r, exr)
+    exr = stem_path.with_suffix(".exr")
+    if ghost_renders:
+        write_layers_reproducible(rt, exr, {"direct": [r], "flare": ghost_renders})
+    else:
+        write_exr_reproducible(r, exr)
     record = {"version": RECORD_VERSION, "k": job["k"], "indices": list(job["indices"]),
               "lens": job["lens_name"], "table_crc32": f"{job['table_crc32']:08x}",
               "spec_digest": job["digest"], **{k: _json_number(v) for k, v in c.items()},
               "wavelengths_nm": wavelengths, "centre_mm": list(centre),
-              "chief_mm": [list(xy) for xy in chief], **how, "seconds": seconds,
-              "exr": f"{job['stem']}.exr", "exr_crc32": f"{file_crc32(exr):08x}"}
-    write_atomic(out / f"{job['stem']}.json", checked_json_text(record))
-    (out / f"{job['stem']}.phasors").unlink(missing_ok=True)
+              "chief_mm": [list(xy) for xy in chief], **how, "ghosts": ghosts,
+              "seconds": seconds, "exr": f"{job['stem']}.exr",
+              "exr_crc32": f"{file_crc32(exr):08x}"}
+    write_atomic(stem_path.with_suffix(".json"), checked_json_text(record))
+    for p in out.glob(f"{job['stem']}.*phasors"):
+        p.unlink()
     return {**record, "skipped": False}
 
 

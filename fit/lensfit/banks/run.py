@@ -110,15 +110,41 @@ def _check_domain(spec: BankSpec, rt, lens, src: str) -> None:
                                 f"{limit:.4g})")
 
 
-def plan(spec: BankSpec, out: Path, table: Path, crc: int, lens_name: str, library: str
-         ) -> list[dict[str, Any]]:
+def ghost_tables(spec: BankSpec, table: Path, src: str) -> list[dict[str, Any]]:
+    """A flare bank's ghosts: label, table and CRC-32 of each, from the lens folder's
+    ghosts/ghosts.json (what `lensfit ghosts --fit` wrote)."""
+    if not spec.flare.ghosts:
+        return []
+    index = table.parent / "ghosts" / "ghosts.json"
+    if not index.is_file():
+        raise SpecError(f"{src}: key 'flare.ghosts': the lens has no fitted ghosts ({index} "
+                        "not found: `lensfit ghosts LENS --fit` writes them)")
+    from lensfit.codegen.checked_json import REGENERATE_FOLDER
+
+    entries = {e["label"]: e for e in load_checked_json(index, REGENERATE_FOLDER)["ghosts"]}
+    wanted = sorted(entries) if spec.flare.ghosts == "kept" else list(spec.flare.ghosts)
+    out = []
+    for i, label in enumerate(wanted):
+        if label not in entries:
+            raise SpecError(f"{src}: key 'flare.ghosts[{i}]': {label!r} is not a fitted ghost "
+                            f"of the lens (fitted: {', '.join(sorted(entries)) or 'none'})")
+        e = entries[label]
+        path = index.parent / f"ghost_{e['first']}_{e['second']}.table"
+        out.append({"label": label, "table": str(path.resolve()),
+                    "table_crc32": file_crc32(path)})
+    return out
+
+
+def plan(spec: BankSpec, out: Path, table: Path, crc: int, lens_name: str, library: str,
+         ghosts: list[dict[str, Any]]) -> list[dict[str, Any]]:
     """One job per node, in index order (f-number slowest, field x fastest)."""
     digest, spec_dict = spec.digest(), spec.to_dict()
     jobs = []
     for k, idx in enumerate(_indices(spec.grid.shape)):
         jobs.append({"k": k, "indices": idx, "stem": stem(idx), "out": str(out),
                      "table": str(table), "table_crc32": crc, "lens_name": lens_name,
-                     "library": library, "spec": spec_dict, "digest": digest})
+                     "library": library, "spec": spec_dict, "digest": digest,
+                     "ghosts": ghosts})
     return jobs
 
 
@@ -136,7 +162,8 @@ def _bank_record(out: Path, doc: dict[str, Any], restart: bool) -> None:
     path = out / BANK_RECORD
     if path.exists():
         old = load_checked_json(path, "remove the folder or run with --restart")
-        changed = [k for k in ("lens", "table_crc32", "spec_digest") if old.get(k) != doc[k]]
+        changed = [k for k in ("lens", "table_crc32", "ghost_tables", "spec_digest")
+                   if old.get(k) != doc[k]]
         if not changed:
             return
         if not restart:
@@ -177,6 +204,12 @@ def run_bank(spec_path: str | Path, out: str | Path, *, scheduler: str | None = 
     except (FileNotFoundError, LensrtError) as e:
         raise InputError(f"{src}: lens {spec.lens!r}: {e}") from None
     _check_domain(spec, rt, lens, src)
+    ghosts = ghost_tables(spec, table, src)
+    for g in ghosts:  # every ghost table loads (its checksum, its format) before any task
+        try:
+            rt.load(g["table"])
+        except LensrtError as e:
+            raise InputError(f"{src}: key 'flare.ghosts': ghost {g['label']}: {e}") from None
     # The lens's name in the index: its generated folder's (a symbol: no spaces)
     lens_name = table.parent.name if table.stem.startswith("lens") else table.stem
     if not re.fullmatch(r"[A-Za-z0-9._+-]{1,128}", lens_name):
@@ -189,9 +222,10 @@ def run_bank(spec_path: str | Path, out: str | Path, *, scheduler: str | None = 
     make_folder(out / "nodes", "bank folder")
     _bank_record(out, {"version": 1, "name": spec.name, "lens": lens_name,
                        "table": str(table), "table_crc32": f"{crc:08x}",
+                       "ghost_tables": {g["label"]: f"{g['table_crc32']:08x}" for g in ghosts},
                        "spec_digest": spec.digest(), "spec": spec.to_dict()}, restart)
 
-    jobs = plan(spec, out.resolve(), table, crc, lens_name, library)
+    jobs = plan(spec, out.resolve(), table, crc, lens_name, library, ghosts)
     pending = [j for j in jobs if finished_record(j) is None]
     keys = [f"bank-{j['digest'][:12]}-{j['stem'].split('/')[-1]}" for j in pending]
     done = run_tasks(render_node, pending, keys, scheduler=scheduler, workers=workers,

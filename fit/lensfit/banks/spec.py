@@ -14,6 +14,7 @@ A bank spec is a TOML file (``banks/demo.toml`` is the one ``make demo`` runs)::
     [window]                           # every node: a window centred on its chief ray
     pixels = [64, 64]
     size_mm = [0.1, 0.1]
+    # center_mm = [0, 0]               # or one fixed window for every node (flare banks)
     [aperture]                         # optional: circle (default) or blades
     shape = "blades"
     blades = 7
@@ -27,6 +28,9 @@ A bank spec is a TOML file (``banks/demo.toml`` is the one ``make demo`` runs)::
     checkpoints = 4                    # monte-carlo: sums saved this many times per node
     seed = 0
     threads = 1                        # lensrt threads per task
+    [flare]                            # optional: a flare bank
+    ghosts = "kept"                    # the lens folder's fitted ghosts (ghosts/ghosts.json),
+                                       # or some of them: ["0-2", "2-4"]
 
 Every key is checked: an unknown key, a value of the wrong type, an empty or unsorted grid,
 NaN or infinity where a number is meant, are refused naming the file, the key and the
@@ -39,14 +43,14 @@ import hashlib
 import json
 import math
 import re
-import tomllib
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
-from lensfit.errors import InputError, regular_file_problem, toml_overflow
+from lensfit.errors import InputError, read_toml, toml_overflow
 
 NAME = re.compile(r"[A-Za-z0-9_-]{1,64}")
+GHOST = re.compile(r"[0-9]{1,3}-[0-9]{1,3}")  # a ghost's label: the file's surfaces i-j
 MAX_NODES = 100_000  # a bank index past this is a mistake in a grid, not a bank
 MAX_PIXELS = 4096
 
@@ -75,6 +79,7 @@ class Grid:
 class Window:
     pixels: tuple[int, int]
     size_mm: tuple[float, float]
+    center_mm: tuple[float, float] | None = None  # None: each node's chief ray
 
     @property
     def pitch_mm(self) -> tuple[float, float]:
@@ -101,6 +106,11 @@ class Render:
 
 
 @dataclass(frozen=True)
+class Flare:
+    ghosts: str | tuple[str, ...] = ()  # "kept", or ghost labels "i-j"; () no flare
+
+
+@dataclass(frozen=True)
 class BankSpec:
     name: str
     lens: str
@@ -108,6 +118,7 @@ class BankSpec:
     window: Window
     aperture: Aperture = field(default_factory=Aperture)
     render: Render = field(default_factory=Render)
+    flare: Flare = field(default_factory=Flare)
     source_file: str = field(default="<memory>", compare=False)
 
     def to_dict(self) -> dict[str, Any]:
@@ -117,7 +128,9 @@ class BankSpec:
         d["grid"]["distances_mm"] = ["inf" if math.isinf(v) else v
                                      for v in self.grid.distances_mm]
         for part in ("grid", "window"):
-            d[part] = {k: list(v) for k, v in d[part].items()}
+            d[part] = {k: list(v) for k, v in d[part].items() if v is not None}
+        if isinstance(self.flare.ghosts, tuple):
+            d["flare"]["ghosts"] = list(self.flare.ghosts)
         return d
 
     @classmethod
@@ -136,17 +149,7 @@ class BankSpec:
 
 def load_spec(path: str | Path) -> BankSpec:
     """Read and check a bank spec file."""
-    p = Path(path)
-    problem = regular_file_problem(p)  # a FIFO would block the read
-    if problem:
-        raise SpecError(f"{p}: cannot read bank spec: {problem}")
-    try:
-        doc = tomllib.loads(p.read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError) as e:
-        raise SpecError(f"{p}: cannot read bank spec: {e}") from None
-    except RecursionError:
-        raise SpecError(f"{p}: cannot read bank spec: nested too deeply") from None
-    return _parse(doc, str(p))
+    return _parse(read_toml(path, "bank spec", SpecError), str(path))
 
 
 # ------------------------------------------------------------------ checks -----
@@ -211,7 +214,7 @@ def _parse(d: Any, source: str) -> BankSpec:
     if big:
         raise _fail(source, ".".join(str(p) for p in big[0]), big[1],
                     "expected a number within a float's range")
-    top = _table(d, "", {"name", "lens", "grid", "window", "aperture", "render"},
+    top = _table(d, "", {"name", "lens", "grid", "window", "aperture", "render", "flare"},
                  {"name", "lens", "grid", "window"}, source)
     name = top["name"]
     if not isinstance(name, str) or not NAME.fullmatch(name):
@@ -247,7 +250,8 @@ def _parse(d: Any, source: str) -> BankSpec:
         raise _fail(source, "grid", f"{n_nodes} nodes", f"expected at most {MAX_NODES} nodes")
 
     # The window every node renders, centred on its chief ray
-    w = _table(top["window"], "window", {"pixels", "size_mm"}, {"pixels", "size_mm"}, source)
+    w = _table(top["window"], "window", {"pixels", "size_mm", "center_mm"},
+               {"pixels", "size_mm"}, source)
     px, size = w["pixels"], w["size_mm"]
     if (not isinstance(px, list) or len(px) != 2
             or not all(isinstance(v, int) and not isinstance(v, bool) and 1 <= v <= MAX_PIXELS
@@ -257,7 +261,13 @@ def _parse(d: Any, source: str) -> BankSpec:
     if not isinstance(size, list) or len(size) != 2 or not all(
             _number(v) and 0 < v <= 100 for v in size):
         raise _fail(source, "window.size_mm", size, "expected [width, height] in mm, in (0, 100]")
-    window = Window((int(px[0]), int(px[1])), (float(size[0]), float(size[1])))
+    centre = w.get("center_mm")
+    if centre is not None and (not isinstance(centre, list) or len(centre) != 2 or not all(
+            _number(v) and abs(v) <= 1000 for v in centre)):
+        raise _fail(source, "window.center_mm", centre,
+                    "expected [x, y] on the sensor in mm (one window for every node)")
+    window = Window((int(px[0]), int(px[1])), (float(size[0]), float(size[1])),
+                    None if centre is None else (float(centre[0]), float(centre[1])))
 
     # The aperture (a circle unless blades are given)
     a = _table(top.get("aperture", {}), "aperture",
@@ -297,4 +307,14 @@ def _parse(d: Any, source: str) -> BankSpec:
     if render.integrator == "monte-carlo" and render.samples < render.checkpoints:
         raise _fail(source, "render.checkpoints", render.checkpoints,
                     f"expected at most render.samples = {render.samples} checkpoints")
-    return BankSpec(name, lens, grid, window, aperture, render, source)
+
+    # A flare bank: ghosts rendered into every node with the direct image
+    fl = _table(top.get("flare", {}), "flare", {"ghosts"}, set(), source)
+    ghosts = fl.get("ghosts", ())
+    if ghosts != "kept" and not (isinstance(ghosts, list) and ghosts and all(
+            isinstance(g, str) and GHOST.fullmatch(g) for g in ghosts)
+            and len(set(ghosts)) == len(ghosts)) and ghosts != ():
+        raise _fail(source, "flare.ghosts", ghosts,
+                    'expected "kept" or a list of distinct ghost labels like ["0-2", "2-4"]')
+    flare = Flare(ghosts if isinstance(ghosts, str) else tuple(ghosts))
+    return BankSpec(name, lens, grid, window, aperture, render, flare, source)

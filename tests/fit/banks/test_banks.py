@@ -193,11 +193,13 @@ def test_damaged_node_is_rendered_again(tmp_path: Path) -> None:
                                                        r"non-empty list"),
     ({"field_x_deg = [0, 5, 10]": "field_x_deg = [0, nan]"}, r"key 'grid.field_x_deg\[1\]': "
                                                              r"expected angles"),
-    ({"field_x_deg = [0, 5, 10]": "field_x_deg = [5, 0]"}, r"key 'grid.field_x_deg': expected increasing"),
+    ({"field_x_deg = [0, 5, 10]": "field_x_deg = [5, 0]"},
+     r"key 'grid.field_x_deg': expected increasing"),
     ({"f_numbers = [8]": "f_numbers = [true]"}, r"key 'grid.f_numbers\[0\]': expected positive "
                                                r"f-numbers, found true"),
     ({"pixels = [24, 24]": "pixels = [24]"}, r"key 'window.pixels': expected \[width, height\]"),
-    ({"[grid]": "[grid]\nfocus_offsets_mm = [0, 0]"}, r"key 'grid.focus_offsets_mm': expected distinct"),
+    ({"[grid]": "[grid]\nfocus_offsets_mm = [0, 0]"},
+     r"key 'grid.focus_offsets_mm': expected distinct"),
 ])
 def test_bad_specs_are_refused(tmp_path: Path, change: dict, message: str) -> None:
     spec = spec_file(tmp_path, CELLS, "t", **change)

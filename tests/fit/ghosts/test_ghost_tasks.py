@@ -15,35 +15,16 @@ import shutil
 import zlib
 
 import pytest
+from test_ghosts_cli import SINGLET  # tests/fit/ghosts is on sys.path (rootdir)
 
 from lensfit.cli import main
 from lensfit.codegen.checked_json import checked_json_text
 from lensfit.ghosts import tables as ghost_tables
 from lensfit.ghosts.tasks import TASKS_FOLDER
 
-SINGLET = """schema_version = 1
-[lens]
-id = "{id}"
-name = "test singlet {id}"
-maker = "lensfit"
-year = 2026
-source = "tests/fit/ghosts"
-[coating]
-default = "none"
-[[surface]]
-shape = "sphere"
-radius = 60.0
-thickness = 6.0
-material = "N-BK7"
-semi_diameter = 10.0
-stop = true
-[[surface]]
-shape = "sphere"
-radius = -60.0
-thickness = 56.0
-material = "air"
-semi_diameter = 10.0
-"""
+# The singlet of test_ghosts_cli under two ids (its folder's name is the id)
+SINGLETS = {name: SINGLET.replace('id = "singlet"', f'id = "{name}"')
+            for name in ("singleta", "singletb")}
 
 
 def folder_bytes(folder):
@@ -56,9 +37,9 @@ def fitted(tmp_path_factory):
     tmp = tmp_path_factory.mktemp("tasks")
     gen = tmp / "gen"
     lenses = []
-    for name in ("singleta", "singletb"):
+    for name, text in SINGLETS.items():
         path = tmp / f"{name}.toml"
-        path.write_text(SINGLET.format(id=name), encoding="utf-8")
+        path.write_text(text, encoding="utf-8")
         assert main(["fit", str(path), "--quick", "--f-number", "8", "--field", "5",
                      "--generated", str(gen), "--report", str(tmp / f"r-{name}"),
                      "--no-timing"]) == 0
