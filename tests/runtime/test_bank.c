@@ -15,9 +15,10 @@
  * Refused, each with a message naming the file: a flipped byte, a cut
  * or missing checksum line, an unknown or repeated key, a missing or repeated node, a
  * wrong node count, NaN, a path with '..', a list shorter than its count, CR line ends,
- * version 2; an EXR with a flipped byte (its CRC), one of the wrong size and one missing
- * a wavelength (with their right CRCs in the index). Queries outside the field or
- * wavelength range, or at an f-number, focus or distance the bank lacks: OUT_OF_DOMAIN.
+ * version 2; an EXR with a flipped byte (its CRC), and, with their right CRCs in the
+ * index, one cut short, one of the wrong size and one missing a wavelength. Queries
+ * outside the field or wavelength range, or at an f-number, focus or distance the bank
+ * lacks: OUT_OF_DOMAIN.
  *
  * usage: test_bank LENS_TABLE SCRATCH_DIR */
 #include "lensrt.h"
@@ -527,6 +528,16 @@ static void test_exr_refusals(lensrt_context ctx, lensrt_lens lens, const char *
         snprintf(to, sizeof to, "%08x nodes/flipped.exr", (unsigned)g_nodes[0].crc);
         expect_refused(ctx, body, from, to, LENSRT_ERROR_PARSE, "nodes/flipped.exr: node 0 (bank index");
         CHECK_MSG(ctx, "the EXR was changed or damaged");
+    }
+    // A cut EXR whose CRC the index has: OpenEXRCore's refusal, naming the file
+    snprintf(path, sizeof path, "%s/%s", g_bank, g_nodes[0].path);
+    if ((bytes = read_text(path, &size)) != NULL) {
+        snprintf(path, sizeof path, "%s/nodes/cut.exr", g_bank);
+        CHECK(write_bytes(path, bytes, size / 2), "cannot write %s", path);
+        snprintf(to, sizeof to, "%08x nodes/cut.exr", (unsigned)test_crc32(bytes, size / 2));
+        expect_refused(ctx, body, from, to, LENSRT_ERROR_PARSE, "nodes/cut.exr: node 0 (bank index");
+        CHECK_MSG(ctx, "not a readable EXR");
+        free(bytes);
     }
     // A missing file
     snprintf(to, sizeof to, "%08x nodes/absent.exr", (unsigned)g_nodes[0].crc);

@@ -347,9 +347,14 @@ static lensrt_result read_nodes(bank_reader *r, lensrt_bank b)
     int *line_of; /* the line of the node holding each tuple (0: none yet) */
     lensrt_result res;
     int a, w;
-    for (a = 0; a < 5; a++) product *= dims[a]; /* each <= LENSRT_MAX_BANK_NODES: checked below */
+    // The grid's node count, saturated past the limit (five counts of up to 65536 each)
+    for (a = 0; a < 5; a++) product = product > LENSRT_MAX_BANK_NODES ? product : product * dims[a];
     if ((res = expect_line(r, "nodes", 1, "the number of nodes")) != LENSRT_SUCCESS) return res;
     if ((res = read_integer(r, "nodes", "count", 1, LENSRT_MAX_BANK_NODES, &n)) != LENSRT_SUCCESS) return res;
+    if (product > LENSRT_MAX_BANK_NODES)
+        return index_fail(r, "the grid has %d x %d x %d x %d x %d nodes (f-numbers x focus offsets x distances x "
+                             "field_y x field_x), more than LENSRT_MAX_BANK_NODES (%d)", dims[0], dims[1], dims[2],
+                          dims[3], dims[4], LENSRT_MAX_BANK_NODES);
     if (n != product)
         return index_fail(r, "'nodes %ld': expected %d x %d x %d x %d x %d = %ld (f-numbers x focus offsets x "
                              "distances x field_y x field_x), one node each", n, dims[0], dims[1], dims[2], dims[3],
