@@ -737,6 +737,7 @@ LENSRT_API lensrt_result lensrt_layers_write_exr(const lensrt_exr_layer *layers,
  *   width <pixels>
  *   height <pixels>
  *   pixel_mm <pitch x> <pitch y>                     > 0
+ *   registration chief|window                        optional (chief): below
  *   wavelengths_nm <n> <l_1> ... <l_n>               strictly increasing, > 0
  *   f_numbers <n> <v_1> ... <v_n>                    distinct, > 0
  *   focus_offsets_mm <n> <v_1> ... <v_n>             distinct
@@ -755,6 +756,12 @@ LENSRT_API lensrt_result lensrt_layers_write_exr(const lensrt_exr_layer *layers,
  * width x height pixels of the bank's pitch centred on (center_x_mm, center_y_mm), as a
  * render's window (lensrt_sensor) is: row 0 at the top (+y), pixel (i, j)'s centre at
  * (center_x + (i + 0.5 - width / 2) pitch_x, center_y + (height / 2 - j - 0.5) pitch_y).
+ * With `registration chief` (or no registration line) each node's window is placed on
+ * its chief point (which must lie inside it), and lensrt_bank_psf registers each channel
+ * on its chief point; with `registration window` the nodes share one window (flare
+ * banks: a light's ghosts far from its image) and are blended in place, pixel for pixel.
+ * A node EXR may also hold layers ("<layer>.S0.<lambda>nm", lensrt_layers_write_exr):
+ * they are ignored, the unprefixed channels being their sum.
  * error_estimate is the node's relative L2 error estimate (>= 0; -1: none). Paths use
  * only [A-Za-z0-9._/-], and are relative (no leading '/', no "..", no empty component).
  * At most LENSRT_MAX_BANK_NODES nodes and LENSRT_MAX_WAVELENGTHS wavelengths.
@@ -831,7 +838,9 @@ LENSRT_API lensrt_result lensrt_bank_get_info(lensrt_bank bank, lensrt_bank_info
  * blended with the field weights, and the output's centre (chief_mm) is the same
  * weights applied to the nodes' chief points (linear in wavelength, bilinear in field).
  * At a node and one of its wavelengths whose chief point is the node's centre, the output
- * is that channel of the node's EXR bit for bit. A field angle or wavelength outside the
+ * is that channel of the node's EXR bit for bit. A bank of `registration window` blends
+ * its nodes' images in place (no shift; the output is the shared window, chief_mm still
+ * the blended chief point). A field angle or wavelength outside the
  * bank's range: LENSRT_ERROR_OUT_OF_DOMAIN naming the value and the range; one that is
  * not finite, or count other than width x height: LENSRT_ERROR_INVALID_ARGUMENT. */
 LENSRT_API lensrt_result lensrt_bank_psf(lensrt_bank bank, const lensrt_bank_query *query, float *out, size_t count,

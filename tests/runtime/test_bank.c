@@ -11,7 +11,8 @@
  * its info is the index's; the PSF at a node and one of its wavelengths is that channel
  * bit for bit (the node centred on its chief point), and a quarter-pixel shift of a node's
  * window is registered back (the bilinear taps); between nodes the centre is the blend of
- * the chief points; a node without an error estimate (-1) makes the worst unknown (-1).
+ * the chief points; a node without an error estimate (-1) makes the worst unknown (-1);
+ * `registration window` blends the nodes in place; a node EXR with layers is read.
  * Refused, each with a message naming the file: a flipped byte, a cut
  * or missing checksum line, an unknown or repeated key, a missing or repeated node, a
  * wrong node count, NaN, a path with '..', a list shorter than its count, CR line ends,
@@ -539,6 +540,29 @@ static void test_exr_refusals(lensrt_context ctx, lensrt_lens lens, const char *
         CHECK_MSG(ctx, "not a readable EXR");
         free(bytes);
     }
+    // A layered EXR (lensrt_layers_write_exr): its layers are ignored, the unprefixed sum read
+    r = node_render(ctx, lens, FIELD_X[0], FIELD_Y[0], g_nodes[0].center_x, g_nodes[0].center_y, W, H, NW, &err);
+    snprintf(path, sizeof path, "%s/nodes/layered.exr", g_bank);
+    if (r) {
+        lensrt_exr_layer layer = LENSRT_EXR_LAYER_INIT;
+        lensrt_bank bank = NULL;
+        char index[4400], *edited;
+        layer.name = "direct";
+        layer.renders = &r;
+        layer.n_renders = 1;
+        CHECK_OK(ctx, lensrt_layers_write_exr(&layer, 1, path));
+        if ((bytes = read_text(path, &size)) != NULL) {
+            snprintf(to, sizeof to, "%08x nodes/layered.exr", (unsigned)test_crc32(bytes, size));
+            if ((edited = replace_once(body, from, to)) != NULL) {
+                write_index(edited, "layered.index", 1, index, sizeof index);
+                CHECK_OK(ctx, lensrt_bank_open(ctx, index, &bank));
+                lensrt_bank_close(bank);
+                free(edited);
+            }
+            free(bytes);
+        }
+    }
+    lensrt_render_destroy(r);
     // A missing file
     snprintf(to, sizeof to, "%08x nodes/absent.exr", (unsigned)g_nodes[0].crc);
     expect_refused(ctx, body, from, to, LENSRT_ERROR_IO, "nodes/absent.exr: cannot open");
@@ -611,6 +635,41 @@ static void test_bank(lensrt_context ctx)
         }
         snprintf(b, sizeof b, " -0.5 %08x ", (unsigned)g_nodes[3].crc);
         expect_refused(ctx, body, a, b, LENSRT_ERROR_PARSE, "node 3: error_estimate -0.5 is negative");
+    }
+    // Registration: chief said explicitly is the default; window blends the nodes in place
+    {
+        static float psf[NP];
+        char *edited;
+        lensrt_bank_query q = LENSRT_BANK_QUERY_INIT;
+        const node_rec *n = &g_nodes[SHIFTED_NODE];
+        double chief[2];
+        char pixel[128], with[160];
+        int p, same = 1;
+        snprintf(pixel, sizeof pixel, "pixel_mm %.17g %.17g\n", PITCH, PITCH);
+        snprintf(with, sizeof with, "%sregistration chief\n", pixel);
+        if ((edited = replace_once(body, pixel, with)) != NULL) {
+            write_index(edited, "chief.index", 1, path, sizeof path);
+            CHECK_OK(ctx, lensrt_bank_open(ctx, path, &bank));
+            lensrt_bank_close(bank);
+            bank = NULL;
+            free(edited);
+        }
+        snprintf(with, sizeof with, "%sregistration window\n", pixel);
+        if ((edited = replace_once(body, pixel, with)) != NULL) {
+            write_index(edited, "window.index", 1, path, sizeof path);
+            CHECK_OK(ctx, lensrt_bank_open(ctx, path, &bank));
+            q.field_x_deg = FIELD_X[n->ix];
+            q.field_y_deg = FIELD_Y[n->iy];
+            q.wavelength_nm = WAVELENGTHS[1];
+            if (bank) CHECK_OK(ctx, lensrt_bank_psf(bank, &q, psf, NP, chief));
+            for (p = 0; bank && p < NP; p++) same = same && psf[p] == n->image[NP + p];
+            CHECK(bank && same, "registration window: the PSF at node %d is not its image in place", SHIFTED_NODE);
+            lensrt_bank_close(bank);
+            bank = NULL;
+            free(edited);
+        }
+        snprintf(with, sizeof with, "%sregistration both\n", pixel);
+        expect_refused(ctx, body, pixel, with, LENSRT_ERROR_PARSE, "bad.index:7: 'registration' takes 'chief' or 'window'");
     }
     CHECK_RES(ctx, LENSRT_ERROR_INVALID_ARGUMENT, lensrt_bank_open(ctx, NULL, &bank));
     CHECK_RES(ctx, LENSRT_ERROR_INVALID_ARGUMENT, lensrt_bank_open(ctx, path, NULL));

@@ -68,6 +68,7 @@ struct lensrt_bank_s {
     double *values[N_AXES];
     int n_nodes;
     bank_node *nodes;   /* by their index tuple: ((((f * nz + z) * nd + d) * ny + y) * nx + x) */
+    int window;         /* registration window: the nodes share one window, blended in place */
     double worst_error;
 };
 
@@ -81,6 +82,7 @@ typedef struct bank_reader {
     int line;
     char *cursor;       /* the rest of the current line */
     const char *key;    /* its first token */
+    int pending;        /* 1: the current line is read but not yet taken (an optional key's) */
 } bank_reader;
 
 static lensrt_result index_fail(bank_reader *r, const char *fmt, ...)
@@ -150,7 +152,7 @@ static int tokens_left(const bank_reader *r)
 /* Is key one of the index's? */
 static int known_key(const char *key)
 {
-    static const char *const keys[] = {"lensrt-bank", "lens", "table_crc32", "width", "height", "pixel_mm",
+    static const char *const keys[] = {"lensrt-bank", "lens", "table_crc32", "width", "height", "pixel_mm", "registration",
                                        "wavelengths_nm", "f_numbers", "focus_offsets_mm", "distances_mm",
                                        "field_x_deg", "field_y_deg", "nodes", "node", "chief", "checksum"};
     size_t i;
@@ -163,7 +165,7 @@ static int known_key(const char *key)
  * any number): its first value is next_token's. `what` says what the line holds. */
 static lensrt_result expect_line(bank_reader *r, const char *key, int n_values, const char *what)
 {
-    int got = next_line(r), n;
+    int got = r->pending ? 1 : next_line(r), n;
     if (got < 0) return LENSRT_ERROR_PARSE;
     if (got == 0) {
         // The missing line would have been where the checksum line is
@@ -173,7 +175,8 @@ static lensrt_result expect_line(bank_reader *r, const char *key, int n_values, 
                              "focus_offsets_mm, distances_mm, field_x_deg, field_y_deg, nodes, then node and "
                              "chief lines", key, what);
     }
-    r->key = next_token(r);
+    if (!r->pending) r->key = next_token(r);
+    r->pending = 0;
     if (strcmp(r->key, key) != 0) {
         if (known_key(r->key))
             return index_fail(r, "key '%.64s' is out of order or repeated: expected '%s' (%s) here", r->key, key,
@@ -417,7 +420,8 @@ static lensrt_result read_nodes(bank_reader *r, lensrt_bank b)
         // The worst estimate: unknown (-1) once a node has none
         if (err < 0.0) b->worst_error = -1.0;
         else if (b->worst_error >= 0.0 && err > b->worst_error) b->worst_error = err;
-        // The chief line: the chief ray's image point at each wavelength, inside the node's image
+        // The chief line: the chief ray's image point at each wavelength, inside the node's
+        // image when the node is registered on it
         if ((res = expect_line(r, "chief", 1 + 2 * nw, "k, then x y (mm) at each wavelength")) != LENSRT_SUCCESS) break;
         if ((res = read_integer(r, "chief", "number k", k, k, &v)) != LENSRT_SUCCESS) break;
         node->chief = lensrt_alloc(b->ctx, 2 * (size_t)nw * sizeof(double));
@@ -426,7 +430,7 @@ static lensrt_result read_nodes(bank_reader *r, lensrt_bank b)
             break;
         }
         for (w = 0; w < 2 * nw && res == LENSRT_SUCCESS; w++) res = read_number(r, "chief", w + 2, &node->chief[w]);
-        for (w = 0; w < nw && res == LENSRT_SUCCESS; w++) {
+        for (w = 0; w < nw && res == LENSRT_SUCCESS && !b->window; w++) {
             const double hx = 0.5 * b->width * b->pixel_x, hy = 0.5 * b->height * b->pixel_y;
             const double ux = node->chief[2 * w], uy = node->chief[2 * w + 1];
             if (!(fabs(ux - cx) <= hx && fabs(uy - cy) <= hy))
@@ -479,6 +483,17 @@ static lensrt_result read_index(bank_reader *r, lensrt_bank b)
     b->pixel_y = x;
     if (!(b->pixel_x > 0.0 && b->pixel_y > 0.0))
         return index_fail(r, "'pixel_mm %.17g %.17g': the pitch is > 0", b->pixel_x, b->pixel_y);
+    // Optional: how the nodes are registered (chief, the default, or one shared window)
+    if ((v = next_line(r)) < 0) return LENSRT_ERROR_PARSE;
+    r->pending = (int)v;
+    if (v && strcmp(r->key = next_token(r), "registration") == 0) {
+        r->pending = 0;
+        t = next_token(r);
+        if (!t || tokens_left(r) != 0 || (strcmp(t, "chief") != 0 && strcmp(t, "window") != 0))
+            return index_fail(r, "'registration' takes 'chief' or 'window', found '%.64s%s'", t ? t : "",
+                              t && tokens_left(r) ? " ..." : "");
+        b->window = strcmp(t, "window") == 0;
+    }
     // The grids, then the nodes
     for (axis = 0; axis < N_AXES; axis++)
         if ((res = read_axis(r, b, axis)) != LENSRT_SUCCESS) return res;
@@ -631,7 +646,15 @@ static lensrt_result decode_node(lensrt_bank b, bank_node *node, const char *pat
     for (c = 0; c < chlist->num_channels; c++) {
         const exr_attr_chlist_entry_t *e = &chlist->entries[c];
         const char *name = e->name.str;
+        const char *dot = strchr(name, '.');
+        char layer[LENSRT_MAX_LAYER_NAME + 2];
         if (strcmp(name, "R") == 0 || strcmp(name, "G") == 0 || strcmp(name, "B") == 0) continue;
+        // A layer's channels ("direct.S0.550,000000nm", lensrt_layers_write_exr) are left to
+        // other readers: the unprefixed ones hold the image, the layers' sum
+        if (dot && dot - name <= LENSRT_MAX_LAYER_NAME) {
+            snprintf(layer, sizeof layer, "%.*s", (int)(dot - name), name);
+            if (!lensrt_exr_layer_name_refusal(layer)) continue;
+        }
         for (i = 0; i < nw && strcmp(name, names[i]) != 0; i++) continue;
         if (i == nw) {
             res = lensrt_fail(b->ctx, LENSRT_ERROR_PARSE,
@@ -963,9 +986,10 @@ lensrt_result lensrt_bank_psf(lensrt_bank b, const lensrt_bank_query *query, flo
             if (w == 0.0) continue;
             centre[0] += w * ux;
             centre[1] += w * uy;
-            // The shift in pixels (row 0 at +y), whole and fractional parts
-            sx = (ux - node->center_x) / b->pixel_x;
-            sy = -(uy - node->center_y) / b->pixel_y;
+            // The shift in pixels (row 0 at +y), whole and fractional parts; none when the
+            // nodes share one window
+            sx = b->window ? 0.0 : (ux - node->center_x) / b->pixel_x;
+            sy = b->window ? 0.0 : -(uy - node->center_y) / b->pixel_y;
             t = &terms[n_terms++];
             t->plane = node->image + (size_t)ch * plane;
             t->sx = (long)floor(sx);
