@@ -715,6 +715,10 @@ typedef struct lensrt_exr_layer {
  * struct_size or a first render: LENSRT_ERROR_INVALID_ARGUMENT with no context to hold a
  * message (the messages go to the first render's context). */
 LENSRT_API lensrt_result lensrt_layers_write_exr(const lensrt_exr_layer *layers, int n_layers, const char *path);
+/* The same with options (since 0.5.0; NULL: as lensrt_layers_write_exr): reproducible
+ * leaves out what differs between two runs, as lensrt_render_write_exr_with does. */
+LENSRT_API lensrt_result lensrt_layers_write_exr_with(const lensrt_exr_layer *layers, int n_layers, const char *path,
+                                                      const lensrt_exr_options *options);
 
 /* ------------------------------------------------------------- PSF banks ----- */
 

@@ -405,18 +405,27 @@ class Lensrt:
         return r.image(), err
 
     def write_exr_layers(self, path: str | os.PathLike[str],
-                         layers: dict[str, Sequence[Render]]) -> None:
+                         layers: dict[str, Sequence[Render]], reproducible: bool = False
+                         ) -> None:
         """One EXR with a layer per name (its renders' images added) and their sum in the
-        unprefixed channels (lensrt_layers_write_exr; read with lensrt_exr)."""
-        fn = self.lib.lensrt_layers_write_exr
-        fn.argtypes = [C.POINTER(ExrLayer), C.c_int, C.c_char_p]
+        unprefixed channels (lensrt_layers_write_exr; read with lensrt_exr); with
+        ``reproducible``, without what differs between runs (lensrt_layers_write_exr_with,
+        0.5.0), so the same renders give the same bytes."""
+        extra: list[Any] = []
+        if reproducible:
+            fn = _need(self.lib, "lensrt_layers_write_exr_with")
+            fn.argtypes = [C.POINTER(ExrLayer), C.c_int, C.c_char_p, C.POINTER(ExrOptions)]
+            extra = [C.byref(ExrOptions(1))]
+        else:
+            fn = self.lib.lensrt_layers_write_exr
+            fn.argtypes = [C.POINTER(ExrLayer), C.c_int, C.c_char_p]
         keep = []
         arr = (ExrLayer * len(layers))()
         for k, (name, renders) in enumerate(layers.items()):
             handles = (C.c_void_p * len(renders))(*[r.handle for r in renders])
             keep.append(handles)
             arr[k] = ExrLayer(name.encode(), C.cast(handles, C.c_void_p), len(renders))
-        self._check(fn(arr, len(layers), os.fsencode(path)))
+        self._check(fn(arr, len(layers), os.fsencode(path), *extra))
 
     # ------------------------------------------------- per-ray evaluation -----
 

@@ -169,6 +169,35 @@ static void test_reproducible_exr(lensrt_context ctx, const char *table)
         CHECK_RES(ctx, LENSRT_ERROR_INVALID_ARGUMENT, lensrt_render_write_exr_with(a, pa, &o));
         CHECK_MSG(ctx, "reproducible is 2");
         CHECK_RES(ctx, LENSRT_ERROR_INVALID_ARGUMENT, lensrt_render_write_exr_with(NULL, pa, NULL));
+        o.reproducible = 1;
+
+        // Layered files (a flare bank's nodes) alike: lensrt_layers_write_exr_with
+        {
+            lensrt_exr_layer layers[2] = {LENSRT_EXR_LAYER_INIT, LENSRT_EXR_LAYER_INIT};
+            char la[4200], lb[4200], lplain[4200];
+            layers[0].name = "direct";
+            layers[0].renders = &a;
+            layers[0].n_renders = 1;
+            layers[1].name = "flare";
+            layers[1].renders = &b;
+            layers[1].n_renders = 1;
+            snprintf(la, sizeof la, "%s/layers-a.exr", g_scratch);
+            snprintf(lb, sizeof lb, "%s/layers-b.exr", g_scratch);
+            snprintf(lplain, sizeof lplain, "%s/layers-plain.exr", g_scratch);
+            CHECK_RES(ctx, want, lensrt_layers_write_exr_with(layers, 2, la, &o));
+            CHECK_RES(ctx, want, lensrt_layers_write_exr_with(layers, 2, lb, &o));
+            CHECK_RES(ctx, want, lensrt_layers_write_exr_with(layers, 2, lplain, NULL));
+            if (LENSRT_TEST_EXR) {
+                CHECK(same_file(la, lb), "two reproducible layered EXRs of the same renders differ");
+                CHECK(!file_holds(la, "lensrt/seconds") && !file_holds(la, "lensrt/lensFile") &&
+                          file_holds(la, "lensrt/layers"),
+                      "a reproducible layered EXR holds a timing or the table's path, or lost its layers");
+                CHECK(file_holds(lplain, "lensrt/seconds"), "layers_write_exr_with(NULL) left out the timings");
+            }
+            o.reproducible = 3;
+            CHECK_RES(ctx, LENSRT_ERROR_INVALID_ARGUMENT, lensrt_layers_write_exr_with(layers, 2, la, &o));
+            CHECK_MSG(ctx, "reproducible is 3");
+        }
     }
     lensrt_render_destroy(a);
     lensrt_render_destroy(b);

@@ -130,7 +130,7 @@ def render_node(job: dict[str, Any]) -> dict[str, Any]:
     if done is not None:
         return {**done, "skipped": True}
     import numpy as np
-    from lensrt_ctypes import write_exr_reproducible, write_layers_reproducible
+    from lensrt_ctypes import write_exr_reproducible
 
     spec, out, stem_path = job["spec"], Path(job["out"]), Path(job["out"]) / job["stem"]
     rt, threads = _context(job)
@@ -179,7 +179,7 @@ def render_node(job: dict[str, Any]) -> dict[str, Any]:
     # The EXR first, then the record that declares the node finished
     exr = stem_path.with_suffix(".exr")
     if ghost_renders:
-        write_layers_reproducible(rt, exr, {"direct": [r], "flare": ghost_renders})
+        rt.write_exr_layers(exr, {"direct": [r], "flare": ghost_renders}, reproducible=True)
     else:
         write_exr_reproducible(r, exr)
     record = {"version": RECORD_VERSION, "k": job["k"], "indices": list(job["indices"]),

@@ -194,20 +194,32 @@ static lensrt_result write_image(const lensrt_render *rs, int n, const char *pat
 
 lensrt_result lensrt_render_write_exr(lensrt_render r, const char *path) { return write_image(&r, 1, path, 1, 0.0); }
 
-lensrt_result lensrt_render_write_exr_with(lensrt_render r, const char *path, const lensrt_exr_options *options)
+/* The options of a write_exr_with call, read by their struct_size and checked (NULL:
+ * the defaults); *reproducible set from them. */
+static lensrt_result exr_options_in(lensrt_context ctx, const char *path, const lensrt_exr_options *options,
+                                    int *reproducible)
 {
     lensrt_exr_options o;
     lensrt_result res;
-    if (!r) return LENSRT_ERROR_INVALID_ARGUMENT;
-    if (!options) return write_image(&r, 1, path, 1, 0.0);
-    // Read the options by their struct_size (ABI rules), then check the flag
-    if ((res = lensrt_struct_in(r->ctx, "lensrt_exr_options", options, &o, sizeof o)) != LENSRT_SUCCESS)
-        return res;
+    *reproducible = 0;
+    if (!options) return LENSRT_SUCCESS;
+    if ((res = lensrt_struct_in(ctx, "lensrt_exr_options", options, &o, sizeof o)) != LENSRT_SUCCESS) return res;
     if (o.reproducible != 0 && o.reproducible != 1)
-        return lensrt_fail(r->ctx, LENSRT_ERROR_INVALID_ARGUMENT,
+        return lensrt_fail(ctx, LENSRT_ERROR_INVALID_ARGUMENT,
                            "EXR '%s': lensrt_exr_options.reproducible is %d; expected 0 or 1", path ? path : "(null)",
                            (int)o.reproducible);
-    return write_image_as(&r, 1, path, 1, 0.0, o.reproducible);
+    *reproducible = o.reproducible;
+    return LENSRT_SUCCESS;
+}
+
+lensrt_result lensrt_render_write_exr_with(lensrt_render r, const char *path, const lensrt_exr_options *options)
+{
+    int reproducible;
+    lensrt_result res;
+    if (!r) return LENSRT_ERROR_INVALID_ARGUMENT;
+    // Read the options by their struct_size (ABI rules), then check the flag
+    if ((res = exr_options_in(r->ctx, path, options, &reproducible)) != LENSRT_SUCCESS) return res;
+    return write_image_as(&r, 1, path, 1, 0.0, reproducible);
 }
 
 lensrt_result lensrt_render_write_png(lensrt_render r, const char *path, double decades)
@@ -304,6 +316,12 @@ static lensrt_result check_layers(lensrt_context ctx, const lensrt_exr_layer *la
 
 lensrt_result lensrt_layers_write_exr(const lensrt_exr_layer *layers, int n_layers, const char *path)
 {
+    return lensrt_layers_write_exr_with(layers, n_layers, path, NULL);
+}
+
+lensrt_result lensrt_layers_write_exr_with(const lensrt_exr_layer *layers, int n_layers, const char *path,
+                                           const lensrt_exr_options *options)
+{
     lensrt_exr_layer *ls = NULL;
     lensrt_render *all = NULL, r0;
     lensrt_exr_image *images = NULL;
@@ -313,7 +331,7 @@ lensrt_result lensrt_layers_write_exr(const lensrt_exr_layer *layers, int n_laye
     lensrt_result res = LENSRT_SUCCESS;
     char err[LENSRT_ERROR_SIZE] = "", aperture[128], *text = NULL;
     size_t size, n_total = 0;
-    int i, n_all = 0;
+    int i, n_all = 0, reproducible = 0;
 
     // Step 1: a context for messages, the first layer's first render's (a caller's struct
     // too small to hold our fields, e.g. zeroed without its INIT macro, has none to read)
@@ -326,6 +344,7 @@ lensrt_result lensrt_layers_write_exr(const lensrt_exr_layer *layers, int n_laye
     if (n_layers > LENSRT_MAX_LAYERS)
         return lensrt_fail(ctx, LENSRT_ERROR_INVALID_ARGUMENT, "EXR '%s': %d layers, at most %d",
                            path ? path : "(null)", n_layers, LENSRT_MAX_LAYERS);
+    if ((res = exr_options_in(ctx, path, options, &reproducible)) != LENSRT_SUCCESS) return res;
 
     // Step 2: the layers, read and checked; every render of every layer, in order
     for (i = 0; i < n_layers; i++) {
@@ -362,6 +381,7 @@ lensrt_result lensrt_layers_write_exr(const lensrt_exr_layer *layers, int n_laye
         goto done;
     }
     meta.layers = text;
+    meta.reproducible = reproducible;
     res = lensrt_write_exr_layers(&ctx->allocator, path, r0->width, r0->height, r0->n_wl, r0->wavelengths,
                                   n_layers + 1, images, &meta, err, sizeof err);
     if (res != LENSRT_SUCCESS && err[0]) lensrt_fail(ctx, res, "%s", err);

@@ -232,3 +232,36 @@ def test_cli_reports_a_bad_spec_in_one_line(tmp_path: Path) -> None:
                         str(tmp_path / "b")], capture_output=True, text=True, timeout=120)
     assert r.returncode == 2
     assert r.stderr.count("\n") == 1 and "key 'render.threads'" in r.stderr, r.stderr
+
+
+def test_flare_bank_holds_direct_and_ghost_layers(tmp_path: Path) -> None:
+    """A flare bank: ghost 0-2 of 0001 with the direct image in one fixed window (its
+    footprint at f/16 for a light near (-6, -4) deg); the node EXR's unprefixed channels
+    are the sum of its direct. and flare. layers, and the C reader (registration window:
+    no shift) gives a node's own image at that node's field point."""
+    import numpy as np
+    from lensrt_ctypes import Bank, Lensrt
+    from lensrt_exr import exr_layers, read_spectral_exr
+
+    spec = spec_file(tmp_path, 'integrator = "cells"\ntarget_error = 0.05', "flare", **{
+        "field_x_deg = [0, 5, 10]": "field_x_deg = [-6, -5]",
+        "field_y_deg = [0]": "field_y_deg = [-4]", "f_numbers = [8]": "f_numbers = [16]",
+        "wavelengths_nm = [500, 600]": "wavelengths_nm = [550]",
+        "pixels = [24, 24]": "pixels = [24, 16]",
+        "size_mm = [0.06, 0.06]": "size_mm = [1.2, 0.8]\ncenter_mm = [-10.1, -6.7]",
+        "[render]": '[flare]\nghosts = ["0-2"]\n[render]'})
+    out = tmp_path / "bank"
+    s = run_bank(spec, out, workers=0, progress=False, sheet=False)
+    assert s.nodes == 2 and 0 <= s.worst_error <= 0.05
+    exr = out / "nodes" / "f0-z0-d0-y0-x0.exr"
+    assert exr_layers(exr) == ["", "direct", "flare"]
+    total, direct, flare = (read_spectral_exr(exr, layer=x).spectral
+                            for x in ("", "direct", "flare"))
+    assert flare.sum() > 0
+    # The sum in float: within a float's rounding of each pixel's two terms
+    np.testing.assert_allclose(total, direct + flare, rtol=2.0**-22, atol=0)
+    assert "registration window" in (out / "bank.index").read_text()
+    rt = Lensrt(threads=1)
+    with Bank(rt, out / "bank.index") as bank:
+        img, _ = bank.psf(-6.0, -4.0, 550.0, f_number=16)
+    np.testing.assert_array_equal(img, total[0])
