@@ -75,16 +75,20 @@ def run_tasks(fn: Callable[[dict[str, Any]], dict[str, Any]], jobs: Sequence[dic
     return [r for r in results if r is not None]
 
 
-def _run_dask(fn, jobs, keys, scheduler, workers, retries, bar, results, failures) -> None:
-    from distributed import Client, LocalCluster, as_completed
+def local_cluster(workers: int | None = None):
+    """The embedded default: worker processes on this machine, one thread each (lensrt
+    has its own threads, set by the job), quiet unless something goes wrong."""
+    from distributed import LocalCluster
 
-    cluster = None
-    if scheduler is None:
-        # The embedded default: worker processes on this machine, one thread each (lensrt
-        # has its own threads, set by the job)
-        cluster = LocalCluster(n_workers=workers or default_workers(), threads_per_worker=1,
-                               processes=True, dashboard_address=":0",
-                               silence_logs=logging.ERROR)
+    logging.getLogger("distributed").setLevel(logging.ERROR)
+    return LocalCluster(n_workers=workers or default_workers(), threads_per_worker=1,
+                        processes=True, dashboard_address=":0", silence_logs=logging.ERROR)
+
+
+def _run_dask(fn, jobs, keys, scheduler, workers, retries, bar, results, failures) -> None:
+    from distributed import Client, as_completed
+
+    cluster = local_cluster(workers) if scheduler is None else None
     try:
         with Client(cluster if cluster is not None else scheduler) as client:
             futures = client.map(fn, jobs, key=list(keys), pure=False, retries=retries)

@@ -10,7 +10,6 @@ enough to be killed mid-task) or a fraction of one by the cells integrator.
 
 from __future__ import annotations
 
-import logging
 import os
 import signal
 import subprocess
@@ -101,14 +100,14 @@ def test_local_cluster_equals_one_process(tmp_path: Path) -> None:
 
 
 def test_worker_killed_while_it_holds_a_task(tmp_path: Path, reference_mc: Path) -> None:
-    from distributed import Client, LocalCluster
+    from distributed import Client
+
+    from lensfit.banks.engine import local_cluster
 
     spec = spec_file(tmp_path, MONTE_CARLO, "mc")
     out = tmp_path / "bank"
     result: dict = {}
-    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
-                      dashboard_address=":0", silence_logs=logging.ERROR) as cluster, \
-            Client(cluster) as client:
+    with local_cluster(2) as cluster, Client(cluster) as client:
         pids = client.run(os.getpid)
         run = threading.Thread(target=lambda: result.update(summary=run_bank(
             spec, out, scheduler=cluster.scheduler_address, progress=False, sheet=False)))
