@@ -737,7 +737,7 @@ LENSRT_API lensrt_result lensrt_layers_write_exr_with(const lensrt_exr_layer *la
  *
  *   lensrt-bank 1
  *   lens <name, printable ASCII without spaces>
- *   table_crc32 <8 lowercase hex digits: the lens table's checksum>
+ *   table_crc32 <8 lowercase hex digits: CRC-32 of the lens table file's bytes>
  *   width <pixels>
  *   height <pixels>
  *   pixel_mm <pitch x> <pitch y>                     > 0

@@ -19,7 +19,7 @@ from pathlib import Path
 from typing import Any
 
 from lensfit.atomic import OutputError, make_folder, write_atomic
-from lensfit.banks.engine import run_tasks
+from lensfit.banks.engine import default_workers, run_tasks
 from lensfit.banks.index import INDEX_NAME, index_text
 from lensfit.banks.node import file_crc32, finished_record, render_node, stem
 from lensfit.banks.spec import BankSpec, SpecError, load_spec
@@ -44,7 +44,8 @@ class Summary:
         worst = f"{self.worst_error:.2%}" if self.worst_error >= 0 else "none (Monte Carlo)"
         return (f"bank {self.index.parent}: {self.nodes} nodes ({self.rendered} rendered, "
                 f"{self.skipped} already finished), worst error estimate {worst}, "
-                f"{self.cpu_seconds:.1f} CPU-seconds of rendering, {self.wall_seconds:.1f} s")
+                f"{self.cpu_seconds:.1f} CPU-seconds of rendering, {self.wall_seconds:.1f} s "
+                "in all")
 
 
 def resolve_table(lens: str, base: Path, generated: Path | None = None) -> Path:
@@ -248,5 +249,7 @@ def run_bank(spec_path: str | Path, out: str | Path, *, scheduler: str | None = 
     return Summary(nodes=len(records), rendered=len(rendered),
                    skipped=len(records) - len(rendered),
                    worst_error=max(errors) if min(errors) >= 0 else -1.0,
-                   cpu_seconds=sum(r["seconds"] for r in rendered),
+                   # each task's render seconds times its lensrt threads (0: all cores)
+                   cpu_seconds=sum(r["seconds"] for r in rendered)
+                   * (spec.render.threads or default_workers()),
                    wall_seconds=time.perf_counter() - t0, index=index)
