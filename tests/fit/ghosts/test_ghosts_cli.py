@@ -124,7 +124,7 @@ def test_fit_writes_ghost_tables_and_merges_named_ones(singlet, tmp_path, capsys
         {"format": "lensfit-ghosts 1", "ghosts": [{"label": "9-9", "first": 9, "second": 9}]}))
     (out / "ghost_9_9.table").write_text("stand-in")
     args = ["ghosts", singlet, "--f-number", "8", "--rays", "2000", "--count", "1", "--fit",
-            "--generated", str(gen)]
+            "--generated", str(gen), "--workers", "0"]  # here: test_ghost_tasks runs Dask
     assert main([*args, "--ghost", "0-1", "--add", "--c", "--glsl"]) == 0
     assert {"lenssinglet_ghost_1_2.c", "lenssinglet_ghost_1_2.h",
             "lenssinglet_ghost_1_2.glsl"} <= {p.name for p in out.iterdir()}  # when asked
