@@ -9,12 +9,12 @@ checked JSON record ``<lens folder>/.ghost-tasks/<stem>-<digest>.json``, atomica
 
 The digest covers everything the fit depends on (the lens file's bytes and coating
 variant, the light, the f-number, the ghost, the enumeration's rays, the direct fit's
-record, the code asked for), so nothing is mixed:
+record), so nothing is mixed:
 
 * a rerun after a crash or a SIGKILL (of a worker: the scheduler retries the task; of the
   driver: the same command again) fits only the ghosts without a record;
 * a ghost whose entry in the folder's ghosts.json carries the same digest, with its table
-  unchanged, is not fitted again either;
+  unchanged (and its C or GLSL there when asked for), is not fitted again either;
 * when every kept ghost of a lens is done, its folder is written (write_folder) and its
   records removed; a lens with a failed ghost keeps its records for the next run.
 """
@@ -53,12 +53,11 @@ class LensPlan:
     jobs: list[dict[str, Any]] = field(default_factory=list)
 
 
-def _digest(plan: LensPlan, g, c: bool, glsl: bool) -> str:
+def _digest(plan: LensPlan, g) -> str:
     key = {"lens": hashlib.sha256(plan.lens_bytes).hexdigest(), "variant": plan.lens.variant,
            "light": list(plan.light), "f_number": plan.info["f_number"],
            "distance_mm": repr(plan.distance_mm), "rays": plan.rays,
-           "ghost": [g.first, g.second], "fit_json_crc32": plan.fit_json_crc, "c": c,
-           "glsl": glsl}
+           "ghost": [g.first, g.second], "fit_json_crc32": plan.fit_json_crc}
     return hashlib.sha256(json.dumps(key, sort_keys=True).encode()).hexdigest()[:16]
 
 
@@ -96,19 +95,35 @@ def fit_ghost_task(job: dict[str, Any]) -> dict[str, Any]:
     return {"record": job["record"], "line": line}
 
 
-def _record(path: Path, digest: str) -> dict[str, Any] | None:
+def _asked(files: dict[str, str], stem: str, c: bool, glsl: bool) -> dict[str, str] | None:
+    """The files of a fitted ghost this run asks for (its table, its C with ``c``, its
+    GLSL with ``glsl``), or None when one of them is missing (it is fitted again)."""
+    kinds = {".table": True, ".c": c, ".h": c, ".glsl": glsl}
+    out = {n: t for n, t in files.items() for ext, want in kinds.items()
+           if want and n.endswith(f"{stem}{ext}")}
+    have = {ext for n in out for ext in kinds if n.endswith(f"{stem}{ext}")}
+    return out if have == {ext for ext, want in kinds.items() if want} else None
+
+
+def _record(path: Path, digest: str, g, c: bool, glsl: bool) -> dict[str, Any] | None:
+    """A task's record of the ghost for the same inputs, with the files this run asks
+    for; None when there is none (or it is damaged or lacks a file asked for)."""
     if not path.is_file():
         return None
     try:
         doc = load_checked_json(path, "it is fitted again")
     except InputError:
         return None  # damaged: fitted again, then replaced
-    return doc if doc.get("digest") == digest else None
+    if doc.get("digest") != digest or not isinstance(doc.get("files"), dict):
+        return None
+    files = _asked(doc["files"], stem_of(g), c, glsl)
+    return None if files is None else {**doc, "files": files}
 
 
-def _from_folder(out: Path, before: list[dict[str, Any]], g, digest: str
-                 ) -> dict[str, Any] | None:
-    """The ghost as the folder already holds it, when fitted for the same digest."""
+def _from_folder(out: Path, before: list[dict[str, Any]], g, digest: str, c: bool,
+                 glsl: bool) -> dict[str, Any] | None:
+    """The ghost as the folder already holds it, when fitted for the same inputs and
+    holding the files this run asks for."""
     for e in before:
         if e.get("task_digest") == digest and e.get("label") == g.name:
             table = out / f"{stem_of(g)}.table"
@@ -118,8 +133,10 @@ def _from_folder(out: Path, before: list[dict[str, Any]], g, digest: str
                 return None
             if f"{zlib.crc32(text.encode()) & 0xFFFFFFFF:08x}" != e.get("table_crc32"):
                 return None
-            files = {p.name: p.read_text(encoding="utf-8")
-                     for p in out.glob(f"*{stem_of(g)}.*")}
+            files = _asked({p.name: p.read_text(encoding="utf-8")
+                            for p in out.glob(f"*{stem_of(g)}.*")}, stem_of(g), c, glsl)
+            if files is None:
+                return None
             return {"files": files, "entry": e, "line": f"ghost {g.name}: as fitted before "
                                                         f"({table})"}
     return None
@@ -144,9 +161,10 @@ def plan_jobs(plan: LensPlan, *, c: bool, glsl: bool) -> list[dict[str, Any]]:
     before = _before(out)
     jobs = []
     for g in plan.ghosts:
-        digest = _digest(plan, g, c, glsl)
+        digest = _digest(plan, g)
         record = work / f"{stem_of(g)}-{digest}.json"
-        if _record(record, digest) or _from_folder(out, before, g, digest):
+        if _record(record, digest, g, c, glsl) or _from_folder(out, before, g, digest, c,
+                                                                glsl):
             continue
         comment = header_comment(plan.lens, f"Ghost {g.name} (reflect at surface "
                                             f"{g.second_file}, then {g.first_file}): "
@@ -172,9 +190,10 @@ def write_lens(plan: LensPlan, *, c: bool, glsl: bool, add: bool) -> list[str]:
     files: dict[str, str] = {}
     report, lines, used = [], [], []
     for g in plan.ghosts:
-        digest = _digest(plan, g, c, glsl)
+        digest = _digest(plan, g)
         record_path = work / f"{stem_of(g)}-{digest}.json"
-        done = _record(record_path, digest) or _from_folder(out, before, g, digest)
+        done = (_record(record_path, digest, g, c, glsl)
+                or _from_folder(out, before, g, digest, c, glsl))
         if done is None:
             raise InputError(f"{record_path}: ghost {g.name} of {plan.folder.name} has no "
                              "record: run the command again")
