@@ -32,6 +32,8 @@ import time
 from collections.abc import Callable, Sequence
 from typing import Any
 
+from lensfit.errors import InputError
+
 
 class TaskError(RuntimeError):
     """Tasks that failed after their retries, each named with its error."""
@@ -99,7 +101,15 @@ def _run_dask(fn, jobs, keys, scheduler, workers, retries, bar, results, failure
 
     cluster = local_cluster(workers) if scheduler is None else None
     try:
-        with Client(cluster if cluster is not None else scheduler) as client:
+        if cluster is not None:
+            client = Client(cluster)
+        else:
+            try:
+                client = Client(scheduler)  # distributed.comm.timeouts.connect: 30 s
+            except (OSError, TimeoutError, ValueError) as e:
+                raise InputError(f"--scheduler {scheduler}: cannot reach a Dask scheduler "
+                                 f"there: {e}") from None
+        with client:
             futures = client.map(fn, jobs, key=list(keys), pure=False, retries=retries)
             where = {f.key: i for i, f in enumerate(futures)}
             for future in as_completed(futures):

@@ -265,3 +265,14 @@ def test_flare_bank_holds_direct_and_ghost_layers(tmp_path: Path) -> None:
     with Bank(rt, out / "bank.index") as bank:
         img, _ = bank.psf(-6.0, -4.0, 550.0, f_number=16)
     np.testing.assert_array_equal(img, total[0])
+
+
+def test_unreachable_scheduler_is_one_line(tmp_path: Path) -> None:
+    spec = spec_file(tmp_path)
+    r = subprocess.run([sys.executable, "-m", "lensfit.cli", "bank", str(spec), "-o",
+                        str(tmp_path / "b"), "--scheduler", "tcp://127.0.0.1:9",
+                        "--no-progress"], capture_output=True, text=True, timeout=120,
+                       env={**os.environ, "DASK_DISTRIBUTED__COMM__TIMEOUTS__CONNECT": "2s"})
+    assert r.returncode == 2
+    assert r.stderr.count("\n") == 1 and "--scheduler tcp://127.0.0.1:9: cannot reach" in \
+        r.stderr, r.stderr
