@@ -213,7 +213,7 @@ def _monte_carlo(r, phasors: Path, r_spec: dict[str, Any]) -> int:
         except LensrtError:
             phasors.unlink(missing_ok=True)
             done = 0
-        if done > total:  # saved by a spec with more samples: start again
+        if done > total:  # loaded sums cannot be taken back out of the render: refused
             raise InputError(f"{phasors}: holds {done} samples per wavelength, more than the "
                              f"spec's {total}; remove it")
     for step in range(1, steps + 1):

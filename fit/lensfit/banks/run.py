@@ -227,15 +227,18 @@ def run_bank(spec_path: str | Path, out: str | Path, *, scheduler: str | None = 
                        "spec_digest": spec.digest(), "spec": spec.to_dict()}, restart)
 
     jobs = plan(spec, out.resolve(), table, crc, lens_name, library, ghosts)
-    pending = [j for j in jobs if finished_record(j) is None]
+    finished = {j["k"]: finished_record(j) for j in jobs}
+    pending = [j for j in jobs if finished[j["k"]] is None]
     keys = [f"bank-{j['digest'][:12]}-{j['stem'].split('/')[-1]}" for j in pending]
     done = run_tasks(render_node, pending, keys, scheduler=scheduler, workers=workers,
                      progress=progress, label=f"bank {spec.name}")
 
-    # Every node finished: the index, from the records as written
+    # Every node finished: the index, from the records as written (checked above, or
+    # returned by the task that wrote them)
+    finished.update({r["k"]: r for r in done})
     records = []
     for j in jobs:
-        rec = finished_record(j)
+        rec = finished[j["k"]]
         if rec is None:
             raise OutputError(f"{out / j['stem']}.json: node {j['k']} did not finish")
         records.append(rec)
