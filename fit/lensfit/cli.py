@@ -212,6 +212,15 @@ def _direct_fit(lens, args: argparse.Namespace, lens_arg: str):
     return folder, direct, domain
 
 
+def _check_dask_args(args: argparse.Namespace) -> None:
+    """--workers and --scheduler (lensfit.banks.engine) of bank and ghosts --fit."""
+    if args.workers is not None and args.workers < 0:
+        raise InputError(f"--workers {args.workers}: expected 0 (this process) or more")
+    if args.scheduler is not None and args.workers is not None:
+        raise InputError("--workers and --scheduler: the cluster at the address has its own "
+                         "workers; give one of them")
+
+
 def cmd_ghosts(args: argparse.Namespace) -> int:
     """The ghosts of each lens named, ranked by peak irradiance relative to the direct
     PSF's (lensfit.ghosts.enumerate): every check before the trace, the table or JSON
@@ -224,11 +233,7 @@ def cmd_ghosts(args: argparse.Namespace) -> int:
             what = {"add": "adds fitted ghosts to a lens folder", "c": "writes fitted ghosts' C",
                     "glsl": "writes fitted ghosts' GLSL"}.get(flag, "runs the fits on Dask")
             raise InputError(f"--{flag}: {what}, so it needs --fit")
-    if args.workers is not None and args.workers < 0:
-        raise InputError(f"--workers {args.workers}: expected 0 (this process) or more")
-    if args.scheduler is not None and args.workers is not None:
-        raise InputError("--workers and --scheduler: the cluster at the address has its own "
-                         "workers; give one of them")
+    _check_dask_args(args)
     if not (math.isfinite(args.threshold) and args.threshold > 0):
         raise InputError(f"--threshold {args.threshold}: expected a positive relative peak")
     if not 100 <= args.rays <= 10**7:
@@ -735,11 +740,7 @@ def cmd_bank(args: argparse.Namespace) -> int:
     from lensfit.banks.engine import TaskError
     from lensfit.banks.run import run_bank
 
-    if args.workers is not None and args.workers < 0:
-        raise InputError(f"--workers {args.workers}: expected 0 (this process) or more")
-    if args.scheduler is not None and args.workers is not None:
-        raise InputError("--workers and --scheduler: the cluster at the address has its own "
-                         "workers; give one of them")
+    _check_dask_args(args)
     out = Path(args.out) if args.out else Path("build") / "banks" / Path(args.spec).stem
     try:
         summary = run_bank(args.spec, out, scheduler=args.scheduler, workers=args.workers,
