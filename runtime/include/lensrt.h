@@ -52,7 +52,7 @@ extern "C" {
  * when a program built against one header runs with a newer shared library, which the
  * versioned structs below allow within one major version. */
 #define LENSRT_VERSION_MAJOR 0
-#define LENSRT_VERSION_MINOR 5
+#define LENSRT_VERSION_MINOR 6
 #define LENSRT_VERSION_PATCH 0
 #define LENSRT_VERSION \
     ((uint32_t)LENSRT_VERSION_MAJOR * 1000000u + (uint32_t)LENSRT_VERSION_MINOR * 1000u + \
@@ -551,6 +551,38 @@ LENSRT_API lensrt_result lensrt_render_splat_points(lensrt_render render, int wa
 LENSRT_API lensrt_result lensrt_render_integrate(lensrt_render render, int32_t rings, double *error_estimate,
                                       lensrt_progress_fn progress, void *user_data);
 
+/* The Fourier integrator (since 0.6.0), beside run() and integrate(): the field of a
+ * whole window at once. The aperture's integral is a Gauss-Legendre product rule of
+ * `nodes` x `nodes` points on each fan sector (circle, straight or curved blades; a slit
+ * is a rectangle), following the true boundary, so that it converges spectrally once the
+ * nodes resolve the waves of phase across the aperture (about 2 per wave). Around the
+ * centre of a tile of pixels the phase is linear in the pixel's position plus a small
+ * rest: the linear part makes every pixel's sum over the nodes one type-1 non-uniform
+ * FFT for the whole tile; the rest and the amplitude are interpolated across the tile
+ * on Chebyshev nodes (a tile the interpolation cannot follow to 1e-4 is split). The cost
+ * is (nodes + pixels log pixels) per tile and wavelength, instead of their product; the
+ * integrand is the one run() samples (P_o and P_s terms pruned only below 1e-4 / 2 pi
+ * waves), with the same units.
+ *
+ * With error_estimate non-NULL a rule of ceil(1.5 nodes) nodes (and tolerances a tenth)
+ * is integrated as well and *error_estimate is the relative L2 distance of this image
+ * from that one over every pixel and wavelength: the error of the image the sums hold
+ * (the `nodes` one), the finer image's own error being far smaller once the rule
+ * converges. A call with the previous call's finer nodes reuses that field (a
+ * refinement costs one new rule). The sums hold the field; image(), rgb() and the writers
+ * show it; run(), splat_points(), tiles and save/load/merge refuse such a render.
+ *
+ * Clips that cut the aperture (the outer or inner pupil vignetting some paths, a ghost's
+ * P_clip) are not resolved: such a render is LENSRT_ERROR_UNSUPPORTED with a message
+ * naming the clip, the point and the wavelength, and lensrt_render_integrate (cells)
+ * serves it. So are the GL device, one-dimensional lenses, precision NAIVE_FLOAT and
+ * the unbiased estimator. Each wavelength is made by one thread: the result does not
+ * depend on the threads. */
+#define LENSRT_MAX_FOURIER_NODES 4096
+LENSRT_API lensrt_result lensrt_render_integrate_fourier(lensrt_render render, int32_t nodes,
+                                                         double *error_estimate, lensrt_progress_fn progress,
+                                                         void *user_data);
+
 /* Host-scheduled tiles: the same samples as lensrt_render_run(render, samples_per_wavelength,
  * NULL, NULL), rendered one rectangle of the window at a time on threads the caller
  * schedules (TBB, its own pool). The sums after tiles_end equal those of that run() bit
@@ -628,8 +660,11 @@ typedef struct lensrt_render_stats {
      * error estimate (-1: none asked for) */
     int32_t cells_rings;
     double cells_error_estimate;
+    /* Since 0.6.0: the nodes per side of the Fourier integral the sums hold (0: none; its
+     * error estimate is then cells_error_estimate) */
+    int32_t fourier_nodes;
 } lensrt_render_stats;
-#define LENSRT_RENDER_STATS_INIT {sizeof(lensrt_render_stats), 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0}
+#define LENSRT_RENDER_STATS_INIT {sizeof(lensrt_render_stats), 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0}
 
 LENSRT_API lensrt_result lensrt_render_get_stats(lensrt_render render, lensrt_render_stats *out);
 /* The wavelengths in use (n_wavelengths of them). */

@@ -36,6 +36,9 @@ GL_PLATFORMS = {"auto": 0, "egl-device": 1, "egl-surfaceless": 2, "glfw": 3, "ca
 
 CELLS_FIRST_RINGS = 8  # the cells integrator's first mesh in integrate_to
 CELLS_MAX_RINGS = 512
+FOURIER_FIRST_NODES = 0  # integrate_fourier_to's first rule: 0, the library's choice
+FOURIER_MAX_NODES = 2048
+FOURIER_REFINE = 1.5  # lensrt.h: the finer rule of the estimate has ceil(1.5 nodes) nodes
 
 
 def next_rings(rings: int, estimate: float, target: float) -> int:
@@ -153,7 +156,8 @@ class Stats(Versioned):
                 ("f_number", C.c_double), ("phase_terms", C.c_double),
                 ("clip_fraction", C.c_double), ("tau_fraction", C.c_double),
                 ("dark_fraction", C.c_double),
-                ("cells_rings", C.c_int32), ("cells_error_estimate", C.c_double)]
+                ("cells_rings", C.c_int32), ("cells_error_estimate", C.c_double),
+                ("fourier_nodes", C.c_int32)]
 
 
 class Render:
@@ -193,6 +197,49 @@ class Render:
             est = self.integrate(rings)
             assert est is not None
         return rings, float(est)
+
+    def integrate_fourier(self, nodes: int, estimate: bool = True) -> float | None:
+        """The Fourier integrator (lensrt_render_integrate_fourier, 0.6.0): the sums become
+        the field of a Gauss rule of ``nodes`` per side; returns the image's estimated
+        relative L2 error (None when not asked for). A clip cutting the aperture raises
+        LensrtError with Result.UNSUPPORTED (integrate() resolves clips)."""
+        fn = _need(self.rt.lib, "lensrt_render_integrate_fourier")
+        fn.argtypes = [C.c_void_p, C.c_int32, C.POINTER(C.c_double), C.c_void_p, C.c_void_p]
+        err = C.c_double(-1.0)
+        self.rt._check(fn(self.handle, C.c_int32(nodes), C.byref(err) if estimate else None,
+                          None, None))
+        return err.value if estimate else None
+
+    def integrate_fourier_to(self, target: float, first_nodes: int = FOURIER_FIRST_NODES,
+                             max_nodes: int = FOURIER_MAX_NODES) -> tuple[int, float]:
+        """Refine the Fourier rule (nodes x 1.5 a step, each reusing the last step's finer
+        rule) until the estimate is within ``target`` or the next rule would pass
+        ``max_nodes``; the nodes and estimate of the image the sums hold. ``first_nodes``
+        0: the library's choice from the phase's slope over the aperture."""
+        est = self.integrate_fourier(first_nodes)
+        assert est is not None
+        nodes = int(self.stats().fourier_nodes)
+        def finer(n: int) -> int:
+            return math.ceil(FOURIER_REFINE * n)
+
+        while est > target and finer(finer(nodes)) <= max_nodes:
+            nodes = finer(nodes)
+            est = self.integrate_fourier(nodes)
+            assert est is not None
+        return nodes, float(est)
+
+    def integrate_auto_to(self, target: float) -> tuple[str, int, float]:
+        """The Fourier integrator to ``target`` (integrate_fourier_to), or where a clip cuts
+        the aperture (it refuses: Result.UNSUPPORTED) the cells integrator
+        (integrate_to): ("fourier", nodes, estimate) or ("cells", rings, estimate)."""
+        try:
+            nodes, est = self.integrate_fourier_to(target)
+            return "fourier", nodes, est
+        except LensrtError as e:
+            if e.code != Result.UNSUPPORTED:
+                raise
+        rings, est = self.integrate_to(target)
+        return "cells", rings, est
 
     def splat_points(self, xy_mm: np.ndarray, wavelength: int = 0) -> None:
         xy = np.ascontiguousarray(xy_mm, dtype=np.float64)

@@ -26,9 +26,11 @@ the brightest ghost pixel over them, so that the uncoated flare is as much brigh
 it is. The tone map is logarithmic over DECADES decades below white; the direct image
 saturates, as in a photograph of a bright light. Colours are lensrt's linear sRGB (CIE
 1931 2-degree observer, D65). Writes the PNG and, beside it, a JSON with each image's
-window, power and seconds, and how it was integrated: with ``--integrator cells`` (the
-default) the rings of its mesh and its error estimate (each image refined until the
-estimate is within ``--target-error``, default 1%); with ``montecarlo`` its samples and
+window, power and seconds, and how it was integrated: with ``--integrator auto`` (the
+default) the Fourier integrator's nodes, or where a clip cuts the aperture (most ghosts)
+the cells integrator's rings, with ``cells`` the rings, and the error estimate (each
+image refined until the estimate is within ``--target-error``, default 1%); with
+``montecarlo`` its samples and
 Monte Carlo floor (a power then includes the floor: the paper's estimator adds it to
 every pixel, so it reads high by about that share).
 """
@@ -76,11 +78,14 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p.add_argument("--floor", type=float, default=0.03,
                    help="Monte Carlo floor aimed at, relative to a ghost's own level "
                         "(default 0.03; module doc)")
-    p.add_argument("--integrator", choices=("cells", "montecarlo"), default="cells",
-                   help="cells (default): lensrt_render_integrate to --target-error; "
-                        "montecarlo: samples within --floor and --splats")
+    p.add_argument("--integrator", choices=("auto", "cells", "montecarlo"), default="auto",
+                   help="auto (default): the Fourier integrator to --target-error, the cells "
+                        "integrator where a clip cuts the aperture; cells: "
+                        "lensrt_render_integrate to --target-error; montecarlo: samples within "
+                        "--floor and --splats")
     p.add_argument("--target-error", type=float, default=0.01,
-                   help="cells: the relative L2 error each image is refined to (default 0.01)")
+                   help="auto, cells: the relative L2 error each image is refined to "
+                        "(default 0.01)")
     p.add_argument("--splats", type=float, default=1e10,
                    help="most splats per image (samples x pixels x wavelengths; default "
                         "1e10, ~10 s on 2 cores): larger ghosts get fewer samples and a "
@@ -176,6 +181,11 @@ def render_window(rt, table: Path, frame: Frame, win, f_number: float,
     how: dict = {}
     if args.integrator == "cells":
         how["rings"], how["error_estimate"] = r.integrate_to(args.target_error)
+        how["integrator"] = "cells"
+    elif args.integrator == "auto":
+        kind, count, how["error_estimate"] = r.integrate_auto_to(args.target_error)
+        how["integrator"] = kind
+        how["nodes" if kind == "fourier" else "rings"] = count
     else:
         r.run(samples)
         how["samples"] = samples
@@ -192,6 +202,8 @@ def direct_power(rt, table: Path, centre: tuple[float, float], f_number: float,
                   f_number=f_number, lights=[light], wavelengths=args.wavelengths)
     if args.integrator == "cells":
         r.integrate_to(args.target_error)
+    elif args.integrator == "auto":
+        r.integrate_auto_to(args.target_error)
     else:
         r.run(MIN_SAMPLES)
     return float(r.image().sum(axis=(1, 2)).mean()) * (0.2 / 128) ** 2
@@ -249,8 +261,10 @@ def render_panel(rt, folder: Path, f_number: float, light, frame: Frame, args):
         if args.integrator == "montecarlo":
             how["floor"] = floor
             said = f"{n} samples (floor {floor:.1%})"
+        elif how["integrator"] == "fourier":
+            said = f"Fourier, {how['nodes']} nodes (error estimate {how['error_estimate']:.2%})"
         else:
-            said = f"{how['rings']} rings (error estimate {how['error_estimate']:.2%})"
+            said = f"cells, {how['rings']} rings (error estimate {how['error_estimate']:.2%})"
         record.append({"image": name, "window": list(w), "power": power, **how,
                        "seconds": time.perf_counter() - t0})
         print(f"  {folder.name} {name}: {i1 - i0} x {j1 - j0} pixels, {said}, power {power:.4g}, "
@@ -286,7 +300,7 @@ def main(argv: list[str] | None = None) -> int:
         ax.imshow(tone_map(p["direct"] + p["flare"], white, DECADES),
                   extent=(-frame.w_mm / 2, frame.w_mm / 2, -frame.h_mm / 2, frame.h_mm / 2))
         shown = [r for r in p["record"] if r["image"] != "direct" and r["window"]]
-        if args.integrator == "cells":
+        if args.integrator != "montecarlo":
             worst = max((r["error_estimate"] for r in shown), default=0.0)
             said = f"error estimate at most {worst:.1%} of a ghost's image"
         else:

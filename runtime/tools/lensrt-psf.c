@@ -83,10 +83,17 @@ static void usage(FILE *f)
         "                         with ghosts: -o OUT.exr holds the total (direct + ghosts) in its\n"
         "                         unprefixed channels and layers direct. and flare. (the ghosts'\n"
         "                         sum); --png shows the total\n"
-        "  --integrator montecarlo|cells\n"
+        "  --integrator montecarlo|cells|fourier|auto\n"
         "                         montecarlo (default): the samples above; cells: the deterministic\n"
         "                         integrator (closed-form integrals over a triangle mesh of the\n"
-        "                         aperture), its error estimated from a mesh half as fine\n"
+        "                         aperture), its error estimated from a mesh half as fine;\n"
+        "                         fourier: a Gauss rule over the aperture and one non-uniform FFT\n"
+        "                         per tile of pixels, its error estimated against 1.5 x the nodes\n"
+        "                         (refuses apertures a clip cuts); auto: fourier, else cells\n"
+        "  --nodes N              fourier: Gauss nodes per side of each aperture sector (default 0:\n"
+        "                         chosen from the phase's slope over the aperture, 1.5 per wave);\n"
+        "                         --target-error refines them (x 1.5) until the estimate is <= E\n"
+        "  --max-nodes N          fourier: stop refining there (default 2730)\n"
         "  --rings N              cells: mesh rings (6 N^2 triangles, blades N^2 each; default 32);\n"
         "                         --target-error refines them (x 1.25 .. 2, from the estimate)\n"
         "                         until the estimate is <= E\n"
@@ -375,6 +382,60 @@ static lensrt_result integrate_cells(lensrt_render r, int rings, int max_rings, 
     }
 }
 
+/* The Fourier integrator (lensrt_render_integrate_fourier) from `nodes` on, refining by
+ * 1.5 (each step reuses the last one's finer rule) while a target error is set, not
+ * reached and max_nodes allows; *used and *err: the last rule and its estimate. */
+static lensrt_result integrate_fourier(lensrt_render r, int nodes, int max_nodes, double target, progress_state *ps,
+                                       const char *what, int *used, double *err)
+{
+    char label[128];
+    lensrt_result res;
+    for (;;) {
+        if (nodes) snprintf(label, sizeof label, "%s, %d nodes", what, nodes);
+        else snprintf(label, sizeof label, "%s, nodes from the phase", what);
+        ps->label = label;
+        ps->round_start = now_seconds();
+        ps->base = 0.0;
+        ps->span = 1.0;
+        res = lensrt_render_integrate_fourier(r, nodes, err, on_progress, ps);
+        if (!ps->quiet) fprintf(stderr, "\n");
+        if (res != LENSRT_SUCCESS) return res;
+        {
+            // The rule used (the library's choice when nodes is 0)
+            lensrt_render_stats st = LENSRT_RENDER_STATS_INIT;
+            lensrt_render_get_stats(r, &st);
+            *used = nodes = st.fourier_nodes;
+        }
+        snprintf(label, sizeof label, "%s, %d nodes", what, nodes);
+        if (!ps->quiet) fprintf(stderr, "lensrt-psf: %s: Fourier error estimate %.3g%%\n", label, 100.0 * *err);
+        if (target <= 0 || *err <= target) return LENSRT_SUCCESS;
+        if ((int)ceil(1.5 * ceil(1.5 * nodes)) > max_nodes) {
+            fprintf(stderr, "lensrt-psf: warning: --target-error %g not reached within --max-nodes %d (%s): "
+                    "the estimate is %.3g%%\n", target, max_nodes, what, 100.0 * *err);
+            return LENSRT_SUCCESS;
+        }
+        nodes = (int)ceil(1.5 * nodes);
+    }
+}
+
+/* A deterministic integral of one render: cells (kind 1), Fourier (2), or Fourier unless
+ * a clip cuts the aperture, then cells (3, auto). *used_kind says which ran (1 or 2),
+ * *used its rings or nodes, *err its estimate. */
+static lensrt_result integrate_det(lensrt_context ctx, lensrt_render r, int kind, const long long *steps,
+                                   double target, progress_state *ps, const char *what, int *used_kind, int *used,
+                                   double *err)
+{
+    lensrt_result res;
+    if (kind != 1) {
+        *used_kind = 2;
+        res = integrate_fourier(r, (int)steps[2], (int)steps[3], target, ps, what, used, err);
+        if (!(kind == 3 && res == LENSRT_ERROR_UNSUPPORTED)) return res;
+        if (!ps->quiet) fprintf(stderr, "lensrt-psf: %s: %s: the cells integrator instead\n", what, lensrt_context_last_error(ctx));
+    }
+    *used_kind = 1;
+    return integrate_cells(r, (int)steps[0], (int)steps[1], target, ps, what, used, err);
+}
+
 /* The relative L2 Monte Carlo error of an image rendered as two independent halves.
  *
  * Per pixel and wavelength, half k (N/2 samples, seed of its own) estimates the field as
@@ -471,7 +532,8 @@ int main(int argc, char **argv)
     long long samples = 65536, seed = 1, threads = 0, blades = 0, max_samples = 0;
     double target = 0.0;
     int estimate = 1, cells = 0;
-    long long rings = 32, max_rings = 0;
+    long long rings = 32, max_rings = 0, nodes = 0, max_nodes = 0;
+    int used_kind = 0;
     double curvature = 0.0, rotation = 0.0;
     lensrt_sampler sampler = LENSRT_SAMPLER_DEFAULT;
     lensrt_estimator estimator = LENSRT_ESTIMATOR_PAPER;
@@ -537,10 +599,14 @@ int main(int argc, char **argv)
         else if (strcmp(a, "--max-samples") == 0) { if (!parse_long(v, 2, (long long)1 << 40, &max_samples)) return bad(a, v, "expected a sample count >= 2"); }
         else if (strcmp(a, "--rings") == 0) { if (!parse_long(v, 2, LENSRT_MAX_RINGS, &rings)) return bad(a, v, "expected 2..4096 rings"); }
         else if (strcmp(a, "--max-rings") == 0) { if (!parse_long(v, 2, LENSRT_MAX_RINGS, &max_rings)) return bad(a, v, "expected 2..4096 rings"); }
+        else if (strcmp(a, "--nodes") == 0) { if (!parse_long(v, 0, LENSRT_MAX_FOURIER_NODES, &nodes)) return bad(a, v, "expected 0 (chosen) or 1..4096 nodes"); }
+        else if (strcmp(a, "--max-nodes") == 0) { if (!parse_long(v, 1, LENSRT_MAX_FOURIER_NODES, &max_nodes)) return bad(a, v, "expected 1..4096 nodes"); }
         else if (strcmp(a, "--integrator") == 0) {
             if (strcmp(v, "cells") == 0) cells = 1;
             else if (strcmp(v, "montecarlo") == 0) cells = 0;
-            else return bad(a, v, "expected montecarlo or cells");
+            else if (strcmp(v, "fourier") == 0) cells = 2;
+            else if (strcmp(v, "auto") == 0) cells = 3;
+            else return bad(a, v, "expected montecarlo, cells, fourier or auto");
         }
         else if (strcmp(a, "--seed") == 0) { if (!parse_long(v, 0, (long long)9e18, &seed)) return bad(a, v, "expected a non-negative integer"); }
         else if (strcmp(a, "--threads") == 0) { if (!parse_long(v, 1, 1024, &threads)) return bad(a, v, "expected 1..1024"); }
@@ -609,12 +675,22 @@ int main(int argc, char **argv)
     }
     if (!lens_arg) return bad("--lens", NULL, "a lens id or table is required");
     if (cells && (resume || merge || save || !estimate || estimator == LENSRT_ESTIMATOR_UNBIASED || max_samples)) {
-        fprintf(stderr, "lensrt-psf: --integrator cells takes no --resume, --merge, --save-phasors, --no-estimate, "
-                "--estimator unbiased or --max-samples (those are Monte Carlo's)\n");
+        fprintf(stderr, "lensrt-psf: --integrator %s takes no --resume, --merge, --save-phasors, --no-estimate, "
+                "--estimator unbiased or --max-samples (those are Monte Carlo's)\n",
+                cells == 1 ? "cells" : cells == 2 ? "fourier" : "auto");
         return 2;
     }
-    if (!cells && max_rings) {
-        fprintf(stderr, "lensrt-psf: --max-rings goes with --integrator cells\n");
+    if ((cells == 0 || cells == 2) && max_rings) {
+        fprintf(stderr, "lensrt-psf: --max-rings goes with --integrator cells or auto\n");
+        return 2;
+    }
+    if (cells < 2 && max_nodes) {
+        fprintf(stderr, "lensrt-psf: --max-nodes goes with --integrator fourier or auto\n");
+        return 2;
+    }
+    if (!max_nodes) max_nodes = nodes > 2730 ? nodes : 2730;
+    if (max_nodes < nodes) {
+        fprintf(stderr, "lensrt-psf: --max-nodes %lld is below --nodes %lld\n", max_nodes, nodes);
         return 2;
     }
     if (!max_rings) max_rings = rings > 1024 ? rings : 1024;
@@ -814,16 +890,21 @@ int main(int argc, char **argv)
     if (merge && (res = lensrt_render_merge(render, merge)) != LENSRT_SUCCESS) goto fail_input;
 
     // Render
-    if (!quiet && cells)
+    if (!quiet && cells == 1)
         fprintf(stderr, "lensrt-psf: %s, window %g mm at (%g, %g) mm, cells integrator from %lld rings\n",
                 table, size[0], center[0], center[1], rings);
+    else if (!quiet && cells)
+        fprintf(stderr, "lensrt-psf: %s, window %g mm at (%g, %g) mm, Fourier integrator%s%s\n", table, size[0],
+                center[0], center[1], nodes ? "" : " (nodes from the phase)",
+                cells == 3 ? " (cells where a clip cuts)" : "");
     else if (!quiet)
         fprintf(stderr, "lensrt-psf: %s, window %g mm at (%g, %g) mm, %lld samples per wavelength%s\n",
                 table, size[0], center[0], center[1], samples, estimate ? " in two halves" : "");
     ps.round_start = now_seconds();
     if (cells) {
-        if ((res = integrate_cells(render, (int)rings, (int)max_rings, target, &ps, "direct", &cells_rings,
-                                   &mc_error)) != LENSRT_SUCCESS) {
+        const long long steps[4] = {rings, max_rings, nodes, max_nodes};
+        if ((res = integrate_det(ctx, render, cells, steps, target, &ps, "direct", &used_kind, &cells_rings,
+                                 &mc_error)) != LENSRT_SUCCESS) {
             // A device or lens the integrator does not take (GL, one-dimensional): exit 3
             if (res == LENSRT_ERROR_UNSUPPORTED) goto fail_input;
             goto fail;
@@ -896,8 +977,9 @@ int main(int argc, char **argv)
     }
     lensrt_render_get_stats(render, &st);
     if (!quiet && cells)
-        fprintf(stderr, "lensrt-psf: %.2f s, cells integrator (%d rings), f/%.3g, stop radius %.4g mm\n", st.seconds,
-                cells_rings, st.f_number, st.stop_radius_mm);
+        fprintf(stderr, "lensrt-psf: %.2f s, %s integrator (%d %s), f/%.3g, stop radius %.4g mm\n", st.seconds,
+                used_kind == 2 ? "Fourier" : "cells", cells_rings, used_kind == 2 ? "nodes" : "rings", st.f_number,
+                st.stop_radius_mm);
     else if (!quiet)
         fprintf(stderr, "lensrt-psf: %.2f s, %.3g splats/s, f/%.3g, stop radius %.4g mm\n", st.seconds,
                 st.splats_per_second, st.f_number, st.stop_radius_mm);
@@ -927,12 +1009,13 @@ int main(int argc, char **argv)
             ps.base = 0.0;
             ps.span = 1.0;
             if (cells) {
-                int gr = 0;
+                const long long steps[4] = {rings, max_rings, nodes, max_nodes};
+                int gr = 0, gk = 0;
                 double ge = -1.0;
-                res = integrate_cells(renders[1 + i], (int)rings, (int)max_rings, target, &ps, gi.ghost_label, &gr, &ge);
+                res = integrate_det(ctx, renders[1 + i], cells, steps, target, &ps, gi.ghost_label, &gk, &gr, &ge);
                 if (res == LENSRT_SUCCESS)
-                    printf("Cells error estimate, ghost %s: %.3g%% relative L2 (%d rings)\n", gi.ghost_label,
-                           100.0 * ge, gr);
+                    printf("%s error estimate, ghost %s: %.3g%% relative L2 (%d %s)\n", gk == 2 ? "Fourier" : "Cells",
+                           gi.ghost_label, 100.0 * ge, gr, gk == 2 ? "nodes" : "rings");
             } else {
                 res = lensrt_render_run(renders[1 + i], ghost_samples, on_progress, &ps);
                 if (!quiet) fprintf(stderr, "\n");
@@ -1016,7 +1099,10 @@ int main(int argc, char **argv)
         }
         stage[i][0] = '\0';
     }
-    if (cells)
+    if (cells && used_kind == 2)
+        printf("Fourier error estimate: %.3g%% relative L2 (%d nodes against %d)\n", 100.0 * mc_error, cells_rings,
+               (int)ceil(1.5 * cells_rings));
+    else if (cells)
         printf("Cells error estimate: %.3g%% relative L2 (%d rings against %d)\n", 100.0 * mc_error, cells_rings,
                cells_rings / 2);
     else if (estimate && mc_error >= 0)

@@ -197,6 +197,138 @@ lensrt_result lensrt_mesh_build(lensrt_context ctx, const lensrt_aperture *ap, d
     return LENSRT_SUCCESS;
 }
 
+/* ------------------------------------------------------------ quadrature ----- */
+
+void lensrt_gauss_legendre01(int n, double *x, double *w)
+{
+    int i, k, it;
+    for (i = 0; i < (n + 1) / 2; i++) {
+        // Root i of P_n (descending from near 1), by Newton from Tricomi's estimate
+        double z = cos(PI * (i + 0.75) / (n + 0.5)), dp = 1.0;
+        for (it = 0; it < 100; it++) {
+            double p0 = 1.0, p1 = z, dz;
+            for (k = 2; k <= n; k++) {
+                const double p2 = ((2.0 * k - 1.0) * z * p1 - (k - 1.0) * p0) / k;
+                p0 = p1;
+                p1 = p2;
+            }
+            // P_n' from P_n and P_{n-1}
+            dp = n * (z * p1 - p0) / (z * z - 1.0);
+            dz = p1 / dp;
+            z -= dz;
+            if (fabs(dz) < 1e-16) break;
+        }
+        {
+            double p0 = 1.0, p1 = z;
+            for (k = 2; k <= n; k++) {
+                const double p2 = ((2.0 * k - 1.0) * z * p1 - (k - 1.0) * p0) / k;
+                p0 = p1;
+                p1 = p2;
+            }
+            dp = n * (z * p1 - p0) / (z * z - 1.0);
+        }
+        // Mapped from [-1, 1] to [0, 1]: nodes symmetric about 1/2, weights halved
+        x[n - 1 - i] = 0.5 * (1.0 + z);
+        x[i] = 0.5 * (1.0 - z);
+        w[i] = w[n - 1 - i] = 1.0 / ((1.0 - z * z) * dp * dp);
+    }
+}
+
+/* B'(t) of a sector's boundary (mm per unit t). */
+static void sector_tangent(const sector *s, double t, double *dx, double *dy)
+{
+    if (s->arc) {
+        const double b = s->b0 + t * s->db;
+        *dx = -s->rho * s->db * sin(b);
+        *dy = s->rho * s->db * cos(b);
+    } else {
+        *dx = s->x1 - s->x0;
+        *dy = s->y1 - s->y0;
+    }
+}
+
+void lensrt_quadrature_free(lensrt_context ctx, lensrt_quadrature *q)
+{
+    lensrt_free(ctx, q->xy);
+    lensrt_free(ctx, q->w);
+    lensrt_free(ctx, q->ua);
+    lensrt_free(ctx, q->ub);
+    memset(q, 0, sizeof *q);
+}
+
+lensrt_result lensrt_quadrature_build(lensrt_context ctx, const lensrt_aperture *ap, double radius_mm, int n,
+                                      lensrt_quadrature *q)
+{
+    sector sec[LENSRT_MAX_BLADES > 6 ? LENSRT_MAX_BLADES : 6];
+    const int slit = ap->shape == LENSRT_APERTURE_SLIT, n_slits = ap->slit_separation_mm > 0.0 ? 2 : 1;
+    const int rows = slit ? slit_rows(ap, radius_mm, n) : 0, ns = slit ? 0 : fan_sectors(ap, radius_mm, sec);
+    const double total = slit ? (double)n_slits * n * rows : (double)ns * n * n;
+    double *gx = NULL, *gw = NULL, *hx = NULL, *hw = NULL;
+    int s, i, j;
+    memset(q, 0, sizeof *q);
+    if (n < 1 || total > 2e8)
+        return lensrt_fail(ctx, LENSRT_ERROR_INVALID_ARGUMENT, "fourier: %d nodes per side make %.0f nodes, too many",
+                           n, total);
+    q->xy = lensrt_calloc(ctx, 2 * (size_t)total, sizeof(double));
+    q->w = lensrt_calloc(ctx, (size_t)total, sizeof(double));
+    gx = lensrt_calloc(ctx, (size_t)n, sizeof(double));
+    gw = lensrt_calloc(ctx, (size_t)n, sizeof(double));
+    if (slit) {
+        hx = lensrt_calloc(ctx, (size_t)rows, sizeof(double));
+        hw = lensrt_calloc(ctx, (size_t)rows, sizeof(double));
+    }
+    q->ua = lensrt_calloc(ctx, (size_t)n, sizeof(double));
+    q->ub = lensrt_calloc(ctx, (size_t)(slit ? rows : n), sizeof(double));
+    if (!q->xy || !q->w || !gx || !gw || (slit && (!hx || !hw)) || !q->ua || !q->ub) {
+        lensrt_free(ctx, gx);
+        lensrt_free(ctx, gw);
+        lensrt_free(ctx, hx);
+        lensrt_free(ctx, hw);
+        lensrt_quadrature_free(ctx, q);
+        return lensrt_fail(ctx, LENSRT_ERROR_OUT_OF_MEMORY, "fourier: out of memory for %.0f nodes", total);
+    }
+    lensrt_gauss_legendre01(n, gx, gw);
+    q->na = n;
+    q->nb = slit ? rows : n;
+    q->patches = slit ? n_slits : ns;
+    memcpy(q->ua, gx, sizeof(double) * (size_t)n);
+    if (!slit) memcpy(q->ub, gx, sizeof(double) * (size_t)n);
+    if (slit) {
+        // Each slit: n nodes across its width, `rows` along its height
+        const double h = 0.5 * ap->slit_width_mm, R = radius_mm;
+        lensrt_gauss_legendre01(rows, hx, hw);
+        memcpy(q->ub, hx, sizeof(double) * (size_t)rows);
+        for (s = 0; s < n_slits; s++) {
+            const double c = n_slits == 2 ? (s ? -0.5 : 0.5) * ap->slit_separation_mm : 0.0;
+            for (j = 0; j < rows; j++)
+                for (i = 0; i < n; i++) {
+                    q->xy[2 * q->n] = c - h + 2.0 * h * gx[i];
+                    q->xy[2 * q->n + 1] = -R + 2.0 * R * hx[j];
+                    q->w[q->n++] = 4.0 * h * R * gw[i] * hw[j];
+                }
+        }
+    } else {
+        // Each sector: x = rho B(t), dA = rho |B x B'| d rho dt
+        for (s = 0; s < ns; s++)
+            for (j = 0; j < n; j++) {
+                double bx, by, dx, dy, jac;
+                sector_point(&sec[s], gx[j], &bx, &by);
+                sector_tangent(&sec[s], gx[j], &dx, &dy);
+                jac = fabs(bx * dy - by * dx);
+                for (i = 0; i < n; i++) {
+                    q->xy[2 * q->n] = gx[i] * bx;
+                    q->xy[2 * q->n + 1] = gx[i] * by;
+                    q->w[q->n++] = gx[i] * jac * gw[i] * gw[j];
+                }
+            }
+    }
+    lensrt_free(ctx, gx);
+    lensrt_free(ctx, gw);
+    lensrt_free(ctx, hx);
+    lensrt_free(ctx, hw);
+    return LENSRT_SUCCESS;
+}
+
 /* ------------------------------------------------- integral over a triangle ----- */
 
 typedef struct cpx {

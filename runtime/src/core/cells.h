@@ -81,4 +81,33 @@ void lensrt_tri_integral_clipped(double S, const double z[6], const double E[6],
  * inside, zero on the boundary (mm-like): for the stop crossings of a ghost's P_clip. */
 double lensrt_stop_shape_level(const lensrt_stop_shape *s, double x, double y);
 
+/* Gauss-Legendre nodes x[i] and weights w[i] on [0, 1], n >= 1 (Newton on the Legendre
+ * polynomial from Tricomi's first guess): exact for polynomials of degree 2 n - 1. */
+void lensrt_gauss_legendre01(int n, double *x, double *w);
+
+/* A quadrature of the aperture (the Fourier integrator's, cpu/fourier.c): nodes xy (mm
+ * on the stop) and weights (mm^2). Each fan sector of the mesh above (circle, straight
+ * or curved blades) is the image of the unit square under x = rho B(t), whose area
+ * element is rho |B(t) x B'(t)| d rho dt, so that a Gauss-Legendre product rule of n x n
+ * nodes in (rho, t) follows the true boundary and converges spectrally for a smooth
+ * integrand; a slit is a rectangle with n nodes across and as many along as keep them
+ * near square (at most 16 n). */
+typedef struct lensrt_quadrature {
+    int n;      /* nodes */
+    double *xy; /* [2 j]: mm */
+    double *w;  /* [j]: mm^2 */
+    /* The product structure: `patches` patches (sectors, slits) of nb lines of na nodes,
+     * node j = (patch nb + line) na + i, at the Gauss-Legendre parameters ua[i] along a
+     * line (rho, or across a slit) and ub[line] across lines (t, or along a slit) */
+    int na, nb, patches;
+    double *ua, *ub;
+} lensrt_quadrature;
+
+/* The rule of n nodes per side for aperture `ap` of stop radius radius_mm (slits: half
+ * height radius_mm). LENSRT_ERROR_OUT_OF_MEMORY or INVALID_ARGUMENT (beyond 2e8 nodes)
+ * with a message; *q zeroed first. */
+lensrt_result lensrt_quadrature_build(lensrt_context ctx, const lensrt_aperture *ap, double radius_mm, int n,
+                                      lensrt_quadrature *q);
+void lensrt_quadrature_free(lensrt_context ctx, lensrt_quadrature *q);
+
 #endif /* LENSRT_CELLS_H */

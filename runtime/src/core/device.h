@@ -42,6 +42,12 @@ typedef struct lensrt_device_ops {
                                void *user_data);
     lensrt_result (*integrate_tile)(lensrt_render r, const struct lensrt_cells_job *job, int x0, int y0, int width,
                                     int height);
+    /* The Fourier integrator (core/fourier.h), NULL when the device has none: the job's
+     * fields of every level, light, wavelength and pixel, progress told after each
+     * wavelength; a clip that cuts the aperture is LENSRT_ERROR_UNSUPPORTED (told to the
+     * context). */
+    lensrt_result (*fourier)(lensrt_render r, struct lensrt_fourier_job *job, lensrt_progress_fn progress,
+                             void *user_data);
 } lensrt_device_ops;
 
 /* The device table: NULL when this build has no such device. */

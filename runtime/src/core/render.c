@@ -12,6 +12,7 @@
  * number of threads. */
 #include "render.h"
 #include "cells.h"
+#include "fourier.h"
 
 #include "../lens/lens.h"
 #include "device.h"
@@ -62,6 +63,7 @@ static void free_render(lensrt_render r)
     lensrt_free(ctx, r->sumsq);
     lensrt_free(ctx, r->cells_field);
     lensrt_free(ctx, r->cells_coarse);
+    lensrt_free(ctx, r->fourier_fine);
     lensrt_free(ctx, r);
 }
 
@@ -286,6 +288,11 @@ lensrt_result lensrt_render_splat_points(lensrt_render r, int wavelength, const 
 
 lensrt_result lensrt_cells_idle(lensrt_render r, const char *what)
 {
+    if (r->fourier_nodes)
+        return lensrt_fail(r->ctx, LENSRT_ERROR_INVALID_ARGUMENT,
+                           "%s: the sums hold a Fourier integral (lensrt_render_integrate_fourier, %d nodes), not "
+                           "Monte Carlo samples; render samples with a new render",
+                           what, r->fourier_nodes);
     if (!r->cells_rings) return LENSRT_SUCCESS;
     return lensrt_fail(r->ctx, LENSRT_ERROR_INVALID_ARGUMENT,
                        "%s: the sums hold a cells integral (lensrt_render_integrate, %d rings), not Monte Carlo "
@@ -416,7 +423,7 @@ lensrt_result lensrt_cells_check(lensrt_render r, const char *what, int rings, i
         return lensrt_fail(r->ctx, LENSRT_ERROR_UNSUPPORTED,
                            "%s: the cells integrator takes precision DEFAULT or DOUBLE and the paper's estimator "
                            "(precision NAIVE_FLOAT and the unbiased estimator are Monte Carlo's)", what);
-    if (r->samples > 0 && !r->cells_rings)
+    if (r->samples > 0 && !r->cells_rings && !r->fourier_nodes)
         return lensrt_fail(r->ctx, LENSRT_ERROR_INVALID_ARGUMENT,
                            "%s: the sums already hold %llu Monte Carlo samples per wavelength; integrate with a new "
                            "render", what, (unsigned long long)r->samples);
@@ -441,6 +448,9 @@ lensrt_result lensrt_cells_finish(lensrt_render r, int rings, double *Uf, double
     for (i = 0; i < nsum; i++) r->sum[i] = Uf[i] / r->measure;
     r->samples = 1;
     r->cells_rings = rings;
+    r->fourier_nodes = r->fourier_fine_nodes = 0;
+    lensrt_free(r->ctx, r->fourier_fine);
+    r->fourier_fine = NULL;
     // The render keeps this field and the one half as fine (the next, doubled call's
     // coarse levels); Uc may be the field it kept before
     if (r->cells_coarse != Uc) lensrt_free(r->ctx, r->cells_coarse);
@@ -448,6 +458,147 @@ lensrt_result lensrt_cells_finish(lensrt_render r, int rings, double *Uf, double
     r->cells_field = Uf;
     r->cells_coarse = Uc;
     return LENSRT_SUCCESS;
+}
+
+/* ------------------------------------------------------ the Fourier integrator ----- */
+
+lensrt_result lensrt_fourier_finish(lensrt_render r, int nodes, const double *U, double *Ufine, int fine_nodes,
+                                    double *error_estimate)
+{
+    const size_t nsum = 2 * (size_t)r->n_lights * (size_t)r->n_wl * (size_t)r->width * (size_t)r->height;
+    size_t i;
+    for (i = 0; i < nsum; i++)
+        if (!isfinite(U[i]) || (Ufine && !isfinite(Ufine[i])))
+            return lensrt_fail(r->ctx, LENSRT_ERROR_OUT_OF_DOMAIN,
+                               "integrate_fourier: the field of pixel %zu is not finite: the lens table or the "
+                               "lights' intensities are beyond what double holds",
+                               (i / 2) % ((size_t)r->width * (size_t)r->height));
+    // The estimate is the error of this (the coarser) field against the finer one: the
+    // rule converges spectrally, so the finer field's own error is far below it
+    r->cells_error = -1.0;
+    if (Ufine) {
+        double d, n;
+        image_distance(r, Ufine, U, &d, &n);
+        r->cells_error = n > 0.0 ? d / n : 0.0;
+    }
+    if (error_estimate) *error_estimate = r->cells_error;
+    for (i = 0; i < nsum; i++) r->sum[i] = U[i] / r->measure;
+    r->samples = 1;
+    r->cells_rings = 0;
+    lensrt_free(r->ctx, r->cells_field);
+    lensrt_free(r->ctx, r->cells_coarse);
+    r->cells_field = r->cells_coarse = NULL;
+    r->fourier_nodes = nodes;
+    if (r->fourier_fine != Ufine) lensrt_free(r->ctx, r->fourier_fine);
+    r->fourier_fine = Ufine;
+    r->fourier_fine_nodes = Ufine ? fine_nodes : 0;
+    return LENSRT_SUCCESS;
+}
+
+/* The nodes that resolve the integrand: a pilot rule measures the phase's largest change
+ * per unit of a line parameter over the window's corners (core/fourier.h), and
+ * LENSRT_FOURIER_NODES_PER_WAVE nodes go to each wave, 4 more for the ends. */
+static lensrt_result fourier_auto_nodes(lensrt_render r, int *nodes)
+{
+    lensrt_quadrature q;
+    lensrt_fourier_job job;
+    lensrt_result res = lensrt_quadrature_build(r->ctx, &r->desc.aperture, r->stop_radius,
+                                                LENSRT_FOURIER_PILOT_NODES, &q);
+    double n;
+    const double most = LENSRT_MAX_FOURIER_NODES / LENSRT_FOURIER_REFINE;
+    if (res != LENSRT_SUCCESS) return res;
+    memset(&job, 0, sizeof job);
+    job.n_level = 1;
+    job.quad[0] = &q;
+    job.tol[0] = LENSRT_FOURIER_TOL;
+    job.pilot = 1;
+    res = r->device->fourier(r, &job, NULL, NULL);
+    lensrt_quadrature_free(r->ctx, &q);
+    if (res != LENSRT_SUCCESS) return res;
+    n = ceil(LENSRT_FOURIER_NODES_PER_WAVE * job.slope) + 4.0;
+    *nodes = n < 8.0 ? 8 : n > most ? (int)most : (int)n;
+    return LENSRT_SUCCESS;
+}
+
+lensrt_result lensrt_render_integrate_fourier(lensrt_render r, int32_t nodes, double *error_estimate,
+                                              lensrt_progress_fn progress, void *user_data)
+{
+    const double t0 = lensrt_seconds();
+    int fine, reuse;
+    lensrt_quadrature quad[LENSRT_FOURIER_MAX_LEVELS];
+    lensrt_fourier_job job;
+    double *U[LENSRT_FOURIER_MAX_LEVELS] = {NULL, NULL};
+    size_t nsum;
+    lensrt_result res = LENSRT_SUCCESS;
+    int k, built = 0;
+    if (!r) return LENSRT_ERROR_INVALID_ARGUMENT;
+    if ((res = lensrt_tiles_idle(r, "integrate_fourier")) != LENSRT_SUCCESS) return res;
+    if (nodes < 0 || nodes > LENSRT_MAX_FOURIER_NODES ||
+        (error_estimate && ceil(LENSRT_FOURIER_REFINE * nodes) > LENSRT_MAX_FOURIER_NODES))
+        return lensrt_fail(r->ctx, LENSRT_ERROR_INVALID_ARGUMENT,
+                           "integrate_fourier: nodes must be 0 (chosen) or 1..%d (%d with an error estimate, whose "
+                           "finer rule has %g times the nodes), got %d",
+                           LENSRT_MAX_FOURIER_NODES, (int)(LENSRT_MAX_FOURIER_NODES / LENSRT_FOURIER_REFINE),
+                           LENSRT_FOURIER_REFINE, nodes);
+    if (!r->device->fourier)
+        return lensrt_fail(r->ctx, LENSRT_ERROR_UNSUPPORTED,
+                           "integrate_fourier: the %s device has no Fourier integrator (the CPU device has): render "
+                           "with device cpu, or with Monte Carlo samples (lensrt_render_run)",
+                           r->device->name);
+    if ((res = lensrt_cells_check(r, "integrate_fourier", 1, 0)) != LENSRT_SUCCESS) return res;
+    if (nodes == 0 && (res = fourier_auto_nodes(r, &nodes)) != LENSRT_SUCCESS) {
+        r->seconds += lensrt_seconds() - t0;
+        return res;
+    }
+    fine = error_estimate ? (int)ceil(LENSRT_FOURIER_REFINE * nodes) : 0;
+    reuse = error_estimate && r->fourier_fine && r->fourier_fine_nodes == nodes;
+    nsum = 2 * (size_t)r->n_lights * (size_t)r->n_wl * (size_t)r->width * (size_t)r->height;
+    memset(&job, 0, sizeof job);
+    // The rule of `nodes`, and for the estimate a finer one (unless the last call's finer
+    // rule is this one: then its field is this call's, and only the finer is new)
+    job.n_level = error_estimate ? 2 : 1;
+    for (k = 0; k < job.n_level; k++) {
+        const int n = k == 0 ? nodes : fine;
+        if (k == 0 && reuse) continue;
+        if ((res = lensrt_quadrature_build(r->ctx, &r->desc.aperture, r->stop_radius, n, &quad[k])) !=
+            LENSRT_SUCCESS)
+            break;
+        built |= 1 << k;
+        if (!(U[k] = lensrt_calloc(r->ctx, nsum, sizeof(double)))) {
+            res = lensrt_fail(r->ctx, LENSRT_ERROR_OUT_OF_MEMORY, "integrate_fourier: out of memory");
+            break;
+        }
+    }
+    if (res == LENSRT_SUCCESS) {
+        // The finer level with the tolerance a tenth of the coarser's, so that the
+        // difference sees the interpolation and the NUFFT too
+        int n = 0;
+        for (k = 0; k < job.n_level; k++) {
+            if (k == 0 && reuse) continue;
+            job.quad[n] = &quad[k];
+            job.tol[n] = k == 0 ? LENSRT_FOURIER_TOL : 0.1 * LENSRT_FOURIER_TOL;
+            job.U[n++] = U[k];
+        }
+        job.n_level = n;
+        res = r->device->fourier(r, &job, progress, user_data);
+    }
+    if (res == LENSRT_SUCCESS) {
+        const double *coarse = reuse ? r->fourier_fine : U[0];
+        if (reuse) {
+            // The kept field is this call's: take it, so that finish may replace it
+            U[0] = r->fourier_fine;
+            r->fourier_fine = NULL;
+            coarse = U[0];
+        }
+        res = lensrt_fourier_finish(r, nodes, coarse, error_estimate ? U[1] : NULL, fine, error_estimate);
+        if (res == LENSRT_SUCCESS) U[1] = NULL; /* the render's now */
+    }
+    for (k = 0; k < LENSRT_FOURIER_MAX_LEVELS; k++) {
+        if (built & (1 << k)) lensrt_quadrature_free(r->ctx, &quad[k]);
+        lensrt_free(r->ctx, U[k]);
+    }
+    r->seconds += lensrt_seconds() - t0;
+    return res;
 }
 
 /* ------------------------------------------------------------- results ----- */
@@ -471,7 +622,8 @@ lensrt_result lensrt_render_get_stats(lensrt_render r, lensrt_render_stats *call
     out->stop_radius_mm = r->stop_radius;
     out->f_number = r->f_number;
     out->cells_rings = r->cells_rings;
-    out->cells_error_estimate = r->cells_rings ? r->cells_error : -1.0;
+    out->cells_error_estimate = r->cells_rings || r->fourier_nodes ? r->cells_error : -1.0;
+    out->fourier_nodes = r->fourier_nodes;
     if (r->stat_count > 0) {
         double live = r->stat_count - r->stat_dark;
         out->phase_terms = live > 0 ? r->stat_terms / live : 0.0;

@@ -61,6 +61,7 @@ struct lensrt_device_ops; /* core/device.h */
 struct lensrt_tiles;      /* core/tiles.h */
 struct lensrt_mesh;       /* core/cells.h */
 struct lensrt_cells_job;  /* core/cells.h */
+struct lensrt_fourier_job; /* core/fourier.h */
 
 /* A polynomial in (x_S, y_S) and the stop monomials, for one output and wavelength:
  * sum_t coef[t] * xS^ix[t] * yS^iy[t] * mono[slot[t]] (normalised x_S, y_S). */
@@ -143,6 +144,12 @@ struct lensrt_render_s {
     int cells_rings;
     double cells_error;
     double *cells_field, *cells_coarse; /* the fields of rings and rings / 2 (NULL: none) */
+    /* The Fourier integrator (core/fourier.h, lensrt_render_integrate_fourier): the nodes
+     * per side of the rule whose field the sums hold (0: none; cells_rings is then 0 and
+     * cells_error holds its estimate), and the finer field of its estimate with its nodes
+     * (the next, finer call's coarse level) */
+    int fourier_nodes, fourier_fine_nodes;
+    double *fourier_fine;
     struct lensrt_tiles *tiles;   /* the open tile session, or NULL */
     /* pruning statistics of the last pass: sums over (pixel, wavelength) */
     double stat_terms, stat_clip, stat_tau, stat_dark, stat_count;
@@ -162,6 +169,13 @@ lensrt_result lensrt_cells_check(lensrt_render r, const char *what, int rings, i
  * caller still does. */
 lensrt_result lensrt_cells_finish(lensrt_render r, int rings, double *Uf, double *Uc, const double *Uc2,
                                   double *error_estimate);
+
+/* The sums become the Fourier integrator's field U of `nodes` nodes per side (checked
+ * finite), with the estimate ||I(U) - I(Ufine)|| / ||I(Ufine)|| (Ufine NULL: none, -1)
+ * into *error_estimate; on success the render owns Ufine (the next call's coarse level)
+ * and U is the caller's still. */
+lensrt_result lensrt_fourier_finish(lensrt_render r, int nodes, const double *U, double *Ufine, int fine_nodes,
+                                    double *error_estimate);
 
 /* "sobol", "random" or "stratified" (core/sampler.c). */
 const char *lensrt_sampler_name(lensrt_sampler s);

@@ -80,6 +80,10 @@ lensrt_result lensrt_cpu_cells(lensrt_render r, const struct lensrt_cells_job *j
 lensrt_result lensrt_cpu_cells_tile(lensrt_render r, const struct lensrt_cells_job *job, int x0, int y0, int width,
                                     int height);
 
+/* The CPU device's Fourier integrator (cpu/fourier.c; lensrt_device_ops.fourier). */
+lensrt_result lensrt_cpu_fourier(lensrt_render r, struct lensrt_fourier_job *job, lensrt_progress_fn progress,
+                                 void *user_data);
+
 /* The CPU device's host-scheduled tile (cpu/tiles.c; lensrt_device_ops.tile). */
 lensrt_result lensrt_cpu_tile(lensrt_render r, int x0, int y0, int width, int height);
 

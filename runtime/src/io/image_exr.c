@@ -41,8 +41,8 @@
  *
  * lensrt metadata, namespaced "lensrt/...": strings, doubles, v2d (x, y pairs) and one
  * int; 64-bit counts (samples per wavelength, seed) are decimal strings because EXR has
- * no 64-bit integer attribute; "lensrt/integrator" is "montecarlo" or "cells", the latter
- * with "lensrt/cellsRings" and "lensrt/errorEstimate". Every name is at most 31 characters, so the file needs
+ * no 64-bit integer attribute; "lensrt/integrator" is "montecarlo", "cells" or "fourier",
+ * with "lensrt/cellsRings" or "lensrt/fourierNodes" and "lensrt/errorEstimate". Every name is at most 31 characters, so the file needs
  * no long-name support. A reproducible file (lensrt_image_meta.reproducible,
  * lensrt_render_write_exr_with) leaves out "lensrt/seconds", "lensrt/splatsPerSecond" and
  * "lensrt/lensFile": nothing else in the file depends on the run, so the same render
@@ -531,12 +531,15 @@ lensrt_result lensrt_write_exr_layers(const lensrt_allocator *allocator, const c
             rv = exr_attr_set_string(ctxt, part, "lensrt/seed", text);
         }
         // How the image was integrated: Monte Carlo samples, or the cells integrator's
-        // mesh and its error estimate (issue 22)
+        // mesh or the Fourier integrator's rule, and its error estimate (issue 22)
         if (rv == EXR_ERR_SUCCESS)
-            rv = exr_attr_set_string(ctxt, part, "lensrt/integrator", meta->cells_rings ? "cells" : "montecarlo");
+            rv = exr_attr_set_string(ctxt, part, "lensrt/integrator",
+                                     meta->cells_rings ? "cells" : meta->fourier_nodes ? "fourier" : "montecarlo");
         if (rv == EXR_ERR_SUCCESS && meta->cells_rings)
             rv = exr_attr_set_int(ctxt, part, "lensrt/cellsRings", meta->cells_rings);
-        if (rv == EXR_ERR_SUCCESS && meta->cells_rings && meta->error_estimate >= 0.0)
+        if (rv == EXR_ERR_SUCCESS && meta->fourier_nodes)
+            rv = exr_attr_set_int(ctxt, part, "lensrt/fourierNodes", meta->fourier_nodes);
+        if (rv == EXR_ERR_SUCCESS && (meta->cells_rings || meta->fourier_nodes) && meta->error_estimate >= 0.0)
             rv = exr_attr_set_double(ctxt, part, "lensrt/errorEstimate", meta->error_estimate);
         if (rv == EXR_ERR_SUCCESS)
             rv = exr_attr_set_int(ctxt, part, "lensrt/nLights", meta->n_lights);

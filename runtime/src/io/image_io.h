@@ -54,6 +54,7 @@ typedef struct lensrt_image_meta {
     const char *aperture;       /* e.g. "circle", "7 blades, curvature 0.3, rotation 10 deg" */
     const char *layers;         /* what each layer holds (EXR "lensrt/layers"), or NULL */
     int cells_rings;            /* the cells integrator's mesh (0: Monte Carlo samples) */
+    int fourier_nodes;          /* the Fourier integrator's rule (0: none) */
     double error_estimate;      /* its estimated relative L2 error (< 0: none) */
     uint64_t seed;
     int n_lights;

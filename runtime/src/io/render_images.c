@@ -154,7 +154,8 @@ static void image_meta(const lensrt_render r, lensrt_image_meta *out, char *aper
     meta.aperture = aperture;
     meta.seed = r->desc.seed;
     meta.cells_rings = r->cells_rings;
-    meta.error_estimate = r->cells_rings ? r->cells_error : -1.0;
+    meta.fourier_nodes = r->fourier_nodes;
+    meta.error_estimate = r->cells_rings || r->fourier_nodes ? r->cells_error : -1.0;
     meta.n_lights = r->n_lights;
     meta.lights = r->lights;
     *out = meta;
