@@ -3,7 +3,7 @@
 #   make runtime the C99 runtime lensrt (library, lensrt-psf, C tests) in build/runtime
 #   make demo    the default lens (0001): paraxial table, drawings, its polynomial fit with
 #                the fit-error report, the demo scene's specialised code, and its point
-#                spread function at f/2, f/8 and f/32 to 1% error by the cells integrator
+#                spread function at f/2, f/8 and f/32 to 1% error by the Fourier integrator
 #                (EXR, PNG and a sheet of the three with scale bars, build/demo/psf/), at
 #                f/8 on the GL device (Monte Carlo), and the paper's Figure 10: full-frame
 #                flares of 0001 and 2004, coated against uncoated, every image to 1%
@@ -18,7 +18,8 @@
 #                (and tile-scheduled against run()), per-ray evaluation against exact tracing,
 #                compiled-in Horner code against lensrt's set-up,
 #                per-ray evaluation against the exact tracer, error against run time (the
-#                cells integrator against Monte Carlo too: cells_bench.py), banks on Dask
+#                cells integrator against Monte Carlo too: cells_bench.py; the Fourier
+#                integrator against both on the demo's PSFs: fourier_bench.py), banks on Dask
 #                (scaling 1 -> 2 workers, the scheduler's overhead: banks.md), and per generated lens the fit time and the worst
 #                PSF cell against exactly traced rays (build/bench/)
 
@@ -73,13 +74,13 @@ demo: setup runtime
 	$(VENV)/bin/lensfit scene $(DEMO_LENS) scenes/demo.toml -o build/demo/scene-demo
 	@mkdir -p build/demo/psf
 	@# The paper's Figure 7: an off-axis light through the default lens, 7 curved blades.
-	@# The cells integrator with meshes that reach 1% (measured; --target-error refines
-	@# the rings if the printed estimate were above), then the three side by side
+	@# The Fourier integrator (lensrt-psf's default: nodes chosen from the phase, refined
+	@# by --target-error if the printed estimate were above 1%), then the three side by side
 	panels=; for fn in 2 8 32; do \
-		case $$fn in 2) size=0.2 rings=28;; 8) size=0.1 rings=8;; 32) size=0.16 rings=4;; esac; \
+		case $$fn in 2) size=0.2;; 8) size=0.1;; 32) size=0.16;; esac; \
 		$(PSF) --lens $(DEMO_LENS) --light -6,-4 --focus 0.2 --f-number $$fn --blades 7 \
 			--curvature 0.3 --rotation 10 --size $$size --resolution 256x256 \
-			--integrator cells --rings $$rings --target-error 0.01 \
+			--integrator auto --target-error 0.01 \
 			-o build/demo/psf/f$$fn.exr --png build/demo/psf/f$$fn.png || exit 1; \
 		panels="$$panels --panel build/demo/psf/f$$fn.png $$size f/$$fn"; \
 	done; \
@@ -94,7 +95,8 @@ demo: setup runtime
 	@# The paper's Figure 10: full-frame flares of the default lens and of the anamorphic
 	@# 2004, coated (the lens files' MgF2 quarter waves) and uncoated, each ghost fitted
 	@# (generated/<lens>[-uncoated]/ghosts/) and rendered where its footprint is, at f/16,
-	@# every image by the cells integrator to a 1% error estimate
+	@# every image to a 1% error estimate (the Fourier integrator, cells where a clip cuts
+	@# the aperture)
 	$(PY) runtime/tools/flare_figure.py -o build/demo/flare/figure10.png --light=-6,-4 \
 		--wavelengths 8 --target-error 0.01 \
 		--panel generated/0001-angenieux-double-gauss 16 "0001 coated" \
@@ -102,10 +104,11 @@ demo: setup runtime
 		--panel generated/2004-schneider-anamorphic 16 "2004 coated" \
 		--panel generated/2004-schneider-anamorphic-uncoated 16 "2004 uncoated"
 	@# lensrt-psf with the default lens's ghosts around its first: one EXR, the total with
-	@# layers direct. and flare.; 64 rings each (the estimates printed: the large ghosts'
-	@# faint edges in this small window are at 2-5%, 27 s; 1% takes 256 rings, 3.6 min)
+	@# layers direct. and flare.; the direct image by the Fourier integrator, the ghosts
+	@# whose stop crossings cut their aperture by cells at 64 rings (the estimates printed:
+	@# the large ghosts' faint edges in this small window are at 2-5%; 1% takes 256 rings)
 	$(PSF) --lens $(DEMO_LENS) --light -6,-4 --f-number 16 --center -10.1,-6.7 --size 1.2x0.8 \
-		--resolution 96x64 --wavelengths 4 --integrator cells --rings 64 --quiet \
+		--resolution 96x64 --wavelengths 4 --integrator auto --rings 64 --quiet \
 		--flares generated/0001-angenieux-double-gauss/ghosts \
 		-o build/demo/flare/flares.exr --png build/demo/flare/flares.png
 	@# A bank (issue 23): lens 0001 at f/8, 5 x 3 field points over the frame, 8
@@ -148,6 +151,7 @@ bench: setup runtime
 	$(PY) runtime/bench/error_vs_time.py --out build/bench --lensrt-json build/bench/lensrt.json
 	$(PY) runtime/bench/flare_bench.py --library $(RUNTIME_BUILD)/runtime/liblensrt.so --out build/bench
 	$(PY) runtime/bench/cells_bench.py --library $(RUNTIME_BUILD)/runtime/liblensrt.so --out build/bench
+	$(PY) runtime/bench/fourier_bench.py --library $(RUNTIME_BUILD)/runtime/liblensrt.so --out build/bench
 	LENSRT_LIBRARY=$(CURDIR)/$(RUNTIME_BUILD)/runtime/liblensrt.so $(PY) -m lensfit.banks.bench --out build/bench
 	$(PY) -m lensfit.bench --out build/bench
 	$(PY) -m lensfit.codegen.bench | tee build/bench/codegen.txt

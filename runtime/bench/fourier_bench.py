@@ -10,8 +10,8 @@ seconds: the integration alone; Monte Carlo's largest counts once): Monte Carlo 
 one sequence) from 2^10 samples per wavelength, doubling until 0.5% (or 2^17); cells at
 4 .. 16 rings with its estimate (its meshes of half and a quarter the rings included);
 Fourier at 0.5, 0.7 and 1 times its own choice of nodes (nodes 0), each with its estimate
-(the rule of 1.5 times the nodes included), and the way a user gets 1%: nodes chosen,
-then x 1.5 while the estimate is above 1% (Render.integrate_fourier_to).
+(the rule of 1.25 times the nodes included), and the way a user gets 1%: nodes chosen,
+then x 1.25 while the estimate is above 1% (Render.integrate_fourier_to).
 
 Errors are relative L2 against a reference: the Fourier integrator at 1.5 times its
 choice, with its own estimate (reported; 1e-5 here). Its agreement with the independent

@@ -38,7 +38,7 @@ CELLS_FIRST_RINGS = 8  # the cells integrator's first mesh in integrate_to
 CELLS_MAX_RINGS = 512
 FOURIER_FIRST_NODES = 0  # integrate_fourier_to's first rule: 0, the library's choice
 FOURIER_MAX_NODES = 2048
-FOURIER_REFINE = 1.5  # lensrt.h: the finer rule of the estimate has ceil(1.5 nodes) nodes
+FOURIER_REFINE = 1.25  # lensrt.h LENSRT_FOURIER_FINER: the estimate's finer rule, per side
 
 
 def next_rings(rings: int, estimate: float, target: float) -> int:
@@ -212,7 +212,7 @@ class Render:
 
     def integrate_fourier_to(self, target: float, first_nodes: int = FOURIER_FIRST_NODES,
                              max_nodes: int = FOURIER_MAX_NODES) -> tuple[int, float]:
-        """Refine the Fourier rule (nodes x 1.5 a step, each reusing the last step's finer
+        """Refine the Fourier rule (nodes x 1.25 a step, each reusing the last step's finer
         rule) until the estimate is within ``target`` or the next rule would pass
         ``max_nodes``; the nodes and estimate of the image the sums hold. ``first_nodes``
         0: the library's choice from the phase's slope over the aperture."""

@@ -84,15 +84,18 @@ static void usage(FILE *f)
         "                         unprefixed channels and layers direct. and flare. (the ghosts'\n"
         "                         sum); --png shows the total\n"
         "  --integrator montecarlo|cells|fourier|auto\n"
-        "                         montecarlo (default): the samples above; cells: the deterministic\n"
+        "                         default: auto, or montecarlo with --samples, --max-samples,\n"
+        "                         --seed, --sampler, --estimator, --no-estimate, --save-phasors,\n"
+        "                         --resume, --merge or --device gl\n"
+        "                         montecarlo: the samples above; cells: the deterministic\n"
         "                         integrator (closed-form integrals over a triangle mesh of the\n"
         "                         aperture), its error estimated from a mesh half as fine;\n"
         "                         fourier: a Gauss rule over the aperture and one non-uniform FFT\n"
-        "                         per tile of pixels, its error estimated against 1.5 x the nodes\n"
+        "                         per tile of pixels, its error estimated against 1.25 x the nodes\n"
         "                         (refuses apertures a clip cuts); auto: fourier, else cells\n"
         "  --nodes N              fourier: Gauss nodes per side of each aperture sector (default 0:\n"
-        "                         chosen from the phase's slope over the aperture, 1.5 per wave);\n"
-        "                         --target-error refines them (x 1.5) until the estimate is <= E\n"
+        "                         chosen from the phase's slope over the aperture, 1.4 per wave);\n"
+        "                         --target-error refines them (x 1.25) until the estimate is <= E\n"
         "  --max-nodes N          fourier: stop refining there (default 2730)\n"
         "  --rings N              cells: mesh rings (6 N^2 triangles, blades N^2 each; default 32);\n"
         "                         --target-error refines them (x 1.25 .. 2, from the estimate)\n"
@@ -383,7 +386,7 @@ static lensrt_result integrate_cells(lensrt_render r, int rings, int max_rings, 
 }
 
 /* The Fourier integrator (lensrt_render_integrate_fourier) from `nodes` on, refining by
- * 1.5 (each step reuses the last one's finer rule) while a target error is set, not
+ * LENSRT_FOURIER_FINER (each step reuses the last one's finer rule) while a target error is set, not
  * reached and max_nodes allows; *used and *err: the last rule and its estimate. */
 static lensrt_result integrate_fourier(lensrt_render r, int nodes, int max_nodes, double target, progress_state *ps,
                                        const char *what, int *used, double *err)
@@ -409,12 +412,12 @@ static lensrt_result integrate_fourier(lensrt_render r, int nodes, int max_nodes
         snprintf(label, sizeof label, "%s, %d nodes", what, nodes);
         if (!ps->quiet) fprintf(stderr, "lensrt-psf: %s: Fourier error estimate %.3g%%\n", label, 100.0 * *err);
         if (target <= 0 || *err <= target) return LENSRT_SUCCESS;
-        if ((int)ceil(1.5 * ceil(1.5 * nodes)) > max_nodes) {
+        if ((int)ceil(LENSRT_FOURIER_FINER * ceil(LENSRT_FOURIER_FINER * nodes)) > max_nodes) {
             fprintf(stderr, "lensrt-psf: warning: --target-error %g not reached within --max-nodes %d (%s): "
                     "the estimate is %.3g%%\n", target, max_nodes, what, 100.0 * *err);
             return LENSRT_SUCCESS;
         }
-        nodes = (int)ceil(1.5 * nodes);
+        nodes = (int)ceil(LENSRT_FOURIER_FINER * nodes);
     }
 }
 
@@ -531,7 +534,7 @@ int main(int argc, char **argv)
     int n_lights = 0, n_wl = 0, have_center = 0, width = 256, height = 256, quiet = 0, i, rc = 1, allow_empty = 0;
     long long samples = 65536, seed = 1, threads = 0, blades = 0, max_samples = 0;
     double target = 0.0;
-    int estimate = 1, cells = 0;
+    int estimate = 1, cells = -1, mc_option = 0; /* cells -1: the default (after the options) */
     long long rings = 32, max_rings = 0, nodes = 0, max_nodes = 0;
     int used_kind = 0;
     double curvature = 0.0, rotation = 0.0;
@@ -573,10 +576,15 @@ int main(int argc, char **argv)
         int k;
         if (strcmp(a, "-h") == 0 || strcmp(a, "--help") == 0) { usage(stdout); return 0; }
         if (strcmp(a, "--quiet") == 0) { quiet = 1; continue; }
-        if (strcmp(a, "--no-estimate") == 0) { estimate = 0; continue; }
+        if (strcmp(a, "--no-estimate") == 0) { estimate = 0; mc_option = 1; continue; }
         if (strcmp(a, "--allow-empty") == 0) { allow_empty = 1; continue; }
         if (!v) return bad(a, NULL, "needs a value");
         i++;
+        // Options only Monte Carlo takes: with one, the default integrator is Monte Carlo
+        if (strcmp(a, "--save-phasors") == 0 || strcmp(a, "--resume") == 0 || strcmp(a, "--merge") == 0 ||
+            strcmp(a, "--samples") == 0 || strcmp(a, "--max-samples") == 0 || strcmp(a, "--seed") == 0 ||
+            strcmp(a, "--sampler") == 0 || strcmp(a, "--estimator") == 0)
+            mc_option = 1;
         if (strcmp(a, "--lens") == 0) lens_arg = v;
         else if (strcmp(a, "--generated") == 0) gen = v;
         else if (strcmp(a, "-o") == 0 || strcmp(a, "--output") == 0) out = v;
@@ -674,6 +682,9 @@ int main(int argc, char **argv)
         }
     }
     if (!lens_arg) return bad("--lens", NULL, "a lens id or table is required");
+    // The default integrator: auto (Fourier, cells where a clip cuts the aperture), or
+    // Monte Carlo when an option only it takes is given or the device is GL
+    if (cells < 0) cells = mc_option || device == LENSRT_DEVICE_GL ? 0 : 3;
     if (cells && (resume || merge || save || !estimate || estimator == LENSRT_ESTIMATOR_UNBIASED || max_samples)) {
         fprintf(stderr, "lensrt-psf: --integrator %s takes no --resume, --merge, --save-phasors, --no-estimate, "
                 "--estimator unbiased or --max-samples (those are Monte Carlo's)\n",
@@ -1101,7 +1112,7 @@ int main(int argc, char **argv)
     }
     if (cells && used_kind == 2)
         printf("Fourier error estimate: %.3g%% relative L2 (%d nodes against %d)\n", 100.0 * mc_error, cells_rings,
-               (int)ceil(1.5 * cells_rings));
+               (int)ceil(LENSRT_FOURIER_FINER * cells_rings));
     else if (cells)
         printf("Cells error estimate: %.3g%% relative L2 (%d rings against %d)\n", 100.0 * mc_error, cells_rings,
                cells_rings / 2);

@@ -188,17 +188,23 @@ def _dead_pid() -> int:
     ("--resume", "x.phasors"), ("--merge", "x.phasors"), ("--save-phasors", "x.phasors"),
     ("--no-estimate",), ("--estimator", "unbiased"), ("--max-samples", "1024"),
 ])
-def test_cells_refuses_monte_carlo_options(tmp_path: Path, extra) -> None:
+@pytest.mark.parametrize("integrator", ["cells", "fourier", "auto"])
+def test_cells_refuses_monte_carlo_options(tmp_path: Path, extra, integrator) -> None:
     out = tmp_path / "out.exr"
-    refused(run("--integrator", "cells", *extra, "-o", str(out)), "--integrator cells")
+    refused(run("--integrator", integrator, *extra, "-o", str(out)), f"--integrator {integrator}")
     assert not out.exists()
 
 
 @pytest.mark.parametrize("args,word", [
-    (("--integrator", "quadrature"), "montecarlo or cells"), (("--rings", "1"), "2..4096"),
-    (("--rings", "5000"), "2..4096"), (("--max-rings", "1"), "2..4096"),
-    (("--max-rings", "64"), "--max-rings goes with --integrator cells"),
+    (("--integrator", "quadrature"), "montecarlo, cells, fourier or auto"),
+    (("--rings", "1"), "2..4096"), (("--rings", "5000"), "2..4096"),
+    (("--max-rings", "1"), "2..4096"),
+    (("--integrator", "fourier", "--max-rings", "64"), "--max-rings goes with --integrator cells"),
+    (("--samples", "1024", "--max-rings", "64"), "--max-rings goes with --integrator cells"),
     (("--integrator", "cells", "--rings", "64", "--max-rings", "32"), "below --rings"),
+    (("--nodes", "-1"), "0 (chosen) or 1..4096"), (("--nodes", "5000"), "0 (chosen) or 1..4096"),
+    (("--integrator", "cells", "--max-nodes", "64"), "--max-nodes goes with --integrator fourier"),
+    (("--integrator", "fourier", "--nodes", "64", "--max-nodes", "32"), "below --nodes"),
 ])
 def test_cells_option_values_are_refused(tmp_path: Path, args, word) -> None:
     out = tmp_path / "out.exr"
@@ -217,6 +223,27 @@ def test_cells_render_and_gl_refusal(tmp_path: Path) -> None:
     r = run("--integrator", "cells", "--rings", "4", "--device", "gl", "--quiet", "-o", str(gl))
     assert r.returncode == 3, (r.returncode, r.stderr)
     assert "cells" in r.stderr or "GL" in r.stderr or "no GL" in r.stderr
+    assert not gl.exists()
+
+
+def test_default_is_fourier_then_monte_carlo_with_its_options(tmp_path: Path) -> None:
+    # Without an integrator: auto (the Fourier integrator here: no clip cuts this PSF's
+    # aperture), its estimate on stdout and "fourier" in the EXR; with a Monte Carlo
+    # option (--samples), Monte Carlo as before; the GL device refuses Fourier: exit 3
+    out = tmp_path / "out.exr"
+    base = [a for a in BASE if a not in ("--samples", "64")]  # BASE's --samples picks Monte Carlo
+    r = subprocess.run([str(PSF), "--lens", str(LENS0001), *base, "-o", str(out)],
+                       capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0, r.stderr
+    assert "Fourier error estimate:" in r.stdout and out.is_file()
+    assert b"fourier" in out.read_bytes() and b"lensrt/fourierNodes" in out.read_bytes()
+    mc = tmp_path / "mc.exr"
+    r = run("--samples", "256", "--quiet", "-o", str(mc))
+    assert r.returncode == 0, r.stderr
+    assert "Monte Carlo error estimate:" in r.stdout and b"montecarlo" in mc.read_bytes()
+    gl = tmp_path / "gl.exr"
+    r = run("--integrator", "fourier", "--device", "gl", "--quiet", "-o", str(gl))
+    assert r.returncode == 3, (r.returncode, r.stderr)
     assert not gl.exists()
 
 

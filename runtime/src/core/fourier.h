@@ -29,18 +29,24 @@
 
 #include "cells.h"
 
-/* The finer rule of the error estimate has this many times the nodes per side. */
-#define LENSRT_FOURIER_REFINE 1.5
+/* The finer rule of the error estimate has this many times the nodes per side (lensrt.h). */
+#define LENSRT_FOURIER_REFINE LENSRT_FOURIER_FINER
 /* The relative tolerance of the interpolation across tiles and of the NUFFT at the
  * render's rule (a tenth of it at the finer rule): far below the percent errors that
  * the rule's nodes decide. */
 #define LENSRT_FOURIER_TOL 1e-3
 
-/* Gauss-Legendre nodes per wave of phase along a line of the rule for about 1e-3
- * (measured on lens 0001's PSFs at f/2, f/8 and f/32 and on defocused thin lenses: 1% at 1.2-1.4
- * nodes per wave, 1e-3 to 1e-4 at 1.5), and the pilot rule that measures the waves. */
-#define LENSRT_FOURIER_NODES_PER_WAVE 1.5
+/* Gauss-Legendre nodes per wave of phase along a line of the rule, and the pilot rule
+ * that measures the waves (measured on lens 0001's PSFs at f/2, f/8 and f/32, 64 and 256
+ * pixels square: 1% at 1.2-1.35 nodes per wave, 1e-4 at 1.5; 1.4 aims at a few 1e-3). */
+#define LENSRT_FOURIER_NODES_PER_WAVE 1.4
 #define LENSRT_FOURIER_PILOT_NODES 16
+/* The chosen rule is refused (nodes 0: LENSRT_ERROR_UNSUPPORTED) beyond this many nodes
+ * per pixel of the window: there the phase swings so far over the aperture (a defocused
+ * ghost) that the cells integrator, whose closed forms follow any tilt, is the cheaper
+ * (measured: lens 0001's f/2 PSF on 64 x 64 pixels, 49 nodes per pixel, Fourier 1.03 s
+ * and cells 1.42 s to 1%; ghost 0-2 on 64 x 64 pixels, 365 per pixel, 10 times slower) */
+#define LENSRT_FOURIER_NODES_PER_PIXEL 64
 
 /* Levels of one call: the render's rule and, for the error estimate, a finer one. */
 #define LENSRT_FOURIER_MAX_LEVELS 2

@@ -504,9 +504,13 @@ static lensrt_result fourier_auto_nodes(lensrt_render r, int *nodes)
     lensrt_fourier_job job;
     lensrt_result res = lensrt_quadrature_build(r->ctx, &r->desc.aperture, r->stop_radius,
                                                 LENSRT_FOURIER_PILOT_NODES, &q);
-    double n;
+    double n, q_ratio;
+    int q_patches;
     const double most = LENSRT_MAX_FOURIER_NODES / LENSRT_FOURIER_REFINE;
     if (res != LENSRT_SUCCESS) return res;
+    // The rule's nodes per (nodes per side)^2: patches, and a slit's lines per node
+    q_patches = q.patches;
+    q_ratio = (double)q.nb / q.na;
     memset(&job, 0, sizeof job);
     job.n_level = 1;
     job.quad[0] = &q;
@@ -517,6 +521,18 @@ static lensrt_result fourier_auto_nodes(lensrt_render r, int *nodes)
     if (res != LENSRT_SUCCESS) return res;
     n = ceil(LENSRT_FOURIER_NODES_PER_WAVE * job.slope) + 4.0;
     *nodes = n < 8.0 ? 8 : n > most ? (int)most : (int)n;
+    {
+        // Where the rule outgrows the window (nodes per pixel), cells is the cheaper
+        const double rule = (double)q_patches * (double)*nodes * (double)*nodes * q_ratio;
+        const double npix = (double)r->width * (double)r->height;
+        if (rule > LENSRT_FOURIER_NODES_PER_PIXEL * npix)
+            return lensrt_fail(r->ctx, LENSRT_ERROR_UNSUPPORTED,
+                               "integrate_fourier: the phase swings over %.3g waves across the aperture: a rule of "
+                               "%d nodes per side (%.3g nodes) for %.0f pixels, beyond %d per pixel, where the "
+                               "cells integrator is the cheaper (lensrt_render_integrate); name the nodes to "
+                               "insist",
+                               job.slope, *nodes, rule, npix, LENSRT_FOURIER_NODES_PER_PIXEL);
+    }
     return LENSRT_SUCCESS;
 }
 
