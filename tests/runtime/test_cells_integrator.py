@@ -86,6 +86,29 @@ def centres(n: int, width: float, centre: float = 0.0) -> np.ndarray:
     return centre + (np.arange(n) + 0.5 - 0.5 * n) * (width / n)
 
 
+def thin_lens_scene(rt, shape: str, defocus_waves: float, nx: int,
+                    ny: int) -> tuple[object, dict, np.ndarray]:
+    """A perfect lens f = 50 mm at f/8, light on axis, the sensor moved by dz so that the
+    rim sees `defocus_waves` of defocus (W = dz / (8 N^2)), an nx x ny window of square
+    pixels over the PSF (its core, or the geometric blur dz / N): the lens, the render's
+    keywords and the reference intensity by Gauss-Legendre (polar for the disc, per fan
+    triangle for 7 straight blades), exact to ~1e-9 with these node counts."""
+    f, n_f = 50.0, 8.0
+    radius = f / (2 * n_f)
+    dz = defocus_waves * LAM * 8 * n_f * n_f
+    width = 12 * LAM * n_f + 1.2 * dz / n_f
+    lens = rt.analytic(sensor_distance_mm=f, focal_length_mm=f)
+    kw = dict(width=nx, height=ny, width_mm=width, height_mm=width * ny / nx, focus_offset_mm=dz,
+              f_number=n_f, wavelengths=[WL_NM])
+    if shape == "blades":
+        kw.update(shape="blades", blades=7, rotation_deg=10.0)
+        a, b, w = polygon_nodes(radius, 7, 10.0, 64)
+    else:
+        a, b, w = disc_nodes(radius, 96, 512)
+    px, py = np.meshgrid(centres(nx, width), centres(ny, width * ny / nx)[::-1])  # row 0: top
+    return lens, kw, thin_lens_field(px, py, f + dz, f, a, b, w)
+
+
 # ------------------------------------------------- against independent quadrature -----
 
 
@@ -99,22 +122,7 @@ def test_thin_lens_against_quadrature(rt, shape, defocus_waves):
     # phase swings by < 160 rad over the aperture: 8 waves of defocus, 16 of tilt at the
     # window's edge). The cells error falls as 1 / rings^2:
     # at 48 rings it is ~1e-4 (measured), and its estimate must lie within a factor 2.
-    f, n_f = 50.0, 8.0
-    radius = f / (2 * n_f)
-    dz = defocus_waves * LAM * 8 * n_f * n_f
-    z = f + dz
-    width = 12 * LAM * n_f + 1.2 * dz / n_f  # the core, or the geometric blur dz / N
-    lens = rt.analytic(sensor_distance_mm=f, focal_length_mm=f)
-    kw = dict(width=24, height=24, width_mm=width, focus_offset_mm=dz, f_number=n_f,
-              wavelengths=[WL_NM])
-    if shape == "blades":
-        kw.update(shape="blades", blades=7, rotation_deg=10.0)
-        a, b, w = polygon_nodes(radius, 7, 10.0, 64)
-    else:
-        a, b, w = disc_nodes(radius, 96, 512)
-    x = centres(24, width)
-    px, py = np.meshgrid(x, x[::-1])  # row 0 is the top (+y)
-    ref = thin_lens_field(px, py, z, f, a, b, w)
+    lens, kw, ref = thin_lens_scene(rt, shape, defocus_waves, 24, 24)
     for rings in (24, 48):
         img, est = rt.integrate(lens, rings=rings, **kw)
         err = rel_l2(img[0], ref)

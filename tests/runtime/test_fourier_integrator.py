@@ -16,18 +16,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from lensrt_ctypes import LensrtError, Result
-from test_cells_integrator import (
-    AIRY_ZERO,
-    GHOST02,
-    LAM,
-    LENS0001,
-    WL_NM,
-    centres,
-    disc_nodes,
-    polygon_nodes,
-    rel_l2,
-    thin_lens_field,
-)
+from test_cells_integrator import AIRY_ZERO, GHOST02, LAM, LENS0001, WL_NM, rel_l2, thin_lens_scene
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -58,23 +47,7 @@ def test_thin_lens_against_quadrature(rt, shape, defocus_waves):
     # within a factor 2 of it wherever it is between 1e-3 and 50% (below, the finer rule's
     # own tolerance-level error is of the same size, so only a bound of 2e-3 is asked;
     # above, both rules are unresolved and the estimate must only say so: >= 30%).
-    f, n_f = 50.0, 8.0
-    radius = f / (2 * n_f)
-    dz = defocus_waves * LAM * 8 * n_f * n_f
-    z = f + dz
-    width = 12 * LAM * n_f + 1.2 * dz / n_f
-    lens = rt.analytic(sensor_distance_mm=f, focal_length_mm=f)
-    kw = dict(width=32, height=24, width_mm=width, height_mm=width * 0.75, focus_offset_mm=dz,
-              f_number=n_f, wavelengths=[WL_NM])
-    if shape == "blades":
-        kw.update(shape="blades", blades=7, rotation_deg=10.0)
-        a, b, w = polygon_nodes(radius, 7, 10.0, 64)
-    else:
-        a, b, w = disc_nodes(radius, 96, 512)
-    x = centres(32, width)
-    y = centres(24, width * 0.75)
-    px, py = np.meshgrid(x, y[::-1])  # row 0 is the top (+y)
-    ref = thin_lens_field(px, py, z, f, a, b, w)
+    lens, kw, ref = thin_lens_scene(rt, shape, defocus_waves, 32, 24)
     errors = []
     for nodes in (6, 16, 40, 96):
         img, est = fourier(rt, lens, nodes, **kw)

@@ -2,6 +2,7 @@
  * aperture and the closed-form integral of exp(i z) over a triangle with z linear
  * (core/cells.h says why). */
 #include "cells.h"
+#include "nufft.h"
 
 #include <math.h>
 #include <string.h>
@@ -198,41 +199,6 @@ lensrt_result lensrt_mesh_build(lensrt_context ctx, const lensrt_aperture *ap, d
 }
 
 /* ------------------------------------------------------------ quadrature ----- */
-
-void lensrt_gauss_legendre01(int n, double *x, double *w)
-{
-    int i, k, it;
-    for (i = 0; i < (n + 1) / 2; i++) {
-        // Root i of P_n (descending from near 1), by Newton from Tricomi's estimate
-        double z = cos(PI * (i + 0.75) / (n + 0.5)), dp = 1.0;
-        for (it = 0; it < 100; it++) {
-            double p0 = 1.0, p1 = z, dz;
-            for (k = 2; k <= n; k++) {
-                const double p2 = ((2.0 * k - 1.0) * z * p1 - (k - 1.0) * p0) / k;
-                p0 = p1;
-                p1 = p2;
-            }
-            // P_n' from P_n and P_{n-1}
-            dp = n * (z * p1 - p0) / (z * z - 1.0);
-            dz = p1 / dp;
-            z -= dz;
-            if (fabs(dz) < 1e-16) break;
-        }
-        {
-            double p0 = 1.0, p1 = z;
-            for (k = 2; k <= n; k++) {
-                const double p2 = ((2.0 * k - 1.0) * z * p1 - (k - 1.0) * p0) / k;
-                p0 = p1;
-                p1 = p2;
-            }
-            dp = n * (z * p1 - p0) / (z * z - 1.0);
-        }
-        // Mapped from [-1, 1] to [0, 1]: nodes symmetric about 1/2, weights halved
-        x[n - 1 - i] = 0.5 * (1.0 + z);
-        x[i] = 0.5 * (1.0 - z);
-        w[i] = w[n - 1 - i] = 1.0 / ((1.0 - z * z) * dp * dp);
-    }
-}
 
 /* B'(t) of a sector's boundary (mm per unit t). */
 static void sector_tangent(const sector *s, double t, double *dx, double *dy)

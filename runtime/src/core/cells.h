@@ -81,10 +81,6 @@ void lensrt_tri_integral_clipped(double S, const double z[6], const double E[6],
  * inside, zero on the boundary (mm-like): for the stop crossings of a ghost's P_clip. */
 double lensrt_stop_shape_level(const lensrt_stop_shape *s, double x, double y);
 
-/* Gauss-Legendre nodes x[i] and weights w[i] on [0, 1], n >= 1 (Newton on the Legendre
- * polynomial from Tricomi's first guess): exact for polynomials of degree 2 n - 1. */
-void lensrt_gauss_legendre01(int n, double *x, double *w);
-
 /* A quadrature of the aperture (the Fourier integrator's, cpu/fourier.c): nodes xy (mm
  * on the stop) and weights (mm^2). Each fan sector of the mesh above (circle, straight
  * or curved blades) is the image of the unit square under x = rho B(t), whose area

@@ -87,28 +87,38 @@ static double kernel(double beta, double z)
     return q > 0.0 ? exp(beta * (sqrt(q) - 1.0)) : (q == 0.0 ? exp(-beta) : 0.0);
 }
 
-/* The positive half of the n-point Gauss-Legendre rule on [-1, 1], n even: nodes z[i],
- * weights wt[i], i < n / 2. Root i of P_n by Newton from Tricomi's estimate, P_n and P_n'
- * from the three-term recurrence. */
-static void gauss_legendre_half(int n, double *z, double *wt)
+void lensrt_gauss_legendre01(int n, double *x, double *w)
 {
     int i, k, it;
-    for (i = 0; i < n / 2; i++) {
-        double r = cos(PI * (i + 0.75) / (n + 0.5)), dp = 1.0;
+    for (i = 0; i < (n + 1) / 2; i++) {
+        // Root i of P_n (descending from near 1), by Newton from Tricomi's estimate
+        double z = cos(PI * (i + 0.75) / (n + 0.5)), dp = 1.0;
         for (it = 0; it < 100; it++) {
-            double p0 = 1.0, p1 = r, step;
+            double p0 = 1.0, p1 = z, dz;
             for (k = 2; k <= n; k++) {
-                const double p2 = ((2.0 * k - 1.0) * r * p1 - (k - 1.0) * p0) / k;
+                const double p2 = ((2.0 * k - 1.0) * z * p1 - (k - 1.0) * p0) / k;
                 p0 = p1;
                 p1 = p2;
             }
-            dp = n * (r * p1 - p0) / (r * r - 1.0);
-            step = p1 / dp;
-            r -= step;
-            if (fabs(step) < 1e-16) break;
+            // P_n' from P_n and P_{n-1}
+            dp = n * (z * p1 - p0) / (z * z - 1.0);
+            dz = p1 / dp;
+            z -= dz;
+            if (fabs(dz) < 1e-16) break;
         }
-        z[i] = r;
-        wt[i] = 2.0 / ((1.0 - r * r) * dp * dp);
+        {
+            double p0 = 1.0, p1 = z;
+            for (k = 2; k <= n; k++) {
+                const double p2 = ((2.0 * k - 1.0) * z * p1 - (k - 1.0) * p0) / k;
+                p0 = p1;
+                p1 = p2;
+            }
+            dp = n * (z * p1 - p0) / (z * z - 1.0);
+        }
+        // Mapped from [-1, 1] to [0, 1]: nodes symmetric about 1/2, weights halved
+        x[n - 1 - i] = 0.5 * (1.0 + z);
+        x[i] = 0.5 * (1.0 - z);
+        w[i] = w[n - 1 - i] = 1.0 / ((1.0 - z * z) * dp * dp);
     }
 }
 
@@ -220,7 +230,15 @@ int lensrt_nufft_init(lensrt_nufft *p, int mx, int my, double tol, void *memory)
     // The kernel as polynomials, its transform at every mode (2 w + 16 Gauss-Legendre
     // nodes on [-1, 1]), the FFTs' twiddles
     nq = 2 * w + 16;
-    gauss_legendre_half(nq, z, wt);
+    {
+        // The rule on [0, 1] (core/cells.h); its first half mirrored to z > 0 on [-1, 1]
+        double x01[2 * MAX_WIDTH + 16], w01[2 * MAX_WIDTH + 16];
+        lensrt_gauss_legendre01(nq, x01, w01);
+        for (q = 0; q < nq / 2; q++) {
+            z[q] = 1.0 - 2.0 * x01[q];
+            wt[q] = 2.0 * w01[q];
+        }
+    }
     for (q = 0; q < nq / 2; q++) phi[q] = kernel(p->beta, z[q]);
     kernel_polynomials(p->beta, w, p->n_coef, coef);
     side_setup(mx, gx, w, nq, z, wt, phi, decon_x, col_x);

@@ -79,4 +79,9 @@ size_t lensrt_nufft_scratch_bytes(const lensrt_nufft *p, int n_vec);
 void lensrt_nufft_type1(const lensrt_nufft *p, size_t n, const double *x, const double *y, int n_vec,
                         const double *const *c, double *const *f, void *scratch);
 
+/* Gauss-Legendre nodes x[i] and weights w[i] on [0, 1], n >= 1 (Newton on the Legendre
+ * polynomial from Tricomi's first guess): exact for polynomials of degree 2 n - 1. The
+ * kernel's transform here, the aperture's rule in core/cells.c. */
+void lensrt_gauss_legendre01(int n, double *x, double *w);
+
 #endif /* LENSRT_NUFFT_H */

@@ -144,48 +144,41 @@ static void cheb_transform(const tile_interp *ti, const double *in, double *out,
             }
 }
 
-/* Values out[s][q] at the node pixels of the Chebyshev terms in[b][q] of a block of nodes. */
-static void cheb_inverse_blk(const tile_interp *ti, const double (*in)[BLK], double (*out)[BLK])
+/* out = (Ay x Ax) in over a block of nodes: out[by nx + r][q] = sum over m, k of Ay[by][m]
+ * Ax[r][k] in[m nx + k][q] (rows r of Ax and Ay give out's indices, columns in's). */
+static void cheb_apply_blk(const tile_interp *ti, const double (*Ax)[MAX_DEG + 1], const double (*Ay)[MAX_DEG + 1],
+                           const double (*in)[BLK], double (*out)[BLK])
 {
     double tmp[MAX_NODES][BLK];
     const int nx = ti->dx + 1, ny = ti->dy + 1;
-    int i, m, by, q;
+    int r, k, by, q;
+    // Along x for every row of node pixels, then along y
     for (by = 0; by < ny; by++)
-        for (i = 0; i < nx; i++) {
+        for (r = 0; r < nx; r++) {
             double a[BLK] = {0};
-            for (m = 0; m < nx; m++)
-                for (q = 0; q < BLK; q++) a[q] += ti->Tx[i][m] * in[by * nx + m][q];
-            memcpy(tmp[by * nx + i], a, sizeof a);
+            for (k = 0; k < nx; k++)
+                for (q = 0; q < BLK; q++) a[q] += Ax[r][k] * in[by * nx + k][q];
+            memcpy(tmp[by * nx + r], a, sizeof a);
         }
     for (by = 0; by < ny; by++)
-        for (i = 0; i < nx; i++) {
+        for (r = 0; r < nx; r++) {
             double a[BLK] = {0};
-            for (m = 0; m < ny; m++)
-                for (q = 0; q < BLK; q++) a[q] += ti->Ty[by][m] * tmp[m * nx + i][q];
-            memcpy(out[by * nx + i], a, sizeof a);
+            for (k = 0; k < ny; k++)
+                for (q = 0; q < BLK; q++) a[q] += Ay[by][k] * tmp[k * nx + r][q];
+            memcpy(out[by * nx + r], a, sizeof a);
         }
+}
+
+/* Values out[s][q] at the node pixels of the Chebyshev terms in[b][q] of a block of nodes. */
+static void cheb_inverse_blk(const tile_interp *ti, const double (*in)[BLK], double (*out)[BLK])
+{
+    cheb_apply_blk(ti, (const double(*)[MAX_DEG + 1])ti->Tx, (const double(*)[MAX_DEG + 1])ti->Ty, in, out);
 }
 
 /* Chebyshev terms of a block's values at the node pixels: in[s][BLK] -> out[b][BLK]. */
 static void cheb_transform_blk(const tile_interp *ti, const double (*in)[BLK], double (*out)[BLK])
 {
-    double tmp[MAX_NODES][BLK];
-    const int nx = ti->dx + 1, ny = ti->dy + 1;
-    int i, m, by, q;
-    for (by = 0; by < ny; by++)
-        for (m = 0; m < nx; m++) {
-            double a[BLK] = {0};
-            for (i = 0; i < nx; i++)
-                for (q = 0; q < BLK; q++) a[q] += ti->Mx[m][i] * in[by * nx + i][q];
-            memcpy(tmp[by * nx + m], a, sizeof a);
-        }
-    for (by = 0; by < ny; by++)
-        for (m = 0; m < nx; m++) {
-            double a[BLK] = {0};
-            for (i = 0; i < ny; i++)
-                for (q = 0; q < BLK; q++) a[q] += ti->My[by][i] * tmp[i * nx + m][q];
-            memcpy(out[by * nx + m], a, sizeof a);
-        }
+    cheb_apply_blk(ti, (const double(*)[MAX_DEG + 1])ti->Mx, (const double(*)[MAX_DEG + 1])ti->My, in, out);
 }
 
 /* exp(i t) for |t| <= 0.3 by its Taylor series to t^6 (error below t^7 / 5040, 4.4e-8),
