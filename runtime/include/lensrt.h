@@ -620,6 +620,18 @@ LENSRT_API lensrt_result lensrt_render_tiles_begin(lensrt_render render, uint64_
  * refusals of lensrt_render_integrate apply. */
 LENSRT_API lensrt_result lensrt_render_tiles_begin_cells(lensrt_render render, int32_t rings, int32_t estimate);
 
+/* Since 0.6.0: a tile session of the Fourier integrator: the same tiles and tiles_end,
+ * and after tiles_end the sums equal those of lensrt_render_integrate_fourier(render,
+ * nodes, estimate ? &e : NULL, ...) on a render with no earlier integral, bit for bit,
+ * whatever the rectangles, their order and the threads (nodes 0 is chosen here, on the
+ * caller's thread, as that call chooses it). A host tile renders every tile of the
+ * window's own decomposition that meets its rectangle, whole, and keeps its pixels: host
+ * tiles smaller than the window's tiles (the whole window, for most PSFs) repeat their
+ * work, so use as many host tiles as threads. The checks and refusals of
+ * lensrt_render_integrate_fourier apply; a tile the integrator refuses (a clip) fails
+ * with its message. */
+LENSRT_API lensrt_result lensrt_render_tiles_begin_fourier(lensrt_render render, int32_t nodes, int32_t estimate);
+
 /* Render pixels x0 .. x0 + width - 1 of rows y0 .. y0 + height - 1 (row 0 at the top) for
  * every light and wavelength and the session's whole sample range, on the calling thread
  * alone (no OpenMP), adding to those pixels' sums. Any number of threads may call it at

@@ -197,16 +197,19 @@ static void *worker(void *arg)
     }
 }
 
-/* tiles_begin (of n samples, or with rings > 0 tiles_begin_cells of that many rings with
- * the estimate), every tile on `threads` threads (in the tiling's order, taken from a
- * shared counter), tiles_end. Returns the first tile failure, else tiles_end's result. */
-static lensrt_result render_tiles_of(lensrt_render r, uint64_t n, int rings, const tiling *t, int threads)
+/* tiles_begin (of n samples; with rings > 0 tiles_begin_cells of that many rings, with
+ * nodes >= 0 tiles_begin_fourier of that many nodes, with the estimate), every tile on
+ * `threads` threads (in the tiling's order, taken from a shared counter), tiles_end.
+ * Returns the first tile failure, else tiles_end's result. */
+static lensrt_result render_tiles_of(lensrt_render r, uint64_t n, int rings, int nodes, const tiling *t, int threads)
 {
     pthread_t th[8];
     pool p;
     lensrt_result res;
     int i;
-    res = rings > 0 ? lensrt_render_tiles_begin_cells(r, rings, 1) : lensrt_render_tiles_begin(r, n);
+    res = nodes >= 0  ? lensrt_render_tiles_begin_fourier(r, nodes, 1)
+          : rings > 0 ? lensrt_render_tiles_begin_cells(r, rings, 1)
+                      : lensrt_render_tiles_begin(r, n);
     if (res != LENSRT_SUCCESS) return res;
     p.render = r;
     p.tiles = t;
@@ -222,7 +225,7 @@ static lensrt_result render_tiles_of(lensrt_render r, uint64_t n, int rings, con
 
 static lensrt_result render_tiles(lensrt_render r, uint64_t n, const tiling *t, int threads)
 {
-    return render_tiles_of(r, n, 0, t, threads);
+    return render_tiles_of(r, n, 0, -1, t, threads);
 }
 
 /* -------------------------------------------------------------- scenes ----- */
@@ -400,7 +403,7 @@ static void test_cells_equal_to_integrate(lensrt_context ctx, const scene *scene
     for (k = 0; k < 4; k++)
         for (threads = 1; threads <= 4; threads += 3) {
             CHECK_RES(ctx, lensrt_render_create(ctx, &s->desc, &r), LENSRT_SUCCESS);
-            CHECK_RES(ctx, render_tiles_of(r, 0, rings, &shapes[k], threads), LENSRT_SUCCESS);
+            CHECK_RES(ctx, render_tiles_of(r, 0, rings, -1, &shapes[k], threads), LENSRT_SUCCESS);
             CHECK_RES(ctx, lensrt_render_image(r, ib, n), LENSRT_SUCCESS);
             lensrt_render_get_stats(r, &b);
             CHECK(memcmp(ia, ib, n * sizeof *ia) == 0, "%s: cells, %s on %d thread(s): the image differs from "
@@ -420,6 +423,57 @@ static void test_cells_equal_to_integrate(lensrt_context ctx, const scene *scene
            "estimate %.3g)\n", s->name, rings, est);
     lensrt_render_destroy(ref);
     for (k = 0; k < 4; k++) free(shapes[k].r);
+    free(ia);
+    free(ib);
+}
+
+/* Fourier tiles (lensrt_render_tiles_begin_fourier) against
+ * lensrt_render_integrate_fourier on a fresh render: every tiling on 1 and 4 threads
+ * gives the same image bit for bit, the same estimate and nodes (0: chosen). */
+static void test_fourier_equal_to_integrate(lensrt_context ctx, const scene *scene_in, int nodes)
+{
+    scene copy = *scene_in, *s = &copy;
+    const int W = s->desc.sensor.width, H = s->desc.sensor.height;
+    const size_t n = (size_t)W * (size_t)H * (size_t)s->desc.n_wavelengths;
+    tiling shapes[3];
+    const char *names[3] = {"one tile", "uneven 5 x 3 grid", "mixture"};
+    lensrt_render ref, r;
+    lensrt_render_stats a = LENSRT_RENDER_STATS_INIT, b = LENSRT_RENDER_STATS_INIT;
+    float *ia = malloc(n * sizeof *ia), *ib = malloc(n * sizeof *ib);
+    double est = -1.0;
+    int k, threads;
+    if (!ia || !ib) abort();
+    copy.desc.lights = copy.desc.lights ? copy.lights : NULL; /* the copy's own */
+    copy.desc.wavelengths_nm = copy.desc.wavelengths_nm ? copy.wavelengths : NULL;
+    copy.desc.estimator = LENSRT_ESTIMATOR_DEFAULT; /* the unbiased one is Monte Carlo's */
+    shapes[0] = grid(W, H, 1, 1);
+    shapes[1] = grid(W, H, 5, 3);
+    shapes[2] = mixture(W, H);
+    CHECK_RES(ctx, lensrt_render_create(ctx, &s->desc, &ref), LENSRT_SUCCESS);
+    CHECK_RES(ctx, lensrt_render_integrate_fourier(ref, nodes, &est, NULL, NULL), LENSRT_SUCCESS);
+    CHECK_RES(ctx, lensrt_render_image(ref, ia, n), LENSRT_SUCCESS);
+    lensrt_render_get_stats(ref, &a);
+    for (k = 0; k < 3; k++)
+        for (threads = 1; threads <= 4; threads += 3) {
+            CHECK_RES(ctx, lensrt_render_create(ctx, &s->desc, &r), LENSRT_SUCCESS);
+            CHECK_RES(ctx, render_tiles_of(r, 0, 0, nodes, &shapes[k], threads), LENSRT_SUCCESS);
+            CHECK_RES(ctx, lensrt_render_image(r, ib, n), LENSRT_SUCCESS);
+            lensrt_render_get_stats(r, &b);
+            CHECK(memcmp(ia, ib, n * sizeof *ia) == 0, "%s: Fourier, %s on %d thread(s): the image differs from "
+                  "lensrt_render_integrate_fourier's", s->name, names[k], threads);
+            CHECK(b.fourier_nodes == a.fourier_nodes && b.cells_error_estimate == est && b.cells_rings == 0,
+                  "%s: Fourier, %s on %d thread(s): nodes %d against %d, estimate %.17g against %.17g", s->name,
+                  names[k], threads, b.fourier_nodes, a.fourier_nodes, b.cells_error_estimate, est);
+            CHECK_RES(ctx, lensrt_render_run(r, 256, NULL, NULL), LENSRT_ERROR_INVALID_ARGUMENT);
+            lensrt_render_destroy(r);
+        }
+    // Bad nodes, and a samples session over the integral, are refused
+    CHECK_RES(ctx, lensrt_render_tiles_begin_fourier(ref, -1, 1), LENSRT_ERROR_INVALID_ARGUMENT);
+    CHECK_RES(ctx, lensrt_render_tiles_begin(ref, 256), LENSRT_ERROR_INVALID_ARGUMENT);
+    printf("test_tiles: %s: Fourier tiles of %d nodes equal lensrt_render_integrate_fourier (3 tilings x 1 and 4 "
+           "threads, estimate %.3g)\n", s->name, a.fourier_nodes, est);
+    lensrt_render_destroy(ref);
+    for (k = 0; k < 3; k++) free(shapes[k].r);
     free(ia);
     free(ib);
 }
@@ -574,6 +628,11 @@ static void test_gl_refused(lensrt_context ctx, const scene *s)
     CHECK(strstr(lensrt_context_last_error(ctx), "device cpu") != NULL, "GL cells refusal: '%s'",
           lensrt_context_last_error(ctx));
     CHECK_RES(ctx, lensrt_render_tiles_begin_cells(r, 8, 1), LENSRT_ERROR_UNSUPPORTED);
+    // The Fourier integrator likewise: a message, never a silent fallback
+    CHECK_RES(ctx, lensrt_render_integrate_fourier(r, 8, NULL, NULL, NULL), LENSRT_ERROR_UNSUPPORTED);
+    CHECK(strstr(lensrt_context_last_error(ctx), "no Fourier integrator") != NULL, "GL Fourier refusal: '%s'",
+          lensrt_context_last_error(ctx));
+    CHECK_RES(ctx, lensrt_render_tiles_begin_fourier(r, 8, 1), LENSRT_ERROR_UNSUPPORTED);
     CHECK_RES(ctx, lensrt_render_tile(r, 0, 0, 1, 1), LENSRT_ERROR_INVALID_ARGUMENT);
     CHECK_RES(ctx, lensrt_render_run(r, 100, NULL, NULL), LENSRT_SUCCESS); /* the render is untouched */
     printf("test_tiles: the GL device refuses tiles\n");
@@ -616,6 +675,7 @@ int main(int argc, char **argv)
     test_refusals(ctx, &s);
     test_gl_refused(ctx, &s);
     test_cells_equal_to_integrate(ctx, &s, 8);
+    test_fourier_equal_to_integrate(ctx, &s, 12);
     scene_double(fitted, &s);
     test_equal_to_run(ctx, &s, s.n, 0x3f);
     test_cells_equal_to_integrate(ctx, &s, 6);
@@ -623,6 +683,7 @@ int main(int argc, char **argv)
     test_equal_to_run(ctx, &s, s.n, 0x3f);
     test_sequences(ctx, &s);
     test_cells_equal_to_integrate(ctx, &s, 8);
+    test_fourier_equal_to_integrate(ctx, &s, 0);
 
     lensrt_lens_destroy(ctx, perfect);
     lensrt_lens_destroy(ctx, fitted);

@@ -48,6 +48,12 @@ typedef struct lensrt_device_ops {
      * context). */
     lensrt_result (*fourier)(lensrt_render r, struct lensrt_fourier_job *job, lensrt_progress_fn progress,
                              void *user_data);
+    /* fourier_tile: the same fields for pixels x0 .. x0 + width - 1 of rows y0 ..
+     * y0 + height - 1 alone, on the calling thread (no OpenMP, no context errors: the
+     * result code, and the reason in why[0 .. n_why)), bit for bit as `fourier` makes
+     * them: the window's own tiles, those that meet the rectangle, writing its pixels. */
+    lensrt_result (*fourier_tile)(lensrt_render r, struct lensrt_fourier_job *job, int x0, int y0, int width,
+                                  int height, char *why, size_t n_why);
 } lensrt_device_ops;
 
 /* The device table: NULL when this build has no such device. */

@@ -495,10 +495,10 @@ lensrt_result lensrt_fourier_finish(lensrt_render r, int nodes, const double *U,
     return LENSRT_SUCCESS;
 }
 
-/* The nodes that resolve the integrand: a pilot rule measures the phase's largest change
+/* The nodes that resolve the integrand (render.h): a pilot rule measures the phase's largest change
  * per unit of a line parameter over the window's corners (core/fourier.h), and
  * LENSRT_FOURIER_NODES_PER_WAVE nodes go to each wave, 4 more for the ends. */
-static lensrt_result fourier_auto_nodes(lensrt_render r, int *nodes)
+lensrt_result lensrt_fourier_auto_nodes(lensrt_render r, int *nodes)
 {
     lensrt_quadrature q;
     lensrt_fourier_job job;
@@ -562,7 +562,7 @@ lensrt_result lensrt_render_integrate_fourier(lensrt_render r, int32_t nodes, do
                            "with device cpu, or with Monte Carlo samples (lensrt_render_run)",
                            r->device->name);
     if ((res = lensrt_cells_check(r, "integrate_fourier", 1, 0)) != LENSRT_SUCCESS) return res;
-    if (nodes == 0 && (res = fourier_auto_nodes(r, &nodes)) != LENSRT_SUCCESS) {
+    if (nodes == 0 && (res = lensrt_fourier_auto_nodes(r, &nodes)) != LENSRT_SUCCESS) {
         r->seconds += lensrt_seconds() - t0;
         return res;
     }

@@ -16,10 +16,12 @@
 
 #include "../c_numbers.h"
 #include "cells.h"
+#include "fourier.h"
 #include "atomic.h"
 #include "device.h"
 
 #include <stdarg.h>
+#include <math.h>
 #include <string.h>
 
 lensrt_result lensrt_tiles_fail(lensrt_render r, lensrt_result result, const char *fmt, ...)
@@ -107,6 +109,15 @@ void lensrt_tiles_free(lensrt_render r)
             lensrt_free(r->ctx, t->job->U[j]);
         }
         lensrt_free(r->ctx, t->job);
+    }
+    if (t->fjob) {
+        int j;
+        for (j = 0; j < LENSRT_FOURIER_MAX_LEVELS; j++) {
+            if (t->fquad) lensrt_quadrature_free(r->ctx, &t->fquad[j]);
+            lensrt_free(r->ctx, t->fjob->U[j]);
+        }
+        lensrt_free(r->ctx, t->fquad);
+        lensrt_free(r->ctx, t->fjob);
     }
     lensrt_free(r->ctx, t);
     r->tiles = NULL;
@@ -205,6 +216,59 @@ lensrt_result lensrt_render_tiles_begin_cells(lensrt_render r, int32_t rings, in
     return res;
 }
 
+lensrt_result lensrt_render_tiles_begin_fourier(lensrt_render r, int32_t nodes, int32_t estimate)
+{
+    const size_t npix = r ? (size_t)r->width * (size_t)r->height : 0, ns = r ? n_sums(r) : 0;
+    lensrt_tiles *t;
+    lensrt_fourier_job *job;
+    lensrt_result res;
+    int k, fine;
+    if (!r) return LENSRT_ERROR_INVALID_ARGUMENT;
+    if ((res = lensrt_tiles_idle(r, "tiles_begin_fourier")) != LENSRT_SUCCESS ||
+        (res = lensrt_cells_check(r, "tiles_begin_fourier", 1, 0)) != LENSRT_SUCCESS)
+        return res;
+    if (!r->device->fourier_tile)
+        return lensrt_fail(r->ctx, LENSRT_ERROR_UNSUPPORTED,
+                           "tiles_begin_fourier: the %s device has no host-scheduled Fourier tiles: render with device "
+                           "cpu",
+                           r->device->name);
+    if (nodes < 0 || nodes > LENSRT_MAX_FOURIER_NODES ||
+        (estimate && ceil(LENSRT_FOURIER_REFINE * nodes) > LENSRT_MAX_FOURIER_NODES))
+        return lensrt_fail(r->ctx, LENSRT_ERROR_INVALID_ARGUMENT,
+                           "tiles_begin_fourier: nodes must be 0 (chosen) or 1..%d (%d with an error estimate), got %d",
+                           LENSRT_MAX_FOURIER_NODES, (int)(LENSRT_MAX_FOURIER_NODES / LENSRT_FOURIER_REFINE), nodes);
+    // The rules of lensrt_render_integrate_fourier on a fresh render: nodes (chosen as it
+    // chooses them), and with the estimate the finer one
+    if (nodes == 0 && (res = lensrt_fourier_auto_nodes(r, &nodes)) != LENSRT_SUCCESS) return res;
+    fine = (int)ceil(LENSRT_FOURIER_REFINE * nodes);
+    t = lensrt_calloc(r->ctx, 1, sizeof *t);
+    job = lensrt_calloc(r->ctx, 1, sizeof *job);
+    if (!t || !job) {
+        lensrt_free(r->ctx, t);
+        lensrt_free(r->ctx, job);
+        return lensrt_fail(r->ctx, LENSRT_ERROR_OUT_OF_MEMORY, "tiles_begin_fourier: out of memory");
+    }
+    r->tiles = t;
+    t->fjob = job;
+    t->fourier_nodes = nodes;
+    t->cells_estimate = estimate != 0;
+    t->t0 = lensrt_seconds();
+    t->cover = lensrt_calloc(r->ctx, npix, sizeof *t->cover);
+    t->fquad = lensrt_calloc(r->ctx, LENSRT_FOURIER_MAX_LEVELS, sizeof *t->fquad);
+    res = t->cover && t->fquad ? LENSRT_SUCCESS
+                               : lensrt_fail(r->ctx, LENSRT_ERROR_OUT_OF_MEMORY, "tiles_begin_fourier: out of memory");
+    job->n_level = estimate ? 2 : 1;
+    for (k = 0; k < job->n_level && res == LENSRT_SUCCESS; k++) {
+        job->tol[k] = k == 0 ? LENSRT_FOURIER_TOL : 0.1 * LENSRT_FOURIER_TOL;
+        job->quad[k] = &t->fquad[k];
+        job->U[k] = lensrt_calloc(r->ctx, ns * 2, sizeof(double));
+        if (!job->U[k]) res = lensrt_fail(r->ctx, LENSRT_ERROR_OUT_OF_MEMORY, "tiles_begin_fourier: out of memory");
+        else res = lensrt_quadrature_build(r->ctx, &r->desc.aperture, r->stop_radius, k ? fine : nodes, &t->fquad[k]);
+    }
+    if (res != LENSRT_SUCCESS) lensrt_tiles_free(r);
+    return res;
+}
+
 lensrt_result lensrt_render_tile(lensrt_render r, int x0, int y0, int width, int height)
 {
     lensrt_tiles *t = r ? r->tiles : NULL;
@@ -235,6 +299,13 @@ lensrt_result lensrt_render_tile(lensrt_render r, int x0, int y0, int width, int
         if (res != LENSRT_SUCCESS)
             return lensrt_tiles_fail(r, res, "tile %d x %d at (%d, %d): out of memory for the cells integrator's scratch",
                                      width, height, x0, y0);
+        return LENSRT_SUCCESS;
+    }
+    if (t->fourier_nodes) {
+        // A Fourier session: the window's tiles that meet this one, its pixels written
+        char why[LENSRT_ERROR_SIZE];
+        lensrt_result res = r->device->fourier_tile(r, t->fjob, x0, y0, width, height, why, sizeof why);
+        if (res != LENSRT_SUCCESS) return lensrt_tiles_fail(r, res, "tile %d x %d at (%d, %d): %s", width, height, x0, y0, why);
         return LENSRT_SUCCESS;
     }
     return r->device->tile(r, x0, y0, width, height);
@@ -279,6 +350,17 @@ lensrt_result lensrt_render_tiles_end(lensrt_render r)
             job->U[0] = NULL; /* the render's now, and the coarse field with it */
             if (job->n_mesh > 1) job->U[1] = NULL;
         }
+        r->seconds += lensrt_seconds() - t->t0;
+        lensrt_tiles_free(r);
+        return res;
+    }
+    if (t->fourier_nodes) {
+        // A Fourier session: the fields become the sums as lensrt_render_integrate_fourier's do
+        lensrt_fourier_job *job = t->fjob;
+        double est;
+        res = lensrt_fourier_finish(r, t->fourier_nodes, job->U[0], job->n_level > 1 ? job->U[1] : NULL,
+                                    job->n_level > 1 ? job->quad[1]->na : 0, t->cells_estimate ? &est : NULL);
+        if (res == LENSRT_SUCCESS && job->n_level > 1) job->U[1] = NULL; /* the render's now */
         r->seconds += lensrt_seconds() - t->t0;
         lensrt_tiles_free(r);
         return res;

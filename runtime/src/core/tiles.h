@@ -39,6 +39,11 @@ typedef struct lensrt_tiles {
      * session), the meshes and the fields the tiles write (job, pixel by pixel) */
     int cells_rings, cells_estimate;
     struct lensrt_cells_job *job;
+    /* A Fourier session (lensrt_render_tiles_begin_fourier): its nodes (0: none), the
+     * rules and fields of its levels (fjob) and the rules themselves */
+    int fourier_nodes;
+    struct lensrt_fourier_job *fjob;
+    struct lensrt_quadrature *fquad;
     int32_t failed;            /* turned to 1 by the first failing tile (atomic) */
     lensrt_result failure;     /* its result and message, written by that tile only */
     char message[LENSRT_ERROR_SIZE];

@@ -129,4 +129,5 @@ static lensrt_result cpu_end(lensrt_render r, lensrt_result status)
 static void cpu_destroy(lensrt_render r) { cpu_end(r, LENSRT_SUCCESS); }
 
 const lensrt_device_ops lensrt_device_cpu = {"cpu", cpu_create, cpu_begin, cpu_pass, cpu_end, cpu_destroy, lensrt_cpu_tile,
-                                        lensrt_cpu_cells, lensrt_cpu_cells_tile, lensrt_cpu_fourier};
+                                        lensrt_cpu_cells, lensrt_cpu_cells_tile, lensrt_cpu_fourier,
+                                        lensrt_cpu_fourier_tile};

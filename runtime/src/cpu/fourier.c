@@ -62,6 +62,7 @@ typedef struct fourier_wave {
     size_t plan_bytes, scratch_bytes;
     int batch;             /* NUFFT vectors per call */
     double *U;             /* the job level's fields */
+    int rect[4];           /* a host tile's pixels (x0, y0, width, height); width 0: all */
     long tiles;
     double slope;          /* the pilot's */
     lensrt_result fail;
@@ -648,6 +649,10 @@ static int render_tile_at(fourier_wave *fw, int x0, int y0, int tw, int th, int 
     int s, b, l, nb, kept[MAX_NODES], cls[MAX_NODES], n_kept = 0, got;
     size_t j;
     lensrt_nufft plan;
+    // A host tile renders the window's tiles that meet its rectangle, and no others
+    if (fw->rect[2] && (x0 >= fw->rect[0] + fw->rect[2] || x0 + tw <= fw->rect[0] || y0 >= fw->rect[1] + fw->rect[3] ||
+                        y0 + th <= fw->rect[1]))
+        return 1;
     tile_setup(r, x0, y0, tw, th, deg ? deg : MAX_DEG, &ti);
     got = tile_prepare(fw, &ti, can_split);
     if (got == 0) return 0;
@@ -810,6 +815,9 @@ static int render_tile_at(fourier_wave *fw, int x0, int y0, int tw, int th, int 
                 const int x = x0 + ix, y = y0 + iy;
                 const size_t p = (size_t)y * (size_t)r->width + (size_t)x, tp = (size_t)iy * (size_t)tw + (size_t)ix;
                 double tx[MAX_DEG + 1], ty[MAX_DEG + 1];
+                if (fw->rect[2] && (x < fw->rect[0] || x >= fw->rect[0] + fw->rect[2] || y < fw->rect[1] ||
+                                    y >= fw->rect[1] + fw->rect[3]))
+                    continue;
                 cheb_values(ti.dx, tw > 1 ? (r->xs[x] - ti.xc) / ti.hx : 0.0, tx);
                 cheb_values(ti.dy, th > 1 ? (r->ys[y] - ti.yc) / ti.hy : 0.0, ty);
                 for (l = 0; l < nl; l++) {
@@ -998,6 +1006,39 @@ lensrt_result lensrt_cpu_fourier(lensrt_render r, lensrt_fourier_job *job, lensr
             free_wave(r->ctx, &fws[t]);
         }
         if (res == LENSRT_SUCCESS && cancelled) res = lensrt_fail(r->ctx, LENSRT_ERROR_CANCELLED, "fourier: cancelled");
+    }
+    return res;
+}
+
+lensrt_result lensrt_cpu_fourier_tile(lensrt_render r, lensrt_fourier_job *job, int x0, int y0, int width, int height,
+                                      char *why, size_t n_why)
+{
+    fourier_wave fw;
+    lensrt_result res = LENSRT_SUCCESS;
+    int lv, w;
+    // Every level and wavelength on this thread: the window's tiles that meet the
+    // rectangle, as lensrt_cpu_fourier makes them (the same steps, so the same bits)
+    for (lv = 0; lv < job->n_level && res == LENSRT_SUCCESS; lv++) {
+        if (!alloc_wave(r, job->quad[lv], job->tol[lv], &fw)) {
+            free_wave(r->ctx, &fw);
+            snprintf(why, n_why, "out of memory for the Fourier integrator's %d nodes", job->quad[lv]->n);
+            return LENSRT_ERROR_OUT_OF_MEMORY;
+        }
+        fw.U = job->U[lv];
+        fw.rect[0] = x0;
+        fw.rect[1] = y0;
+        fw.rect[2] = width;
+        fw.rect[3] = height;
+        for (w = 0; w < r->n_wl && fw.fail == LENSRT_SUCCESS; w++) {
+            fw.w = w;
+            fw.lambda_mm = r->wavelengths[w] / LENSRT_NM_PER_MM;
+            if (prepare_nodes(&fw)) render_tile(&fw, 0, 0, r->width, r->height, 0);
+        }
+        if (fw.fail != LENSRT_SUCCESS) {
+            res = fw.fail;
+            snprintf(why, n_why, "%s", fw.why);
+        }
+        free_wave(r->ctx, &fw);
     }
     return res;
 }

@@ -83,6 +83,8 @@ lensrt_result lensrt_cpu_cells_tile(lensrt_render r, const struct lensrt_cells_j
 /* The CPU device's Fourier integrator (cpu/fourier.c; lensrt_device_ops.fourier). */
 lensrt_result lensrt_cpu_fourier(lensrt_render r, struct lensrt_fourier_job *job, lensrt_progress_fn progress,
                                  void *user_data);
+lensrt_result lensrt_cpu_fourier_tile(lensrt_render r, struct lensrt_fourier_job *job, int x0, int y0, int width,
+                                      int height, char *why, size_t n_why);
 
 /* The CPU device's host-scheduled tile (cpu/tiles.c; lensrt_device_ops.tile). */
 lensrt_result lensrt_cpu_tile(lensrt_render r, int x0, int y0, int width, int height);

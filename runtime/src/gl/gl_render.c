@@ -717,4 +717,4 @@ static lensrt_result gl_end(lensrt_render r, lensrt_result status)
 
 const lensrt_device_ops lensrt_device_gl = {"gl", gl_create, gl_begin, gl_pass, gl_end, gl_destroy, NULL /* no tiles */,
                                        NULL /* no cells integrator */, NULL,
-                                       NULL /* no Fourier integrator */};
+                                       NULL /* no Fourier integrator */, NULL};
