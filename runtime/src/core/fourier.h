@@ -29,8 +29,6 @@
 
 #include "cells.h"
 
-/* The finer rule of the error estimate has this many times the nodes per side (lensrt.h). */
-#define LENSRT_FOURIER_REFINE LENSRT_FOURIER_FINER
 /* The relative tolerance of the interpolation across tiles and of the NUFFT at the
  * render's rule (a tenth of it at the finer rule): far below the percent errors that
  * the rule's nodes decide. */
@@ -62,8 +60,6 @@ typedef struct lensrt_fourier_job {
      * LENSRT_FOURIER_NODES_PER_WAVE nodes resolves the integrand (auto nodes) */
     int pilot;
     double slope;
-    /* out: tiles rendered */
-    long tiles;
 } lensrt_fourier_job;
 
 #endif /* LENSRT_FOURIER_H */

@@ -495,6 +495,23 @@ lensrt_result lensrt_fourier_finish(lensrt_render r, int nodes, const double *U,
     return LENSRT_SUCCESS;
 }
 
+lensrt_result lensrt_fourier_check(lensrt_render r, const char *what, int nodes, int estimate)
+{
+    if (nodes < 0 || nodes > LENSRT_MAX_FOURIER_NODES ||
+        (estimate && ceil(LENSRT_FOURIER_FINER * nodes) > LENSRT_MAX_FOURIER_NODES))
+        return lensrt_fail(r->ctx, LENSRT_ERROR_INVALID_ARGUMENT,
+                           "%s: nodes must be 0 (chosen) or 1..%d (%d with an error estimate, whose finer rule has "
+                           "%g times the nodes), got %d",
+                           what, LENSRT_MAX_FOURIER_NODES, (int)(LENSRT_MAX_FOURIER_NODES / LENSRT_FOURIER_FINER),
+                           LENSRT_FOURIER_FINER, nodes);
+    if (!r->device->fourier)
+        return lensrt_fail(r->ctx, LENSRT_ERROR_UNSUPPORTED,
+                           "%s: the %s device has no Fourier integrator (the CPU device has): render with device "
+                           "cpu, or with Monte Carlo samples (lensrt_render_run)",
+                           what, r->device->name);
+    return lensrt_cells_check(r, what, 1, 0);
+}
+
 /* The nodes that resolve the integrand (render.h): a pilot rule measures the phase's largest change
  * per unit of a line parameter over the window's corners (core/fourier.h), and
  * LENSRT_FOURIER_NODES_PER_WAVE nodes go to each wave, 4 more for the ends. */
@@ -506,7 +523,7 @@ lensrt_result lensrt_fourier_auto_nodes(lensrt_render r, int *nodes)
                                                 LENSRT_FOURIER_PILOT_NODES, &q);
     double n, q_ratio;
     int q_patches;
-    const double most = LENSRT_MAX_FOURIER_NODES / LENSRT_FOURIER_REFINE;
+    const double most = LENSRT_MAX_FOURIER_NODES / LENSRT_FOURIER_FINER;
     if (res != LENSRT_SUCCESS) return res;
     // The rule's nodes per (nodes per side)^2: patches, and a slit's lines per node
     q_patches = q.patches;
@@ -548,25 +565,14 @@ lensrt_result lensrt_render_integrate_fourier(lensrt_render r, int32_t nodes, do
     lensrt_result res = LENSRT_SUCCESS;
     int k, built = 0;
     if (!r) return LENSRT_ERROR_INVALID_ARGUMENT;
-    if ((res = lensrt_tiles_idle(r, "integrate_fourier")) != LENSRT_SUCCESS) return res;
-    if (nodes < 0 || nodes > LENSRT_MAX_FOURIER_NODES ||
-        (error_estimate && ceil(LENSRT_FOURIER_REFINE * nodes) > LENSRT_MAX_FOURIER_NODES))
-        return lensrt_fail(r->ctx, LENSRT_ERROR_INVALID_ARGUMENT,
-                           "integrate_fourier: nodes must be 0 (chosen) or 1..%d (%d with an error estimate, whose "
-                           "finer rule has %g times the nodes), got %d",
-                           LENSRT_MAX_FOURIER_NODES, (int)(LENSRT_MAX_FOURIER_NODES / LENSRT_FOURIER_REFINE),
-                           LENSRT_FOURIER_REFINE, nodes);
-    if (!r->device->fourier)
-        return lensrt_fail(r->ctx, LENSRT_ERROR_UNSUPPORTED,
-                           "integrate_fourier: the %s device has no Fourier integrator (the CPU device has): render "
-                           "with device cpu, or with Monte Carlo samples (lensrt_render_run)",
-                           r->device->name);
-    if ((res = lensrt_cells_check(r, "integrate_fourier", 1, 0)) != LENSRT_SUCCESS) return res;
+    if ((res = lensrt_tiles_idle(r, "integrate_fourier")) != LENSRT_SUCCESS ||
+        (res = lensrt_fourier_check(r, "integrate_fourier", nodes, error_estimate != NULL)) != LENSRT_SUCCESS)
+        return res;
     if (nodes == 0 && (res = lensrt_fourier_auto_nodes(r, &nodes)) != LENSRT_SUCCESS) {
         r->seconds += lensrt_seconds() - t0;
         return res;
     }
-    fine = error_estimate ? (int)ceil(LENSRT_FOURIER_REFINE * nodes) : 0;
+    fine = error_estimate ? (int)ceil(LENSRT_FOURIER_FINER * nodes) : 0;
     reuse = error_estimate && r->fourier_fine && r->fourier_fine_nodes == nodes;
     nsum = 2 * (size_t)r->n_lights * (size_t)r->n_wl * (size_t)r->width * (size_t)r->height;
     memset(&job, 0, sizeof job);

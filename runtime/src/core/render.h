@@ -177,6 +177,9 @@ lensrt_result lensrt_cells_finish(lensrt_render r, int rings, double *Uf, double
 lensrt_result lensrt_fourier_finish(lensrt_render r, int nodes, const double *U, double *Ufine, int fine_nodes,
                                     double *error_estimate);
 
+/* The checks of a Fourier integral (lensrt_render_integrate_fourier, a Fourier tile
+ * session) of `nodes` nodes, with or without an estimate: a failure naming what. */
+lensrt_result lensrt_fourier_check(lensrt_render r, const char *what, int nodes, int estimate);
 /* The Fourier integrator's nodes for nodes 0 (lensrt_render_integrate_fourier): a pilot
  * rule's measure of the phase, or the refusal (cells is the cheaper) with its message. */
 lensrt_result lensrt_fourier_auto_nodes(lensrt_render r, int *nodes);

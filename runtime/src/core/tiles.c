@@ -225,22 +225,17 @@ lensrt_result lensrt_render_tiles_begin_fourier(lensrt_render r, int32_t nodes, 
     int k, fine;
     if (!r) return LENSRT_ERROR_INVALID_ARGUMENT;
     if ((res = lensrt_tiles_idle(r, "tiles_begin_fourier")) != LENSRT_SUCCESS ||
-        (res = lensrt_cells_check(r, "tiles_begin_fourier", 1, 0)) != LENSRT_SUCCESS)
+        (res = lensrt_fourier_check(r, "tiles_begin_fourier", nodes, estimate != 0)) != LENSRT_SUCCESS)
         return res;
     if (!r->device->fourier_tile)
         return lensrt_fail(r->ctx, LENSRT_ERROR_UNSUPPORTED,
                            "tiles_begin_fourier: the %s device has no host-scheduled Fourier tiles: render with device "
                            "cpu",
                            r->device->name);
-    if (nodes < 0 || nodes > LENSRT_MAX_FOURIER_NODES ||
-        (estimate && ceil(LENSRT_FOURIER_REFINE * nodes) > LENSRT_MAX_FOURIER_NODES))
-        return lensrt_fail(r->ctx, LENSRT_ERROR_INVALID_ARGUMENT,
-                           "tiles_begin_fourier: nodes must be 0 (chosen) or 1..%d (%d with an error estimate), got %d",
-                           LENSRT_MAX_FOURIER_NODES, (int)(LENSRT_MAX_FOURIER_NODES / LENSRT_FOURIER_REFINE), nodes);
     // The rules of lensrt_render_integrate_fourier on a fresh render: nodes (chosen as it
     // chooses them), and with the estimate the finer one
     if (nodes == 0 && (res = lensrt_fourier_auto_nodes(r, &nodes)) != LENSRT_SUCCESS) return res;
-    fine = (int)ceil(LENSRT_FOURIER_REFINE * nodes);
+    fine = (int)ceil(LENSRT_FOURIER_FINER * nodes);
     t = lensrt_calloc(r->ctx, 1, sizeof *t);
     job = lensrt_calloc(r->ctx, 1, sizeof *job);
     if (!t || !job) {

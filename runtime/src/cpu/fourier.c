@@ -63,7 +63,6 @@ typedef struct fourier_wave {
     int batch;             /* NUFFT vectors per call */
     double *U;             /* the job level's fields */
     int rect[4];           /* a host tile's pixels (x0, y0, width, height); width 0: all */
-    long tiles;
     double slope;          /* the pilot's */
     lensrt_result fail;
     char why[320];
@@ -120,30 +119,6 @@ typedef struct tile_interp {
     double px[MAX_NODES], py[MAX_NODES];  /* node pixels (mm): s = iy (dx + 1) + ix */
     double pa[MAX_NODES];                 /* the Huygens amplitude at the node pixels */
 } tile_interp;
-
-/* Coefficients out[by (dx + 1) + bx] of the values in[s] at the node pixels (complex
- * when stride is 2: re, im interleaved; real when 1). */
-static void cheb_transform(const tile_interp *ti, const double *in, double *out, int cplx)
-{
-    double tmp[2 * MAX_NODES];
-    const int nx = ti->dx + 1, ny = ti->dy + 1, st = cplx ? 2 : 1;
-    int bx, by, i, c;
-    // Along x for every row of nodes, then along y
-    for (by = 0; by < ny; by++)
-        for (bx = 0; bx < nx; bx++)
-            for (c = 0; c < st; c++) {
-                double a = 0.0;
-                for (i = 0; i < nx; i++) a += ti->Mx[bx][i] * in[st * (by * nx + i) + c];
-                tmp[st * (by * nx + bx) + c] = a;
-            }
-    for (by = 0; by < ny; by++)
-        for (bx = 0; bx < nx; bx++)
-            for (c = 0; c < st; c++) {
-                double a = 0.0;
-                for (i = 0; i < ny; i++) a += ti->My[by][i] * tmp[st * (i * nx + bx) + c];
-                out[st * (by * nx + bx) + c] = a;
-            }
-}
 
 /* out = (Ay x Ax) in over a block of nodes: out[by nx + r][q] = sum over m, k of Ay[by][m]
  * Ax[r][k] in[m nx + k][q] (rows r of Ax and Ay give out's indices, columns in's). */
@@ -493,7 +468,7 @@ static int tile_prepare(fourier_wave *fw, tile_interp *ti, int can_split)
     if (!fw->poly) return 1;
     tp->n_test = 0;
     for (o = 0; o < 2; o++) {
-        double cs[MAX_NODES][136], in[MAX_NODES], out[MAX_NODES], C[MAX_NODES][136];
+        double cs[MAX_NODES][136], C[MAX_NODES][136];
         // P_s's stop-monomial coefficients at the node pixels (phase in waves)
         for (s = 0; s < ns; s++) {
             double px[16], py[16];
@@ -505,10 +480,14 @@ static int tile_prepare(fourier_wave *fw, tile_interp *ti, int can_split)
         // Per slot, its Chebyshev terms across the tile; then per term, the slots it
         // needs (the phase's to tol / (2 pi) waves, the transmittance's to tol of its
         // value, shared among the terms)
-        for (k = 0; k < n_slots; k++) {
-            for (s = 0; s < ns; s++) in[s] = cs[s][k];
-            cheb_transform(ti, in, out, 0);
-            for (b = 0; b < nb; b++) C[b][k] = out[b];
+        for (k = 0; k < n_slots; k += BLK) {
+            double in[MAX_NODES][BLK], out[MAX_NODES][BLK];
+            int q;
+            for (s = 0; s < ns; s++)
+                for (q = 0; q < BLK; q++) in[s][q] = k + q < n_slots ? cs[s][k + q] : 0.0;
+            cheb_transform_blk(ti, (const double(*)[BLK])in, out);
+            for (b = 0; b < nb; b++)
+                for (q = 0; q < BLK && k + q < n_slots; q++) C[b][k + q] = out[b][q];
         }
         for (b = 0; b < nb; b++)
             prune(C[b], n_slots, o == 0 ? fw->tol / (TWO_PI * nb) : 0.5 * fw->tol * fabs(C[0][0]) / nb,
@@ -833,7 +812,6 @@ static int render_tile_at(fourier_wave *fw, int x0, int y0, int tw, int th, int 
                 }
             }
     }
-    fw->tiles++;
     return 1;
 }
 
@@ -952,7 +930,6 @@ lensrt_result lensrt_cpu_fourier(lensrt_render r, lensrt_fourier_job *job, lensr
     lensrt_result res = LENSRT_SUCCESS;
     int lv, t, w, done = 0, cancelled = 0;
     if (nth > 64) return lensrt_fail(r->ctx, LENSRT_ERROR_INVALID_ARGUMENT, "fourier: more than 64 threads");
-    job->tiles = 0;
     job->slope = 0.0;
     for (lv = 0; lv < job->n_level && res == LENSRT_SUCCESS; lv++) {
         int ok = 1;
@@ -1001,7 +978,6 @@ lensrt_result lensrt_cpu_fourier(lensrt_render r, lensrt_fourier_job *job, lensr
         for (t = 0; t < nth; t++) {
             if (res == LENSRT_SUCCESS && fws[t].fail != LENSRT_SUCCESS)
                 res = lensrt_fail(r->ctx, fws[t].fail, "%s", fws[t].why);
-            job->tiles += fws[t].tiles;
             if (fws[t].slope > job->slope) job->slope = fws[t].slope;
             free_wave(r->ctx, &fws[t]);
         }
