@@ -70,31 +70,50 @@ static void jacobi_eigen(int n, double *a, double *v, double *eig)
     }
 }
 
-/* Coordinates u[0 .. R) of the non-constant coefficients c[1 .. n] in the leading R
- * vectors of the orthonormal basis V, and the fewest of them whose dropped tail (the
- * residual) has an l1 norm <= limit; R + 1 when even R vectors are not enough. */
-int lensrt_basis_keep(const double *V, int n, int R, const double *c, double limit, double *u)
+/* Every pixel's set-up calls this (twice or more), so it is written for speed while
+ * giving the bits of the plain loops: each u[j] and res[k] takes its terms in the same
+ * order as there (u over k ascending, the residual over j ascending, then back from the
+ * last vector), the loops only interchanged so that they run along contiguous memory
+ * (V for u, its transpose for the residual). Adding vectors back, the exact l1 norm is
+ * needed only where it could exceed the limit: the last exact norm plus |u_j| |V_j|_1
+ * for each vector added since bounds it (triangle inequality), and while that bound is
+ * under the limit (with 1e-12 to spare, far above the sums' rounding of n eps) the
+ * vectors wait and are added in their order when a norm is next computed. */
+int lensrt_basis_keep(const lensrt_render r, int b, int R, const double *c, double limit, double *u)
 {
-    double res[135], l1 = 0.0;
-    int j, k;
-    for (j = 0; j < R; j++) {
-        u[j] = 0.0;
-        for (k = 0; k < n; k++) u[j] += V[k * n + j] * c[k + 1];
-    }
-    // Residual after all R vectors, then add them back from the last one
+    const int n = r->n_slots - 1;
+    const double *V = r->basis + (size_t)b * (size_t)n * (size_t)n;
+    const double *VT = r->basis_t + (size_t)b * (size_t)n * (size_t)n, *norm1 = r->basis_l1 + (size_t)b * (size_t)n;
+    double res[135], l1 = 0.0, bound;
+    int j, k, q, added = R;
+    // u = V^T c: row k of V adds c_k times itself to every u[j]
+    for (j = 0; j < R; j++) u[j] = 0.0;
     for (k = 0; k < n; k++) {
-        res[k] = c[k + 1];
-        for (j = 0; j < R; j++) res[k] -= V[k * n + j] * u[j];
-        l1 += fabs(res[k]);
+        const double ck = c[k + 1], *row = V + (size_t)k * (size_t)n;
+        for (j = 0; j < R; j++) u[j] += row[j] * ck;
     }
+    // Residual after all R vectors
+    for (k = 0; k < n; k++) res[k] = c[k + 1];
+    for (j = 0; j < R; j++) {
+        const double uj = u[j], *col = VT + (size_t)j * (size_t)n;
+        for (k = 0; k < n; k++) res[k] -= col[k] * uj;
+    }
+    for (k = 0; k < n; k++) l1 += fabs(res[k]);
     if (l1 > limit) return R + 1;
+    // Add them back from the last one (vectors j .. added - 1 wait in the bound)
+    bound = l1;
     for (j = R - 1; j >= 0; j--) {
-        l1 = 0.0;
-        for (k = 0; k < n; k++) {
-            res[k] += V[k * n + j] * u[j];
-            l1 += fabs(res[k]);
+        bound += fabs(u[j]) * norm1[j];
+        if (bound * (1.0 + 1e-12) <= limit) continue;
+        for (q = added - 1; q >= j; q--) {
+            const double uq = u[q], *col = VT + (size_t)q * (size_t)n;
+            for (k = 0; k < n; k++) res[k] += col[k] * uq;
         }
+        added = j;
+        l1 = 0.0;
+        for (k = 0; k < n; k++) l1 += fabs(res[k]);
         if (l1 > limit) return j + 1;
+        bound = l1;
     }
     return 0;
 }
@@ -137,11 +156,13 @@ lensrt_result lensrt_prepare_basis(lensrt_render r)
     r->n_bases = gl ? 4 : 2 + (r->clip_s ? 2 * r->n_clip_pairs : 0);
     for (k = 0; k < r->n_bases; k++) r->basis_output[k] = gl ? k : k >= 2 ? 4 + (k - 2) : (k ? 2 : 3);
     r->basis = lensrt_calloc(r->ctx, (size_t)r->n_wl * (size_t)r->n_bases * (size_t)n * (size_t)n, sizeof(double));
+    r->basis_t = lensrt_calloc(r->ctx, (size_t)r->n_wl * (size_t)r->n_bases * (size_t)n * (size_t)n, sizeof(double));
+    r->basis_l1 = lensrt_calloc(r->ctx, (size_t)r->n_wl * (size_t)r->n_bases * (size_t)n, sizeof(double));
     r->basis_rank = lensrt_calloc(r->ctx, (size_t)r->n_wl * (size_t)r->n_bases, sizeof(int));
     g = lensrt_calloc(r->ctx, (size_t)n * (size_t)n, sizeof(double));
     eig = lensrt_calloc(r->ctx, (size_t)n, sizeof(double));
     cs = lensrt_calloc(r->ctx, (size_t)(grid_x * grid_y) * (size_t)ns, sizeof(double));
-    if (!r->basis || !r->basis_rank || !g || !eig || !cs) {
+    if (!r->basis || !r->basis_t || !r->basis_l1 || !r->basis_rank || !g || !eig || !cs) {
         lensrt_free(r->ctx, g);
         lensrt_free(r->ctx, eig);
         lensrt_free(r->ctx, cs);
@@ -170,6 +191,14 @@ lensrt_result lensrt_prepare_basis(lensrt_render r)
                 for (q = 0; q < n; q++) g[k * n + q] += c[k + 1] * c[q + 1] * inv_lambda * inv_lambda;
         }
         jacobi_eigen(n, g, r->basis + (size_t)w * (size_t)n * (size_t)n, eig);
+        // Its transpose and the vectors' l1 norms (lensrt_basis_keep; GL's dropped-term bound)
+        for (k = 0; k < n; k++) {
+            double *l1 = r->basis_l1 + (size_t)w * (size_t)n + k;
+            for (q = 0; q < n; q++) {
+                r->basis_t[(size_t)w * (size_t)n * (size_t)n + (size_t)k * (size_t)n + q] = V[q * n + k];
+                *l1 += fabs(V[q * n + k]);
+            }
+        }
         // How many basis vectors the grid's pixels need (others fall back to monomials);
         // the GL path finds every pixel's need on the device instead
         r->basis_rank[w] = 0;
@@ -179,7 +208,7 @@ lensrt_result lensrt_prepare_basis(lensrt_render r)
             int keep;
             c[0] = cs[(size_t)cell * (size_t)ns];
             for (k = 1; k < ns; k++) c[k] = cs[(size_t)cell * (size_t)ns + (size_t)k] * inv_lambda;
-            keep = lensrt_basis_keep(V, n, n, c, lensrt_output_limit(r, o, c[0]), u);
+            keep = lensrt_basis_keep(r, w, n, c, lensrt_output_limit(r, o, c[0]), u);
             if (keep > r->basis_rank[w]) r->basis_rank[w] = keep;
         }
         // A margin for pixels between grid points

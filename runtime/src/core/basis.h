@@ -15,9 +15,10 @@ double lensrt_huygens_step(const lensrt_render r);
  * the precision does not use them). */
 lensrt_result lensrt_prepare_basis(lensrt_render r);
 
-/* Coordinates u[0 .. R) of the non-constant coefficients c[1 .. n] in the leading R
- * vectors of the orthonormal basis V, and the fewest of them whose dropped tail (the
- * residual) has an l1 norm <= limit; R + 1 when even R vectors are not enough. */
-int lensrt_basis_keep(const double *V, int n, int R, const double *c, double limit, double *u);
+/* Coordinates u[0 .. R) of the non-constant coefficients c[1 .. n] (n = n_slots - 1) in
+ * the leading R vectors of the render's orthonormal basis b (r->basis[b], b = w n_bases
+ * + basis), and the fewest of them whose dropped tail (the residual) has an l1 norm
+ * <= limit; R + 1 when even R vectors are not enough. */
+int lensrt_basis_keep(const lensrt_render r, int b, int R, const double *c, double limit, double *u);
 
 #endif /* LENSRT_BASIS_H */

@@ -47,11 +47,14 @@ static void free_render(lensrt_render r)
     lensrt_tiles_free(r);
     if (r->device) r->device->destroy(r);
     free_pixel_polys(ctx, r->ps, r->n_wl * 4);
+    free_pixel_polys(ctx, r->ps_grad, r->n_wl);
     lensrt_free(ctx, r->po);
     free_pixel_polys(ctx, r->clip_s, r->n_wl * 2 * r->n_clip_pairs);
     lensrt_free(ctx, r->clip_o);
     lensrt_free(ctx, r->basis);
     lensrt_free(ctx, r->basis_rank);
+    lensrt_free(ctx, r->basis_t);
+    lensrt_free(ctx, r->basis_l1);
     lensrt_free(ctx, r->lights);
     lensrt_free(ctx, r->wavelengths);
     lensrt_free(ctx, r->xs);

@@ -104,11 +104,15 @@ struct lensrt_render_s {
     int n_bases, basis_output[4 + 2 * LENSRT_MAX_CLIP_PAIRS], row_base[4 + 2 * LENSRT_MAX_CLIP_PAIRS];
     double *basis;                /* [w][b][(n_slots - 1)^2], V[(k - 1) * (n_slots - 1) + j];
                                      CPU: b = 0 phase (waves), 1 transmittance; GL: b = output */
+    double *basis_t;              /* the same transposed: V_T[j * (n_slots - 1) + (k - 1)] */
+    double *basis_l1;             /* [w][b][j]: the l1 norm of basis vector j */
     int *basis_rank;              /* [w][b]: rows computed per sample */
     int slot_m[136], slot_n[136];
     /* fitted lenses: P_s per wavelength and output (x_i, y_i, tau_i, phi_i), and P_o per
      * light, wavelength, output and slot (already specialised to the light) */
     lensrt_pixel_poly *ps;        /* [w * 4 + o] */
+    lensrt_pixel_poly *ps_grad;   /* [w]: ps[w * 4 + 3]'s terms of slots 1 and 2, in order
+                                     (the phase gradient of the Huygens amplitude) */
     double *po;                   /* [((l * n_wl + w) * 4 + o) * n_slots + slot] */
     double *light_x, *light_y, *light_d; /* direction cosines and distance (mm, 0: inf) */
     /* ghost tables (issue 13): P_clip's pairs, on the ghost side (clip_side: 0 P_o, 1 P_s).

@@ -96,6 +96,29 @@ static lensrt_result specialise(lensrt_render r, const lensrt_system *sys, int o
     return LENSRT_SUCCESS;
 }
 
+/* The terms of phase polynomial p in slots 1 and 2 (the stop's linear monomials), in
+ * p's order: all the Huygens amplitude's phase gradient needs, a small part of p. */
+static lensrt_result gradient_terms(lensrt_render r, const lensrt_pixel_poly *p, lensrt_pixel_poly *out)
+{
+    int t, n = 0;
+    out->ix = lensrt_alloc(r->ctx, (size_t)p->n + 1);
+    out->iy = lensrt_alloc(r->ctx, (size_t)p->n + 1);
+    out->slot = lensrt_alloc(r->ctx, sizeof(int) * (size_t)p->n + 1);
+    out->coef = lensrt_alloc(r->ctx, sizeof(double) * (size_t)p->n + 1);
+    if (!out->ix || !out->iy || !out->slot || !out->coef)
+        return lensrt_fail(r->ctx, LENSRT_ERROR_OUT_OF_MEMORY, "render: out of memory");
+    for (t = 0; t < p->n; t++)
+        if (p->slot[t] == 1 || p->slot[t] == 2) {
+            out->ix[n] = p->ix[t];
+            out->iy[n] = p->iy[t];
+            out->slot[n] = p->slot[t];
+            out->coef[n] = p->coef[t];
+            n++;
+        }
+    out->n = n;
+    return LENSRT_SUCCESS;
+}
+
 lensrt_result lensrt_specialise_scene(lensrt_render r)
 {
     lensrt_lens lens = r->lens;
@@ -132,8 +155,9 @@ lensrt_result lensrt_specialise_scene(lensrt_render r)
         }
     }
     r->ps = lensrt_calloc(r->ctx, (size_t)r->n_wl * 4, sizeof *r->ps);
+    r->ps_grad = lensrt_calloc(r->ctx, (size_t)r->n_wl, sizeof *r->ps_grad);
     r->po = lensrt_calloc(r->ctx, (size_t)r->n_lights * (size_t)r->n_wl * 4 * (size_t)r->n_slots, sizeof(double));
-    if (!r->ps || !r->po) return lensrt_fail(r->ctx, LENSRT_ERROR_OUT_OF_MEMORY, "render: out of memory");
+    if (!r->ps || !r->ps_grad || !r->po) return lensrt_fail(r->ctx, LENSRT_ERROR_OUT_OF_MEMORY, "render: out of memory");
     // A ghost's P_clip, specialised as the system whose inputs it takes
     n_clip = 2 * lens->n_clip_pairs;
     r->n_clip_pairs = lens->n_clip_pairs;
@@ -154,6 +178,7 @@ lensrt_result lensrt_specialise_scene(lensrt_render r)
             res = specialise(r, &lens->p_s, o, xhat, 1, &r->ps[w * 4 + o], NULL);
             if (res != LENSRT_SUCCESS) return res;
         }
+        if ((res = gradient_terms(r, &r->ps[w * 4 + 3], &r->ps_grad[w])) != LENSRT_SUCCESS) return res;
         for (o = 0; r->clip_s && o < n_clip; o++) {
             res = specialise(r, &lens->p_clip, o, xhat, 1, &r->clip_s[w * n_clip + o], NULL);
             if (res != LENSRT_SUCCESS) return res;
@@ -181,7 +206,8 @@ void lensrt_slot_coefficients(const lensrt_pixel_poly *p, const double *px, cons
     for (t = 0; t < p->n; t++) c[p->slot[t]] += p->coef[t] * px[p->ix[t]] * py[p->iy[t]];
 }
 
-/* The slot (1,0) and (0,1) coefficients of phi at a sensor point: d phi / d u, d phi / d v. */
+/* The slot (1,0) and (0,1) coefficients of phi at a sensor point: d phi / d u, d phi / d v
+ * (p: phi's terms of those slots, r->ps_grad). */
 static void phase_gradient(const lensrt_lens lens, const lensrt_pixel_poly *p, double x, double y, double g[2])
 {
     double px[16], py[16];
@@ -201,10 +227,10 @@ double lensrt_huygens_amplitude(const lensrt_render r, int w, double x, double y
     const double step = lensrt_huygens_step(r);
     const double s = 1.0 / (2.0 * step * r->mono_radius); /* slot coefficients are per unit u */
     double grad[4][2], a11, a12, a21, a22, det;
-    phase_gradient(lens, &r->ps[w * 4 + 3], x + step, y, grad[0]);
-    phase_gradient(lens, &r->ps[w * 4 + 3], x - step, y, grad[1]);
-    phase_gradient(lens, &r->ps[w * 4 + 3], x, y + step, grad[2]);
-    phase_gradient(lens, &r->ps[w * 4 + 3], x, y - step, grad[3]);
+    phase_gradient(lens, &r->ps_grad[w], x + step, y, grad[0]);
+    phase_gradient(lens, &r->ps_grad[w], x - step, y, grad[1]);
+    phase_gradient(lens, &r->ps_grad[w], x, y + step, grad[2]);
+    phase_gradient(lens, &r->ps_grad[w], x, y - step, grad[3]);
     a11 = (grad[0][0] - grad[1][0]) * s;
     a12 = (grad[2][0] - grad[3][0]) * s;
     a21 = (grad[0][1] - grad[1][1]) * s;

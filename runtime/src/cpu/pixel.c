@@ -80,10 +80,9 @@ static int setup_clip(const lensrt_render r, int w, const double *px, const doub
             // Or in the window's basis of this output, when that needs fewer terms (the
             // dropped tail's l1 norm under the same limit), the constant term kept
             if (r->use_basis) {
-                const int bb = 2 + 2 * q + a, nb = ns - 1, rank = r->basis_rank[r->n_bases * w + bb];
-                const double *V = r->basis + (size_t)(r->n_bases * w + bb) * (size_t)nb * (size_t)nb;
+                const int bb = 2 + 2 * q + a, rank = r->basis_rank[r->n_bases * w + bb];
                 double u[135];
-                int keep = lensrt_basis_keep(V, nb, rank, c[a], tol, u), jj;
+                int keep = lensrt_basis_keep(r, r->n_bases * w + bb, rank, c[a], tol, u), jj;
                 if (keep <= rank && keep + 1 < j) {
                     for (jj = 0; jj < keep; jj++) {
                         cl->slot[row][jj] = r->row_base[bb] + jj;
@@ -194,16 +193,14 @@ int lensrt_cpu_setup_pixel(const lensrt_render r, int w, double x, double y, len
     // dropped tail stays under the tolerance (its l1 norm bounds the error, every
     // monomial being at most 1 on the sampled region)
     if (r->use_basis) {
-        const int n = ns - 1;
         int bb;
         for (bb = 0; bb < 2; bb++) {
             const int oo = bb ? 2 : 3;
-            const double *V = r->basis + (size_t)(r->n_bases * w + bb) * (size_t)n * (size_t)n;
             const double limit = lensrt_output_limit(r, oo, c[2][0]);
             double u[135];
             int j, keep, have = counts[oo] - (oo == 2 && counts[2] > 0);
             if (oo == 2 && counts[2] == 0) continue; /* constant transmittance */
-            keep = lensrt_basis_keep(V, n, r->basis_rank[r->n_bases * w + bb], c[oo], limit, u);
+            keep = lensrt_basis_keep(r, r->n_bases * w + bb, r->basis_rank[r->n_bases * w + bb], c[oo], limit, u);
             if (keep > r->basis_rank[r->n_bases * w + bb]) continue; /* beyond the rows computed */
             if (keep >= have) continue;
             for (j = 0; j < keep; j++) {

@@ -369,17 +369,9 @@ static lensrt_result upload_polynomials(lensrt_render r)
     upload(gl, GLR(r)->buffers[B_PO], (n_po + n_clip_o) * sizeof *po, po);
     lensrt_free(r->ctx, po);
     upload(gl, GLR(r)->buffers[B_BASIS], (size_t)r->n_wl * 4 * (size_t)GLR(r)->nb * (size_t)GLR(r)->nb * sizeof(double), r->basis);
-    // l1 norms of the basis vectors: |V_j|_1 bounds how much a dropped u_j can change
-    {
-        const size_t nb = (size_t)GLR(r)->nb, nv = (size_t)r->n_wl * 4 * nb;
-        double *norm1 = lensrt_calloc(r->ctx, nv, sizeof(double));
-        size_t v, k;
-        if (!norm1) return lensrt_fail(r->ctx, LENSRT_ERROR_OUT_OF_MEMORY, "GL: out of memory");
-        for (v = 0; v < nv; v++)
-            for (k = 0; k < nb; k++) norm1[v] += fabs(r->basis[(v / nb) * nb * nb + k * nb + v % nb]);
-        upload(gl, GLR(r)->buffers[B_NORM1], nv * sizeof(double), norm1);
-        lensrt_free(r->ctx, norm1);
-    }
+    // l1 norms of the basis vectors (core/basis.c): |V_j|_1 bounds how much a dropped u_j
+    // can change
+    upload(gl, GLR(r)->buffers[B_NORM1], (size_t)r->n_wl * 4 * (size_t)GLR(r)->nb * sizeof(double), r->basis_l1);
     return LENSRT_SUCCESS;
 }
 
