@@ -210,13 +210,22 @@ class Render:
                           None, None))
         return err.value if estimate else None
 
+    def fourier_nodes(self, target: float = 0.0) -> int:
+        """The nodes per side the library chooses for an image of relative L2 error
+        ``target`` (lensrt_render_fourier_nodes, 0.7.0; 0: the rule of nodes 0)."""
+        fn = _need(self.rt.lib, "lensrt_render_fourier_nodes")
+        fn.argtypes = [C.c_void_p, C.c_double, C.POINTER(C.c_int32)]
+        n = C.c_int32(0)
+        self.rt._check(fn(self.handle, C.c_double(target), C.byref(n)))
+        return int(n.value)
+
     def integrate_fourier_to(self, target: float, first_nodes: int = FOURIER_FIRST_NODES,
                              max_nodes: int = FOURIER_MAX_NODES) -> tuple[int, float]:
         """Refine the Fourier rule (nodes x 1.25 a step, each reusing the last step's finer
         rule) until the estimate is within ``target`` or the next rule would pass
         ``max_nodes``; the nodes and estimate of the image the sums hold. ``first_nodes``
-        0: the library's choice from the phase's slope over the aperture."""
-        est = self.integrate_fourier(first_nodes)
+        0: the library's choice for the target (fourier_nodes)."""
+        est = self.integrate_fourier(first_nodes or self.fourier_nodes(target))
         assert est is not None
         nodes = int(self.stats().fourier_nodes)
         def finer(n: int) -> int:

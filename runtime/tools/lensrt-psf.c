@@ -94,7 +94,8 @@ static void usage(FILE *f)
         "                         per tile of pixels, its error estimated against 1.25 x the nodes\n"
         "                         (refuses apertures a clip cuts); auto: fourier, else cells\n"
         "  --nodes N              fourier: Gauss nodes per side of each aperture sector (default 0:\n"
-        "                         chosen from the phase's slope over the aperture, 1.4 per wave);\n"
+        "                         chosen from the phase's slope over the aperture, 1.4 per wave,\n"
+        "                         or with --target-error E the rule for E: 1.33 per wave at 1%%);\n"
         "                         --target-error refines them (x 1.25) until the estimate is <= E\n"
         "  --max-nodes N          fourier: stop refining there (default 2730)\n"
         "  --rings N              cells: mesh rings (6 N^2 triangles, blades N^2 each; default 32);\n"
@@ -385,7 +386,8 @@ static lensrt_result integrate_cells(lensrt_render r, int rings, int max_rings, 
     }
 }
 
-/* The Fourier integrator (lensrt_render_integrate_fourier) from `nodes` on, refining by
+/* The Fourier integrator (lensrt_render_integrate_fourier) from `nodes` on (0: the
+ * library's choice for the target, lensrt_render_fourier_nodes), refining by
  * LENSRT_FOURIER_FINER (each step reuses the last one's finer rule) while a target error is set, not
  * reached and max_nodes allows; *used and *err: the last rule and its estimate. */
 static lensrt_result integrate_fourier(lensrt_render r, int nodes, int max_nodes, double target, progress_state *ps,
@@ -393,6 +395,11 @@ static lensrt_result integrate_fourier(lensrt_render r, int nodes, int max_nodes
 {
     char label[128];
     lensrt_result res;
+    if (nodes == 0 && target > 0) {
+        int32_t chosen = 0;
+        if ((res = lensrt_render_fourier_nodes(r, target, &chosen)) != LENSRT_SUCCESS) return res;
+        nodes = chosen;
+    }
     for (;;) {
         if (nodes) snprintf(label, sizeof label, "%s, %d nodes", what, nodes);
         else snprintf(label, sizeof label, "%s, nodes from the phase", what);

@@ -10,6 +10,7 @@ another build of the tool (default build/runtime/runtime/lensrt-psf, as `make` b
 from __future__ import annotations
 
 import os
+import re
 import stat
 import subprocess
 import sys
@@ -237,6 +238,17 @@ def test_default_is_fourier_then_monte_carlo_with_its_options(tmp_path: Path) ->
     assert r.returncode == 0, r.stderr
     assert "Fourier error estimate:" in r.stdout and out.is_file()
     assert b"fourier" in out.read_bytes() and b"lensrt/fourierNodes" in out.read_bytes()
+    # With a target the first rule is the library's choice for it (lensrt_render_fourier_
+    # nodes): fewer nodes than the default rule at 1%, and the estimate within the target
+    said = [a for a in base if a != "--quiet"]  # the rules and estimates on stderr
+    d, t = (subprocess.run([str(PSF), "--lens", str(LENS0001), *said, *extra, "-o",
+                            str(tmp_path / f"{k}.exr")], capture_output=True, text=True,
+                           timeout=120) for k, extra in enumerate(([], ["--target-error", "0.01"])))
+    assert d.returncode == 0 and t.returncode == 0, (d.stderr, t.stderr)
+    nodes = [int(n) for n in re.findall(r"(\d+) nodes: Fourier error estimate", d.stderr)]
+    chosen = re.findall(r"(\d+) nodes: Fourier error estimate ([0-9.e+-]+)%", t.stderr)
+    assert len(nodes) == 1 and len(chosen) >= 1, (d.stderr, t.stderr)
+    assert int(chosen[0][0]) < nodes[0] and float(chosen[-1][1]) <= 1.0, (nodes, chosen)
     mc = tmp_path / "mc.exr"
     r = run("--samples", "256", "--quiet", "-o", str(mc))
     assert r.returncode == 0, r.stderr

@@ -517,8 +517,9 @@ lensrt_result lensrt_fourier_check(lensrt_render r, const char *what, int nodes,
 
 /* The nodes that resolve the integrand (render.h): a pilot rule measures the phase's largest change
  * per unit of a line parameter over the window's corners (core/fourier.h), and
- * LENSRT_FOURIER_NODES_PER_WAVE nodes go to each wave, 4 more for the ends. */
-lensrt_result lensrt_fourier_auto_nodes(lensrt_render r, int *nodes)
+ * LENSRT_FOURIER_NODES_PER_WAVE nodes go to each wave, NODES_EXTRA more for the ends;
+ * fewer for a target of 1e-4 or more (fourier.h). */
+lensrt_result lensrt_fourier_auto_nodes(lensrt_render r, double target, int *nodes)
 {
     lensrt_quadrature q;
     lensrt_fourier_job job;
@@ -539,7 +540,13 @@ lensrt_result lensrt_fourier_auto_nodes(lensrt_render r, int *nodes)
     res = r->device->fourier(r, &job, NULL, NULL);
     lensrt_quadrature_free(r->ctx, &q);
     if (res != LENSRT_SUCCESS) return res;
-    n = ceil(LENSRT_FOURIER_NODES_PER_WAVE * job.slope) + 4.0;
+    {
+        // 0 at a target of 1e-4 or less (or none), 1 at 1% or more
+        const double t = target > 1e-4 ? (log10(target) + 4.0) / 2.0 : 0.0, f = t > 1.0 ? 1.0 : t;
+        const double per_wave = LENSRT_FOURIER_NODES_PER_WAVE + f * (LENSRT_FOURIER_NODES_PER_WAVE_1PCT - LENSRT_FOURIER_NODES_PER_WAVE);
+        const double extra = LENSRT_FOURIER_NODES_EXTRA + f * (LENSRT_FOURIER_NODES_EXTRA_1PCT - LENSRT_FOURIER_NODES_EXTRA);
+        n = ceil(per_wave * job.slope) + extra;
+    }
     *nodes = n < 8.0 ? 8 : n > most ? (int)most : (int)n;
     {
         // Where the rule outgrows the window (nodes per pixel), cells is the cheaper
@@ -554,6 +561,25 @@ lensrt_result lensrt_fourier_auto_nodes(lensrt_render r, int *nodes)
                                job.slope, *nodes, rule, npix, LENSRT_FOURIER_NODES_PER_PIXEL);
     }
     return LENSRT_SUCCESS;
+}
+
+lensrt_result lensrt_render_fourier_nodes(lensrt_render r, double target, int32_t *nodes)
+{
+    const double t0 = lensrt_seconds();
+    lensrt_result res;
+    int n = 0;
+    if (!r || !nodes) return LENSRT_ERROR_INVALID_ARGUMENT;
+    *nodes = 0;
+    if (!(target >= 0.0) || !isfinite(target))
+        return lensrt_fail(r->ctx, LENSRT_ERROR_INVALID_ARGUMENT,
+                           "fourier_nodes: the target error must be 0 (the default rule) or a finite positive "
+                           "relative L2 error, got %g", target);
+    if ((res = lensrt_fourier_check(r, "fourier_nodes", 0, 0)) != LENSRT_SUCCESS) return res;
+    res = lensrt_fourier_auto_nodes(r, target, &n);
+    // The pilot is part of the integral's cost
+    r->seconds += lensrt_seconds() - t0;
+    if (res == LENSRT_SUCCESS) *nodes = n;
+    return res;
 }
 
 lensrt_result lensrt_render_integrate_fourier(lensrt_render r, int32_t nodes, double *error_estimate,
@@ -571,7 +597,7 @@ lensrt_result lensrt_render_integrate_fourier(lensrt_render r, int32_t nodes, do
     if ((res = lensrt_tiles_idle(r, "integrate_fourier")) != LENSRT_SUCCESS ||
         (res = lensrt_fourier_check(r, "integrate_fourier", nodes, error_estimate != NULL)) != LENSRT_SUCCESS)
         return res;
-    if (nodes == 0 && (res = lensrt_fourier_auto_nodes(r, &nodes)) != LENSRT_SUCCESS) {
+    if (nodes == 0 && (res = lensrt_fourier_auto_nodes(r, 0.0, &nodes)) != LENSRT_SUCCESS) {
         r->seconds += lensrt_seconds() - t0;
         return res;
     }

@@ -184,9 +184,10 @@ lensrt_result lensrt_fourier_finish(lensrt_render r, int nodes, const double *U,
 /* The checks of a Fourier integral (lensrt_render_integrate_fourier, a Fourier tile
  * session) of `nodes` nodes, with or without an estimate: a failure naming what. */
 lensrt_result lensrt_fourier_check(lensrt_render r, const char *what, int nodes, int estimate);
-/* The Fourier integrator's nodes for nodes 0 (lensrt_render_integrate_fourier): a pilot
- * rule's measure of the phase, or the refusal (cells is the cheaper) with its message. */
-lensrt_result lensrt_fourier_auto_nodes(lensrt_render r, int *nodes);
+/* The Fourier integrator's nodes for nodes 0 (lensrt_render_integrate_fourier), for an
+ * error target (0: the default rule; lensrt_render_fourier_nodes): a pilot rule's
+ * measure of the phase, or the refusal (cells is the cheaper) with its message. */
+lensrt_result lensrt_fourier_auto_nodes(lensrt_render r, double target, int *nodes);
 
 /* "sobol", "random" or "stratified" (core/sampler.c). */
 const char *lensrt_sampler_name(lensrt_sampler s);

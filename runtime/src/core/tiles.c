@@ -234,7 +234,7 @@ lensrt_result lensrt_render_tiles_begin_fourier(lensrt_render r, int32_t nodes, 
                            r->device->name);
     // The rules of lensrt_render_integrate_fourier on a fresh render: nodes (chosen as it
     // chooses them), and with the estimate the finer one
-    if (nodes == 0 && (res = lensrt_fourier_auto_nodes(r, &nodes)) != LENSRT_SUCCESS) return res;
+    if (nodes == 0 && (res = lensrt_fourier_auto_nodes(r, 0.0, &nodes)) != LENSRT_SUCCESS) return res;
     fine = (int)ceil(LENSRT_FOURIER_FINER * nodes);
     t = lensrt_calloc(r->ctx, 1, sizeof *t);
     job = lensrt_calloc(r->ctx, 1, sizeof *job);
