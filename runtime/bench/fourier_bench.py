@@ -21,6 +21,15 @@ are interpolated on each curve (log-log, between the two points around 1%); rati
 the claim, absolute seconds context (2 shared cores).
 
 Writes fourier.json, fourier.md and fourier.png (error against time) into --out.
+
+    python runtime/bench/fourier_bench.py --out build/bench --sweep
+
+instead calibrates the rule for a target (lensrt_render_fourier_nodes): on 0001's PSFs
+from f/2 to f/32 (blades and circle, 64 x 64 pixels, 4 wavelengths), 0001 in focus on
+axis and a perfect lens defocused 5 and 20 waves, the error of every rule from 0.55 to
+1.45 nodes per wave (the waves W from the default rule, 1.4 W + 4) against the rule of
+1.5 times the default: the nodes per wave each needs for 1% and 0.1%, and the error of
+the rule chosen for 1%. Writes fourier_sweep.json and fourier_sweep.md.
 """
 
 from __future__ import annotations
@@ -180,16 +189,86 @@ def markdown(data: dict[str, Any]) -> str:
     return "\n".join(lines) + "\n"
 
 
+def sweep(rt: Lensrt) -> dict[str, Any]:
+    """The rule each scene needs for 1% and 0.1%, and what the 1% rule gives."""
+    lens = rt.load(LENS)
+    cases: list[tuple[str, Any, dict]] = []
+    for f_number, size, shape in ((2.0, 0.2, "blades"), (2.8, 0.16, "circle"),
+                                  (4.0, 0.12, "blades"), (8.0, 0.1, "blades"),
+                                  (16.0, 0.12, "circle"), (32.0, 0.16, "blades")):
+        c = rt.image_point(lens, LIGHT[:2], 550.0, 0.2)
+        kw = dict(width=64, height=64, width_mm=size, center=tuple(c), focus_offset_mm=0.2,
+                  f_number=f_number, lights=[LIGHT], wavelengths=4)
+        if shape == "blades":
+            kw.update(shape="blades", blades=7, blade_curvature=0.3, rotation_deg=10.0)
+        cases.append((f"0001 f/{f_number:g} {shape}", lens, kw))
+    c = rt.image_point(lens, (0.0, 0.0), 550.0, 0.0)
+    cases.append(("0001 f/2 in focus on axis", lens, dict(
+        width=64, height=64, width_mm=0.03, center=tuple(c), f_number=2.0, wavelengths=4)))
+    perfect = rt.analytic(sensor_distance_mm=50.0, focal_length_mm=50.0)
+    for waves in (5, 20):
+        lam, n_f = 550e-6, 8.0
+        dz = waves * lam * 8 * n_f * n_f
+        cases.append((f"perfect lens f/8, defocus {waves} waves", perfect, dict(
+            width=48, height=48, width_mm=12 * lam * n_f + 1.2 * dz / n_f, focus_offset_mm=dz,
+            f_number=n_f, wavelengths=[550.0])))
+    rows = []
+    for name, ln, kw in cases:
+        r = rt.create(ln, **kw)
+        default, chosen = r.fourier_nodes(0.0), r.fourier_nodes(0.01)
+        waves = (default - 4) / 1.4
+        r = rt.create(ln, **kw)
+        r.integrate_fourier(int(1.5 * default), estimate=False)
+        ref = r.image().astype(np.float64)
+
+        def error(n: int, ln: Any = ln, kw: dict = kw, ref: np.ndarray = ref) -> float:
+            q = rt.create(ln, **kw)
+            q.integrate_fourier(n, estimate=False)
+            return rel(q.image().astype(np.float64), ref)
+
+        points = [(n, error(n)) for n in sorted({max(2, round(waves * a))
+                                                 for a in np.arange(0.55, 1.46, 0.05)})]
+        need = {t: min((n for n, e in points if e <= t), default=None) for t in (1e-2, 1e-3)}
+        row = {"scene": name, "waves": waves, "default_nodes": default, "nodes_1pct": chosen,
+               "error_1pct_rule": error(chosen), "points": points,
+               "per_wave_for_1pct": need[1e-2] / waves if need[1e-2] else None,
+               "per_wave_for_0.1pct": need[1e-3] / waves if need[1e-3] else None}
+        rows.append(row)
+        print(f"  {name}: {row['per_wave_for_1pct']} {row['per_wave_for_0.1pct']} "
+              f"1% rule {chosen}: {row['error_1pct_rule']:.2g}", flush=True)
+    return {"sweep": rows}
+
+
+def sweep_markdown(data: dict[str, Any]) -> str:
+    def f(x: float | None) -> str:
+        return "-" if x is None else f"{x:.2f}"
+    lines = ["# The Fourier rule for a target (runtime/bench/fourier_bench.py --sweep)", "",
+             "| scene | waves W | default rule (1.4 W + 4) | nodes per wave for 1% | for 0.1% | "
+             "rule for 1% (1.33 W + 2): nodes, error |", "|---|---:|---:|---:|---:|---|"]
+    for r in data["sweep"]:
+        lines.append(f"| {r['scene']} | {r['waves']:.1f} | {r['default_nodes']} | "
+                     f"{f(r['per_wave_for_1pct'])} | {f(r['per_wave_for_0.1pct'])} | "
+                     f"{r['nodes_1pct']}, {r['error_1pct_rule']:.2g} |")
+    return "\n".join(lines) + "\n"
+
+
 def main() -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--out", required=True)
     p.add_argument("--repeats", type=int, default=3)
     p.add_argument("--quick", action="store_true", help="64 x 64 pixels, 4 wavelengths")
     p.add_argument("--library", default=None)
+    p.add_argument("--sweep", action="store_true", help="calibrate the rule for a target instead")
     args = p.parse_args()
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     rt = Lensrt(args.library) if args.library else Lensrt()
+    if args.sweep:
+        data = sweep(rt)
+        (out / "fourier_sweep.json").write_text(json.dumps(data, indent=1))
+        (out / "fourier_sweep.md").write_text(sweep_markdown(data))
+        print(sweep_markdown(data))
+        return 0
     t0 = time.perf_counter()
     data: dict[str, Any] = {"compare": []}
     for s in scenes(rt, args.quick):

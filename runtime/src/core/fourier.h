@@ -38,8 +38,8 @@
  * that measures the waves (measured on lens 0001's PSFs at f/2, f/8 and f/32, 64 and 256
  * pixels square: 1% at 1.2-1.35 nodes per wave, 1e-4 at 1.5; 1.4 aims at a few 1e-3),
  * plus NODES_EXTRA for the ends. For an error target of 1% or more the rule takes
- * NODES_PER_WAVE_1PCT and NODES_EXTRA_1PCT instead (measured, runtime/bench/
- * fourier_bench.py's sweep: 1% at 1.20-1.33 nodes per wave plus 2 on lens 0001 at f/2 to
+ * NODES_PER_WAVE_1PCT and NODES_EXTRA_1PCT instead (measured by runtime/bench/
+ * fourier_bench.py --sweep: 1% at 1.20-1.33 nodes per wave plus 2 on lens 0001 at f/2 to
  * f/32, blades and circle, in focus and defocused, and a perfect lens defocused 5 and 20
  * waves: that rule gave 7.5e-5 to 5e-3), between 1e-4 and 1% in proportion to the
  * target's logarithm: the convergence is so steep (a decade every 2-5 nodes past the
