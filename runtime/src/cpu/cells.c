@@ -1,7 +1,10 @@
 /* The CPU device's cells integrator (core/cells.h): per wavelength, the mesh vertices'
  * rows, phases, amplitudes and clip levels before the stop (in parallel over vertices),
- * then per pixel (in parallel over pixels) the transport after the stop at every vertex
- * and the closed-form integral over every triangle, cut where a clip crosses it.
+ * then per pixel the transport after the stop at every vertex and the closed-form
+ * integral over every triangle, cut where a clip crosses it. Pixels go in blocks of
+ * LENSRT_CELLS_LANES (in parallel over blocks): the triangles of a block's pixels are
+ * integrated together, one vector across the pixels (cpu/cells_kernel.c), and each
+ * pixel's field is the sum of its own triangles in their order, the bits it has alone.
  *
  * Everything is in double. The pixel's terms are the Monte Carlo kernel's own
  * (lensrt_cpu_setup_pixel: pruned to the render's phase tolerance, in the window's
@@ -12,6 +15,7 @@
 #include "../lens/lens.h"
 
 #include <math.h>
+#include <stdint.h>
 #include <string.h>
 #ifdef LENSRT_OPENMP
 #include <omp.h>
@@ -210,108 +214,174 @@ static int pixel_vertices(lensrt_render r, int w, const cells_pixel *cp, const c
     return n_lev;
 }
 
-/* One pixel's fields for every light: U[l] (re, im). Per light, the vertices' phasors
- * and the triangles whose nodes are apart inside every clip in the vectorised loops,
- * then the rest (close nodes: series; crossed by a clip: cut) one by one; the
- * triangles' integrals are added in their order. */
-static void integrate_pixel(lensrt_render r, int w, const cells_pixel *cp, const lensrt_mesh *m,
-                            const cells_vertices *cv, cells_scratch *s, double *U)
+/* A thread's scratch for a block of LENSRT_CELLS_LANES pixels: each pixel's own arrays
+ * (its vertices and levels, for the scalar pass), then the block's values interleaved
+ * for the vectorised triangles ([v * LANES + k], [t * LANES + k]). */
+typedef struct cells_block {
+    cells_scratch s[LENSRT_CELLS_LANES];
+    double *zr, *zi, *er, *ei, *in, *cr, *ci, *rest;
+} cells_block;
+
+/* The fields of a block's nl pixels for every light: U[2 (k n_lights + l) + re/im]. Per
+ * light, each pixel's vertex phasors and clip levels, then the triangles whose nodes
+ * are apart inside every clip for all the block's pixels at once, then per pixel the
+ * rest (close nodes: series; crossed by a clip: cut) one by one; each pixel adds its
+ * triangles' integrals in their order, as one pixel alone would. */
+static void integrate_block(lensrt_render r, int w, const cells_pixel *cp, int nl, const lensrt_mesh *m,
+                            const cells_vertices *cv, cells_block *b, double *U)
 {
-    const int nv = cv->n, nt = m->n_triangles, n_lev_o = cv->n_lev_o;
-    const double amp = cp->amp;
-    int l, v, t, n_lev_p, n_lev;
-    for (l = 0; l < r->n_lights; l++) U[2 * l] = U[2 * l + 1] = 0.0;
-    if (!cp->live) return; /* dark */
-    n_lev_p = pixel_vertices(r, w, cp, cv, s);
-    n_lev = n_lev_o + n_lev_p;
+    const int nv = cv->n, nt = m->n_triangles, n_lev_o = cv->n_lev_o, L = LENSRT_CELLS_LANES;
+    int n_lev[LENSRT_CELLS_LANES], k, l, v, t;
+    for (k = 0; k < nl; k++) {
+        for (l = 0; l < r->n_lights; l++) U[2 * (k * r->n_lights + l)] = U[2 * (k * r->n_lights + l) + 1] = 0.0;
+        n_lev[k] = cp[k].live ? n_lev_o + pixel_vertices(r, w, &cp[k], cv, &b->s[k]) : 0;
+    }
     for (l = 0; l < r->n_lights; l++) {
         const size_t off = (size_t)l * (size_t)nv;
         const double *lev_o = cv->lev_o + off * (1 + LENSRT_MAX_CLIP_PAIRS);
-        double acc[2] = {0.0, 0.0};
         if (r->lights[l].intensity <= 0.0) continue;
-        lensrt_cells_vertices(nv, s->ph, cv->sph + off, s->ph[0] + cv->sph[off], cv->lna + off, cv->samp + off,
-                              s->lnt, s->st, s->zr, s->zi, s->er, s->ei);
-        // The levels before the stop (this light's) and after it (this pixel's)
-        if (n_lev == 0) memset(s->in, 1, (size_t)nv);
-        else
-            for (v = 0; v < nv; v++) {
-                double *lv = s->lev + (size_t)v * n_lev;
-                int j, in = 1;
-                for (j = 0; j < n_lev_o; j++) lv[j] = lev_o[(size_t)v * (1 + LENSRT_MAX_CLIP_PAIRS) + j];
-                for (j = 0; j < n_lev_p; j++) lv[n_lev_o + j] = s->lev_p[(size_t)v * MAX_LEV_P + j];
-                for (j = 0; j < n_lev; j++) in &= lv[j] >= 0.0;
-                s->in[v] = (unsigned char)in;
+        for (k = 0; k < L; k++) {
+            cells_scratch *s = &b->s[k];
+            if (k >= nl || !cp[k].live) {
+                // No pixel here (or a dark one): nothing apart, and its rest is skipped
+                for (v = 0; v < nv; v++) {
+                    const size_t at = (size_t)v * L + (size_t)k;
+                    b->zr[at] = b->zi[at] = b->er[at] = b->ei[at] = b->in[at] = 0.0;
+                }
+                continue;
             }
-        lensrt_cells_triangles(m, s->zr, s->zi, s->er, s->ei, s->in, s->cr, s->ci, s->rest);
+            lensrt_cells_vertices(nv, s->ph, cv->sph + off, s->ph[0] + cv->sph[off], cv->lna + off, cv->samp + off,
+                                  s->lnt, s->st, s->zr, s->zi, s->er, s->ei);
+            // The levels before the stop (this light's) and after it (this pixel's)
+            if (n_lev[k] == 0) memset(s->in, 1, (size_t)nv);
+            else
+                for (v = 0; v < nv; v++) {
+                    const int n_lev_p = n_lev[k] - n_lev_o;
+                    double *lv = s->lev + (size_t)v * n_lev[k];
+                    int j, in = 1;
+                    for (j = 0; j < n_lev_o; j++) lv[j] = lev_o[(size_t)v * (1 + LENSRT_MAX_CLIP_PAIRS) + j];
+                    for (j = 0; j < n_lev_p; j++) lv[n_lev_o + j] = s->lev_p[(size_t)v * MAX_LEV_P + j];
+                    for (j = 0; j < n_lev[k]; j++) in &= lv[j] >= 0.0;
+                    s->in[v] = (unsigned char)in;
+                }
+            for (v = 0; v < nv; v++) {
+                const size_t at = (size_t)v * L + (size_t)k;
+                b->zr[at] = s->zr[v];
+                b->zi[at] = s->zi[v];
+                b->er[at] = s->er[v];
+                b->ei[at] = s->ei[v];
+                b->in[at] = s->in[v] ? 1.0 : 0.0;
+            }
+        }
+        lensrt_cells_triangles(m, b->zr, b->zi, b->er, b->ei, b->in, b->cr, b->ci, b->rest);
+        // The rest, pixel by pixel in place (a dark pixel's stay 0); a triangle whose
+        // nodes are apart for the whole block (rest 0.0 in every lane: all bits zero) is
+        // passed over at once
         for (t = 0; t < nt; t++) {
-            if (s->rest[t]) {
-                const int *tv = m->tri + 3 * t;
+            uint64_t bits[LENSRT_CELLS_LANES], any = 0;
+            memcpy(bits, b->rest + (size_t)t * L, sizeof bits);
+            for (k = 0; k < L; k++) any |= bits[k];
+            if (!any) continue;
+            for (k = 0; k < nl; k++) {
+                const size_t at = (size_t)t * L + (size_t)k;
+                const cells_scratch *s = &b->s[k];
+                const int *tv = m->tri + 3 * t, nlv = n_lev[k];
                 double z[6], E[6], lev[3 * LENSRT_CELLS_MAX_LEVELS], o[2] = {0.0, 0.0};
-                int k, j;
-                for (k = 0; k < 3; k++) {
-                    z[2 * k] = s->zr[tv[k]];
-                    z[2 * k + 1] = s->zi[tv[k]];
-                    E[2 * k] = s->er[tv[k]];
-                    E[2 * k + 1] = s->ei[tv[k]];
-                    for (j = 0; j < n_lev; j++) lev[k * n_lev + j] = s->lev[(size_t)tv[k] * n_lev + j];
+                int q, j;
+                if (b->rest[at] == 0.0 || !cp[k].live) continue;
+                for (q = 0; q < 3; q++) {
+                    z[2 * q] = s->zr[tv[q]];
+                    z[2 * q + 1] = s->zi[tv[q]];
+                    E[2 * q] = s->er[tv[q]];
+                    E[2 * q + 1] = s->ei[tv[q]];
+                    for (j = 0; j < nlv; j++) lev[q * nlv + j] = s->lev[(size_t)tv[q] * nlv + j];
                 }
                 // Inside every clip: the closed form with its series; else cut
-                if (n_lev == 0 || (s->in[tv[0]] && s->in[tv[1]] && s->in[tv[2]])) lensrt_tri_integral(m->area[t], z, E, o);
-                else lensrt_tri_integral_clipped(m->area[t], z, E, lev, n_lev, o);
-                s->cr[t] = o[0];
-                s->ci[t] = o[1];
+                if (nlv == 0 || (s->in[tv[0]] && s->in[tv[1]] && s->in[tv[2]])) lensrt_tri_integral(m->area[t], z, E, o);
+                else lensrt_tri_integral_clipped(m->area[t], z, E, lev, nlv, o);
+                b->cr[at] = o[0];
+                b->ci[at] = o[1];
             }
-            acc[0] += s->cr[t];
-            acc[1] += s->ci[t];
         }
-        U[2 * l] = amp * acc[0];
-        U[2 * l + 1] = amp * acc[1];
+        // Each pixel's sum over its triangles in their order (all the block's at once)
+        {
+            double acc_r[LENSRT_CELLS_LANES], acc_i[LENSRT_CELLS_LANES];
+            for (k = 0; k < L; k++) acc_r[k] = acc_i[k] = 0.0;
+            for (t = 0; t < nt; t++)
+                for (k = 0; k < L; k++) {
+                    acc_r[k] += b->cr[(size_t)t * L + (size_t)k];
+                    acc_i[k] += b->ci[(size_t)t * L + (size_t)k];
+                }
+            for (k = 0; k < nl; k++) {
+                if (!cp[k].live) continue; /* dark */
+                U[2 * (k * r->n_lights + l)] = cp[k].amp * acc_r[k];
+                U[2 * (k * r->n_lights + l) + 1] = cp[k].amp * acc_i[k];
+            }
+        }
     }
 }
 
-/* Scratch of one thread for meshes of up to nv vertices and nt triangles. */
+/* Scratch of one thread for a block on meshes of up to nv vertices and nt triangles. */
 static size_t scratch_size(size_t nv, size_t nt)
 {
-    /* ph, lnt, st, zr, zi, er, ei (nv each), lev_p (MAX_LEV_P nv), lev (MAX_LEVELS nv),
-     * in (nv bytes); cr, ci (nt each), rest (nt bytes) */
-    return nv * (7 + MAX_LEV_P + LENSRT_CELLS_MAX_LEVELS + 1) + nt * 3;
+    /* per pixel: ph, lnt, st, zr, zi, er, ei (nv each), lev_p (MAX_LEV_P nv), lev
+     * (MAX_LEVELS nv), in (nv bytes); the block: zr, zi, er, ei, in (LANES nv each), cr,
+     * ci, rest (LANES nt each) */
+    const size_t L = LENSRT_CELLS_LANES;
+    return L * nv * (8 + MAX_LEV_P + LENSRT_CELLS_MAX_LEVELS) + L * (5 * nv + 3 * nt);
 }
 
-static void scratch_view(double *base, size_t nv, size_t nt, cells_scratch *s)
+static void block_view(double *base, size_t nv, size_t nt, cells_block *b)
 {
-    s->ph = base;
-    s->lnt = base + nv;
-    s->st = base + 2 * nv;
-    s->zr = base + 3 * nv;
-    s->zi = base + 4 * nv;
-    s->er = base + 5 * nv;
-    s->ei = base + 6 * nv;
-    s->lev_p = base + 7 * nv;
-    s->lev = base + (7 + MAX_LEV_P) * nv;
-    s->in = (unsigned char *)(base + (7 + MAX_LEV_P + LENSRT_CELLS_MAX_LEVELS) * nv);
-    s->cr = base + (8 + MAX_LEV_P + LENSRT_CELLS_MAX_LEVELS) * nv;
-    s->ci = s->cr + nt;
-    s->rest = (unsigned char *)(s->ci + nt);
+    const size_t L = LENSRT_CELLS_LANES, per = nv * (8 + MAX_LEV_P + LENSRT_CELLS_MAX_LEVELS);
+    size_t k;
+    for (k = 0; k < L; k++) {
+        cells_scratch *s = &b->s[k];
+        double *p = base + k * per;
+        s->ph = p;
+        s->lnt = p + nv;
+        s->st = p + 2 * nv;
+        s->zr = p + 3 * nv;
+        s->zi = p + 4 * nv;
+        s->er = p + 5 * nv;
+        s->ei = p + 6 * nv;
+        s->lev_p = p + 7 * nv;
+        s->lev = p + (7 + MAX_LEV_P) * nv;
+        s->in = (unsigned char *)(p + (7 + MAX_LEV_P + LENSRT_CELLS_MAX_LEVELS) * nv);
+        s->cr = s->ci = NULL;
+        s->rest = NULL;
+    }
+    base += L * per;
+    b->zr = base;
+    b->zi = base + L * nv;
+    b->er = base + 2 * L * nv;
+    b->ei = base + 3 * L * nv;
+    b->in = base + 4 * L * nv;
+    b->cr = base + 5 * L * nv;
+    b->ci = b->cr + L * nt;
+    b->rest = b->ci + L * nt;
 }
 
-/* Pixel p of wavelength w on every mesh: one set-up, then each mesh's field into its U. */
-static void cells_pixel_all(lensrt_render r, int w, long p, const lensrt_cells_job *job, const cells_vertices *cv,
-                            double *base, size_t nv_max, size_t nt_max)
+/* The block of nl pixels pix[] of wavelength w on every mesh: one set-up per pixel, then
+ * each mesh's fields into its U. */
+static void cells_block_all(lensrt_render r, int w, const long *pix, int nl, const lensrt_cells_job *job,
+                            const cells_vertices *cv, double *base, size_t nv_max, size_t nt_max)
 {
     const size_t npix = (size_t)r->width * (size_t)r->height;
-    cells_pixel cp;
-    cells_scratch s;
-    double f[2 * LENSRT_MAX_LIGHTS];
-    int k, l;
-    setup_pixel(r, w, p, &cp);
-    scratch_view(base, nv_max, nt_max, &s);
-    for (k = 0; k < job->n_mesh; k++) {
-        integrate_pixel(r, w, &cp, job->mesh[k], &cv[k], &s, f);
-        for (l = 0; l < r->n_lights; l++) {
-            const size_t at = ((size_t)l * (size_t)r->n_wl + (size_t)w) * npix + (size_t)p;
-            job->U[k][2 * at] = f[2 * l];
-            job->U[k][2 * at + 1] = f[2 * l + 1];
-        }
+    cells_pixel cp[LENSRT_CELLS_LANES];
+    cells_block b;
+    double f[2 * LENSRT_CELLS_LANES * LENSRT_MAX_LIGHTS];
+    int k, q, l;
+    for (k = 0; k < nl; k++) setup_pixel(r, w, pix[k], &cp[k]);
+    block_view(base, nv_max, nt_max, &b);
+    for (q = 0; q < job->n_mesh; q++) {
+        integrate_block(r, w, cp, nl, job->mesh[q], &cv[q], &b, f);
+        for (k = 0; k < nl; k++)
+            for (l = 0; l < r->n_lights; l++) {
+                const size_t at = ((size_t)l * (size_t)r->n_wl + (size_t)w) * npix + (size_t)pix[k];
+                job->U[q][2 * at] = f[2 * (k * r->n_lights + l)];
+                job->U[q][2 * at + 1] = f[2 * (k * r->n_lights + l) + 1];
+            }
     }
 }
 
@@ -390,15 +460,21 @@ lensrt_result lensrt_cpu_cells(lensrt_render r, const lensrt_cells_job *job, len
     if (!alloc_state(r, job, nthreads, &st))
         return lensrt_fail(r->ctx, LENSRT_ERROR_OUT_OF_MEMORY, "cells: out of memory for %d threads' scratch", nthreads);
     for (w = 0; w < r->n_wl && !failed; w++) {
-        long p;
+        const long n_blocks = (npix + LENSRT_CELLS_LANES - 1) / LENSRT_CELLS_LANES;
+        long blk;
         prepare_meshes(r, w, job, &st, 1);
-        // Every pixel, in parallel over pixels (each writes only its own fields)
+        // Every block of LANES pixels, in parallel over blocks (each writes only its own
+        // pixels' fields)
 #ifdef LENSRT_OPENMP
-#pragma omp parallel for schedule(dynamic, 4) num_threads(nthreads)
+#pragma omp parallel for schedule(dynamic, 1) num_threads(nthreads)
 #endif
-        for (p = 0; p < npix; p++) {
+        for (blk = 0; blk < n_blocks; blk++) {
             const int th = thread_id();
-            cells_pixel_all(r, w, p, job, st.cv, st.scratch + st.per_thread * (size_t)th, st.nv_max, st.nt_max);
+            long pix[LENSRT_CELLS_LANES];
+            int k, nl = 0;
+            for (k = 0; k < LENSRT_CELLS_LANES && blk * LENSRT_CELLS_LANES + k < npix; k++)
+                pix[nl++] = blk * LENSRT_CELLS_LANES + k;
+            cells_block_all(r, w, pix, nl, job, st.cv, st.scratch + st.per_thread * (size_t)th, st.nv_max, st.nt_max);
         }
         if (progress) {
             const double frac = (double)(w + 1) / r->n_wl, el = lensrt_seconds() - t0;
@@ -416,10 +492,19 @@ lensrt_result lensrt_cpu_cells_tile(lensrt_render r, const lensrt_cells_job *job
     int w, x, y;
     if (!alloc_state(r, job, 1, &st)) return LENSRT_ERROR_OUT_OF_MEMORY;
     for (w = 0; w < r->n_wl; w++) {
+        long pix[LENSRT_CELLS_LANES];
+        int nl = 0;
         prepare_meshes(r, w, job, &st, 0);
+        // The rectangle's pixels in blocks of LANES (a pixel's field does not depend on
+        // the others in its block)
         for (y = y0; y < y0 + height; y++)
-            for (x = x0; x < x0 + width; x++)
-                cells_pixel_all(r, w, (long)y * r->width + x, job, st.cv, st.scratch, st.nv_max, st.nt_max);
+            for (x = x0; x < x0 + width; x++) {
+                pix[nl++] = (long)y * r->width + x;
+                if (nl == LENSRT_CELLS_LANES || (y == y0 + height - 1 && x == x0 + width - 1)) {
+                    cells_block_all(r, w, pix, nl, job, st.cv, st.scratch, st.nv_max, st.nt_max);
+                    nl = 0;
+                }
+            }
     }
     free_state(r, &st, job->n_mesh);
     return LENSRT_SUCCESS;

@@ -37,23 +37,25 @@ void lensrt_cells_vertices(int n, const double *restrict ph, const double *restr
     }
 }
 
-/* One strip: triangle k of vertices (k of the 0 arrays, k of the 1, k of the 2). */
-static void strip_triangles(int n, const double *restrict area, const double *restrict zr0,
-                            const double *restrict zi0, const double *restrict er0, const double *restrict ei0,
-                            const unsigned char *restrict in0, const double *restrict zr1,
-                            const double *restrict zi1, const double *restrict er1, const double *restrict ei1,
-                            const unsigned char *restrict in1, const double *restrict zr2,
-                            const double *restrict zi2, const double *restrict er2, const double *restrict ei2,
-                            const unsigned char *restrict in2, double *restrict cr, double *restrict ci,
-                            unsigned char *restrict rest)
+/* Triangle t of a strip for the LENSRT_CELLS_LANES pixels of a block at once: its
+ * vertices' values at v0, v1, v2 (each LANES wide, one per pixel), its integral into
+ * cr, ci (LANES wide) where the nodes are apart inside every clip, else 0 and rest 1.
+ * The arithmetic per lane is lensrt_tri_integral's one-division branch, bit for bit. */
+static inline void triangle_lanes(double area, const double *restrict zr0, const double *restrict zi0,
+                                  const double *restrict er0, const double *restrict ei0,
+                                  const double *restrict in0, const double *restrict zr1,
+                                  const double *restrict zi1, const double *restrict er1,
+                                  const double *restrict ei1, const double *restrict in1,
+                                  const double *restrict zr2, const double *restrict zi2,
+                                  const double *restrict er2, const double *restrict ei2,
+                                  const double *restrict in2, double *restrict cr, double *restrict ci,
+                                  double *restrict rest)
 {
     int k;
-    // The outputs never overlap the inputs (restrict; the pragma says so to GCC once the
-    // function is inlined, where it forgets)
 #if defined(__GNUC__) && !defined(__clang__)
 #pragma GCC ivdep
 #endif
-    for (k = 0; k < n; k++) {
+    for (k = 0; k < LENSRT_CELLS_LANES; k++) {
         // Differences a = z1 - z0, b = z2 - z0, c = z2 - z1 and their max norms
         const double ar = zr1[k] - zr0[k], ai = zi1[k] - zi0[k], br = zr2[k] - zr0[k], bi = zi2[k] - zi0[k];
         const double cr_ = zr2[k] - zr1[k], ci_ = zi2[k] - zi1[k];
@@ -62,7 +64,7 @@ static void strip_triangles(int n, const double *restrict area, const double *re
         // z0, every pair beyond 1/32), inside every clip
         const int apart = ((da > LENSRT_CELLS_SERIES_G) | (db > LENSRT_CELLS_SERIES_G)) &
                           (da > LENSRT_CELLS_SERIES_D) & (db > LENSRT_CELLS_SERIES_D) & (dc > LENSRT_CELLS_SERIES_D) &
-                          (in0[k] & in1[k] & in2[k]);
+                          (in0[k] * in1[k] * in2[k] != 0.0);
         // num = E0 c - E1 b + E2 a, den = a b c, g = -num / den (core/cells.c)
         const double nr = er0[k] * cr_ - ei0[k] * ci_ - (er1[k] * br - ei1[k] * bi) + er2[k] * ar - ei2[k] * ai;
         const double ni = er0[k] * ci_ + ei0[k] * cr_ - (er1[k] * bi + ei1[k] * br) + er2[k] * ai + ei2[k] * ar;
@@ -70,19 +72,24 @@ static void strip_triangles(int n, const double *restrict area, const double *re
         const double dr = abr * cr_ - abi * ci_, di = abr * ci_ + abi * cr_;
         const double q = 1.0 / (dr * dr + di * di);
         const double gr = -((nr * dr + ni * di) * q), gi = -((ni * dr - nr * di) * q);
-        cr[k] = apart ? 2.0 * area[k] * gr : 0.0;
-        ci[k] = apart ? 2.0 * area[k] * gi : 0.0;
-        rest[k] = (unsigned char)!apart;
+        cr[k] = apart ? 2.0 * area * gr : 0.0;
+        ci[k] = apart ? 2.0 * area * gi : 0.0;
+        rest[k] = apart ? 0.0 : 1.0;
     }
 }
 
 void lensrt_cells_triangles(const lensrt_mesh *m, const double *zr, const double *zi, const double *er,
-                            const double *ei, const unsigned char *in, double *cr, double *ci, unsigned char *rest)
+                            const double *ei, const double *in, double *cr, double *ci, double *rest)
 {
-    int s;
+    const size_t L = LENSRT_CELLS_LANES;
+    int s, k;
     for (s = 0; s < m->n_strips; s++) {
-        const int *st = m->strip + 5 * s, t0 = st[0], a = st[2], b = st[3], c = st[4];
-        strip_triangles(st[1], m->area + t0, zr + a, zi + a, er + a, ei + a, in + a, zr + b, zi + b, er + b, ei + b,
-                        in + b, zr + c, zi + c, er + c, ei + c, in + c, cr + t0, ci + t0, rest + t0);
+        const int *st = m->strip + 5 * s, t0 = st[0], n = st[1];
+        for (k = 0; k < n; k++) {
+            const size_t t = (size_t)(t0 + k) * L, a = (size_t)(st[2] + k) * L, b = (size_t)(st[3] + k) * L,
+                         c = (size_t)(st[4] + k) * L;
+            triangle_lanes(m->area[t0 + k], zr + a, zi + a, er + a, ei + a, in + a, zr + b, zi + b, er + b, ei + b,
+                           in + b, zr + c, zi + c, er + c, ei + c, in + c, cr + t, ci + t, rest + t);
+        }
     }
 }

@@ -11,11 +11,17 @@ void lensrt_cells_vertices(int n, const double *restrict ph, const double *restr
                            const double *restrict samp, const double *restrict lnt, const double *restrict st, double *restrict zr, double *restrict zi,
                            double *restrict er, double *restrict ei);
 
-/* The integral over every triangle of mesh m whose nodes are apart (lensrt_tri_integral's
+/* Pixels integrated at once by lensrt_cells_triangles: a block's vertex values are
+ * interleaved, value of vertex v for the block's pixel k at [v * LANES + k], so that the
+ * loop over the block's pixels runs along contiguous memory in full vectors (a mesh's
+ * strips are a few triangles long near the centre: too short to vectorise along). */
+#define LENSRT_CELLS_LANES 8
+
+/* The integral over every triangle t of mesh m whose nodes are apart (lensrt_tri_integral's
  * one-division branch, bit for bit) and that lies inside every clip (in: per vertex,
- * 1 inside, 0 not) into cr, ci; the others get 0 and rest[t] = 1, for the caller's
- * scalar pass. Strip by strip (lensrt_mesh.strip): every read in order. */
+ * 1 inside, 0 not) into cr, ci [t * LANES + k]; the others get 0 and rest 1, for the
+ * caller's scalar pass. Every array interleaved for the LANES pixels of a block. */
 void lensrt_cells_triangles(const lensrt_mesh *m, const double *zr, const double *zi, const double *er,
-                            const double *ei, const unsigned char *in, double *cr, double *ci, unsigned char *rest);
+                            const double *ei, const double *in, double *cr, double *ci, double *rest);
 
 #endif /* LENSRT_CELLS_KERNEL_H */
