@@ -105,12 +105,13 @@ static void prepare_vertex(const lensrt_render r, int w, const lensrt_mesh *m, c
     }
 }
 
-/* Per-thread scratch for one pixel: per vertex the pixel's phase (waves), log amplitude
- * and levels after the stop, then per light z = (2 pi phase, -log amp) and exp(i z). */
+/* Scratch for one pixel of a block: per vertex the pixel's phase (waves), transmittance
+ * amplitude and its log, the levels after the stop (lev_p) and, per light, all levels
+ * (lev) and whether every one is >= 0 (in); hx, hy: room for the clips' positions. The
+ * phasors go straight to the block's interleaved arrays (cells_block). */
 typedef struct cells_scratch {
-    double *ph, *lnt, *st, *lev_p, *zr, *zi, *er, *ei, *lev, *cr, *ci;
-    unsigned char *in;   /* every level >= 0 at the vertex */
-    unsigned char *rest; /* triangles left to the scalar pass */
+    double *ph, *lnt, *st, *lev_p, *hx, *hy, *lev;
+    unsigned char *in;
 } cells_scratch;
 
 #define MAX_LEV_P (1 + LENSRT_MAX_CLIP_PAIRS)
@@ -174,7 +175,7 @@ static int pixel_vertices(lensrt_render r, int w, const cells_pixel *cp, const c
     }
     {
         const lensrt_pixel_d *d = &cp->px.d;
-        double *hx = s->zr, *hy = s->zi; /* free until the lights' pass */
+        double *hx = s->hx, *hy = s->hy;
         int q, j = 0;
         n_lev = (d->clip ? 1 : 0) + d->n_clip;
         sum_terms(&d->phase, cv->rows, nv, s->ph);
@@ -251,27 +252,24 @@ static void integrate_block(lensrt_render r, int w, const cells_pixel *cp, int n
                 continue;
             }
             lensrt_cells_vertices(nv, s->ph, cv->sph + off, s->ph[0] + cv->sph[off], cv->lna + off, cv->samp + off,
-                                  s->lnt, s->st, s->zr, s->zi, s->er, s->ei);
+                                  s->lnt, s->st, b->zr + k, b->zi + k, b->er + k, b->ei + k, (size_t)L);
             // The levels before the stop (this light's) and after it (this pixel's)
-            if (n_lev[k] == 0) memset(s->in, 1, (size_t)nv);
-            else
-                for (v = 0; v < nv; v++) {
-                    const int n_lev_p = n_lev[k] - n_lev_o;
-                    double *lv = s->lev + (size_t)v * n_lev[k];
-                    int j, in = 1;
-                    for (j = 0; j < n_lev_o; j++) lv[j] = lev_o[(size_t)v * (1 + LENSRT_MAX_CLIP_PAIRS) + j];
-                    for (j = 0; j < n_lev_p; j++) lv[n_lev_o + j] = s->lev_p[(size_t)v * MAX_LEV_P + j];
-                    for (j = 0; j < n_lev[k]; j++) in &= lv[j] >= 0.0;
-                    s->in[v] = (unsigned char)in;
+            // (level by level over the vertices: loops that run along them)
+            memset(s->in, 1, (size_t)nv);
+            {
+                const int nlk = n_lev[k];
+                int j;
+                for (j = 0; j < nlk; j++) {
+                    const double *src = j < n_lev_o ? lev_o + j : s->lev_p + (j - n_lev_o);
+                    const size_t stride = j < n_lev_o ? 1 + LENSRT_MAX_CLIP_PAIRS : MAX_LEV_P;
+                    for (v = 0; v < nv; v++) {
+                        const double x = src[(size_t)v * stride];
+                        s->lev[(size_t)v * nlk + j] = x;
+                        s->in[v] &= (unsigned char)(x >= 0.0);
+                    }
                 }
-            for (v = 0; v < nv; v++) {
-                const size_t at = (size_t)v * L + (size_t)k;
-                b->zr[at] = s->zr[v];
-                b->zi[at] = s->zi[v];
-                b->er[at] = s->er[v];
-                b->ei[at] = s->ei[v];
-                b->in[at] = s->in[v] ? 1.0 : 0.0;
             }
+            for (v = 0; v < nv; v++) b->in[(size_t)v * L + (size_t)k] = s->in[v] ? 1.0 : 0.0;
         }
         lensrt_cells_triangles(m, b->zr, b->zi, b->er, b->ei, b->in, b->cr, b->ci, b->rest);
         // The rest, pixel by pixel in place (a dark pixel's stay 0); a triangle whose
@@ -290,10 +288,11 @@ static void integrate_block(lensrt_render r, int w, const cells_pixel *cp, int n
                 int q, j;
                 if (b->rest[at] == 0.0 || !cp[k].live) continue;
                 for (q = 0; q < 3; q++) {
-                    z[2 * q] = s->zr[tv[q]];
-                    z[2 * q + 1] = s->zi[tv[q]];
-                    E[2 * q] = s->er[tv[q]];
-                    E[2 * q + 1] = s->ei[tv[q]];
+                    const size_t vq = (size_t)tv[q] * L + (size_t)k;
+                    z[2 * q] = b->zr[vq];
+                    z[2 * q + 1] = b->zi[vq];
+                    E[2 * q] = b->er[vq];
+                    E[2 * q + 1] = b->ei[vq];
                     for (j = 0; j < nlv; j++) lev[q * nlv + j] = s->lev[(size_t)tv[q] * nlv + j];
                 }
                 // Inside every clip: the closed form with its series; else cut
@@ -324,16 +323,16 @@ static void integrate_block(lensrt_render r, int w, const cells_pixel *cp, int n
 /* Scratch of one thread for a block on meshes of up to nv vertices and nt triangles. */
 static size_t scratch_size(size_t nv, size_t nt)
 {
-    /* per pixel: ph, lnt, st, zr, zi, er, ei (nv each), lev_p (MAX_LEV_P nv), lev
-     * (MAX_LEVELS nv), in (nv bytes); the block: zr, zi, er, ei, in (LANES nv each), cr,
-     * ci, rest (LANES nt each) */
+    /* per pixel: ph, lnt, st, hx, hy (nv each), lev_p (MAX_LEV_P nv), lev (MAX_LEVELS
+     * nv), in (nv bytes); the block: zr, zi, er, ei, in (LANES nv each), cr, ci, rest
+     * (LANES nt each) */
     const size_t L = LENSRT_CELLS_LANES;
-    return L * nv * (8 + MAX_LEV_P + LENSRT_CELLS_MAX_LEVELS) + L * (5 * nv + 3 * nt);
+    return L * nv * (6 + MAX_LEV_P + LENSRT_CELLS_MAX_LEVELS) + L * (5 * nv + 3 * nt);
 }
 
 static void block_view(double *base, size_t nv, size_t nt, cells_block *b)
 {
-    const size_t L = LENSRT_CELLS_LANES, per = nv * (8 + MAX_LEV_P + LENSRT_CELLS_MAX_LEVELS);
+    const size_t L = LENSRT_CELLS_LANES, per = nv * (6 + MAX_LEV_P + LENSRT_CELLS_MAX_LEVELS);
     size_t k;
     for (k = 0; k < L; k++) {
         cells_scratch *s = &b->s[k];
@@ -341,15 +340,11 @@ static void block_view(double *base, size_t nv, size_t nt, cells_block *b)
         s->ph = p;
         s->lnt = p + nv;
         s->st = p + 2 * nv;
-        s->zr = p + 3 * nv;
-        s->zi = p + 4 * nv;
-        s->er = p + 5 * nv;
-        s->ei = p + 6 * nv;
-        s->lev_p = p + 7 * nv;
-        s->lev = p + (7 + MAX_LEV_P) * nv;
-        s->in = (unsigned char *)(p + (7 + MAX_LEV_P + LENSRT_CELLS_MAX_LEVELS) * nv);
-        s->cr = s->ci = NULL;
-        s->rest = NULL;
+        s->hx = p + 3 * nv;
+        s->hy = p + 4 * nv;
+        s->lev_p = p + 5 * nv;
+        s->lev = p + (5 + MAX_LEV_P) * nv;
+        s->in = (unsigned char *)(p + (5 + MAX_LEV_P + LENSRT_CELLS_MAX_LEVELS) * nv);
     }
     base += L * per;
     b->zr = base;

@@ -13,7 +13,7 @@
 
 void lensrt_cells_vertices(int n, const double *restrict ph, const double *restrict sph, double ref, const double *restrict lna,
                            const double *restrict samp, const double *restrict lnt, const double *restrict st, double *restrict zr, double *restrict zi,
-                           double *restrict er, double *restrict ei)
+                           double *restrict er, double *restrict ei, size_t stride)
 {
     int v;
     for (v = 0; v < n; v++) {
@@ -30,10 +30,10 @@ void lensrt_cells_vertices(int n, const double *restrict ph, const double *restr
         // 3 for q = -1 (compares in double: the loop vectorises)
         const double cc = (q == 1.0 || q == -1.0) ? s : c, ss = (q == 1.0 || q == -1.0) ? c : s;
         const double a = samp[v] * st[v];
-        zr[v] = TWO_PI * w;
-        zi[v] = -(lna[v] + lnt[v]);
-        er[v] = a * ((q == 1.0 || q == 2.0 || q == -2.0) ? -cc : cc);
-        ei[v] = a * ((q == 2.0 || q == -2.0 || q == -1.0) ? -ss : ss);
+        zr[(size_t)v * stride] = TWO_PI * w;
+        zi[(size_t)v * stride] = -(lna[v] + lnt[v]);
+        er[(size_t)v * stride] = a * ((q == 1.0 || q == 2.0 || q == -2.0) ? -cc : cc);
+        ei[(size_t)v * stride] = a * ((q == 2.0 || q == -2.0 || q == -1.0) ? -ss : ss);
     }
 }
 

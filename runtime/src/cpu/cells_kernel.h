@@ -6,10 +6,11 @@
 
 /* Vertex phasors of one pixel and light: w = ph + sph - ref (waves), z = (2 pi w,
  * -(lna + lnt)), E = samp st exp(2 pi i w) (the amplitude and its log kept apart, so
- * that no exp or log is taken here). */
+ * that no exp or log is taken here); vertex v's at [v * stride] (LENSRT_CELLS_LANES: the
+ * pixel's lane of a block). */
 void lensrt_cells_vertices(int n, const double *restrict ph, const double *restrict sph, double ref, const double *restrict lna,
                            const double *restrict samp, const double *restrict lnt, const double *restrict st, double *restrict zr, double *restrict zi,
-                           double *restrict er, double *restrict ei);
+                           double *restrict er, double *restrict ei, size_t stride);
 
 /* Pixels integrated at once by lensrt_cells_triangles: a block's vertex values are
  * interleaved, value of vertex v for the block's pixel k at [v * LANES + k], so that the
