@@ -11,6 +11,7 @@
  *
  * The integrator is double only (no float variant exists to test). */
 #include "../../runtime/src/core/cells.h"
+#include "../../runtime/src/cpu/cells_kernel.h"
 
 #include <math.h>
 #include <stdarg.h>
@@ -301,9 +302,53 @@ static void test_meshes(void)
     }
 }
 
+/* The kernel's vectorised log of the transmittance amplitude (cpu/cells_kernel.c)
+ * against libm's in long double: within 2 ulp of 0.5 log t from 1e-300 to 1e300
+ * (log-uniform, and near the mantissa's sqrt(2) split and powers of two), the floor below
+ * it and for t <= 0 or NaN, inf kept, the amplitude sqrt(t) exact. */
+static void test_log_amplitude(void)
+{
+    enum { N = 20000 };
+    static double st[N + 16], lnt[N + 16], t[N + 16];
+    const double floor_ = -80.0;
+    double worst = 0.0;
+    unsigned s = 7u;
+    int i, n = 0;
+    for (i = 0; i < N; i++) {
+        s = s * 1664525u + 1013904223u;
+        t[n++] = pow(10.0, -300.0 + 600.0 * (double)(s >> 8) / 16777216.0);
+    }
+    {
+        const double special[16] = {1.0, 2.0, 0.5, 1.4142135623730951, 1.4142135623730949, 0.7071067811865476,
+                                    1.0 + 1e-15, 1.0 - 1e-16, 3.0, 0.9999, 1e-300, 2e-300,
+                                    0.0, -1.0, NAN, INFINITY};
+        for (i = 0; i < 16; i++) t[n++] = special[i];
+    }
+    for (i = 0; i < n; i++) st[i] = t[i];
+    lensrt_cells_log_amplitude(n, st, lnt, floor_);
+    for (i = 0; i < n; i++) {
+        const double x = t[i];
+        if (!(x > 0.0) || x != x) {
+            CHECK(lnt[i] == floor_ && st[i] == 0.0, "t = %g: log amplitude %g, amplitude %g", x, lnt[i], st[i]);
+        } else if (isinf(x)) {
+            CHECK(isinf(lnt[i]) && isinf(st[i]), "t = inf: %g %g", lnt[i], st[i]);
+        } else {
+            const long double ref = 0.5L * logl((long double)x);
+            const double want = ref < floor_ ? floor_ : (double)ref;
+            const double ulp = nextafter(fabs(want), INFINITY) - fabs(want);
+            const double err = want == floor_ ? (lnt[i] == floor_ ? 0.0 : 1e9) : fabs((double)((long double)lnt[i] - ref)) / ulp;
+            if (err > worst) worst = err;
+            CHECK(err <= 2.0, "t = %.17g: 0.5 log t %.17g, want %.17Lg (%.2f ulp)", x, lnt[i], ref, err);
+            CHECK(st[i] == sqrt(x), "t = %.17g: amplitude", x);
+        }
+    }
+    printf("log amplitude: worst %.2f ulp over %d values\n", worst, n);
+}
+
 int main(void)
 {
     gauss_legendre();
+    test_log_amplitude();
     test_singularities();
     test_random();
     test_clip();

@@ -181,11 +181,7 @@ static int pixel_vertices(lensrt_render r, int w, const cells_pixel *cp, const c
         sum_terms(&d->phase, cv->rows, nv, s->ph);
         if (d->tau.n > 0) {
             sum_terms(&d->tau, cv->rows, nv, s->st);
-            for (v = 0; v < nv; v++) {
-                const double t = s->st[v];
-                s->lnt[v] = t > 0.0 ? fmax(0.5 * log(t), LOG_AMP_FLOOR) : LOG_AMP_FLOOR;
-                s->st[v] = t > 0.0 ? sqrt(t) : 0.0;
-            }
+            lensrt_cells_log_amplitude(nv, s->st, s->lnt, LOG_AMP_FLOOR);
         } else {
             for (v = 0; v < nv; v++) {
                 s->lnt[v] = 0.0;

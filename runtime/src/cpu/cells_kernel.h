@@ -12,6 +12,11 @@ void lensrt_cells_vertices(int n, const double *restrict ph, const double *restr
                            const double *restrict samp, const double *restrict lnt, const double *restrict st, double *restrict zr, double *restrict zi,
                            double *restrict er, double *restrict ei, size_t stride);
 
+/* st[v] (a transmittance t) becomes its amplitude sqrt(t) (0 where t <= 0 or NaN) and
+ * lnt[v] the log of that amplitude, 0.5 log t, no lower than floor_ (floor_ where t is
+ * below 1e-300, <= 0 or NaN), within 2 ulp of libm's; vectorised. */
+void lensrt_cells_log_amplitude(int n, double *restrict st, double *restrict lnt, double floor_);
+
 /* Pixels integrated at once by lensrt_cells_triangles: a block's vertex values are
  * interleaved, value of vertex v for the block's pixel k at [v * LANES + k], so that the
  * loop over the block's pixels runs along contiguous memory in full vectors (a mesh's
