@@ -11,35 +11,13 @@
  * of the pixel times fixed vectors plus a small irregular part, so that the eigenvalues
  * fall off as a real window's do. */
 #include "../../runtime/src/core/basis.h"
-#include "../../runtime/src/internal.h"
+#include "internal_stubs.h"
 
 #include <math.h>
 #include <stdarg.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
-
-/* basis.c allocates through the context and reports through lensrt_fail: malloc here. */
-void *lensrt_calloc(lensrt_context ctx, size_t count, size_t size)
-{
-    (void)ctx;
-    return calloc(count, size);
-}
-void lensrt_free(lensrt_context ctx, void *ptr)
-{
-    (void)ctx;
-    free(ptr);
-}
-lensrt_result lensrt_fail(lensrt_context ctx, lensrt_result result, const char *fmt, ...)
-{
-    va_list ap;
-    (void)ctx;
-    va_start(ap, fmt);
-    vfprintf(stderr, fmt, ap);
-    va_end(ap);
-    fputc('\n', stderr);
-    return result;
-}
 
 /* The sensor powers carry the pixel; the stub polynomial reads x and y back. */
 void lensrt_sensor_powers(const lensrt_lens lens, double x, double y, double px[16], double py[16])

@@ -13,32 +13,13 @@
 #include "../../runtime/src/core/cells.h"
 #include "../../runtime/src/cpu/cells_kernel.h"
 
+#include "internal_stubs.h"
+
 #include <math.h>
 #include <stdarg.h>
 #include <stdio.h>
 #include <stdlib.h>
 
-/* cells.c allocates meshes through the context: the test gives it malloc. */
-void *lensrt_calloc(lensrt_context ctx, size_t count, size_t size)
-{
-    (void)ctx;
-    return calloc(count, size);
-}
-void lensrt_free(lensrt_context ctx, void *ptr)
-{
-    (void)ctx;
-    free(ptr);
-}
-lensrt_result lensrt_fail(lensrt_context ctx, lensrt_result result, const char *fmt, ...)
-{
-    va_list ap;
-    (void)ctx;
-    va_start(ap, fmt);
-    vfprintf(stderr, fmt, ap);
-    va_end(ap);
-    fprintf(stderr, "\n");
-    return result;
-}
 
 static int failures;
 #define CHECK(cond, ...)                                                                                              \
