@@ -114,15 +114,17 @@ static inline void triangle_lanes(double area, const double *restrict zr0, const
     }
 }
 
-void lensrt_cells_triangles(const lensrt_mesh *m, const double *zr, const double *zi, const double *er,
-                            const double *ei, const double *in, double *cr, double *ci, double *rest)
+void lensrt_cells_triangles(const lensrt_mesh *m, int s0, int s1, const double *zr, const double *zi,
+                            const double *er, const double *ei, const double *in, double *cr, double *ci,
+                            double *rest)
 {
     const size_t L = LENSRT_CELLS_LANES;
+    const int first = m->strip[5 * s0];
     int s, k;
-    for (s = 0; s < m->n_strips; s++) {
+    for (s = s0; s < s1; s++) {
         const int *st = m->strip + 5 * s, t0 = st[0], n = st[1];
         for (k = 0; k < n; k++) {
-            const size_t t = (size_t)(t0 + k) * L, a = (size_t)(st[2] + k) * L, b = (size_t)(st[3] + k) * L,
+            const size_t t = (size_t)(t0 - first + k) * L, a = (size_t)(st[2] + k) * L, b = (size_t)(st[3] + k) * L,
                          c = (size_t)(st[4] + k) * L;
             triangle_lanes(m->area[t0 + k], zr + a, zi + a, er + a, ei + a, in + a, zr + b, zi + b, er + b, ei + b,
                            in + b, zr + c, zi + c, er + c, ei + c, in + c, cr + t, ci + t, rest + t);

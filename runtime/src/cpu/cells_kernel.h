@@ -23,11 +23,13 @@ void lensrt_cells_log_amplitude(int n, double *restrict st, double *restrict lnt
  * strips are a few triangles long near the centre: too short to vectorise along). */
 #define LENSRT_CELLS_LANES 8
 
-/* The integral over every triangle t of mesh m whose nodes are apart (lensrt_tri_integral's
- * one-division branch, bit for bit) and that lies inside every clip (in: per vertex,
- * 1 inside, 0 not) into cr, ci [t * LANES + k]; the others get 0 and rest 1, for the
- * caller's scalar pass. Every array interleaved for the LANES pixels of a block. */
-void lensrt_cells_triangles(const lensrt_mesh *m, const double *zr, const double *zi, const double *er,
-                            const double *ei, const double *in, double *cr, double *ci, double *rest);
+/* The integral over every triangle t of strips s0 .. s1 - 1 of mesh m whose nodes are
+ * apart (lensrt_tri_integral's one-division branch, bit for bit) and that lies inside
+ * every clip (in: per vertex, 1 inside, 0 not) into cr, ci [(t - t_s0) * LANES + k], t_s0
+ * the first strip's first triangle; the others get 0 and rest 1, for the caller's scalar
+ * pass. Every array interleaved for the LANES pixels of a block. */
+void lensrt_cells_triangles(const lensrt_mesh *m, int s0, int s1, const double *zr, const double *zi,
+                            const double *er, const double *ei, const double *in, double *cr, double *ci,
+                            double *rest);
 
 #endif /* LENSRT_CELLS_KERNEL_H */
