@@ -318,22 +318,21 @@ static void integrate_block(lensrt_render r, int w, const cells_pixel *cp, int n
                     acc_i[k] += b->ci[(size_t)t * L + (size_t)k];
                 }
         }
-        {
-            for (k = 0; k < nl; k++) {
-                if (!cp[k].live) continue; /* dark */
-                U[2 * (k * r->n_lights + l)] = cp[k].amp * acc_r[k];
-                U[2 * (k * r->n_lights + l) + 1] = cp[k].amp * acc_i[k];
-            }
+        for (k = 0; k < nl; k++) {
+            if (!cp[k].live) continue; /* dark */
+            U[2 * (k * r->n_lights + l)] = cp[k].amp * acc_r[k];
+            U[2 * (k * r->n_lights + l) + 1] = cp[k].amp * acc_i[k];
         }
     }
 }
 
-/* Scratch of one thread for a block on meshes of up to nv vertices and nt triangles. */
+/* Scratch of one thread for a block on meshes of up to nv vertices, in chunks of up to nt
+ * triangles. */
 static size_t scratch_size(size_t nv, size_t nt)
 {
     /* per pixel: ph, lnt, st, hx, hy (nv each), lev_p (MAX_LEV_P nv), lev (MAX_LEVELS
-     * nv), in (nv bytes); the block: zr, zi, er, ei, in (LANES nv each), cr, ci, rest
-     * (LANES nt each) */
+     * nv), in (nv bytes); the block: zr, zi, er, ei, in (LANES nv each), a chunk's cr,
+     * ci, rest (LANES nt each) */
     const size_t L = LENSRT_CELLS_LANES;
     return L * nv * (6 + MAX_LEV_P + LENSRT_CELLS_MAX_LEVELS) + L * (5 * nv + 3 * nt);
 }
@@ -368,7 +367,7 @@ static void block_view(double *base, size_t nv, size_t nt, cells_block *b)
 /* The block of nl pixels pix[] of wavelength w on every mesh: one set-up per pixel, then
  * each mesh's fields into its U. */
 static void cells_block_all(lensrt_render r, int w, const long *pix, int nl, const lensrt_cells_job *job,
-                            const cells_vertices *cv, double *base, size_t nv_max, size_t nt_max)
+                            const cells_vertices *cv, double *base, size_t nv_max, size_t nt_chunk)
 {
     const size_t npix = (size_t)r->width * (size_t)r->height;
     cells_pixel cp[LENSRT_CELLS_LANES];
@@ -376,7 +375,7 @@ static void cells_block_all(lensrt_render r, int w, const long *pix, int nl, con
     double f[2 * LENSRT_CELLS_LANES * LENSRT_MAX_LIGHTS];
     int k, q, l;
     for (k = 0; k < nl; k++) setup_pixel(r, w, pix[k], &cp[k]);
-    block_view(base, nv_max, nt_max, &b);
+    block_view(base, nv_max, nt_chunk, &b);
     for (q = 0; q < job->n_mesh; q++) {
         integrate_block(r, w, cp, nl, job->mesh[q], &cv[q], &b, f);
         for (k = 0; k < nl; k++)
@@ -394,7 +393,7 @@ typedef struct cells_state {
     cells_vertices cv[LENSRT_CELLS_MAX_MESHES];
     double *scratch;
     float *rows_f;
-    size_t nv_max, nt_max, per_thread;
+    size_t nv_max, nt_chunk, per_thread;
     int nthreads;
 } cells_state;
 
@@ -414,9 +413,16 @@ static int alloc_state(lensrt_render r, const lensrt_cells_job *job, int nthread
     for (k = 0; k < job->n_mesh; k++) {
         ok &= alloc_vertices(r, job->mesh[k], &st->cv[k]);
         if ((size_t)job->mesh[k]->n_vertices > st->nv_max) st->nv_max = (size_t)job->mesh[k]->n_vertices;
-        if ((size_t)job->mesh[k]->n_triangles > st->nt_max) st->nt_max = (size_t)job->mesh[k]->n_triangles;
+        // A chunk's triangles: CELLS_CHUNK, or a longer strip alone
+        {
+            const lensrt_mesh *m = job->mesh[k];
+            int s;
+            if (st->nt_chunk < CELLS_CHUNK) st->nt_chunk = CELLS_CHUNK;
+            for (s = 0; s < m->n_strips; s++)
+                if ((size_t)m->strip[5 * s + 1] > st->nt_chunk) st->nt_chunk = (size_t)m->strip[5 * s + 1];
+        }
     }
-    st->per_thread = scratch_size(st->nv_max, st->nt_max);
+    st->per_thread = scratch_size(st->nv_max, st->nt_chunk);
     st->scratch = lensrt_calloc(r->ctx, st->per_thread * (size_t)nthreads, sizeof(double));
     st->rows_f = lensrt_calloc(r->ctx, (size_t)nthreads * (size_t)(r->n_rows > 0 ? r->n_rows : 1), sizeof(float));
     if (!ok || !st->scratch || !st->rows_f) {
@@ -477,7 +483,7 @@ lensrt_result lensrt_cpu_cells(lensrt_render r, const lensrt_cells_job *job, len
             int k, nl = 0;
             for (k = 0; k < LENSRT_CELLS_LANES && blk * LENSRT_CELLS_LANES + k < npix; k++)
                 pix[nl++] = blk * LENSRT_CELLS_LANES + k;
-            cells_block_all(r, w, pix, nl, job, st.cv, st.scratch + st.per_thread * (size_t)th, st.nv_max, st.nt_max);
+            cells_block_all(r, w, pix, nl, job, st.cv, st.scratch + st.per_thread * (size_t)th, st.nv_max, st.nt_chunk);
         }
         if (progress) {
             const double frac = (double)(w + 1) / r->n_wl, el = lensrt_seconds() - t0;
@@ -504,7 +510,7 @@ lensrt_result lensrt_cpu_cells_tile(lensrt_render r, const lensrt_cells_job *job
             for (x = x0; x < x0 + width; x++) {
                 pix[nl++] = (long)y * r->width + x;
                 if (nl == LENSRT_CELLS_LANES || (y == y0 + height - 1 && x == x0 + width - 1)) {
-                    cells_block_all(r, w, pix, nl, job, st.cv, st.scratch, st.nv_max, st.nt_max);
+                    cells_block_all(r, w, pix, nl, job, st.cv, st.scratch, st.nv_max, st.nt_chunk);
                     nl = 0;
                 }
             }
