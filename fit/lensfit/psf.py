@@ -28,9 +28,14 @@ the test a runtime can make with the polynomials' outputs. ``clip="housings"`` a
 stricter exact test instead (every housing along both half paths, as the fitter's
 ``vignetting`` measures it).
 
-No Huygens amplitude factor is applied: neither the obliquity factor nor the 1/r falloff
-from the exit pupil to the pixel, and aperture points are weighted uniformly on the stop
-(not on the exit pupil). Across a window of a few Airy radii these factors are constant
+Each stop point carries the light's flux through the stop per unit area (as lensrt
+does, issue 26): tau_o times the front group's ray density |det dp/da| / |w . L|, p where
+the ray crosses the first vertex plane z = 0, w the light's direction and L the ray's
+leaving a near light (:func:`exact_front_flux` from the exact rays' p, by central
+differences; :func:`poly_front_flux` from phi_o's mixed derivative by the light's
+direction cosines, the fit's own mapping). No Huygens amplitude factor is applied:
+neither the obliquity factor nor the 1/r falloff from the exit pupil to the pixel.
+Across a window of a few Airy radii these factors are constant
 to well under 1e-3 at moderate f-numbers, so compare *normalised* intensities |U|^2 over a
 small window, not absolute values. Multiply U by the aperture area / (number of points)
 for a Monte Carlo estimate of the integral if a scale is wanted.
@@ -249,6 +254,61 @@ def _sensor_guess(lens: Lens, xs: np.ndarray, ys: np.ndarray, z_s: float, ap: np
     return guess
 
 
+FLUX_STEP_MM = 1e-3  # stop-point step of the flux's differences (mm)
+FLUX_STEP_COSINE = 1e-4  # light-direction step of phi_o's mixed differences
+
+
+def _near_light(x_O: float, y_O: float, u_O: float, px: np.ndarray, py: np.ndarray
+                ) -> np.ndarray:
+    """1 / |w . L| for rays from a light at inverse distance u_O (1/mm) in direction
+    (x_O, y_O) (towards the scene) through (px, py, 0); 1 at infinity."""
+    if u_O == 0.0:
+        return np.ones(np.shape(px))
+    w = np.array([x_O, y_O, -math.sqrt(1.0 - x_O * x_O - y_O * y_O)])
+    v = np.stack([px - w[0] / u_O, py - w[1] / u_O, np.full(np.shape(px), -w[2] / u_O)], -1)
+    return np.linalg.norm(v, axis=-1) / np.abs(v @ w)
+
+
+def exact_front_flux(aim: Callable[[np.ndarray, np.ndarray], Aimed], x_O: float, y_O: float,
+                     u_O: float, pts: np.ndarray) -> np.ndarray:
+    """The light's flux through the stop per unit area at stop points ``pts`` (N, 2)
+    relative to its irradiance on the first vertex plane, from exact rays: ``aim(x_a,
+    y_a)`` traces them (``Aimed.unknowns``: where each crosses z = 0); dp/da by central
+    differences of FLUX_STEP_MM. NaN where a neighbour ray fails."""
+    e = FLUX_STEP_MM
+    offsets = np.array([[e, 0.0], [-e, 0.0], [0.0, e], [0.0, -e]])
+    q = (pts[None, :, :] + offsets[:, None, :]).reshape(-1, 2)
+    a = aim(q[:, 0], q[:, 1])
+    p = np.where(a.ok[:, None], a.unknowns, np.nan).reshape(4, len(pts), 2)
+    dx, dy = (p[0] - p[1]) / (2 * e), (p[2] - p[3]) / (2 * e)
+    det = np.abs(dx[:, 0] * dy[:, 1] - dy[:, 0] * dx[:, 1])
+    mid = 0.25 * p.sum(axis=0)
+    return det * _near_light(x_O, y_O, u_O, mid[:, 0], mid[:, 1])
+
+
+def poly_front_flux(p_o: System, light: dict[str, float], pts: np.ndarray,
+                    x_o: np.ndarray, y_o: np.ndarray) -> np.ndarray:
+    """:func:`exact_front_flux` from a fitted P_o: dp/da is phi_o's mixed derivative by
+    the light's direction cosines and the stop point (p = d phi_o / d(x_O, y_O)), by
+    central differences on the polynomial; (x_o, y_o) on the first surface stand in for
+    p in the near light's 1 / |w . L| (their difference moves it by < 1e-6)."""
+    d, e = FLUX_STEP_COSINE, FLUX_STEP_MM
+    col = p_o.output_names.index("phi_o")
+
+    def phi(dx: float, dy: float, ex: float, ey: float) -> np.ndarray:
+        at = dict(light, x_O=light["x_O"] + dx, y_O=light["y_O"] + dy)
+        return _evaluate(p_o.specialise(at), {"x_a": pts[:, 0] + ex, "y_a": pts[:, 1] + ey})[col]
+
+    def mixed(dx: float, dy: float, ex: float, ey: float) -> np.ndarray:
+        return (phi(dx, dy, ex, ey) - phi(dx, dy, -ex, -ey) - phi(-dx, -dy, ex, ey)
+                + phi(-dx, -dy, -ex, -ey)) / (4 * d * e)
+
+    h11, h12 = mixed(d, 0, e, 0), mixed(d, 0, 0, e)
+    h21, h22 = mixed(0, d, e, 0), mixed(0, d, 0, e)
+    return (np.abs(h11 * h22 - h12 * h21)
+            * _near_light(light["x_O"], light["y_O"], light["u_O"], x_o, y_o))
+
+
 def exact_psf(lens: Lens, *, stop_radius_mm: float, aperture_xy_mm: np.ndarray,
               field_deg: tuple[float, float] = (0.0, 0.0), distance_mm: float = math.inf,
               wavelength_nm: float, focus_offset_mm: float = 0.0, width: int, height: int,
@@ -301,13 +361,21 @@ def exact_psf(lens: Lens, *, stop_radius_mm: float, aperture_xy_mm: np.ndarray,
     ghost_o = ghost is not None and ghost.system == "P_o"
     ghost_s = ghost is not None and ghost.system == "P_s"
     if ghost_o:
+        def aim(xa: np.ndarray, ya: np.ndarray) -> Aimed:
+            return aim_ghost(lens, ghost, x_O, y_O, u_O, xa, ya, lam,
+                             fd_scale=max(stop_radius_mm, 1.0)).aimed
         obj = aim_ghost(lens, ghost, x_O, y_O, u_O, pts[:, 0], pts[:, 1], lam,
                         fd_scale=max(stop_radius_mm, 1.0))
         pass_o = obj.passes(stop_radius_mm, stop_shape)
     else:
-        obj = aim_object_side(lens, x_O, y_O, u_O, pts[:, 0], pts[:, 1], lam)
+        def aim(xa: np.ndarray, ya: np.ndarray) -> Aimed:
+            return aim_object_side(lens, x_O, y_O, u_O, xa, ya, lam)
+        obj = aim(pts[:, 0], pts[:, 1])
         pass_o = _passes(obj, facts.housing_first_mm, clip)
     pts, phi_o, tau_o = pts[pass_o], obj.outputs[pass_o, 3], obj.outputs[pass_o, 2]
+    flux = exact_front_flux(aim, x_O, y_O, u_O, pts)
+    good = np.isfinite(flux)
+    pts, phi_o, tau_o = pts[good], phi_o[good], tau_o[good] * flux[good]
     n_pix = width * height
     if len(pts) == 0:
         return np.zeros((height, width), dtype=np.complex128)
@@ -372,9 +440,14 @@ def exact_psf_nodes(lens: Lens, *, stop_radius_mm: float, aperture_xy_mm: np.nda
     facts = lens_facts(lens)
     used = np.zeros(len(ap), dtype=bool)
     idx = np.nonzero(inside)[0]
-    obj = aim_object_side(lens, x_O, y_O, u_O, ap[idx, 0], ap[idx, 1], lam)
+    def aim(xa: np.ndarray, ya: np.ndarray) -> Aimed:
+        return aim_object_side(lens, x_O, y_O, u_O, xa, ya, lam)
+    obj = aim(ap[idx, 0], ap[idx, 1])
     pass_o = _passes(obj, facts.housing_first_mm, "pupils")
     idx, phi_o, tau_o = idx[pass_o], obj.outputs[pass_o, 3], obj.outputs[pass_o, 2]
+    flux = exact_front_flux(aim, x_O, y_O, u_O, ap[idx])
+    good = np.isfinite(flux)
+    idx, phi_o, tau_o = idx[good], phi_o[good], tau_o[good] * flux[good]
     (gx, wx), (gy, wy) = _chebyshev(xs, nodes), _chebyshev(ys, nodes)
     n, my, mx = len(idx), len(gy), len(gx)
     jj, bb, cc = (g.reshape(-1) for g in np.meshgrid(np.arange(n), np.arange(my),
@@ -489,6 +562,7 @@ def poly_psf(systems: Sequence[System], *, facts: LensFacts | None = None,
     if clip is not None and ghost.side == "P_o":
         c = _evaluate(clip.specialise(light), {"x_a": pts[:, 0], "y_a": pts[:, 1]})
         pass_o &= clip_passes(clip, c, stop_radius_mm)
+    tau_o = tau_o * poly_front_flux(p_o, light, pts, x_o, y_o)
     pts, tau_o, phi_o = pts[pass_o], tau_o[pass_o], phi_o[pass_o]
     cols = [p_s.output_names.index(n) for n, _ in OUTPUTS_S]  # x_i, y_i, tau_i, phi_i
 

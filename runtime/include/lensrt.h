@@ -52,7 +52,7 @@ extern "C" {
  * when a program built against one header runs with a newer shared library, which the
  * versioned structs below allow within one major version. */
 #define LENSRT_VERSION_MAJOR 0
-#define LENSRT_VERSION_MINOR 7
+#define LENSRT_VERSION_MINOR 8
 #define LENSRT_VERSION_PATCH 0
 #define LENSRT_VERSION \
     ((uint32_t)LENSRT_VERSION_MAJOR * 1000000u + (uint32_t)LENSRT_VERSION_MINOR * 1000u + \
@@ -107,10 +107,15 @@ LENSRT_API const char *lensrt_version_string(void);
  * whose sums exceed these (the shipped lenses have at most 225 and 2.3). */
 #define LENSRT_MAX_COEFFICIENT_SUM 1e6  /* positions and optical path lengths, mm */
 #define LENSRT_MAX_TRANSMITTANCE_SUM 1e2 /* tau_o, tau_i */
-/* Largest light intensity. A sample's phasor is at most sqrt(intensity * tau_o * tau_i)
- * <= sqrt(intensity) * LENSRT_MAX_TRANSMITTANCE_SUM, and the kernel sums 256 of them (and
- * their squares, for the unbiased estimator) in float: 256 * 1e30 * 1e4 = 2.6e36 stays
- * below FLT_MAX (3.4e38). The image itself is the intensity times the pixel's gain, up to
+/* The front group's flux per unit stop area relative to the light's irradiance on the
+ * first vertex plane (the ray density of the path from the light: the entrance pupil's
+ * magnification squared for a direct path, 2.97 for lens 0001) is taken as at most this:
+ * only a caustic of a ghost's mapping could reach it. */
+#define LENSRT_MAX_FLUX 1e2
+/* Largest light intensity. A sample's phasor is at most sqrt(intensity * tau_o * flux *
+ * tau_i) <= sqrt(intensity * LENSRT_MAX_FLUX) * LENSRT_MAX_TRANSMITTANCE_SUM, and the
+ * kernel sums 256 of them (and their squares, for the unbiased estimator) in float:
+ * 256 * 1e30 * 1e2 * 1e4 = 2.6e38 stays below FLT_MAX (3.4e38). The image itself is the intensity times the pixel's gain, up to
  * about (stop area / (wavelength x sensor distance))^2 at a focus (1.4e8 for lens 0001
  * wide open, far more for an analytic lens with a large stop): a pixel beyond FLT_MAX
  * is refused by lensrt_render_image (and _rgb and the writers), never handed out as inf. */
@@ -469,7 +474,8 @@ struct lensrt_light {
     size_t struct_size;              /* sizeof(lensrt_light): LENSRT_LIGHT_INIT */
     double field_x_deg, field_y_deg; /* the chief ray's field angles (above), degrees */
     double distance_mm;              /* from the first vertex; 0: infinity */
-    double intensity;                /* 0: 1 */
+    double intensity;                /* 0: 1. The light's irradiance on the plane of
+                                        the first vertex (z = 0), at the vertex */
 };
 #define LENSRT_LIGHT_INIT {sizeof(lensrt_light), 0.0, 0.0, 0.0, 0.0}
 
@@ -704,9 +710,11 @@ LENSRT_API lensrt_result lensrt_render_get_stats(lensrt_render render, lensrt_re
 LENSRT_API const double *lensrt_render_wavelengths(lensrt_render render);
 
 /* Intensity per wavelength, lights added: out[(w * height + y) * width + x], count =
- * n_wavelengths * width * height. Units: irradiance on the sensor relative to a unit
- * irradiance on the stop (so the sum over pixels times the pixel area is the power
- * through the aperture, times transmittance). Row 0 is the top of the image (+y).
+ * n_wavelengths * width * height. Units: irradiance on the sensor relative to the
+ * light's irradiance on the first vertex plane (its intensity), so the sum over pixels
+ * times the pixel area is the power the lens passes from a unit light: the stop's area
+ * times the front group's flux per unit stop area, times transmittance. For an analytic
+ * lens the stop is that plane. Row 0 is the top of the image (+y).
  * A pixel that is not a finite float is LENSRT_ERROR_OUT_OF_DOMAIN with a message naming
  * the pixel and wavelength (lensrt_render_rgb and the image writers likewise). */
 LENSRT_API lensrt_result lensrt_render_image(lensrt_render render, float *out, size_t count);

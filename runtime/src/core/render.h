@@ -113,7 +113,7 @@ struct lensrt_render_s {
     lensrt_pixel_poly *ps;        /* [w * 4 + o] */
     lensrt_pixel_poly *ps_grad;   /* [w]: ps[w * 4 + 3]'s terms of slots 1 and 2, in order
                                      (the phase gradient of the Huygens amplitude) */
-    double *po;                   /* [((l * n_wl + w) * 4 + o) * n_slots + slot] */
+    double *po;                   /* [((l * n_wl + w) * LENSRT_PO_OUTPUTS + o) * n_slots + slot] */
     double *light_x, *light_y, *light_d; /* direction cosines and distance (mm, 0: inf) */
     /* ghost tables (issue 13): P_clip's pairs, on the ghost side (clip_side: 0 P_o, 1 P_s).
      * Pair q passes when x^2 + y^2 <= clip_limit[q]^2 (1 for a housing, the stop radius

@@ -96,6 +96,42 @@ static lensrt_result specialise(lensrt_render r, const lensrt_system *sys, int o
     return LENSRT_SUCCESS;
 }
 
+/* The front group's flux Jacobian of light l at wavelength w (LENSRT_PO_FLUX slots):
+ * phi_o differentiated by the light's direction cosine x_O (y_O) with the other inputs
+ * fixed, then by x_a and y_a, as stop-monomial coefficients. With d/du (u^m v^n) =
+ * m u^(m-1) v^n and u = x_a / R, every derivative stays within the slots. */
+static void specialise_flux(lensrt_render r, const double *xhat, int l, int w)
+{
+    const lensrt_system *sys = &r->lens->p_o;
+    const lensrt_poly *p = &sys->outputs[3];
+    const double scale = r->mono_radius / sys->inputs[3].s, R = r->mono_radius;
+    int i, t, k;
+    for (i = 0; i < 2; i++) {
+        double *hx = lensrt_po_slots(r, l, w, LENSRT_PO_FLUX + 2 * i);
+        double *hy = lensrt_po_slots(r, l, w, LENSRT_PO_FLUX + 2 * i + 1);
+        double grad[136];
+        memset(grad, 0, sizeof grad);
+        // d phi_o / d (x_O or y_O): input i's affine scale s turns d/d xhat into d/dv
+        for (t = 0; t < p->n_terms; t++) {
+            const unsigned char *e = p->exponents + (size_t)t * 6;
+            double c;
+            int q;
+            if (!e[i]) continue;
+            c = p->coefficients[t] * lensrt_ipow(scale, e[3] + e[4]) * e[i] * lensrt_ipow(xhat[i], e[i] - 1) /
+                sys->inputs[i].s;
+            for (q = 0; q < 6; q++)
+                if (q != 3 && q != 4 && q != i) c *= lensrt_ipow(xhat[q], e[q]);
+            grad[lensrt_slot_of(e[3], e[4])] += c;
+        }
+        // ... then by x_a and y_a (slots of one degree less; the slots arrive zeroed)
+        for (k = 0; k < r->n_slots; k++) {
+            const int m = r->slot_m[k], n = r->slot_n[k];
+            if (m > 0) hx[lensrt_slot_of(m - 1, n)] += grad[k] * m / R;
+            if (n > 0) hy[lensrt_slot_of(m, n - 1)] += grad[k] * n / R;
+        }
+    }
+}
+
 /* The terms of phase polynomial p in slots 1 and 2 (the stop's linear monomials), in
  * p's order: all the Huygens amplitude's phase gradient needs, a small part of p. */
 static lensrt_result gradient_terms(lensrt_render r, const lensrt_pixel_poly *p, lensrt_pixel_poly *out)
@@ -144,6 +180,10 @@ lensrt_result lensrt_specialise_scene(lensrt_render r)
                 if (e[3] + e[4] > r->degree) r->degree = e[3] + e[4];
             }
     }
+    // The flux Jacobian differentiates phi_o by the light's direction cosines: they must
+    // be affine inputs
+    if (lens->p_o.inputs[0].transform != LENSRT_TRANSFORM_AFFINE || lens->p_o.inputs[1].transform != LENSRT_TRANSFORM_AFFINE)
+        return lensrt_fail(r->ctx, LENSRT_ERROR_PARSE, "%s: P_o's inputs x_O, y_O must be affine", lens->file);
     if (r->degree > 15)
         return lensrt_fail(r->ctx, LENSRT_ERROR_PARSE, "%s: stop degree %d is above 15", lens->file, r->degree);
     r->n_slots = (r->degree + 1) * (r->degree + 2) / 2;
@@ -156,7 +196,8 @@ lensrt_result lensrt_specialise_scene(lensrt_render r)
     }
     r->ps = lensrt_calloc(r->ctx, (size_t)r->n_wl * 4, sizeof *r->ps);
     r->ps_grad = lensrt_calloc(r->ctx, (size_t)r->n_wl, sizeof *r->ps_grad);
-    r->po = lensrt_calloc(r->ctx, (size_t)r->n_lights * (size_t)r->n_wl * 4 * (size_t)r->n_slots, sizeof(double));
+    r->po = lensrt_calloc(r->ctx, (size_t)r->n_lights * (size_t)r->n_wl * LENSRT_PO_OUTPUTS * (size_t)r->n_slots,
+                          sizeof(double));
     if (!r->ps || !r->ps_grad || !r->po) return lensrt_fail(r->ctx, LENSRT_ERROR_OUT_OF_MEMORY, "render: out of memory");
     // A ghost's P_clip, specialised as the system whose inputs it takes
     n_clip = 2 * lens->n_clip_pairs;
@@ -192,6 +233,7 @@ lensrt_result lensrt_specialise_scene(lensrt_render r)
             xhat[5] = lensrt_normalise(&lens->p_o.inputs[5], r->wavelengths[w]);
             for (o = 0; o < 4; o++)
                 specialise(r, &lens->p_o, o, xhat, 0, NULL, lensrt_po_slots(r, l, w, o));
+            specialise_flux(r, xhat, l, w);
             for (o = 0; r->clip_o && o < n_clip; o++)
                 specialise(r, &lens->p_clip, o, xhat, 0, NULL, lensrt_clip_o_slots(r, l, w, o));
         }

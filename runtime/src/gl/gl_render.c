@@ -12,6 +12,7 @@
 #include "gl_render.h"
 
 #include "../core/basis.h"
+#include "../core/specialise.h"
 #include "../lens/lens.h"
 #include "gl_device.h"
 
@@ -333,7 +334,7 @@ static lensrt_result upload_polynomials(lensrt_render r)
     // Entries (w, o) of P_s, then those of a ghost's P_clip on side P_s (w, o < 2K), one
     // list: entry e's terms are [off[e], off[e + 1])
     const size_t n_ps = (size_t)r->n_wl * 4, n_clip = r->clip_s ? (size_t)r->n_wl * 2 * (size_t)r->n_clip_pairs : 0;
-    const size_t n_po = (size_t)r->n_lights * (size_t)r->n_wl * 4 * (size_t)r->n_slots;
+    const size_t n_po = (size_t)r->n_lights * (size_t)r->n_wl * LENSRT_PO_OUTPUTS * (size_t)r->n_slots;
     const size_t n_clip_o = r->clip_o ? (size_t)r->n_lights * (size_t)r->n_wl * 2 * (size_t)r->n_clip_pairs * (size_t)r->n_slots : 0;
     double *po;
     for (i = 0; i < n_ps + n_clip; i++) n += (size_t)(i < n_ps ? r->ps[i].n : r->clip_s[i - n_ps].n);

@@ -19,7 +19,7 @@ layout(local_size_x = 64) in;
 
 layout(std430, binding = 0) readonly buffer SampleXY { dvec2 sample_xy[]; };      // mm on the stop
 layout(std430, binding = 1) readonly buffer SampleIn { float sample_inside[]; };  // 1 inside the aperture shape, else 0
-layout(std430, binding = 2) readonly buffer Po { double po[]; };     // [((l NW + w) 4 + o) NS + slot]
+layout(std430, binding = 2) readonly buffer Po { double po[]; };     // [((l NW + w) 8 + o) NS + slot]: x_o, y_o, tau_o, phi_o, flux Jacobian
 layout(std430, binding = 3) readonly buffer Basis { double basis[]; }; // [(w 4 + o) NB NB + (slot - 1) NB + j]
 layout(std430, binding = 4) readonly buffer Lights { dvec4 lights[]; }; // (sqrt intensity, distance mm, dir x, dir y)
 layout(std430, binding = 5) readonly buffer Lambda { double lambda_mm[]; };
@@ -82,20 +82,31 @@ void main()
     }
     // P_o per light: outer-pupil clip, transmittance, OPL from the light minus its distance
     for (int l = 0; l < NL; l++) {
-        uint at = (uint(l) * uint(NW) + u_w) * 4u * uint(NS);
+        uint at = (uint(l) * uint(NW) + u_w) * 8u * uint(NS);
         double xo = 0.0LF, yo = 0.0LF, tau = 0.0LF, opl = 0.0LF;
+        dvec4 jac = dvec4(0.0LF);
         for (int k = 0; k < NS; k++) {
             xo += po[at + uint(k)] * mono[k];
             yo += po[at + uint(NS + k)] * mono[k];
             tau += po[at + uint(2 * NS + k)] * mono[k];
             opl += po[at + uint(3 * NS + k)] * mono[k];
+            jac += dvec4(po[at + uint(4 * NS + k)], po[at + uint(5 * NS + k)], po[at + uint(6 * NS + k)],
+                         po[at + uint(7 * NS + k)]) * mono[k];
         }
+        // The front group's flux per unit stop area (core/specialise.h, lensrt_front_flux)
+        double flux = abs(jac.x * jac.w - jac.y * jac.z);
+        if (lights[l].y > 0.0LF) {
+            double D = lights[l].y, lx = lights[l].z, ly = lights[l].w, lz = -sqrt(1.0LF - lx * lx - ly * ly);
+            dvec3 v = dvec3(xo - D * lx, yo - D * ly, -D * lz);
+            flux /= abs(dot(dvec3(lx, ly, lz), v) / sqrt(dot(v, v)));
+        }
+        tau *= min(flux, 100.0LF); // LENSRT_MAX_FLUX
         double amp = inside * lights[l].x;
         if (xo * xo + yo * yo > HOUSING_FIRST * HOUSING_FIRST) amp = 0.0LF;
 #if NCLIP_O > 0
         // A ghost's P_clip on this side (after P_o in the buffer): every pair must pass
         for (int q = 0; q < NCLIP_O; q++) {
-            uint cat = uint(NL * NW * 4 * NS) + ((uint(l) * uint(NW) + u_w) * uint(2 * NCLIP_O) + uint(2 * q)) * uint(NS);
+            uint cat = uint(NL * NW * 8 * NS) + ((uint(l) * uint(NW) + u_w) * uint(2 * NCLIP_O) + uint(2 * q)) * uint(NS);
             double hx = 0.0LF, hy = 0.0LF;
             for (int k = 0; k < NS; k++) {
                 hx += po[cat + uint(k)] * mono[k];

@@ -157,15 +157,24 @@ static int po_levels(const lensrt_render r, int w, int l, const double *mono, do
     const int ns = r->n_slots;
     const double *cx = lensrt_po_slots(r, l, w, 0), *cy = lensrt_po_slots(r, l, w, 1);
     const double *ct = lensrt_po_slots(r, l, w, 2), *cp = lensrt_po_slots(r, l, w, 3);
+    const double *j0 = lensrt_po_slots(r, l, w, LENSRT_PO_FLUX), *j1 = lensrt_po_slots(r, l, w, LENSRT_PO_FLUX + 1);
+    const double *j2 = lensrt_po_slots(r, l, w, LENSRT_PO_FLUX + 2), *j3 = lensrt_po_slots(r, l, w, LENSRT_PO_FLUX + 3);
     const double h = lens->housing_first_mm;
-    double xo = 0, yo = 0, tau = 0, opl = 0.0;
+    double xo = 0, yo = 0, tau = 0, opl = 0.0, jac[4] = {0, 0, 0, 0};
     int k, n = 1;
     for (k = 0; k < ns; k++) {
         xo += cx[k] * mono[k];
         yo += cy[k] * mono[k];
         tau += ct[k] * mono[k];
         opl += cp[k] * mono[k];
+        jac[0] += j0[k] * mono[k];
+        jac[1] += j1[k] * mono[k];
+        jac[2] += j2[k] * mono[k];
+        jac[3] += j3[k] * mono[k];
     }
+    // The flux through the stop per unit area: the transmittance times the front
+    // group's ray density from the light (pupil distortion, a ghost's own mapping)
+    tau *= lensrt_front_flux(r, l, xo, yo, jac);
     *pass = !(xo * xo + yo * yo > h * h);
     if (levels) levels[0] = (h * h - (xo * xo + yo * yo)) / (2.0 * (h > 0.0 ? h : 1.0));
     // A ghost's P_clip on this side: every pair must pass (x^2 + y^2 <= its limit^2, or
