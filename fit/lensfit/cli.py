@@ -264,13 +264,15 @@ def _fitted_lenses(generated: Path) -> list[str]:
 
 
 def _ghost_plan(lens_arg: str, args: argparse.Namespace):
-    """One lens: checks, enumeration and ranking; the listing (without --fit) or the
-    plan of its fits."""
+    """One lens: checks, enumeration and ranking; the listing (without --fit: every
+    ghost, kept or not, even with none kept) or the plan of its fits (an error when
+    none is kept)."""
     from lensfit.ghosts.enumerate import (
         check_light,
         enumerate_ghosts,
+        mark_ghosts,
+        none_kept_message,
         parse_ghost,
-        select_ghosts,
     )
     from lensfit.ghosts.tasks import LensPlan
     from lensfit.paraxial import stop_radius_for_f_number
@@ -298,7 +300,14 @@ def _ghost_plan(lens_arg: str, args: argparse.Namespace):
     ghosts = enumerate_ghosts(lens, f_number=args.f_number, light=light, pairs=pairs,
                               distance_mm=args.distance, rays=args.rays,
                               fine_rays=max(100, args.rays // 5))
-    select_ghosts(ghosts, count=args.count, threshold=args.threshold)
+    if not ghosts:
+        raise InputError(f"{lens.source_file}: {none_kept_message([], args.threshold)}")
+    # The listing shows every ghost, kept or not; only --fit needs one kept
+    keep = mark_ghosts(ghosts, count=args.count, threshold=args.threshold)
+    if source is not None and not keep:
+        raise InputError(f"--fit: no ghost to fit: "
+                         f"{none_kept_message(ghosts, args.threshold)}; lower --threshold "
+                         "or give --count")
     info = ghosts[0].info
     if source is not None:
         folder, direct, domain = source
@@ -332,6 +341,8 @@ def _ghost_plan(lens_arg: str, args: argparse.Namespace):
         energy = " ".join(f"{e:9.2e}" for e in g.energy)
         print(f"  {g.name:>7s} {g.case:4s}  {energy:36s}{centre:>17s} {g.radius_mm[k]:7.3f} "
               f"{g.relative_peak:9.2e}  {'yes' if g.kept else 'no'}")
+    if not keep:
+        print(f"  none kept: {none_kept_message(ghosts, args.threshold)}")
     return None
 
 

@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import os
+from collections.abc import Iterable
+
 
 class InputError(ValueError):
     """Bad input other than a lens file (an option, an output path, a fit file), as one
@@ -21,6 +24,26 @@ def regular_file_problem(path: str | object) -> str | None:
     except OSError:
         return None
     return None if stat.S_ISREG(mode) else "not a regular file"
+
+
+def refuse_repeated_tables(paths: Iterable[str | os.PathLike[str]],
+                           what: str = "ghost table") -> None:
+    """InputError when two of ``paths`` are the same file (the same device and inode, as
+    ``os.stat`` follows links: the same path twice, a symbolic link, another relative
+    path, a folder's table also named alone), which would render that ghost twice and add
+    its flare twice. The message names the file and both spellings. A path ``os.stat``
+    cannot read is left to its reader's own message."""
+    seen: dict[tuple[int, int], str] = {}
+    for path in paths:
+        try:
+            st = os.stat(path)
+        except OSError:
+            continue
+        key, name = (st.st_dev, st.st_ino), os.fspath(path)
+        if key in seen:
+            raise InputError(f"{what} {seen[key]} is given twice (as {seen[key]} and {name}, "
+                             "the same file): its flare would be added twice; give it once")
+        seen[key] = name
 
 
 def read_toml(path: str | object, what: str, error: type[Exception]) -> dict:

@@ -209,6 +209,11 @@ def direct_power(rt, table: Path, centre: tuple[float, float], f_number: float,
     return float(r.image().sum(axis=(1, 2)).mean()) * (0.2 / 128) ** 2
 
 
+def ghost_path(folder: Path, ghost: dict) -> Path:
+    """A fitted ghost's table in a lens folder, from its ghosts.json entry."""
+    return folder / "ghosts" / f"ghost_{ghost['first']}_{ghost['second']}.table"
+
+
 def render_panel(rt, folder: Path, f_number: float, light, frame: Frame, args):
     """The frame's linear sRGB: the direct image and the ghosts, each in its window."""
     table = next(iter(sorted(folder.glob("lens*.table"))), None)
@@ -218,11 +223,13 @@ def render_panel(rt, folder: Path, f_number: float, light, frame: Frame, args):
     if not index.is_file():
         raise SystemExit(f"flare_figure: {index}: not found; run `lensfit ghosts LENS --fit`")
     from lensfit.codegen.checked_json import REGENERATE_FOLDER, load_checked_json
-    from lensfit.errors import InputError
+    from lensfit.errors import InputError, refuse_repeated_tables
 
     try:
         ghosts = load_checked_json(index, REGENERATE_FOLDER)["ghosts"]
-    except (InputError, KeyError) as e:
+        # a ghost listed twice in the index would add its flare twice
+        refuse_repeated_tables(ghost_path(folder, g) for g in ghosts)
+    except (InputError, KeyError, TypeError) as e:
         raise SystemExit(f"flare_figure: {index}: {e}") from None
     direct = np.zeros((frame.ny, frame.nx, 3), dtype=np.float64)
     flare = np.zeros_like(direct)
@@ -242,7 +249,7 @@ def render_panel(rt, folder: Path, f_number: float, light, frame: Frame, args):
             record.append({"image": g["label"], "window": None, "power": 0.0})
             continue
         w = frame.window(box[0] - margin, box[1] + margin, box[2] - margin, box[3] + margin)
-        path = folder / "ghosts" / f"ghost_{g['first']}_{g['second']}.table"
+        path = ghost_path(folder, g)
         radius = 0.5 * max(box[1] - box[0], box[3] - box[2])
         images.append((g["label"], path, w, flare, radius))
     for name, path, w, canvas, radius in images:

@@ -78,7 +78,7 @@ static void usage(FILE *f)
         "  --save-phasors FILE    write the phasor sums (to resume or merge later)\n"
         "  --resume FILE          start from saved phasor sums of the same scene\n"
         "  --merge FILE           add phasor sums of the same scene rendered with another seed\n"
-        "  --ghost TABLE          also render this ghost table of the same lens (repeatable)\n"
+        "  --ghost TABLE          also render this ghost table of the same lens (repeatable; each ghost once)\n"
         "  --flares DIR           also render every ghost_*.table in DIR (sorted by name)\n"
         "                         with ghosts: -o OUT.exr holds the total (direct + ghosts) in its\n"
         "                         unprefixed channels and layers direct. and flare. (the ghosts'\n"
@@ -520,6 +520,33 @@ static int collect_flares(const char *dir, char **paths, int *n)
     return ok;
 }
 
+/* A ghost table named twice (--ghost T --ghost T, a symbolic link to T, another relative
+ * path to T, or --flares DIR with --ghost DIR/T) would be rendered twice and its flare
+ * added twice: refused, naming the file and both spellings. The same file is the same
+ * device and inode (stat follows links); a path that stat cannot read is left to the
+ * loader's own message. Returns 1 when every table is named once. */
+static int refuse_repeated_ghosts(char *const *paths, int n)
+{
+    dev_t dev[MAX_GHOSTS];
+    ino_t ino[MAX_GHOSTS];
+    unsigned char have[MAX_GHOSTS];
+    int i, j;
+    for (i = 0; i < n; i++) {
+        struct stat st;
+        have[i] = stat(paths[i], &st) == 0;
+        if (!have[i]) continue;
+        dev[i] = st.st_dev;
+        ino[i] = st.st_ino;
+        for (j = 0; j < i; j++)
+            if (have[j] && dev[j] == dev[i] && ino[j] == ino[i]) {
+                fprintf(stderr, "lensrt-psf: --ghost: ghost table '%s' is given twice (as '%s' and '%s', the same "
+                        "file): its flare would be added twice; give it once\n", paths[j], paths[j], paths[i]);
+                return 0;
+            }
+    }
+    return 1;
+}
+
 /* OUT.exr -> OUT.<what>.exr (the stem is OUT without a trailing ".exr"). */
 static void on_log(lensrt_log_level level, const char *message, void *user)
 {
@@ -749,6 +776,10 @@ int main(int argc, char **argv)
         rc = 2;
         goto done_args;
     }
+    if (!refuse_repeated_ghosts(ghost_paths, n_ghosts)) {
+        rc = 2;
+        goto done_args;
+    }
     if (n_ghosts && (save || resume || merge)) {
         fprintf(stderr, "lensrt-psf: --save-phasors, --resume and --merge keep one render's sums: not with --ghost "
                 "or --flares\n");
@@ -833,6 +864,20 @@ int main(int argc, char **argv)
                     table, li.name, li.focal_length_mm);
             rc = 2;
             goto done;
+        }
+        {   /* two files of the same ghost of this lens (a copy, another fit of it) */
+            int j;
+            for (j = 0; j < i; j++) {
+                lensrt_lens_info hj = LENSRT_LENS_INFO_INIT;
+                lensrt_lens_get_info(ghost_lens[j], &hj);
+                if (hj.ghost_first == gi.ghost_first && hj.ghost_second == gi.ghost_second) {
+                    fprintf(stderr, "lensrt-psf: --ghost: ghost %s of lens '%s' is given twice (as '%s' and '%s'): "
+                            "its flare would be added twice; give it once\n", gi.ghost_label, gi.name,
+                            ghost_paths[j], ghost_paths[i]);
+                    rc = 2;
+                    goto done;
+                }
+            }
         }
     }
 

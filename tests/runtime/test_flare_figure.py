@@ -63,6 +63,29 @@ def test_tone_map_keeps_hue_and_order():
     assert lin[0, 2, 2] / lin[0, 2, 0] == pytest.approx(0.25, rel=1e-6)
 
 
+def test_a_ghost_listed_twice_is_refused(tmp_path):
+    """ghosts.json naming one ghost table twice (here under two labels) would add its
+    flare twice: refused before any work, naming the index and the table."""
+    from lensfit.codegen.checked_json import checked_json_text
+
+    folder = tmp_path / "0001-copy"
+    (folder / "ghosts").mkdir(parents=True)
+    (folder / "lens0001.table").write_text("not read before the refusal")
+    (folder / "ghosts" / "ghost_1_3.table").write_text("not read before the refusal")
+    entries = [{"label": label, "first": 1, "second": 3} for label in ("0-2", "0-2b")]
+    (folder / "ghosts" / "ghosts.json").write_text(checked_json_text(
+        {"format": "lensfit-ghosts 1", "ghosts": entries}))
+    frame = ff.Frame((36.0, 24.0), (72, 48))
+    with pytest.raises(SystemExit) as e:
+        ff.render_panel(None, folder, 8.0, (-6.0, -4.0), frame, ff.parse_args(
+            ["-o", str(tmp_path / "x.png"), "--panel", str(folder), "8", "x"]))
+    table = folder / "ghosts" / "ghost_1_3.table"
+    assert str(e.value) == (f"flare_figure: {folder / 'ghosts' / 'ghosts.json'}: ghost table "
+                            f"{table} is given twice (as {table} and {table}, the same file): "
+                            "its flare would be added twice; give it once")
+    assert not (tmp_path / "x.png").exists()
+
+
 @pytest.mark.parametrize("integrator", ["auto", "montecarlo"])
 def test_small_figure_powers_match_the_exact_estimate(tmp_path, integrator):
     """One panel of 0001 at a coarse frame: every ghost that reaches the sensor is

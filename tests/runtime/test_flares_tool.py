@@ -15,8 +15,8 @@ The layered file against separate runs (same seed and samples): its direct layer
 direct-only run's image bit for bit, its flare layer's power the sum of the one-ghost
 runs' flare powers, its total the sum of its layers to float rounding.
 Bad input (a ghost of another lens, a direct table given as a ghost, an empty --flares
-folder, --save-phasors with ghosts) exits 2 before rendering with one line naming the
-files. Set LENSRT_PSF to test another build of the tool.
+folder, --save-phasors with ghosts, the same ghost named twice) exits 2 before rendering
+with one line naming the files. Set LENSRT_PSF to test another build of the tool.
 """
 
 from __future__ import annotations
@@ -193,6 +193,45 @@ def test_bad_ghosts_refused_before_rendering(tmp_path, tables):
         for w in words:
             assert w in lines[0], (w, lines[0])
         assert not out.exists()
+
+
+def test_ghost_named_twice_refused(tmp_path, tables):
+    """The same ghost named twice would be rendered twice and its flare added twice: the
+    same path twice, a symbolic link to it, another relative spelling of it, a --flares
+    folder's table also given as --ghost (the same device and inode), and a copy of it
+    (another file of the same ghost of the lens) exit 2 before rendering, one line naming
+    both spellings."""
+    out = tmp_path / "x.exr"
+    never = tables["never"]
+    link = tmp_path / "link.table"
+    link.symlink_to(never)
+    other_spelling = never.parent / ".." / never.parent.name / never.name
+    copy = tmp_path / "copy.table"
+    copy.write_bytes(never.read_bytes())
+    in_folder = tables["both"] / "ghost_4_8.table"
+    same_file = "is given twice (as '{}' and '{}', the same file)"
+    cases = [
+        (["--ghost", str(never), "--ghost", str(never)], same_file.format(never, never)),
+        (["--ghost", str(never), "--ghost", str(link)], same_file.format(never, link)),
+        (["--ghost", str(never), "--ghost", str(other_spelling)],
+         same_file.format(never, other_spelling)),
+        # --ghost first, then the folder's tables sorted
+        (["--flares", str(tables["both"]), "--ghost", str(in_folder)],
+         same_file.format(in_folder, in_folder)),
+        (["--ghost", str(never), "--ghost", str(copy)],
+         f"ghost 4-8 of lens 'Angenieux double Gauss 100 mm f/1.1 (1953)' is given twice "
+         f"(as '{never}' and '{copy}')"),
+    ]
+    for extra, words in cases:
+        r = run(*extra, "-o", str(out), "--quiet")
+        lines = r.stderr.strip().splitlines()
+        assert r.returncode == 2, (extra, r.stderr)
+        assert len(lines) == 1 and words in lines[0], (extra, r.stderr)
+        assert "flare would be added twice" in lines[0]
+        assert not out.exists()
+    # distinct ghosts (the folder's two tables) still render together
+    r = run("--ghost", str(tables["stop"]), "--ghost", str(never), "-o", str(out), "--quiet")
+    assert r.returncode == 0, r.stderr
 
 
 def test_stop_crossings_with_blades_render(tmp_path, tables):

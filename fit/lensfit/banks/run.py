@@ -24,7 +24,7 @@ from lensfit.banks.index import INDEX_NAME, index_text
 from lensfit.banks.node import file_crc32, finished_record, render_node, stem
 from lensfit.banks.spec import BankSpec, SpecError, load_spec
 from lensfit.codegen.checked_json import checked_json_text, load_checked_json
-from lensfit.errors import InputError
+from lensfit.errors import InputError, refuse_repeated_tables
 
 BANK_RECORD = "bank.json"
 SHEET_NAME = "contact-sheet.png"
@@ -133,6 +133,10 @@ def ghost_tables(spec: BankSpec, table: Path, src: str) -> list[dict[str, Any]]:
         path = index.parent / f"ghost_{e['first']}_{e['second']}.table"
         out.append({"label": label, "table": str(path.resolve()),
                     "table_crc32": file_crc32(path)})
+    try:  # one table under two labels would add its flare twice
+        refuse_repeated_tables(g["table"] for g in out)
+    except InputError as e:
+        raise SpecError(f"{src}: key 'flare.ghosts': {index}: {e}") from None
     return out
 
 

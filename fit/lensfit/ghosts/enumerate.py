@@ -495,12 +495,12 @@ def _estimate(lens, i, j, hits: Rays, lams, cell, entering, d_power, d_peak,
     return g
 
 
-def select_ghosts(estimates: list[GhostEstimate], count: int | None = None,
-                  threshold: float = DEFAULT_THRESHOLD) -> list[GhostEstimate]:
-    """The ghosts a scene keeps: the ``count`` brightest (by relative peak) when
+def mark_ghosts(estimates: list[GhostEstimate], count: int | None = None,
+                threshold: float = DEFAULT_THRESHOLD) -> list[GhostEstimate]:
+    """Mark every estimate's ``kept``: the ``count`` brightest (by relative peak) when
     ``count`` is given, else those whose relative peak is above ``threshold`` (default
-    1e-5 of the PSF peak). Marks every estimate's ``kept``. No ghost kept is an error
-    naming the lens, the threshold and the brightest ghost's value."""
+    1e-5 of the PSF peak). Returns the kept ones, brightest first, possibly none (a
+    listing shows every ghost whatever is kept; `select_ghosts` refuses none)."""
     ranked = sorted(estimates, key=lambda g: -g.relative_peak)
     if count is not None:
         if not (isinstance(count, int | np.integer) and count >= 1):
@@ -510,15 +510,27 @@ def select_ghosts(estimates: list[GhostEstimate], count: int | None = None,
         if not (math.isfinite(threshold) and threshold > 0):
             raise InputError(f"threshold = {threshold!r}: expected a positive relative peak")
         keep = [g for g in ranked if g.relative_peak > threshold]
-    if not keep:
-        if not ranked:
-            raise InputError("no ghost to select: the lens has fewer than two surfaces "
-                             "that are not the stop")
-        top = ranked[0]
-        raise InputError(f"{top.file}: {top.lens} has no ghost above the threshold "
-                         f"{threshold:g} of the PSF peak: the brightest, ghost {top.name}, "
-                         f"peaks at {top.relative_peak:.3g}")
     ids = {id(g) for g in keep}
     for g in estimates:
         g.kept = id(g) in ids
+    return keep
+
+
+def none_kept_message(estimates: list[GhostEstimate], threshold: float) -> str:
+    """Why `mark_ghosts` kept nothing: the lens, the threshold and the brightest ghost's
+    value (or that the lens has no ghost at all)."""
+    if not estimates:
+        return "no ghost to select: the lens has fewer than two surfaces that are not the stop"
+    top = max(estimates, key=lambda g: g.relative_peak)
+    return (f"{top.file}: {top.lens} has no ghost above the threshold {threshold:g} of the "
+            f"PSF peak: the brightest, ghost {top.name}, peaks at {top.relative_peak:.3g}")
+
+
+def select_ghosts(estimates: list[GhostEstimate], count: int | None = None,
+                  threshold: float = DEFAULT_THRESHOLD) -> list[GhostEstimate]:
+    """The ghosts a scene keeps, as `mark_ghosts` marks them. No ghost kept is an error
+    naming the lens, the threshold and the brightest ghost's value."""
+    keep = mark_ghosts(estimates, count=count, threshold=threshold)
+    if not keep:
+        raise InputError(none_kept_message(estimates, threshold))
     return keep

@@ -56,10 +56,15 @@ def choose_ghosts(lens: Lens, scene: Scene, fitted: dict[str, Table]) -> list[st
     a count or threshold."""
     where = f"{scene.source_file}: key 'ghosts':"
     if scene.ghosts is not None:
-        labels = []
+        labels: list[str] = []
+        names: dict[str, str] = {}
         for name in scene.ghosts:
             i, j = parse_ghost(lens, name, where)
             label = f"{lens.file_index(i)}-{lens.file_index(j)}"
+            if label in names:  # its flare would be added twice
+                raise SceneError(f"{where} ghost {label} is given twice (as "
+                                 f"{names[label]!r} and {name!r}); give it once")
+            names[label] = name
             if label not in fitted:
                 raise SceneError(f"{where} ghost {name!r} is not fitted for {lens.name} "
                                  f"(fitted: {', '.join(fitted) or 'none'}); run `lensfit "

@@ -234,6 +234,25 @@ def test_cli_reports_a_bad_spec_in_one_line(tmp_path: Path) -> None:
     assert r.stderr.count("\n") == 1 and "key 'render.threads'" in r.stderr, r.stderr
 
 
+def test_flare_bank_refuses_one_table_under_two_labels(tmp_path: Path) -> None:
+    """A ghosts.json whose two labels name one table would add its flare twice in every
+    node: refused naming the spec's key, the index and the table."""
+    from lensfit.banks.run import ghost_tables
+    from lensfit.codegen.checked_json import checked_json_text
+
+    spec = load_spec(spec_file(tmp_path, CELLS, "flare", **{
+        "[render]": '[flare]\nghosts = ["0-2", "2-4"]\n[render]'}))
+    folder = tmp_path / "lens"
+    (folder / "ghosts").mkdir(parents=True)
+    (folder / "ghosts" / "ghost_1_3.table").write_text("table")
+    entries = [{"label": label, "first": 1, "second": 3} for label in ("0-2", "2-4")]
+    (folder / "ghosts" / "ghosts.json").write_text(checked_json_text(
+        {"format": "lensfit-ghosts 1", "ghosts": entries}))
+    with pytest.raises(SpecError, match=r"flare.toml: key 'flare.ghosts': .*ghosts.json: "
+                                        r"ghost table .*ghost_1_3.table is given twice"):
+        ghost_tables(spec, folder / "lens0001.table", "flare.toml")
+
+
 def test_flare_bank_holds_direct_and_ghost_layers(tmp_path: Path) -> None:
     """A flare bank: ghost 0-2 of 0001 with the direct image in one fixed window (its
     footprint at f/16 for a light near (-6, -4) deg); the node EXR's unprefixed channels

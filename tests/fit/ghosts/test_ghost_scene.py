@@ -88,6 +88,13 @@ def test_unfitted_or_impossible_ghosts_are_refused(lens, fitted, name, what):
         choose_ghosts(lens, _scene(ghosts=[name]), fitted)
 
 
+def test_a_ghost_named_twice_is_refused(lens, fitted):
+    """Two spellings of one ghost would add its flare twice: refused naming both."""
+    with pytest.raises(SceneError, match=r"flare.toml: key 'ghosts': ghost 4-8 is given twice "
+                                         r"\(as '4-8' and ' 4 - 8'\)"):
+        choose_ghosts(lens, _scene(ghosts=["4-8", "0-2", " 4 - 8"]), fitted)
+
+
 def test_a_lens_without_fitted_ghosts(tmp_path):
     with pytest.raises(InputError, match=r"ghosts/ghosts.json: not found: .* `lensfit "
                                          r"ghosts 0009 --fit`"):

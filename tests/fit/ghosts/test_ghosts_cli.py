@@ -4,6 +4,7 @@ exit status 2 and nothing on stdout (issue 13, deliverable 1)."""
 from __future__ import annotations
 
 import json
+import re
 
 import pytest
 
@@ -99,14 +100,62 @@ def test_bad_input_refused_before_work(singlet, capsys, monkeypatch, args, words
         assert w in err[0], err[0]
 
 
-def test_no_ghost_above_threshold(singlet, capsys):
-    """The error names the lens file, the threshold and the brightest ghost's value."""
+def rows(out: str) -> list[list[str]]:
+    """The table's ghost rows (name i-j, case letter, ..., kept yes/no) of a listing."""
+    return [line.split() for line in out.splitlines()
+            if re.fullmatch(r"[0-9]+-[0-9]+", line.split()[0] if line.split() else "")]
+
+
+def test_no_ghost_above_threshold_still_listed(singlet, capsys):
+    """A listing lists whatever is kept: none above the threshold is every ghost with
+    kept "no" and a last line naming the lens file, the threshold and the brightest
+    ghost's value; exit 0."""
     assert main(["ghosts", singlet, "--f-number", "8", "--rays", "2000",
-                 "--threshold", "0.5"]) == 2
+                 "--threshold", "0.5"]) == 0
+    captured = capsys.readouterr()
+    assert captured.err == ""
+    assert [(r[0], r[-1]) for r in rows(captured.out)] == [("0-1", "no")], captured.out
+    last = captured.out.strip().splitlines()[-1]
+    assert last.lstrip().startswith("none kept:")
+    assert "singlet.toml" in last and "threshold 0.5" in last and "ghost 0-1" in last
+    # the same as JSON: the ghost, not kept
+    assert main(["ghosts", singlet, "--f-number", "8", "--rays", "2000", "--json",
+                 "--threshold", "0.5"]) == 0
+    (g,) = json.loads(capsys.readouterr().out)["ghosts"]
+    assert (g["name"], g["kept"]) == ("0-1", False)
+
+
+def test_0001_on_axis_wide_open_lists_every_ghost(capsys):
+    """0001 on axis at f/1.1: no ghost reaches 1e-5 of the PSF peak, and the listing still
+    shows all 91, ranked by peak (the brightest first), none kept (issue 26)."""
+    assert main(["ghosts", "0001", "--rays", "2000"]) == 0
+    out = capsys.readouterr().out
+    table = rows(out)
+    assert len(table) == 91 and all(r[-1] == "no" for r in table), out
+    peaks = [float(r[-2]) for r in table]
+    assert peaks == sorted(peaks, reverse=True) and 0 < peaks[0] <= 1e-5
+    last = out.strip().splitlines()[-1]
+    assert "none kept" in last and "threshold 1e-05" in last and f"ghost {table[0][0]}" in last
+
+
+def test_fit_with_no_ghost_kept_refused(singlet, tmp_path, capsys, monkeypatch):
+    """--fit needs a ghost kept: none above the threshold is one line naming --fit, the
+    lens file, the threshold and the brightest ghost, exit 2, before any fit (the direct
+    fit's folder stands in: the refusal comes before it is read)."""
+    from lensfit import cli
+
+    def no_fit(*a, **k):
+        raise AssertionError("a fit ran with no ghost kept")
+
+    monkeypatch.setattr(cli, "_direct_fit", lambda *a: (tmp_path, None, None))
+    monkeypatch.setattr(cli, "_fit_ghost_plans", no_fit)
+    assert main(["ghosts", singlet, "--f-number", "8", "--rays", "2000", "--threshold", "0.5",
+                 "--fit", "--workers", "0"]) == 2
     captured = capsys.readouterr()
     assert captured.out == ""
     (err,) = captured.err.strip().splitlines()
-    assert "singlet.toml" in err and "threshold 0.5" in err and "ghost 0-1" in err
+    for w in ("--fit", "no ghost to fit", "singlet.toml", "threshold 0.5", "ghost 0-1"):
+        assert w in err, err
 
 
 def test_fit_writes_ghost_tables_and_merges_named_ones(singlet, tmp_path, capsys):
