@@ -24,6 +24,10 @@ Then the issue's flare target: every kept ghost of 0001 at f/8, light at (-6, -4
 full frame 36 x 24 mm at 1440 x 960 (25 um pixels), 16 wavelengths, each rendered in the
 window of its footprint (runtime/tools/flare_figure.py) and refined to a 1% error estimate.
 
+Then the box pixel filter's cost (issue 26): box with its automatic sub-pixel points against
+the point filter, same scenes, interleaved (`--pixel-area-only` runs this part alone and
+writes pixel_area.json).
+
 Writes cells.json and cells.md (and cells.png, error against time) into --out.
 """
 
@@ -177,6 +181,39 @@ def flare_frame(rt: Lensrt, args: argparse.Namespace) -> dict[str, Any]:
     return {"seconds": time.perf_counter() - t0, "wavelengths": ns.wavelengths, "images": record}
 
 
+def pixel_area_cost(rt: Lensrt, args: argparse.Namespace) -> list[dict[str, Any]]:
+    """The box pixel filter's cost (issue 26): the same scene with the box filter's
+    automatic sub-pixel points against the point filter, interleaved, medians of
+    --repeats timings of the integration alone (cells, 16 rings, with its estimate). Lens
+    0001 at f/8, light at (-6, -4) deg, 4 wavelengths (380-780 nm): the demo's PSF window
+    (0.1 mm over 64 x 64: 1.6 um pixels, finer than lambda / D) and 32 x 32 sensor pixels
+    of 25 um around the same image point (an Airy core narrower than a pixel)."""
+    lens = rt.load(LENS)
+    c = rt.image_point(lens, LIGHT[:2], 550.0, 0.2)
+    rows = []
+    windows = (("PSF window, 1.6 um pixels", 64, 0.1), ("25 um pixels", 32, 32 * 0.025))
+    for name, n, size in windows:
+        kw = dict(width=n, height=n, width_mm=size, center=tuple(c), focus_offset_mm=0.2,
+                  f_number=8.0, lights=[LIGHT], wavelengths=4)
+        times: dict[str, list[float]] = {"box": [], "point": []}
+        counts = (1, 1)
+        for _ in range(args.repeats):
+            for filt in ("box", "point"):
+                r = rt.create(lens, pixel_filter=filt, **kw)
+                r.integrate(16)
+                st = r.stats()
+                times[filt].append(st.seconds)
+                if filt == "box":
+                    counts = (st.pixel_samples_x, st.pixel_samples_y)
+        box, point = statistics.median(times["box"]), statistics.median(times["point"])
+        rows.append({"scene": name, "pixels": n, "pixel_um": 1e3 * size / n,
+                     "points_per_pixel": counts, "box_seconds": box, "point_seconds": point,
+                     "ratio": box / point})
+        print(f"  pixel area, {name}: box {counts[0]} x {counts[1]} points {box:.3f} s, "
+              f"point {point:.3f} s: {box / point:.2f}x", flush=True)
+    return rows
+
+
 def plot(results: list[dict[str, Any]], path: Path) -> None:
     import matplotlib
 
@@ -233,6 +270,9 @@ def main() -> int:
     p.add_argument("--repeats", type=int, default=3)
     p.add_argument("--quick", action="store_true", help="fewer points (for a smoke test)")
     p.add_argument("--library", default=None)
+    p.add_argument("--pixel-area-only", action="store_true",
+                   help="only the box pixel filter's cost against the point filter "
+                   "(pixel_area.json)")
     p.add_argument("--summary-only", action="store_true",
                    help="rewrite cells.md and cells.png from the cells.json already in --out")
     args = p.parse_args()
@@ -248,6 +288,10 @@ def main() -> int:
         print(markdown(data))
         return 0
     rt = Lensrt(args.library) if args.library else Lensrt()
+    if args.pixel_area_only:
+        rows = pixel_area_cost(rt, args)
+        (out / "pixel_area.json").write_text(json.dumps(rows, indent=1))
+        return 0
     todo = scenes(rt)
     if args.quick:
         todo = todo[1:2]
@@ -255,6 +299,8 @@ def main() -> int:
     data: dict[str, Any] = {"compare": [compare(rt, s, args) for s in todo]}
     (out / "cells.json").write_text(json.dumps(data, indent=1))
     data["defocus"] = defocus_cost(rt, args)
+    (out / "cells.json").write_text(json.dumps(data, indent=1))
+    data["pixel_area"] = pixel_area_cost(rt, args)
     (out / "cells.json").write_text(json.dumps(data, indent=1))
     data["flare"] = None if args.quick else flare_frame(rt, args)
     (out / "cells.json").write_text(json.dumps(data, indent=1))

@@ -439,6 +439,12 @@ typedef enum lensrt_device {
     LENSRT_DEVICE_GL              /* OpenGL 4.3 compute shaders; the same samples and sums */
 } lensrt_device;
 
+typedef enum lensrt_pixel_filter {
+    LENSRT_PIXEL_FILTER_BOX = 0,  /* the pixel's mean intensity over its area (default) */
+    LENSRT_PIXEL_FILTER_POINT     /* the intensity at the pixel's centre (before 0.8.0) */
+} lensrt_pixel_filter;
+#define LENSRT_MAX_PIXEL_SAMPLES 16     /* sub-pixel samples per axis (box filter) */
+
 typedef enum lensrt_aperture_shape {
     LENSRT_APERTURE_CIRCLE = 0,
     LENSRT_APERTURE_BLADES,       /* a regular polygon of `blades`, optionally curved */
@@ -494,9 +500,19 @@ typedef struct lensrt_render_desc {
     uint64_t seed;
     double phase_tolerance_waves; /* largest phase the pruned per-pixel terms may drop; 0: 3e-3 */
     int32_t device;               /* lensrt_device: where run() splats; GL takes precision DEFAULT or NAIVE_FLOAT */
+    /* Since 0.8.0 (issue 26): what a pixel's value is. BOX (0, the default, also for
+     * callers built before 0.8.0): the mean of the intensity over the pixel's area, by
+     * the midpoint rule on pixel_samples_x x pixel_samples_y sub-pixel centres per pixel
+     * (intensities averaged, never the sub-pixels' fields); 0 on an axis: chosen so that
+     * the rendered power of any feature does not depend on its sub-pixel position
+     * (README "The model"), 1 .. LENSRT_MAX_PIXEL_SAMPLES. POINT: the intensity at the
+     * pixel's centre (lensrt before 0.8.0; the samples must be 0 or 1). One-dimensional
+     * lenses have one row: pixel_samples_y must be 0 or 1. */
+    int32_t pixel_filter;         /* lensrt_pixel_filter */
+    int32_t pixel_samples_x, pixel_samples_y;
 } lensrt_render_desc;
 #define LENSRT_RENDER_DESC_INIT {sizeof(lensrt_render_desc), NULL, {0, 0, 0, 0, 0, 0, 0}, \
-                                 {0, 0, 0, 0, 0, 0, 0, 0}, NULL, 0, NULL, 0, 0, 0, 0, 0, 0, 0}
+                                 {0, 0, 0, 0, 0, 0, 0, 0}, NULL, 0, NULL, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0}
 
 typedef struct lensrt_render_s *lensrt_render;
 
@@ -702,8 +718,11 @@ typedef struct lensrt_render_stats {
     /* Since 0.6.0: the nodes per side of the Fourier integral the sums hold (0: none; its
      * error estimate is then cells_error_estimate) */
     int32_t fourier_nodes;
+    /* Since 0.8.0: the pixel filter (lensrt_pixel_filter) and the sub-pixel samples per
+     * pixel and axis the render uses (1 x 1 for POINT) */
+    int32_t pixel_filter, pixel_samples_x, pixel_samples_y;
 } lensrt_render_stats;
-#define LENSRT_RENDER_STATS_INIT {sizeof(lensrt_render_stats), 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0}
+#define LENSRT_RENDER_STATS_INIT {sizeof(lensrt_render_stats), 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0}
 
 LENSRT_API lensrt_result lensrt_render_get_stats(lensrt_render render, lensrt_render_stats *out);
 /* The wavelengths in use (n_wavelengths of them). */

@@ -31,6 +31,7 @@ ESTIMATORS = {"default": 0, "paper": 1, "unbiased": 2}
 PRECISIONS = {"default": 0, "double": 1, "naive_float": 2}
 SHAPES = {"circle": 0, "blades": 1, "slit": 2}
 DEVICES = {"cpu": 0, "gl": 1}
+PIXEL_FILTERS = {"box": 0, "point": 1}
 GL_PLATFORMS = {"auto": 0, "egl-device": 1, "egl-surfaceless": 2, "glfw": 3, "caller": 4}
 
 
@@ -144,7 +145,10 @@ class RenderDesc(Versioned):
                 ("wavelengths_nm", C.POINTER(C.c_double)), ("n_wavelengths", C.c_int32),
                 ("sampler", C.c_int32), ("estimator", C.c_int32), ("precision", C.c_int32),
                 ("seed", C.c_uint64), ("phase_tolerance_waves", C.c_double),
-                ("device", C.c_int32)]
+                ("device", C.c_int32),
+                # 0.8.0 (issue 26): the pixel filter and its sub-pixel samples per axis
+                ("pixel_filter", C.c_int32), ("pixel_samples_x", C.c_int32),
+                ("pixel_samples_y", C.c_int32)]
 
 
 class Stats(Versioned):
@@ -157,7 +161,9 @@ class Stats(Versioned):
                 ("clip_fraction", C.c_double), ("tau_fraction", C.c_double),
                 ("dark_fraction", C.c_double),
                 ("cells_rings", C.c_int32), ("cells_error_estimate", C.c_double),
-                ("fourier_nodes", C.c_int32)]
+                ("fourier_nodes", C.c_int32),
+                ("pixel_filter", C.c_int32), ("pixel_samples_x", C.c_int32),
+                ("pixel_samples_y", C.c_int32)]
 
 
 class Render:
@@ -417,7 +423,12 @@ class Lensrt:
                slit_separation_mm: float = 0.0, lights: Sequence[Sequence[float]] = (),
                wavelengths: Sequence[float] | int = 0, sampler: str = "default",
                estimator: str = "default", precision: str = "default", seed: int = 0,
-               phase_tolerance_waves: float = 0.0, device: str = "cpu") -> Render:
+               phase_tolerance_waves: float = 0.0, device: str = "cpu",
+               pixel_filter: str = "box", pixel_samples: int | tuple[int, int] = 0) -> Render:
+        """A render (lensrt_render_create). ``pixel_filter`` "box" (default: each pixel the
+        mean intensity over its area, on ``pixel_samples`` sub-pixel points per axis, an int
+        or (x, y); 0: chosen, README "The model") or "point" (the pixel centre's intensity,
+        as before 0.8.0)."""
         keep: list[Any] = []
         desc = RenderDesc()
         desc.lens = lens
@@ -443,6 +454,10 @@ class Lensrt:
         desc.seed = seed
         desc.phase_tolerance_waves = phase_tolerance_waves
         desc.device = DEVICES[device]
+        desc.pixel_filter = PIXEL_FILTERS[pixel_filter]
+        psx, psy = ((pixel_samples, pixel_samples) if isinstance(pixel_samples, int)
+                    else pixel_samples)
+        desc.pixel_samples_x, desc.pixel_samples_y = psx, psy
         handle = C.c_void_p()
         self._check(self.lib.lensrt_render_create(self.ctx, C.byref(desc), C.byref(handle)))
         self._renders[handle.value] = handle

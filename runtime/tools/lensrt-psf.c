@@ -102,6 +102,12 @@ static void usage(FILE *f)
         "                         --target-error refines them (x 1.25 .. 2, from the estimate)\n"
         "                         until the estimate is <= E\n"
         "  --max-rings N          cells: stop doubling there (default 1024)\n"
+        "  --pixel-filter box|point  box (default): each pixel the mean intensity over its area,\n"
+        "                         by the midpoint rule on sub-pixel points; point: the intensity\n"
+        "                         at the pixel's centre (lensrt before 0.8.0)\n"
+        "  --pixel-samples N|NxM  box: sub-pixel points per pixel and axis, 1..16 (default 0:\n"
+        "                         chosen from the rays' spread, so that a feature's power does not\n"
+        "                         depend on its sub-pixel position; README \"The model\")\n"
         "  --quiet                no progress (the error estimate is still printed on stdout)\n"
         "  --allow-empty          write an image that is zero everywhere (else refused: exit 4)\n"
         "exit status: 0 done, 1 failed, 2 bad input, 3 no GL device (--device gl) or unsupported,\n"
@@ -569,6 +575,7 @@ int main(int argc, char **argv)
     long long samples = 65536, seed = 1, threads = 0, blades = 0, max_samples = 0;
     double target = 0.0;
     int estimate = 1, cells = -1, mc_option = 0; /* cells -1: the default (after the options) */
+    int pixel_filter = LENSRT_PIXEL_FILTER_BOX, pixel_samples[2] = {0, 0};
     long long rings = 32, max_rings = 0, nodes = 0, max_nodes = 0;
     int used_kind = 0;
     double curvature = 0.0, rotation = 0.0;
@@ -643,6 +650,18 @@ int main(int argc, char **argv)
         else if (strcmp(a, "--max-rings") == 0) { if (!parse_long(v, 2, LENSRT_MAX_RINGS, &max_rings)) return bad(a, v, "expected 2..4096 rings"); }
         else if (strcmp(a, "--nodes") == 0) { if (!parse_long(v, 0, LENSRT_MAX_FOURIER_NODES, &nodes)) return bad(a, v, "expected 0 (chosen) or 1..4096 nodes"); }
         else if (strcmp(a, "--max-nodes") == 0) { if (!parse_long(v, 1, LENSRT_MAX_FOURIER_NODES, &max_nodes)) return bad(a, v, "expected 1..4096 nodes"); }
+        else if (strcmp(a, "--pixel-filter") == 0) {
+            if (strcmp(v, "box") == 0) pixel_filter = LENSRT_PIXEL_FILTER_BOX;
+            else if (strcmp(v, "point") == 0) pixel_filter = LENSRT_PIXEL_FILTER_POINT;
+            else return bad(a, v, "expected box or point");
+        } else if (strcmp(a, "--pixel-samples") == 0) {
+            k = parse_list(v, 'x', t, 2);
+            if (k < 1 || t[0] < 0 || t[0] > LENSRT_MAX_PIXEL_SAMPLES || t[0] != floor(t[0]) ||
+                (k == 2 && (t[1] < 0 || t[1] > LENSRT_MAX_PIXEL_SAMPLES || t[1] != floor(t[1]))))
+                return bad(a, v, "expected N or NxM sub-pixel points per axis, whole numbers 0 (chosen) .. 16");
+            pixel_samples[0] = (int)t[0];
+            pixel_samples[1] = k == 2 ? (int)t[1] : (int)t[0];
+        }
         else if (strcmp(a, "--integrator") == 0) {
             if (strcmp(v, "cells") == 0) cells = 1;
             else if (strcmp(v, "montecarlo") == 0) cells = 0;
@@ -760,6 +779,11 @@ int main(int argc, char **argv)
         return 2;
     }
     if (!max_samples) max_samples = samples > DEFAULT_MAX_SAMPLES ? samples : DEFAULT_MAX_SAMPLES;
+    if (pixel_filter == LENSRT_PIXEL_FILTER_POINT && (pixel_samples[0] > 1 || pixel_samples[1] > 1)) {
+        fprintf(stderr, "lensrt-psf: --pixel-samples %dx%d with --pixel-filter point, which samples the pixel's "
+                "centre only\n", pixel_samples[0], pixel_samples[1]);
+        return 2;
+    }
     if (max_samples < samples) {
         fprintf(stderr, "lensrt-psf: --max-samples %lld is below --samples %lld\n", max_samples, samples);
         return 2;
@@ -908,6 +932,9 @@ int main(int argc, char **argv)
     desc.estimator = estimator;
     desc.seed = (uint64_t)seed;
     desc.device = device;
+    desc.pixel_filter = pixel_filter;
+    desc.pixel_samples_x = pixel_samples[0];
+    desc.pixel_samples_y = pixel_samples[1];
     if (device == LENSRT_DEVICE_GL) {
         // The device first: a machine without GL says so before any other work
         lensrt_gl_info gi = LENSRT_GL_INFO_INIT;
@@ -1039,6 +1066,9 @@ int main(int argc, char **argv)
         }
     }
     lensrt_render_get_stats(render, &st);
+    if (!quiet)
+        fprintf(stderr, "lensrt-psf: pixel filter %s, %d x %d points per pixel\n",
+                st.pixel_filter == LENSRT_PIXEL_FILTER_POINT ? "point" : "box", st.pixel_samples_x, st.pixel_samples_y);
     if (!quiet && cells)
         fprintf(stderr, "lensrt-psf: %.2f s, %s integrator (%d %s), f/%.3g, stop radius %.4g mm\n", st.seconds,
                 used_kind == 2 ? "Fourier" : "cells", cells_rings, used_kind == 2 ? "nodes" : "rings", st.f_number,

@@ -18,6 +18,8 @@ import pytest
 from lensrt_ctypes import LensrtError, Result
 from scipy.special import roots_legendre
 
+# Renders here compare integrators (and closed forms) at the same points: the point
+# pixel filter (issue 26), as before 0.8.0; the box filter is test_pixel_area.py's.
 ROOT = Path(__file__).resolve().parents[2]
 LENS0001 = ROOT / "generated" / "0001-angenieux-double-gauss" / "lens0001.table"
 GHOST02 = ROOT / "generated" / "0001-angenieux-double-gauss" / "ghosts" / "ghost_0_2.table"
@@ -98,7 +100,10 @@ def thin_lens_scene(rt, shape: str, defocus_waves: float, nx: int,
     dz = defocus_waves * LAM * 8 * n_f * n_f
     width = 12 * LAM * n_f + 1.2 * dz / n_f
     lens = rt.analytic(sensor_distance_mm=f, focal_length_mm=f)
-    kw = dict(width=nx, height=ny, width_mm=width, height_mm=width * ny / nx, focus_offset_mm=dz,
+    # The point filter: the reference is the intensity at the pixel centres (the box
+    # filter's automatic sub-pixel points would average the defocused blur's pixels)
+    kw = dict(pixel_filter="point",
+              width=nx, height=ny, width_mm=width, height_mm=width * ny / nx, focus_offset_mm=dz,
               f_number=n_f, wavelengths=[WL_NM])
     if shape == "blades":
         kw.update(shape="blades", blades=7, rotation_deg=10.0)
@@ -205,7 +210,8 @@ def test_defocused_disc_on_axis_closed_form(rt):
     f, n_f = 1e6, 128.0
     radius = f / (2 * n_f)
     lens = rt.analytic(sensor_distance_mm=f, focal_length_mm=f)
-    kw = dict(width=1, height=1, width_mm=1e-3, f_number=n_f, wavelengths=[WL_NM])
+    kw = dict(pixel_filter="point",
+              width=1, height=1, width_mm=1e-3, f_number=n_f, wavelengths=[WL_NM])
     i0, _ = rt.integrate(lens, rings=16, **kw)
     for u, rings in ((400.0, 96), (4000.0, 256)):
         dz = u * f * f / (K * radius * radius - u * f)
@@ -228,7 +234,8 @@ def test_0001_f2_off_axis_against_monte_carlo(rt):
     # per-pixel terms), so they agree within the two errors.
     lens = rt.load(LENS0001)
     centre = rt.image_point(lens, (-6.0, -4.0), 550.0, 0.2)
-    kw = dict(width=24, height=24, width_mm=0.2, center=tuple(centre), focus_offset_mm=0.2,
+    kw = dict(pixel_filter="point",
+              width=24, height=24, width_mm=0.2, center=tuple(centre), focus_offset_mm=0.2,
               f_number=2.0, shape="blades", blades=7, blade_curvature=0.3, rotation_deg=10.0,
               lights=[(-6.0, -4.0, 0.0, 0.0)], wavelengths=[450.0, 600.0])
     mc1 = rt.render(lens, samples=1 << 19, seed=1, **kw)
@@ -247,7 +254,8 @@ def test_ghost_0_2_refinement_and_monte_carlo(rt):
     # footprint, where Monte Carlo needs ~1e7 samples for 1%: the cells error at 24 rings
     # against 96 rings (whose own error is ~16 times smaller, O(h^2)) well under 1%.
     ghost = rt.load(GHOST02)
-    kw = dict(width=32, height=32, width_mm=3.0, center=(-9.74, -6.34), f_number=8.0,
+    kw = dict(pixel_filter="point",
+              width=32, height=32, width_mm=3.0, center=(-9.74, -6.34), f_number=8.0,
               lights=[(-6.0, -4.0, 0.0, 0.0)], wavelengths=[500.0, 650.0])
     fine, fine_est = rt.integrate(ghost, rings=96, **kw)
     img, est = rt.integrate(ghost, rings=24, **kw)
@@ -271,7 +279,8 @@ def test_ghost_4_8_p_clip_on_side_p_s_against_monte_carlo(rt):
     # 2 wavelengths: cells at 32 rings against Monte Carlo with 2^18 samples in two seeds
     # (0.3% apart, measured): within the Monte Carlo error plus twice the cells estimate.
     ghost = rt.load(GHOST02.with_name("ghost_4_8.table"))
-    kw = dict(width=24, height=24, width_mm=0.2, center=(-4.734, -3.234), f_number=8.0,
+    kw = dict(pixel_filter="point",
+              width=24, height=24, width_mm=0.2, center=(-4.734, -3.234), f_number=8.0,
               lights=[(3.0, 2.0, 0.0, 0.0)], wavelengths=[500.0, 620.0])
     cells, est = rt.integrate(ghost, rings=32, **kw)
     mc1 = rt.render(ghost, samples=1 << 18, seed=1, **kw)
@@ -291,7 +300,8 @@ def test_ghost_0_4_power_against_unbiased_monte_carlo(rt):
     # Monte Carlo mean from two seeds of 2^17 samples (~0.5% each, measured).
     ghost = rt.load(GHOST02.with_name("ghost_0_4.table"))
     pitch = 36.0 / 720
-    kw = dict(width=32, height=30, width_mm=32 * pitch, height_mm=30 * pitch,
+    kw = dict(pixel_filter="point",
+              width=32, height=30, width_mm=32 * pitch, height_mm=30 * pitch,
               center=(-7.85, -5.2), f_number=8.0, lights=[(-6.0, -4.0, 0.0, 0.0)], wavelengths=3)
     cells, est = rt.integrate(ghost, rings=32, **kw)
     mc = [float(rt.render(ghost, samples=1 << 17, sampler="random", estimator="unbiased",

@@ -18,6 +18,8 @@ import pytest
 from lensrt_ctypes import LensrtError, Result
 from test_cells_integrator import AIRY_ZERO, GHOST02, LAM, LENS0001, WL_NM, rel_l2, thin_lens_scene
 
+# Renders here compare integrators (and closed forms) at the same points: the point
+# pixel filter (issue 26), as before 0.8.0; the box filter is test_pixel_area.py's.
 ROOT = Path(__file__).resolve().parents[2]
 
 
@@ -89,7 +91,8 @@ def test_defocus_on_axis_born_wolf(rt):
     u = 400.0
     # u = 2 pi dz / (lambda) * (a / z)^2 with a / z = 1 / (2 N)
     dz = u * LAM * (2 * n_f) ** 2 / (2 * np.pi)
-    kw = dict(width=1, height=1, width_mm=1e-4, f_number=n_f, wavelengths=[WL_NM])
+    kw = dict(pixel_filter="point",
+              width=1, height=1, width_mm=1e-4, f_number=n_f, wavelengths=[WL_NM])
     i0, _ = fourier(rt, lens, 24, **kw)
     i1, est = fourier(rt, lens, 96, focus_offset_mm=dz, **kw)
     ratio = float(i1[0, 0, 0] / i0[0, 0, 0])
@@ -105,7 +108,7 @@ def demo_scene(rt, f_number: float, size: float, n: int = 48, wavelengths: int =
     lens = rt.load(LENS0001)
     light = (-6.0, -4.0, 0.0, 0.0)
     c = rt.image_point(lens, light[:2], 550.0, 0.2)
-    return dict(lens=lens, kw=dict(
+    return dict(lens=lens, kw=dict(pixel_filter="point",
         width=n, height=n, width_mm=size, center=tuple(c), focus_offset_mm=0.2,
         f_number=f_number, shape="blades", blades=7, blade_curvature=0.3, rotation_deg=10.0,
         lights=[light], wavelengths=wavelengths, precision="double"))
@@ -191,7 +194,8 @@ def test_clipped_ghost_is_refused_with_a_message(rt):
     # refuses, naming the clip, the pixel and the wavelength, and leaves the sums as they
     # were (a later cells integral works).
     lens = rt.load(GHOST02.with_name("ghost_4_8.table"))
-    kw = dict(width=16, height=16, width_mm=0.2, center=(-4.734, -3.234), f_number=8.0,
+    kw = dict(pixel_filter="point",
+              width=16, height=16, width_mm=0.2, center=(-4.734, -3.234), f_number=8.0,
               lights=[(3.0, 2.0, 0.0, 0.0)], wavelengths=[500.0])
     r = rt.create(lens, **kw)
     with pytest.raises(LensrtError) as e:
@@ -207,7 +211,8 @@ def test_chosen_nodes_refuse_where_cells_is_cheaper(rt):
     # the pilot chooses holds far more than 64 nodes per pixel of a 16 x 16 window: nodes 0
     # is refused, naming the waves and the cells integrator; named nodes still run.
     lens = rt.load(GHOST02)
-    kw = dict(width=16, height=16, width_mm=3.0, center=(-9.74, -6.34), f_number=8.0,
+    kw = dict(pixel_filter="point",
+              width=16, height=16, width_mm=3.0, center=(-9.74, -6.34), f_number=8.0,
               lights=[(-6.0, -4.0, 0.0, 0.0)], wavelengths=[550.0])
     r = rt.create(lens, **kw)
     with pytest.raises(LensrtError) as e:

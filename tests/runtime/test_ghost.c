@@ -359,6 +359,11 @@ static lensrt_render make_render_ap(lensrt_context ctx, lensrt_lens lens, const 
     d.n_wavelengths = n_wl;
     d.precision = precision;
     d.seed = 11;
+    // The point filter (issue 26): these checks compare the clips' images between renders
+    // of different stops at the same points, bit for bit, where the box filter's
+    // automatic sub-pixel count would follow each stop's spread of ray directions
+    // (tests/runtime/test_pixel_area.py checks the box filter, ghosts included)
+    d.pixel_filter = LENSRT_PIXEL_FILTER_POINT;
     res = lensrt_render_create(ctx, &d, &r);
     if (!quiet) CHECK(res == LENSRT_SUCCESS, "render create: %s", lensrt_context_last_error(ctx));
     return res == LENSRT_SUCCESS ? r : NULL;

@@ -326,6 +326,31 @@ static void scene_analytic(lensrt_lens lens, scene *s)
     s->n = 3000;
 }
 
+/* The box pixel filter (issue 26) with 3 x 2 sub-pixel points per pixel: tiles name the
+ * image's pixels, and each covers its pixels' points of the render's grid. */
+static void scene_box(lensrt_lens lens, scene *s)
+{
+    lensrt_render_desc d = LENSRT_RENDER_DESC_INIT;
+    s->name = "fitted lens, box filter 3 x 2";
+    s->wavelengths[0] = 480.0;
+    s->wavelengths[1] = 620.0;
+    d.lens = lens;
+    d.sensor.width = 9;
+    d.sensor.height = 7;
+    d.sensor.width_mm = 0.045;
+    d.sensor.center_x_mm = 0.0021; /* off the axis by a fraction of a pixel */
+    d.sensor.center_y_mm = -0.0013;
+    d.aperture.f_number = 8.0;
+    d.wavelengths_nm = s->wavelengths;
+    d.n_wavelengths = 2;
+    d.pixel_filter = LENSRT_PIXEL_FILTER_BOX;
+    d.pixel_samples_x = 3;
+    d.pixel_samples_y = 2;
+    d.seed = 7;
+    s->desc = d;
+    s->n = 1500;
+}
+
 /* ---------------------------------------------------------------- tests ----- */
 
 /* run(n) against tiles of the shapes in `shapes_mask` (bit k: names[k]) on 1 and 4
@@ -679,6 +704,29 @@ int main(int argc, char **argv)
     scene_double(fitted, &s);
     test_equal_to_run(ctx, &s, s.n, 0x3f);
     test_cells_equal_to_integrate(ctx, &s, 6);
+    scene_box(fitted, &s);
+    {
+        lensrt_render r;
+        lensrt_render_stats st = LENSRT_RENDER_STATS_INIT;
+        CHECK_RES(ctx, lensrt_render_create(ctx, &s.desc, &r), LENSRT_SUCCESS);
+        lensrt_render_get_stats(r, &st);
+        CHECK(st.width == 9 && st.height == 7 && st.pixel_filter == LENSRT_PIXEL_FILTER_BOX &&
+                  st.pixel_samples_x == 3 && st.pixel_samples_y == 2,
+              "box scene: stats say %d x %d pixels, filter %d, %d x %d points", st.width, st.height, st.pixel_filter,
+              st.pixel_samples_x, st.pixel_samples_y);
+        // A pixel left out is named as the image's pixel, not a grid point
+        CHECK_RES(ctx, lensrt_render_tiles_begin(r, 100), LENSRT_SUCCESS);
+        CHECK_RES(ctx, lensrt_render_tile(r, 0, 0, 9, 3), LENSRT_SUCCESS);
+        CHECK_RES(ctx, lensrt_render_tile(r, 0, 4, 9, 3), LENSRT_SUCCESS);
+        CHECK_RES(ctx, lensrt_render_tile(r, 0, 9, 1, 1), LENSRT_ERROR_INVALID_ARGUMENT);
+        CHECK_RES(ctx, lensrt_render_tiles_end(r), LENSRT_ERROR_INVALID_ARGUMENT);
+        CHECK(strstr(lensrt_context_last_error(ctx), "pixel (0, 3) was not covered") != NULL,
+              "box scene, a row left out: '%s'", lensrt_context_last_error(ctx));
+        lensrt_render_destroy(r);
+    }
+    test_equal_to_run(ctx, &s, s.n, 0x3f);
+    test_cells_equal_to_integrate(ctx, &s, 6);
+    test_fourier_equal_to_integrate(ctx, &s, 0);
     scene_analytic(perfect, &s);
     test_equal_to_run(ctx, &s, s.n, 0x3f);
     test_sequences(ctx, &s);

@@ -41,11 +41,11 @@ static void free_pixel_polys(lensrt_context ctx, lensrt_pixel_poly *polys, int n
     lensrt_free(ctx, polys);
 }
 
-static void free_render(lensrt_render r)
+/* What the lens kind's prepare allocated, freed and forgotten (so that it can prepare
+ * again, for another grid). */
+static void free_prepared(lensrt_render r)
 {
     lensrt_context ctx = r->ctx;
-    lensrt_tiles_free(r);
-    if (r->device) r->device->destroy(r);
     free_pixel_polys(ctx, r->ps, r->n_wl * 4);
     free_pixel_polys(ctx, r->ps_grad, r->n_wl);
     lensrt_free(ctx, r->po);
@@ -55,6 +55,17 @@ static void free_render(lensrt_render r)
     lensrt_free(ctx, r->basis_rank);
     lensrt_free(ctx, r->basis_t);
     lensrt_free(ctx, r->basis_l1);
+    r->ps = r->ps_grad = r->clip_s = NULL;
+    r->po = r->clip_o = r->basis = r->basis_t = r->basis_l1 = NULL;
+    r->basis_rank = NULL;
+}
+
+static void free_render(lensrt_render r)
+{
+    lensrt_context ctx = r->ctx;
+    lensrt_tiles_free(r);
+    if (r->device) r->device->destroy(r);
+    free_prepared(r);
     lensrt_free(ctx, r->lights);
     lensrt_free(ctx, r->wavelengths);
     lensrt_free(ctx, r->xs);
@@ -103,8 +114,10 @@ lensrt_result lensrt_render_create(lensrt_context ctx, const lensrt_render_desc 
     // Copy the lights (default: one on the axis at infinity) and wavelengths
     r->n_lights = desc->n_lights > 0 ? desc->n_lights : 1;
     r->n_wl = desc->n_wavelengths > 0 ? desc->n_wavelengths : DEFAULT_WAVELENGTHS;
-    r->width = desc->sensor.width;
-    r->height = desc->sensor.height;
+    r->out_width = r->width = desc->sensor.width;
+    r->out_height = r->height = desc->sensor.height;
+    r->pixel_filter = desc->pixel_filter;
+    r->sx = r->sy = 1;
     r->lights = lensrt_calloc(ctx, (size_t)r->n_lights, sizeof *r->lights);
     r->wavelengths = lensrt_calloc(ctx, (size_t)r->n_wl, sizeof(double));
     r->light_x = lensrt_calloc(ctx, (size_t)r->n_lights, sizeof(double));
@@ -140,6 +153,30 @@ lensrt_result lensrt_render_create(lensrt_context ctx, const lensrt_render_desc 
     // computes once per render
     if ((res = lensrt_scene_place(r, &info)) != LENSRT_SUCCESS || (res = r->lens_ops->prepare(r)) != LENSRT_SUCCESS)
         goto fail;
+    // The box filter's sub-pixel points (from what was prepared for the pixel centres);
+    // with more than one per pixel the grid becomes theirs, and the lens kind prepares
+    // for it again (its bases span the grid's points)
+    {
+        int sx, sy;
+        if ((res = lensrt_pixel_samples_choose(r, &sx, &sy)) != LENSRT_SUCCESS) goto fail;
+        if (sx * sy > 1) {
+            free_prepared(r);
+            lensrt_free(ctx, r->xs);
+            lensrt_free(ctx, r->ys);
+            r->xs = lensrt_calloc(ctx, (size_t)r->out_width * (size_t)sx, sizeof(double));
+            r->ys = lensrt_calloc(ctx, (size_t)r->out_height * (size_t)sy, sizeof(double));
+            if (!r->xs || !r->ys) {
+                res = lensrt_fail(ctx, LENSRT_ERROR_OUT_OF_MEMORY, "render: out of memory");
+                goto fail;
+            }
+            r->sx = sx;
+            r->sy = sy;
+            lensrt_scene_grid(r);
+            if ((res = r->lens_ops->check_window(r, &info)) != LENSRT_SUCCESS ||
+                (res = r->lens_ops->prepare(r)) != LENSRT_SUCCESS)
+                goto fail;
+        }
+    }
     // Phasor sums, and sums of squares for the unbiased estimator
     npix = (size_t)r->width * (size_t)r->height;
     nsum = (size_t)r->n_lights * (size_t)r->n_wl * npix;
@@ -147,8 +184,9 @@ lensrt_result lensrt_render_create(lensrt_context ctx, const lensrt_render_desc 
     if (r->desc.estimator == LENSRT_ESTIMATOR_UNBIASED) r->sumsq = lensrt_calloc(ctx, nsum, sizeof(double));
     if (!r->sum || (r->desc.estimator == LENSRT_ESTIMATOR_UNBIASED && !r->sumsq)) {
         res = lensrt_fail(ctx, LENSRT_ERROR_OUT_OF_MEMORY,
-                          "render: out of memory for %zu phasor sums (%d x %d pixels, %d wavelengths, %d lights)",
-                          nsum, r->width, r->height, r->n_wl, r->n_lights);
+                          "render: out of memory for %zu phasor sums (%d x %d pixels of %d x %d sub-pixel points "
+                          "(the box filter), %d wavelengths, %d lights); fewer pixel_samples or the point filter "
+                          "need fewer", nsum, r->out_width, r->out_height, r->sx, r->sy, r->n_wl, r->n_lights);
         goto fail;
     }
     // The device's state (core/device.c lists the devices of this build; the CPU is
@@ -158,9 +196,11 @@ lensrt_result lensrt_render_create(lensrt_context ctx, const lensrt_render_desc 
         goto fail;
     }
     if ((res = r->device->create(r)) != LENSRT_SUCCESS) goto fail;
-    lensrt_log(ctx, LENSRT_LOG_INFO, "render: %s, %d x %d pixels, %d wavelengths, %d lights, stop %.4g mm (f/%.3g), %s sampling",
-               info.name, r->width, r->height, r->n_wl, r->n_lights, r->stop_radius, r->f_number,
-               lensrt_sampler_name(r->desc.sampler));
+    lensrt_log(ctx, LENSRT_LOG_INFO,
+               "render: %s, %d x %d pixels (%s filter, %d x %d points per pixel), %d wavelengths, %d lights, stop "
+               "%.4g mm (f/%.3g), %s sampling",
+               info.name, r->out_width, r->out_height, r->pixel_filter == LENSRT_PIXEL_FILTER_POINT ? "point" : "box",
+               r->sx, r->sy, r->n_wl, r->n_lights, r->stop_radius, r->f_number, lensrt_sampler_name(r->desc.sampler));
     *out = r;
     return LENSRT_SUCCESS;
 fail:
@@ -326,21 +366,33 @@ static lensrt_result cells_fields(lensrt_render r, int n, const int *rings, doub
 /* ||I(Ua) - I(Ub)|| and ||I(Ua)|| over every pixel and wavelength (lights add). */
 static void image_distance(lensrt_render r, const double *Ua, const double *Ub, double *dist, double *norm)
 {
+    // Over the image's pixels: the box filter's mean of its points' intensities (the
+    // point filter's, sx = sy = 1, is the point's own)
     const size_t npix = (size_t)r->width * (size_t)r->height;
+    const double per_pixel = (double)r->sx * (double)r->sy;
     double num = 0.0, den = 0.0;
-    size_t p;
-    int w, l;
+    int w, l, i, j, k, m;
     for (w = 0; w < r->n_wl; w++)
-        for (p = 0; p < npix; p++) {
-            double Ia = 0.0, Ib = 0.0;
-            for (l = 0; l < r->n_lights; l++) {
-                const size_t at = 2 * (((size_t)l * (size_t)r->n_wl + (size_t)w) * npix + p);
-                Ia += Ua[at] * Ua[at] + Ua[at + 1] * Ua[at + 1];
-                Ib += Ub[at] * Ub[at] + Ub[at + 1] * Ub[at + 1];
+        for (j = 0; j < r->out_height; j++)
+            for (i = 0; i < r->out_width; i++) {
+                double Ia = 0.0, Ib = 0.0;
+                for (m = 0; m < r->sy; m++)
+                    for (k = 0; k < r->sx; k++) {
+                        const size_t p = lensrt_grid_point(r, i, j, k, m);
+                        double pa = 0.0, pb = 0.0;
+                        for (l = 0; l < r->n_lights; l++) {
+                            const size_t at = 2 * (((size_t)l * (size_t)r->n_wl + (size_t)w) * npix + p);
+                            pa += Ua[at] * Ua[at] + Ua[at + 1] * Ua[at + 1];
+                            pb += Ub[at] * Ub[at] + Ub[at + 1] * Ub[at + 1];
+                        }
+                        Ia += pa;
+                        Ib += pb;
+                    }
+                Ia /= per_pixel;
+                Ib /= per_pixel;
+                num += (Ia - Ib) * (Ia - Ib);
+                den += Ia * Ia;
             }
-            num += (Ia - Ib) * (Ia - Ib);
-            den += Ia * Ia;
-        }
     *dist = sqrt(num);
     *norm = sqrt(den);
 }
@@ -662,8 +714,11 @@ lensrt_result lensrt_render_get_stats(lensrt_render r, lensrt_render_stats *call
     memset(&st, 0, sizeof st);
     st.struct_size = sizeof st;
     out = &st; /* written to the caller's struct at the end, as far as its struct_size */
-    out->width = r->width;
-    out->height = r->height;
+    out->width = r->out_width;
+    out->height = r->out_height;
+    out->pixel_filter = r->pixel_filter;
+    out->pixel_samples_x = r->sx;
+    out->pixel_samples_y = r->sy;
     out->n_wavelengths = r->n_wl;
     out->n_lights = r->n_lights;
     out->samples_per_wavelength = r->samples;
@@ -689,10 +744,12 @@ const double *lensrt_render_wavelengths(lensrt_render r) { return r ? r->wavelen
 
 lensrt_result lensrt_render_image(lensrt_render r, float *out, size_t count)
 {
-    const size_t npix = r ? (size_t)r->width * (size_t)r->height : 0;
+    const size_t npix = r ? (size_t)r->out_width * (size_t)r->out_height : 0;
+    const size_t ngrid = r ? (size_t)r->width * (size_t)r->height : 0;
     const double n = r ? (double)r->samples : 0.0;
+    const double per_pixel = r ? (double)r->sx * (double)r->sy : 1.0;
     size_t p;
-    int w, l;
+    int w, l, k, m;
     lensrt_result res;
     if (!r || !out) return LENSRT_ERROR_INVALID_ARGUMENT;
     if ((res = lensrt_tiles_idle(r, "image")) != LENSRT_SUCCESS) return res;
@@ -703,16 +760,26 @@ lensrt_result lensrt_render_image(lensrt_render r, float *out, size_t count)
         return lensrt_fail(r->ctx, LENSRT_ERROR_INVALID_ARGUMENT, "image: no samples yet (the unbiased estimator needs 2)");
     for (w = 0; w < r->n_wl; w++)
         for (p = 0; p < npix; p++) {
+            const int i = (int)(p % (size_t)r->out_width), j = (int)(p / (size_t)r->out_width);
             double total = 0.0;
-            // Lights are incoherent: add intensities, each from its own phasor sum
-            for (l = 0; l < r->n_lights; l++) {
-                size_t at = ((size_t)l * (size_t)r->n_wl + (size_t)w) * npix + p;
-                double re = r->sum[2 * at], im = r->sum[2 * at + 1], s2 = re * re + im * im;
-                if (r->desc.estimator == LENSRT_ESTIMATOR_UNBIASED)
-                    total += r->measure * r->measure * (s2 - r->sumsq[at]) / (n * (n - 1.0));
-                else
-                    total += r->measure * r->measure * s2 / (n * n);
-            }
+            // The box filter: the mean of the intensities (never the fields) of the
+            // pixel's sx x sy points; the point filter's one point is the pixel's centre
+            for (m = 0; m < r->sy; m++)
+                for (k = 0; k < r->sx; k++) {
+                    const size_t g = lensrt_grid_point(r, i, j, k, m);
+                    double point = 0.0;
+                    // Lights are incoherent: add intensities, each from its own phasor sum
+                    for (l = 0; l < r->n_lights; l++) {
+                        size_t at = ((size_t)l * (size_t)r->n_wl + (size_t)w) * ngrid + g;
+                        double re = r->sum[2 * at], im = r->sum[2 * at + 1], s2 = re * re + im * im;
+                        if (r->desc.estimator == LENSRT_ESTIMATOR_UNBIASED)
+                            point += r->measure * r->measure * (s2 - r->sumsq[at]) / (n * (n - 1.0));
+                        else
+                            point += r->measure * r->measure * s2 / (n * n);
+                    }
+                    total += point;
+                }
+            total /= per_pixel;
             out[(size_t)w * npix + p] = (float)total;
             // Never a silent inf or NaN: name the pixel and wavelength instead
             if (!isfinite(out[(size_t)w * npix + p]))

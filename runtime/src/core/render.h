@@ -81,9 +81,20 @@ struct lensrt_render_s {
     lensrt_render_desc desc;      /* lights and wavelengths point at the copies below */
     lensrt_light *lights;
     double *wavelengths;
-    int n_lights, n_wl, width, height;
-    double pitch_x, pitch_y;      /* mm per pixel */
-    double *xs, *ys;              /* pixel centres (mm) */
+    int n_lights, n_wl;
+    /* The grid of points the render computes (issue 26): every integrator, device and
+     * tile works on it. With the box pixel filter each image pixel is sx x sy of its
+     * points (the midpoint rule on the pixel's area: point (i sx + k, j sy + m) lies at
+     * (k + 1/2) / sx, (m + 1/2) / sy of pixel (i, j)), and the image averages their
+     * intensities (lensrt_render_image); sx = sy = 1 is the point filter's grid, the
+     * pixel centres. width, height, pitch_x, pitch_y, xs, ys are the grid's;
+     * out_width, out_height, pixel_x, pixel_y the image's. */
+    int width, height;            /* grid points per row and column: out_width * sx, out_height * sy */
+    double pitch_x, pitch_y;      /* mm between grid points: pixel_x / sx, pixel_y / sy */
+    double *xs, *ys;              /* grid point centres (mm) */
+    int pixel_filter, sx, sy;     /* lensrt_pixel_filter; sub-pixel points per pixel and axis */
+    int out_width, out_height;    /* the image's pixels (the description's sensor) */
+    double pixel_x, pixel_y;      /* the image's pixel pitch (mm) */
     double stop_radius, f_number;
     lensrt_region region;
     double measure;               /* area (or length) of the sampled region */
@@ -188,6 +199,22 @@ lensrt_result lensrt_fourier_check(lensrt_render r, const char *what, int nodes,
  * error target (0: the default rule; lensrt_render_fourier_nodes): a pilot rule's
  * measure of the phase, or the refusal (cells is the cheaper) with its message. */
 lensrt_result lensrt_fourier_auto_nodes(lensrt_render r, double target, int *nodes);
+
+/* The sub-pixel points per pixel and axis of the box filter (core/pixel_area.c): the
+ * description's counts, or where 0 the automatic rule from the render's prepared lens
+ * (README "The model"); 1 x 1 for the point filter. */
+lensrt_result lensrt_pixel_samples_choose(lensrt_render r, int *sx, int *sy);
+
+/* The largest spread of the ray directions (direction cosines, per axis) reaching the
+ * window's pixels from the whole aperture, over the render's wavelengths: what bounds
+ * the intensity's bandwidth (core/pixel_area.c). */
+void lensrt_direction_spread(lensrt_render r, double spread[2]);
+
+/* The grid index of sub-pixel point (k, m) of image pixel (i, j) (k < sx, m < sy). */
+static inline size_t lensrt_grid_point(const struct lensrt_render_s *r, int i, int j, int k, int m)
+{
+    return (size_t)(j * r->sy + m) * (size_t)r->width + (size_t)(i * r->sx + k);
+}
 
 /* "sobol", "random" or "stratified" (core/sampler.c). */
 const char *lensrt_sampler_name(lensrt_sampler s);

@@ -69,6 +69,22 @@ lensrt_result lensrt_scene_check_desc(lensrt_context ctx, const lensrt_render_de
                            a->slit_width_mm, a->slit_separation_mm);
     if (!(a->radius_mm >= 0 && isfinite(a->radius_mm)) || !(a->f_number >= 0 && isfinite(a->f_number)) || !isfinite(a->rotation_deg))
         return lensrt_fail(ctx, LENSRT_ERROR_INVALID_ARGUMENT, "aperture: radius_mm, f_number and rotation must be finite and not negative");
+    if ((unsigned)d->pixel_filter > LENSRT_PIXEL_FILTER_POINT)
+        return lensrt_fail(ctx, LENSRT_ERROR_INVALID_ARGUMENT,
+                           "pixel_filter: expected LENSRT_PIXEL_FILTER_BOX (0) or _POINT (1), got %d", d->pixel_filter);
+    if (d->pixel_samples_x < 0 || d->pixel_samples_x > LENSRT_MAX_PIXEL_SAMPLES || d->pixel_samples_y < 0 ||
+        d->pixel_samples_y > LENSRT_MAX_PIXEL_SAMPLES)
+        return lensrt_fail(ctx, LENSRT_ERROR_INVALID_ARGUMENT,
+                           "pixel_samples: expected 0 (automatic) or 1..%d per axis, got %d x %d",
+                           LENSRT_MAX_PIXEL_SAMPLES, d->pixel_samples_x, d->pixel_samples_y);
+    if (d->pixel_filter == LENSRT_PIXEL_FILTER_POINT && (d->pixel_samples_x > 1 || d->pixel_samples_y > 1))
+        return lensrt_fail(ctx, LENSRT_ERROR_INVALID_ARGUMENT,
+                           "pixel_samples: %d x %d sub-pixel samples with the point filter, which samples the "
+                           "pixel's centre only; use the box filter", d->pixel_samples_x, d->pixel_samples_y);
+    if (lensrt_lens_ops_of(d->lens)->one_dimensional(d->lens) && d->pixel_samples_y > 1)
+        return lensrt_fail(ctx, LENSRT_ERROR_INVALID_ARGUMENT,
+                           "pixel_samples: a one-dimensional lens renders one line, pixel_samples_y must be 0 or 1, "
+                           "got %d", d->pixel_samples_y);
     if (lensrt_lens_ops_of(d->lens)->one_dimensional(d->lens) && s->height != 1)
         return lensrt_fail(ctx, LENSRT_ERROR_INVALID_ARGUMENT,
                            "sensor: a one-dimensional lens renders one row, got height %d", s->height);
@@ -155,18 +171,29 @@ static lensrt_result choose_region(lensrt_render r)
     return LENSRT_SUCCESS;
 }
 
-lensrt_result lensrt_scene_place(lensrt_render r, const lensrt_lens_info *info)
+void lensrt_scene_grid(lensrt_render r)
 {
     const lensrt_sensor *s = &r->desc.sensor;
-    lensrt_result res;
     int i;
-    // Pixel centres; row 0 is the top of the image (+y); a one-dimensional lens's row
-    // lies on the window's centre line
+    // The image's pixels, then the grid's points: sx x sy per pixel at the midpoints of
+    // its sub-rectangles (with sx = sy = 1 the pixel centres, as before 0.8.0); row 0 is
+    // the top of the image (+y); a one-dimensional lens's row lies on the window's
+    // centre line
+    r->pixel_x = s->width_mm / r->out_width;
+    r->pixel_y = s->height_mm > 0 ? s->height_mm / r->out_height : r->pixel_x;
+    r->width = r->out_width * r->sx;
+    r->height = r->out_height * r->sy;
     r->pitch_x = s->width_mm / r->width;
-    r->pitch_y = s->height_mm > 0 ? s->height_mm / r->height : r->pitch_x;
+    r->pitch_y = s->height_mm > 0 ? s->height_mm / r->height : r->pixel_x / r->sy;
     for (i = 0; i < r->width; i++) r->xs[i] = s->center_x_mm + (i + 0.5 - 0.5 * r->width) * r->pitch_x;
     for (i = 0; i < r->height; i++) r->ys[i] = s->center_y_mm + (0.5 * r->height - i - 0.5) * r->pitch_y;
     if (r->lens_ops->one_dimensional(r->lens)) r->ys[0] = s->center_y_mm;
+}
+
+lensrt_result lensrt_scene_place(lensrt_render r, const lensrt_lens_info *info)
+{
+    lensrt_result res;
+    lensrt_scene_grid(r);
     if ((res = place_lights(r, info)) != LENSRT_SUCCESS || (res = r->lens_ops->choose_stop(r, info)) != LENSRT_SUCCESS ||
         (res = r->lens_ops->check_window(r, info)) != LENSRT_SUCCESS || (res = choose_region(r)) != LENSRT_SUCCESS)
         return res;

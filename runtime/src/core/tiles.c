@@ -267,40 +267,50 @@ lensrt_result lensrt_render_tiles_begin_fourier(lensrt_render r, int32_t nodes, 
 lensrt_result lensrt_render_tile(lensrt_render r, int x0, int y0, int width, int height)
 {
     lensrt_tiles *t = r ? r->tiles : NULL;
-    int x, y, twice = 0, tx = 0, ty = 0;
+    int x, y, twice = 0, tx = 0, ty = 0, pw, ph, px0, py0;
     if (!t) return LENSRT_ERROR_INVALID_ARGUMENT; /* no session: nowhere to record why */
-    if (x0 < 0 || y0 < 0 || width <= 0 || height <= 0 || x0 > r->width - width || y0 > r->height - height)
+    if (x0 < 0 || y0 < 0 || width <= 0 || height <= 0 || x0 > r->out_width - width || y0 > r->out_height - height)
         return lensrt_tiles_fail(r, LENSRT_ERROR_INVALID_ARGUMENT,
                                  "tile: pixels %lld .. %lld of rows %lld .. %lld (%d x %d at (%d, %d)) are not inside the %d x %d "
                                  "window", /* in 64 bits: x0 + width overflows int near INT_MAX */
                                  (long long)x0, (long long)x0 + width - 1, (long long)y0, (long long)y0 + height - 1, width,
-                                 height, x0, y0, r->width, r->height);
-    // Claim every pixel first; if another tile has one, render nothing (only one tile
-    // ever writes a pixel's sums, so overlapping calls do not race on them)
-    for (y = y0; y < y0 + height; y++)
-        for (x = x0; x < x0 + width; x++)
-            if (lensrt_atomic_add_u32(&t->cover[(size_t)y * (size_t)r->width + (size_t)x], 1) != 0 && !twice) {
-                twice = 1;
-                tx = x;
-                ty = y;
-            }
-    if (twice)
-        return lensrt_tiles_fail(r, LENSRT_ERROR_INVALID_ARGUMENT,
-                                 "tile %d x %d at (%d, %d): pixel (%d, %d) was already covered by another tile",
-                                 width, height, x0, y0, tx, ty);
+                                 height, x0, y0, r->out_width, r->out_height);
+    // The image's pixels are sx x sy points of the render's grid each (core/render.h):
+    // the tile is its pixels' points, and messages below name image pixels
+    pw = width;
+    ph = height;
+    px0 = x0;
+    py0 = y0;
+    {
+        x0 = px0 * r->sx;
+        y0 = py0 * r->sy;
+        width = pw * r->sx;
+        height = ph * r->sy;
+        for (y = y0; y < y0 + height; y++)
+            for (x = x0; x < x0 + width; x++)
+                if (lensrt_atomic_add_u32(&t->cover[(size_t)y * (size_t)r->width + (size_t)x], 1) != 0 && !twice) {
+                    twice = 1;
+                    tx = x / r->sx;
+                    ty = y / r->sy;
+                }
+        if (twice)
+            return lensrt_tiles_fail(r, LENSRT_ERROR_INVALID_ARGUMENT,
+                                     "tile %d x %d at (%d, %d): pixel (%d, %d) was already covered by another tile",
+                                     pw, ph, px0, py0, tx, ty);
+    }
     if (t->cells_rings) {
         // A cells session: the tile's pixels on every mesh, into the session's fields
         lensrt_result res = r->device->integrate_tile(r, t->job, x0, y0, width, height);
         if (res != LENSRT_SUCCESS)
             return lensrt_tiles_fail(r, res, "tile %d x %d at (%d, %d): out of memory for the cells integrator's scratch",
-                                     width, height, x0, y0);
+                                     pw, ph, px0, py0);
         return LENSRT_SUCCESS;
     }
     if (t->fourier_nodes) {
         // A Fourier session: the window's tiles that meet this one, its pixels written
         char why[LENSRT_ERROR_SIZE];
         lensrt_result res = r->device->fourier_tile(r, t->fjob, x0, y0, width, height, why, sizeof why);
-        if (res != LENSRT_SUCCESS) return lensrt_tiles_fail(r, res, "tile %d x %d at (%d, %d): %s", width, height, x0, y0, why);
+        if (res != LENSRT_SUCCESS) return lensrt_tiles_fail(r, res, "tile %d x %d at (%d, %d): %s", pw, ph, px0, py0, why);
         return LENSRT_SUCCESS;
     }
     return r->device->tile(r, x0, y0, width, height);
@@ -311,22 +321,25 @@ lensrt_result lensrt_render_tiles_end(lensrt_render r)
     lensrt_tiles *t = r ? r->tiles : NULL;
     const size_t npix = r ? (size_t)r->width * (size_t)r->height : 0, ns = r ? n_sums(r) : 0;
     lensrt_result res = LENSRT_SUCCESS;
-    size_t p;
+    size_t p, pc;
     if (!r) return LENSRT_ERROR_INVALID_ARGUMENT;
     if (!t) return lensrt_fail(r->ctx, LENSRT_ERROR_INVALID_ARGUMENT, "tiles_end: no tile session (lensrt_render_tiles_begin)");
     // Every pixel exactly once (the first offender in row-major order), then the tiles'
     // own failures
-    for (p = 0; p < npix && t->cover[p] == 1; p++) continue;
-    if (p < npix && t->cover[p] == 0)
+    for (pc = 0; pc < npix && t->cover[pc] == 1; pc++) continue;
+    // (the image pixel of grid point pc: core/render.h)
+    p = pc < npix ? (pc / (size_t)r->width / (size_t)r->sy) * (size_t)r->out_width + pc % (size_t)r->width / (size_t)r->sx
+                  : npix;
+    if (pc < npix && t->cover[pc] == 0)
         res = lensrt_fail(r->ctx, LENSRT_ERROR_INVALID_ARGUMENT,
                           "tiles_end: pixel (%d, %d) was not covered; every pixel must be covered exactly once between "
                           "tiles_begin and tiles_end (the sums are as before tiles_begin)",
-                          (int)(p % (size_t)r->width), (int)(p / (size_t)r->width));
-    else if (p < npix)
+                          (int)(p % (size_t)r->out_width), (int)(p / (size_t)r->out_width));
+    else if (pc < npix)
         res = lensrt_fail(r->ctx, LENSRT_ERROR_INVALID_ARGUMENT,
                           "tiles_end: pixel (%d, %d) was covered %u times; every pixel must be covered exactly once "
                           "between tiles_begin and tiles_end (the sums are as before tiles_begin)",
-                          (int)(p % (size_t)r->width), (int)(p / (size_t)r->width), (unsigned)t->cover[p]);
+                          (int)(p % (size_t)r->out_width), (int)(p / (size_t)r->out_width), (unsigned)t->cover[pc]);
     else if (t->failed)
         res = lensrt_fail(r->ctx, t->failure, "%s (the sums are as before tiles_begin)", t->message);
     if (res != LENSRT_SUCCESS) {

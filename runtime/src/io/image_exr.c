@@ -42,7 +42,10 @@
  * lensrt metadata, namespaced "lensrt/...": strings, doubles, v2d (x, y pairs) and one
  * int; 64-bit counts (samples per wavelength, seed) are decimal strings because EXR has
  * no 64-bit integer attribute; "lensrt/integrator" is "montecarlo", "cells" or "fourier",
- * with "lensrt/cellsRings" or "lensrt/fourierNodes" and "lensrt/errorEstimate". Every name is at most 31 characters, so the file needs
+ * with "lensrt/cellsRings" or "lensrt/fourierNodes" and "lensrt/errorEstimate";
+ * "lensrt/pixelFilter" ("box": each pixel the mean intensity over its area, "point":
+ * the intensity at its centre), "lensrt/pixelSamplesX" and "lensrt/pixelSamplesY" (ints:
+ * the box filter's points per pixel and axis, 1 for point; since 0.8.0). Every name is at most 31 characters, so the file needs
  * no long-name support. A reproducible file (lensrt_image_meta.reproducible,
  * lensrt_render_write_exr_with) leaves out "lensrt/seconds", "lensrt/splatsPerSecond" and
  * "lensrt/lensFile": nothing else in the file depends on the run, so the same render
@@ -541,6 +544,12 @@ lensrt_result lensrt_write_exr_layers(const lensrt_allocator *allocator, const c
             rv = exr_attr_set_int(ctxt, part, "lensrt/fourierNodes", meta->fourier_nodes);
         if (rv == EXR_ERR_SUCCESS && (meta->cells_rings || meta->fourier_nodes) && meta->error_estimate >= 0.0)
             rv = exr_attr_set_double(ctxt, part, "lensrt/errorEstimate", meta->error_estimate);
+        if (rv == EXR_ERR_SUCCESS && meta->pixel_filter)
+            rv = exr_attr_set_string(ctxt, part, "lensrt/pixelFilter", meta->pixel_filter);
+        if (rv == EXR_ERR_SUCCESS && meta->pixel_filter)
+            rv = exr_attr_set_int(ctxt, part, "lensrt/pixelSamplesX", meta->pixel_samples_x);
+        if (rv == EXR_ERR_SUCCESS && meta->pixel_filter)
+            rv = exr_attr_set_int(ctxt, part, "lensrt/pixelSamplesY", meta->pixel_samples_y);
         if (rv == EXR_ERR_SUCCESS)
             rv = exr_attr_set_int(ctxt, part, "lensrt/nLights", meta->n_lights);
         if (rv == EXR_ERR_SUCCESS) {

@@ -56,6 +56,8 @@ typedef struct lensrt_image_meta {
     int cells_rings;            /* the cells integrator's mesh (0: Monte Carlo samples) */
     int fourier_nodes;          /* the Fourier integrator's rule (0: none) */
     double error_estimate;      /* its estimated relative L2 error (< 0: none) */
+    const char *pixel_filter;   /* "box" or "point" (NULL: left out) */
+    int pixel_samples_x, pixel_samples_y; /* the box filter's points per pixel and axis */
     uint64_t seed;
     int n_lights;
     const lensrt_light *lights;

@@ -7,6 +7,10 @@
  *   i32 width, height, wavelengths, lights, has_sum_of_squares, runs, u64 checksum,
  *   u64 runs[runs][3] ({seed, first, end} of the sample indices the sums hold),
  *   f64 sums[2 * lights * wavelengths * pixels], f64 sums of squares[...] (if present).
+ * "pixels", width and height are the render's grid points (core/render.h): with the box
+ * pixel filter each pixel's sx x sy sub-pixel points (since 0.8.0), so sums of renders
+ * whose filter or samples per pixel differ are refused as another grid, with a message
+ * that says so; the grid's pitch is in the scene hash.
  * The scene hash covers the lens's coefficients, domains and constants (not only its
  * name); the checksum is FNV-1a 64 over the whole file with the checksum field zero.
  * A reader refuses: another version, a checksum mismatch, a count that disagrees with
@@ -281,8 +285,18 @@ static lensrt_result read_file(lensrt_render r, const char *path, file_header *h
         fclose(f);
         return lensrt_fail(r->ctx, LENSRT_ERROR_PARSE, "%s: corrupted phasor sums (%d sample runs)", path, hd->n_runs);
     }
-    if (hd->width != r->width || hd->height != r->height || hd->n_wl != r->n_wl || hd->n_lights != r->n_lights ||
-        hd->scene != scene || hd->has_sumsq != (r->sumsq != NULL)) {
+    if (hd->width != r->width || hd->height != r->height) {
+        // The sums are the render's grid points' (core/render.h): pixels times the box
+        // filter's sub-pixel points per axis
+        fclose(f);
+        return lensrt_fail(r->ctx, LENSRT_ERROR_INCOMPATIBLE,
+                           "%s: phasor sums of another scene (a grid of %d x %d points); the render has %d x %d "
+                           "(%d x %d pixels of %d x %d points, the %s filter): the window, the pixel filter and its "
+                           "samples per pixel must match (lensrt_render_get_stats says a render's)",
+                           path, hd->width, hd->height, r->width, r->height, r->out_width, r->out_height, r->sx, r->sy,
+                           r->pixel_filter == LENSRT_PIXEL_FILTER_POINT ? "point" : "box");
+    }
+    if (hd->n_wl != r->n_wl || hd->n_lights != r->n_lights || hd->scene != scene || hd->has_sumsq != (r->sumsq != NULL)) {
         fclose(f);
         return lensrt_fail(r->ctx, LENSRT_ERROR_INCOMPATIBLE,
                            "%s: phasor sums of another scene (%d x %d pixels, %d wavelengths, %d lights%s); "

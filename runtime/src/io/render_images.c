@@ -9,8 +9,23 @@
 #include <stdio.h>
 #include <string.h>
 
+/* The centre of the image's first pixel (x of column 0, y of row 0), as the render's
+ * grid of the point filter has it (core/scene.c): a box filter's grid points lie
+ * within the pixels (core/render.h), so renders of either filter add over one window. */
+static double first_x(const lensrt_render r)
+{
+    return r->desc.sensor.center_x_mm + (0 + 0.5 - 0.5 * r->out_width) * r->pixel_x;
+}
+
+static double first_y(const lensrt_render r)
+{
+    if (r->lens_ops->one_dimensional(r->lens)) return r->desc.sensor.center_y_mm;
+    return r->desc.sensor.center_y_mm + (0.5 * r->out_height - 0 - 0.5) * r->pixel_y;
+}
+
 /* Renders whose images add (a light's direct image and its ghosts'): the same window
- * (resolution, pixel centres) and the same wavelengths as the first. */
+ * (resolution, pixel centres) and the same wavelengths as the first; their pixel
+ * filters may differ (each image is its own filter's). */
 static lensrt_result check_same_frame(const lensrt_render *rs, int n)
 {
     const lensrt_render a = rs[0];
@@ -18,14 +33,14 @@ static lensrt_result check_same_frame(const lensrt_render *rs, int n)
     for (i = 1; i < n; i++) {
         const lensrt_render b = rs[i];
         if (!b) return lensrt_fail(a->ctx, LENSRT_ERROR_INVALID_ARGUMENT, "image sum: render %d is NULL", i);
-        if (b->width != a->width || b->height != a->height || b->xs[0] != a->xs[0] || b->ys[0] != a->ys[0] ||
-            b->pitch_x != a->pitch_x || b->pitch_y != a->pitch_y)
+        if (b->out_width != a->out_width || b->out_height != a->out_height || first_x(b) != first_x(a) || first_y(b) != first_y(a) ||
+            b->pixel_x != a->pixel_x || b->pixel_y != a->pixel_y)
             return lensrt_fail(a->ctx, LENSRT_ERROR_INCOMPATIBLE,
                                "image sum: render %d (%s) has a %d x %d window of pitch %.17g x %.17g mm from (%.17g, "
                                "%.17g) mm, render 0 (%s) %d x %d of %.17g x %.17g mm from (%.17g, %.17g) mm: images "
-                               "add only over the same pixels", i, b->lens->file, b->width, b->height, b->pitch_x,
-                               b->pitch_y, b->xs[0], b->ys[0], a->lens->file, a->width, a->height, a->pitch_x,
-                               a->pitch_y, a->xs[0], a->ys[0]);
+                               "add only over the same pixels", i, b->lens->file, b->out_width, b->out_height, b->pixel_x,
+                               b->pixel_y, first_x(b), first_y(b), a->lens->file, a->out_width, a->out_height, a->pixel_x,
+                               a->pixel_y, first_x(a), first_y(a));
         if (b->n_wl != a->n_wl)
             return lensrt_fail(a->ctx, LENSRT_ERROR_INCOMPATIBLE,
                                "image sum: render %d (%s) has %d wavelengths, render 0 (%s) %d", i, b->lens->file,
@@ -71,17 +86,17 @@ lensrt_result lensrt_renders_image(const lensrt_render *renders, int n_renders, 
     lensrt_result res;
     if (!renders || n_renders < 1 || !renders[0] || !out) return LENSRT_ERROR_INVALID_ARGUMENT;
     if ((res = check_same_frame(renders, n_renders)) != LENSRT_SUCCESS) return res;
-    if (count != (size_t)renders[0]->width * (size_t)renders[0]->height * (size_t)renders[0]->n_wl)
+    if (count != (size_t)renders[0]->out_width * (size_t)renders[0]->out_height * (size_t)renders[0]->n_wl)
         return lensrt_fail(renders[0]->ctx, LENSRT_ERROR_INVALID_ARGUMENT,
                            "image sum: count must be %zu (wavelengths x pixels), got %zu",
-                           (size_t)renders[0]->width * (size_t)renders[0]->height * (size_t)renders[0]->n_wl, count);
+                           (size_t)renders[0]->out_width * (size_t)renders[0]->out_height * (size_t)renders[0]->n_wl, count);
     return image_sum(renders, n_renders, out, count);
 }
 
 static lensrt_result spectral_and_rgb_of(const lensrt_render *rs, int n, float **spectral, float **rgb)
 {
     const lensrt_render r = rs[0];
-    size_t npix = (size_t)r->width * (size_t)r->height, p;
+    size_t npix = (size_t)r->out_width * (size_t)r->out_height, p;
     lensrt_result res;
     *spectral = lensrt_alloc(r->ctx, sizeof(float) * npix * (size_t)r->n_wl);
     *rgb = lensrt_alloc(r->ctx, sizeof(float) * npix * 3);
@@ -92,7 +107,7 @@ static lensrt_result spectral_and_rgb_of(const lensrt_render *rs, int n, float *
     for (p = 0; p < 3 * npix; p++)
         if (!isfinite((*rgb)[p]))
             return lensrt_fail(r->ctx, LENSRT_ERROR_OUT_OF_DOMAIN, "rgb: pixel (%d, %d) channel %d is %g, not a finite float",
-                               (int)(p / 3 % (size_t)r->width), (int)(p / 3 / (size_t)r->width), (int)(p % 3),
+                               (int)(p / 3 % (size_t)r->out_width), (int)(p / 3 / (size_t)r->out_width), (int)(p % 3),
                                (double)(*rgb)[p]);
     return LENSRT_SUCCESS;
 }
@@ -107,9 +122,9 @@ lensrt_result lensrt_render_rgb(lensrt_render r, float *out, size_t count)
     float *spectral = NULL, *rgb = NULL;
     lensrt_result res;
     if (!r || !out) return LENSRT_ERROR_INVALID_ARGUMENT;
-    if (count != (size_t)r->width * (size_t)r->height * 3)
+    if (count != (size_t)r->out_width * (size_t)r->out_height * 3)
         return lensrt_fail(r->ctx, LENSRT_ERROR_INVALID_ARGUMENT, "rgb: count must be %zu, got %zu",
-                           (size_t)r->width * (size_t)r->height * 3, count);
+                           (size_t)r->out_width * (size_t)r->out_height * 3, count);
     res = spectral_and_rgb(r, &spectral, &rgb);
     if (res == LENSRT_SUCCESS) memcpy(out, rgb, sizeof(float) * count);
     lensrt_free(r->ctx, spectral);
@@ -142,8 +157,8 @@ static void image_meta(const lensrt_render r, lensrt_image_meta *out, char *aper
     meta.f_number = r->f_number;
     meta.stop_radius_mm = r->stop_radius;
     meta.focus_offset_mm = r->desc.sensor.focus_offset_mm;
-    meta.pixel_pitch_x_mm = r->pitch_x;
-    meta.pixel_pitch_y_mm = r->pitch_y;
+    meta.pixel_pitch_x_mm = r->pixel_x;
+    meta.pixel_pitch_y_mm = r->pixel_y;
     meta.center_x_mm = r->desc.sensor.center_x_mm;
     meta.center_y_mm = r->desc.sensor.center_y_mm;
     meta.samples_per_wavelength = r->samples;
@@ -155,6 +170,9 @@ static void image_meta(const lensrt_render r, lensrt_image_meta *out, char *aper
     meta.seed = r->desc.seed;
     meta.cells_rings = r->cells_rings;
     meta.fourier_nodes = r->fourier_nodes;
+    meta.pixel_filter = r->pixel_filter == LENSRT_PIXEL_FILTER_POINT ? "point" : "box";
+    meta.pixel_samples_x = r->sx;
+    meta.pixel_samples_y = r->sy;
     meta.error_estimate = r->cells_rings || r->fourier_nodes ? r->cells_error : -1.0;
     meta.n_lights = r->n_lights;
     meta.lights = r->lights;
@@ -177,10 +195,10 @@ static lensrt_result write_image_as(const lensrt_render *rs, int n, const char *
         lensrt_image_meta meta;
         image_meta(r, &meta, aperture);
         meta.reproducible = reproducible;
-        res = lensrt_write_exr(&r->ctx->allocator, path, r->width, r->height, r->n_wl, r->wavelengths,
+        res = lensrt_write_exr(&r->ctx->allocator, path, r->out_width, r->out_height, r->n_wl, r->wavelengths,
                                spectral, rgb, &meta, err, sizeof err);
     } else if (res == LENSRT_SUCCESS) {
-        res = lensrt_write_png(&r->ctx->allocator, path, r->width, r->height, rgb, decades, err, sizeof err);
+        res = lensrt_write_png(&r->ctx->allocator, path, r->out_width, r->out_height, rgb, decades, err, sizeof err);
     }
     if (res != LENSRT_SUCCESS && err[0]) lensrt_fail(r->ctx, res, "%s", err);
     lensrt_free(r->ctx, spectral);
@@ -383,7 +401,7 @@ lensrt_result lensrt_layers_write_exr_with(const lensrt_exr_layer *layers, int n
     }
     meta.layers = text;
     meta.reproducible = reproducible;
-    res = lensrt_write_exr_layers(&ctx->allocator, path, r0->width, r0->height, r0->n_wl, r0->wavelengths,
+    res = lensrt_write_exr_layers(&ctx->allocator, path, r0->out_width, r0->out_height, r0->n_wl, r0->wavelengths,
                                   n_layers + 1, images, &meta, err, sizeof err);
     if (res != LENSRT_SUCCESS && err[0]) lensrt_fail(ctx, res, "%s", err);
 done:
