@@ -63,10 +63,12 @@ def scenes(rt: Lensrt) -> list[dict[str, Any]]:
     for f_number, size in ((2.0, 0.2), (8.0, 0.1), (32.0, 0.16)):
         c = rt.image_point(lens, LIGHT[:2], 550.0, 0.2)
         out.append({"name": f"0001 f/{f_number:g} PSF", "table": LENS, "kw": dict(
+            pixel_filter="point",
             width=64, height=64, width_mm=size, center=tuple(c), focus_offset_mm=0.2,
             f_number=f_number, shape="blades", blades=7, blade_curvature=0.3, rotation_deg=10.0,
             lights=[LIGHT], wavelengths=4)})
     out.append({"name": "ghost 0-2, f/8", "table": GHOST, "kw": dict(
+        pixel_filter="point",
         width=64, height=64, width_mm=3.0, center=(-9.74, -6.34), f_number=8.0,
         lights=[LIGHT], wavelengths=16)})
     return out
@@ -153,7 +155,8 @@ def defocus_cost(rt: Lensrt, args: argparse.Namespace) -> list[dict[str, Any]]:
     rows = []
     for waves in (0, 10, 40, 160, 320):
         dz = waves * lam * 8 * n_f * n_f
-        kw = dict(width=16, height=16, width_mm=12 * lam * n_f + 1.2 * dz / n_f, focus_offset_mm=dz,
+        kw = dict(pixel_filter="point",
+                  width=16, height=16, width_mm=12 * lam * n_f + 1.2 * dz / n_f, focus_offset_mm=dz,
                   f_number=n_f, wavelengths=[550.0])
         rings, est, t = 4, 1.0, 0.0
         while rings <= 1024:

@@ -74,7 +74,8 @@ def slope(samples: list[int], errors: list[float]) -> float:
 def study(rt: Lensrt, lens: Any, f_number: float, args: argparse.Namespace) -> dict[str, Any]:
     center = rt.image_point(lens, FIELD, 580.0, FOCUS_MM)
     width_mm = args.window_mm or WINDOW_MM.get(f_number, 0.1)
-    scene: dict[str, Any] = dict(width=args.pixels, height=args.pixels, width_mm=width_mm,
+    scene: dict[str, Any] = dict(pixel_filter="point",
+                                 width=args.pixels, height=args.pixels, width_mm=width_mm,
                                  center=center, focus_offset_mm=FOCUS_MM, f_number=f_number,
                                  lights=[FIELD], wavelengths=args.wavelengths,
                                  estimator=args.estimator)

@@ -129,6 +129,7 @@ def render_once(rt: Lensrt, lens: Any, scene: dict[str, Any], samples: int,
 def frame_scene(stride: int) -> dict[str, Any]:
     """The full frame, one pixel per stride x stride block, over the same 36 x 24 mm."""
     return dict(width=FRAME_PIXELS[0] // stride, height=FRAME_PIXELS[1] // stride,
+                pixel_filter="point",
                 width_mm=FRAME_MM[0], height_mm=FRAME_MM[1], center=(0.0, 0.0),
                 f_number=F_NUMBER, lights=[FIELD], wavelengths=WAVELENGTHS)
 
@@ -321,7 +322,7 @@ def seconds_to_error(rt: Lensrt, lens: Any, scene: dict[str, Any], samples: int,
 
 
 def window_scene(center: tuple[float, float], width_mm: float, pixels: int) -> dict[str, Any]:
-    return dict(width=pixels, height=pixels, width_mm=width_mm, center=center,
+    return dict(pixel_filter="point", width=pixels, height=pixels, width_mm=width_mm, center=center,
                 f_number=F_NUMBER, lights=[FIELD], wavelengths=WAVELENGTHS)
 
 

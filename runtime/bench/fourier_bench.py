@@ -63,6 +63,7 @@ def scenes(rt: Lensrt, quick: bool) -> list[dict[str, Any]]:
     for f_number, size in ((2.0, 0.2), (8.0, 0.1), (32.0, 0.16)):
         c = rt.image_point(lens, LIGHT[:2], 550.0, 0.2)
         out.append({"name": f"0001 f/{f_number:g}, {n} x {n}, {wl} wavelengths", "kw": dict(
+            pixel_filter="point",
             width=n, height=n, width_mm=size, center=tuple(c), focus_offset_mm=0.2,
             f_number=f_number, shape="blades", blades=7, blade_curvature=0.3, rotation_deg=10.0,
             lights=[LIGHT], wavelengths=wl)})
@@ -197,19 +198,22 @@ def sweep(rt: Lensrt) -> dict[str, Any]:
                                   (4.0, 0.12, "blades"), (8.0, 0.1, "blades"),
                                   (16.0, 0.12, "circle"), (32.0, 0.16, "blades")):
         c = rt.image_point(lens, LIGHT[:2], 550.0, 0.2)
-        kw = dict(width=64, height=64, width_mm=size, center=tuple(c), focus_offset_mm=0.2,
+        kw = dict(pixel_filter="point",
+                  width=64, height=64, width_mm=size, center=tuple(c), focus_offset_mm=0.2,
                   f_number=f_number, lights=[LIGHT], wavelengths=4)
         if shape == "blades":
             kw.update(shape="blades", blades=7, blade_curvature=0.3, rotation_deg=10.0)
         cases.append((f"0001 f/{f_number:g} {shape}", lens, kw))
     c = rt.image_point(lens, (0.0, 0.0), 550.0, 0.0)
     cases.append(("0001 f/2 in focus on axis", lens, dict(
+        pixel_filter="point",
         width=64, height=64, width_mm=0.03, center=tuple(c), f_number=2.0, wavelengths=4)))
     perfect = rt.analytic(sensor_distance_mm=50.0, focal_length_mm=50.0)
     for waves in (5, 20):
         lam, n_f = 550e-6, 8.0
         dz = waves * lam * 8 * n_f * n_f
         cases.append((f"perfect lens f/8, defocus {waves} waves", perfect, dict(
+            pixel_filter="point",
             width=48, height=48, width_mm=12 * lam * n_f + 1.2 * dz / n_f, focus_offset_mm=dz,
             f_number=n_f, wavelengths=[550.0])))
     rows = []

@@ -382,6 +382,9 @@ int main(int argc, char **argv)
         memset(&desc, 0, sizeof desc);
         desc.struct_size = sizeof desc;
         desc.lens = lens;
+        // The splat rate against the scalar baseline, which splats at pixel centres: the
+        // point filter (the box filter's sub-pixel points are more pixels, same kernel)
+        desc.pixel_filter = LENSRT_PIXEL_FILTER_POINT;
         desc.sensor.width = (int)o.rw;
         desc.sensor.height = (int)o.rh;
         desc.sensor.width_mm = o.size_x;

@@ -130,6 +130,7 @@ static double render_seconds(lensrt_context ctx, lensrt_lens lens, int width, ui
 {
     lensrt_light light = LENSRT_LIGHT_INIT;
     lensrt_render_desc desc = LENSRT_RENDER_DESC_INIT;
+    desc.pixel_filter = LENSRT_PIXEL_FILTER_POINT; /* set-up against the Horner code, per pixel centre */
     lensrt_render render = NULL;
     double xy[2], t = -1.0;
     light.field_x_deg = -6.0; /* the demo's light (scenes/demo.toml) */
