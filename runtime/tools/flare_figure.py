@@ -1,5 +1,30 @@
-"""Full-frame flares of fitted lenses, side by side: the paper's Figure 10 (coated
-against uncoated) for any lens folders that hold fitted ghosts.
+"""Flares of fitted lenses: the paper's Figure 10 (coated against uncoated) for any lens
+folders that hold fitted ghosts, as close-ups of chosen ghosts and as full frames.
+
+`make demo` (issue 26)::
+
+    python runtime/tools/flare_figure.py -o figure10.png --light=-6,-4 --wavelengths 8 \\
+        --blades 7 --curvature 0.3 --rotation 10 --direct-half 1.5 --pixel-samples 2 \\
+        --closeup generated/2004-schneider-anamorphic "2004 coated" \\
+        --closeup generated/2004-schneider-anamorphic-uncoated "2004 uncoated" \\
+        --panel generated/0001-angenieux-double-gauss 16 "0001 coated" --note "..."
+
+Each --closeup is a lens folder and a label: its --closeup-ghosts (default 0-2) on one
+window (--closeup-size, default 2.0 x 0.8 mm around their footprints, --closeup-pitch
+10 um pixels) at --closeup-f-number (default 16), each ghost by lensrt with the box
+filter's automatic sub-pixel counts (a thin anamorphic streak aliases with one point per
+pixel). All close-ups share one exposure: white is their brightest pixel, over
+--closeup-decades (default 3.5) of a log tone map, so the uncoated ghost is as much
+brighter as it is. The full-frame panels below are as before, with the stop's --blades
+(the direct image's diffraction star) in a window of --direct-half mm around its image
+point (cut to that circle when wider than the default), the direct image at the box
+filter's automatic counts and the ghosts at --pixel-samples (default 2 x 2: their
+footprints span many pixels and vary slowly over one; the automatic rule takes 4 x 4 for
+the direct image at f/16 on 25 um pixels, 4 times the splats). --pixel-filter point
+renders every image at the pixel centres (as before lensrt 0.8). The JSON records each
+image's filter, the counts asked and taken, and seconds.
+
+The full-frame mode alone (no --closeup) lays the panels out two by two:
 
     python runtime/tools/flare_figure.py -o flare.png --light=-6,-4 \\
         --panel generated/0001-angenieux-double-gauss 8 "coated" \\
@@ -68,8 +93,40 @@ PANEL_INCHES = 4.2
 def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("-o", "--output", required=True, help="PNG to write")
-    p.add_argument("--panel", nargs=3, action="append", required=True,
-                   metavar=("FOLDER", "F_NUMBER", "LABEL"))
+    p.add_argument("--panel", nargs=3, action="append", default=[],
+                   metavar=("FOLDER", "F_NUMBER", "LABEL"),
+                   help="a full-frame panel: the direct image and every fitted ghost")
+    p.add_argument("--closeup", nargs=2, action="append", default=[],
+                   metavar=("FOLDER", "LABEL"),
+                   help="a close-up panel of --closeup-ghosts of a lens folder on a window of "
+                        "fine pixels (module doc); all close-ups share one exposure")
+    p.add_argument("--closeup-ghosts", default="0-2",
+                   help="labels of the ghosts the close-ups show, comma-separated (default 0-2)")
+    p.add_argument("--closeup-f-number", type=float, default=16.0, help="default 16")
+    p.add_argument("--closeup-center", default=None, metavar="X,Y",
+                   help="mm (default: the centre of the ghosts' footprints)")
+    p.add_argument("--closeup-size", default="2.0x0.8", metavar="WxH",
+                   help="mm (default 2.0x0.8)")
+    p.add_argument("--closeup-pitch", type=float, default=10.0,
+                   help="the close-ups' pixel pitch in um (default 10)")
+    p.add_argument("--closeup-decades", type=float, default=3.5,
+                   help="decades of the close-ups' log tone map below white (default 3.5)")
+    p.add_argument("--note", default="",
+                   help="a line for the figure's caption and its JSON (say why a lens is used)")
+    p.add_argument("--blades", type=int, default=0,
+                   help="aperture blades (0: a round stop, the default)")
+    p.add_argument("--curvature", type=float, default=0.0, help="blade curvature (default 0)")
+    p.add_argument("--rotation", type=float, default=0.0, help="blade rotation in degrees")
+    p.add_argument("--direct-half", type=float, default=DIRECT_HALF_MM,
+                   help="half width in mm of the full frame's direct-image window (default "
+                        f"{DIRECT_HALF_MM}; a bladed stop's star needs a few mm)")
+    p.add_argument("--pixel-filter", choices=("box", "point"), default="box",
+                   help="box (default): each pixel the mean over its area (lensrt 0.8); "
+                        "point: the pixel centre's value")
+    p.add_argument("--pixel-samples", default="2", metavar="N|NxM|auto",
+                   help="box filter: sub-pixel points per axis of the full frame's ghost "
+                        "images (default 2: their footprints span many pixels); the direct "
+                        "image and the close-ups always take lensrt's automatic counts")
     p.add_argument("--light", default="-6,-4", metavar="X,Y",
                    help="field angles in degrees, designers' sign (default -6,-4)")
     p.add_argument("--frame", default="36x24", help="sensor size in mm (default 36x24)")
@@ -90,7 +147,25 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
                    help="most splats per image (samples x pixels x wavelengths; default "
                         "1e10, ~10 s on 2 cores): larger ghosts get fewer samples and a "
                         "higher floor, which the JSON and the title report")
-    return p.parse_args(argv)
+    args = p.parse_args(argv)
+    if not args.panel and not args.closeup:
+        p.error("give at least one --panel or --closeup")
+    args.ghost_samples = pixel_samples(args.pixel_samples)
+    return args
+
+
+def pixel_samples(text: str) -> int | tuple[int, int]:
+    """--pixel-samples: 'auto' (0: lensrt chooses), N or NxM."""
+    if text.strip().lower() in ("auto", "0"):
+        return 0
+    try:
+        nums = [int(v) for v in text.lower().split("x")]
+    except ValueError:
+        nums = []
+    if len(nums) not in (1, 2) or min(nums) < 1 or max(nums) > 16:
+        raise SystemExit(f"flare_figure: --pixel-samples {text!r}: expected auto, N or NxM "
+                         "with 1 <= N, M <= 16")
+    return nums[0] if len(nums) == 1 else (nums[0], nums[1])
 
 
 def pair(text: str, what: str, kind=float) -> tuple:
@@ -166,8 +241,17 @@ def samples_for(radius_mm: float, f_number: float, pixels: int, args) -> tuple[i
     return n, 1.0 / (s * n)
 
 
+def aperture(args) -> dict:
+    """The render's stop shape: round, or --blades blades."""
+    if not getattr(args, "blades", 0):
+        return {}
+    return {"shape": "blades", "blades": args.blades, "blade_curvature": args.curvature,
+            "rotation_deg": args.rotation}
+
+
 def render_window(rt, table: Path, frame: Frame, win, f_number: float,
-                  light: tuple[float, float], args, samples: int) -> tuple[np.ndarray, float, dict]:
+                  light: tuple[float, float], args, samples: int,
+                  pixel_samples: int | tuple[int, int] = 0) -> tuple[np.ndarray, float, dict]:
     """Linear sRGB of one image over the pixel rectangle ``win``, and its power (the
     spectral image's sum times the pixel area, averaged over wavelengths; a PSF smaller
     than a pixel is under-sampled by pixel centres, so the direct power is measured in a
@@ -177,8 +261,13 @@ def render_window(rt, table: Path, frame: Frame, win, f_number: float,
     lens = rt.load(table)
     r = rt.create(lens, width=i1 - i0, height=j1 - j0, width_mm=(i1 - i0) * frame.pitch,
                   height_mm=(j1 - j0) * frame.pitch, center=(cx, cy), f_number=f_number,
-                  lights=[light], wavelengths=args.wavelengths)
-    how: dict = {}
+                  lights=[light], wavelengths=args.wavelengths,
+                  pixel_filter=getattr(args, "pixel_filter", "box"),
+                  pixel_samples=pixel_samples, **aperture(args))
+    st = r.stats()
+    how: dict = {"pixel_filter": getattr(args, "pixel_filter", "box"),
+                 "pixel_samples": [int(st.pixel_samples_x), int(st.pixel_samples_y)],
+                 "pixel_samples_asked": ("auto" if pixel_samples == 0 else pixel_samples)}
     if args.integrator == "cells":
         how["rings"], how["error_estimate"] = r.integrate_to(args.target_error)
         how["integrator"] = "cells"
@@ -199,7 +288,8 @@ def direct_power(rt, table: Path, centre: tuple[float, float], f_number: float,
     the PSF's power to ~0.5% at f/8; pixels of a third of the Airy radius resolve it)."""
     lens = rt.load(table)
     r = rt.create(lens, width=128, height=128, width_mm=0.2, center=centre,
-                  f_number=f_number, lights=[light], wavelengths=args.wavelengths)
+                  f_number=f_number, lights=[light], wavelengths=args.wavelengths,
+                  **aperture(args))
     if args.integrator == "cells":
         r.integrate_to(args.target_error)
     elif args.integrator == "auto":
@@ -238,7 +328,7 @@ def render_panel(rt, folder: Path, f_number: float, light, frame: Frame, args):
     lens = rt.load(table)
     pts = [rt.image_point(lens, light, lam) for lam in (380.0, 780.0)]
     xs, ys = [p[0] for p in pts], [p[1] for p in pts]
-    h = DIRECT_HALF_MM
+    h = getattr(args, "direct_half", DIRECT_HALF_MM)
     win = frame.window(min(xs) - h, max(xs) + h, min(ys) - h, max(ys) + h)
     images = [("direct", table, win, direct, 0.0)]
     boxes = footprints(folder, ghosts, f_number, light)
@@ -261,9 +351,21 @@ def render_panel(rt, folder: Path, f_number: float, light, frame: Frame, args):
         n, floor = samples_for(radius, f_number, (i1 - i0) * (j1 - j0), args)
         if name == "direct":  # a few pixels: its halo's floor is what shows around it
             n = max(n, DIRECT_SAMPLES)
-        rgb, power, how = render_window(rt, path, frame, w, f_number, light, args, n)
+        # The direct image (a few pixels' core) takes lensrt's automatic counts; the
+        # ghosts' wide footprints --pixel-samples (module doc)
+        ps = 0 if name == "direct" else getattr(args, "ghost_samples", 0)
+        rgb, power, how = render_window(rt, path, frame, w, f_number, light, args, n, ps)
         if name == "direct":
             power = direct_power(rt, path, frame.centre(w), f_number, light, args)
+        if name == "direct" and h > DIRECT_HALF_MM:
+            # A star's window is cut to the circle of radius --direct-half around the image
+            # point (its spikes and halo go on beyond, above the tone map's white: not
+            # rendered), so that the cut reads as a disc and not as the window's square
+            ix = -frame.w_mm / 2 + (np.arange(i0, i1) + 0.5) * frame.pitch
+            jy = frame.h_mm / 2 - (np.arange(j0, j1) + 0.5) * frame.pitch
+            cxy = (0.5 * (min(xs) + max(xs)), 0.5 * (min(ys) + max(ys)))
+            inside = (ix[None, :] - cxy[0]) ** 2 + (jy[:, None] - cxy[1]) ** 2 <= h * h
+            rgb = rgb * inside[..., None]
         canvas[j0:j1, i0:i1] += rgb
         if args.integrator == "montecarlo":
             how["floor"] = floor
@@ -274,13 +376,157 @@ def render_panel(rt, folder: Path, f_number: float, light, frame: Frame, args):
             said = f"cells, {how['rings']} rings (error estimate {how['error_estimate']:.2%})"
         record.append({"image": name, "window": list(w), "power": power, **how,
                        "seconds": time.perf_counter() - t0})
+        said += f", {how['pixel_filter']} {how['pixel_samples'][0]}x{how['pixel_samples'][1]}"
         print(f"  {folder.name} {name}: {i1 - i0} x {j1 - j0} pixels, {said}, power {power:.4g}, "
               f"{record[-1]['seconds']:.1f} s", flush=True)
     return direct, flare, record
 
 
+def render_closeup(rt, folder: Path, label: str, light, args) -> dict:
+    """A close-up: the --closeup-ghosts of a lens folder on one window of fine pixels
+    (--closeup-size at --closeup-pitch), each by lensrt with the box filter's automatic
+    counts, summed; the direct image is not rendered here (a window beside it)."""
+    index = folder / "ghosts" / "ghosts.json"
+    from lensfit.codegen.checked_json import REGENERATE_FOLDER, load_checked_json
+
+    ghosts = load_checked_json(index, REGENERATE_FOLDER)["ghosts"]
+    want = [w.strip() for w in args.closeup_ghosts.split(",") if w.strip()]
+    chosen = [g for g in ghosts if g["label"] in want]
+    if len(chosen) != len(want):
+        raise SystemExit(f"flare_figure: {index}: ghosts {want} asked, "
+                         f"{[g['label'] for g in ghosts]} fitted")
+    f_number = args.closeup_f_number
+    w_mm, h_mm = pair(args.closeup_size, "--closeup-size")
+    pitch = args.closeup_pitch * 1e-3
+    nx, ny = max(1, round(w_mm / pitch)), max(1, round(h_mm / pitch))
+    if args.closeup_center is not None:
+        centre = pair(args.closeup_center, "--closeup-center")
+    else:
+        boxes = footprints(folder, chosen, f_number, light)
+        if not boxes:
+            raise SystemExit(f"flare_figure: {folder}: no ray of ghosts {want} reaches the "
+                             f"sensor from light {light} at f/{f_number:g}")
+        centre = (0.5 * (min(b[0] for b in boxes.values()) + max(b[1] for b in boxes.values())),
+                  0.5 * (min(b[2] for b in boxes.values()) + max(b[3] for b in boxes.values())))
+    rgb = np.zeros((ny, nx, 3))
+    record = []
+    for g in chosen:
+        t0 = time.perf_counter()
+        lens = rt.load(ghost_path(folder, g))
+        r = rt.create(lens, width=nx, height=ny, width_mm=nx * pitch, height_mm=ny * pitch,
+                      center=centre, f_number=f_number, lights=[light],
+                      wavelengths=args.wavelengths, pixel_filter=args.pixel_filter,
+                      pixel_samples=0, **aperture(args))
+        st = r.stats()
+        how: dict = {"pixel_filter": args.pixel_filter, "pixel_samples_asked": "auto",
+                     "pixel_samples": [int(st.pixel_samples_x), int(st.pixel_samples_y)]}
+        if args.integrator == "montecarlo":
+            r.run(MIN_SAMPLES * 16)
+            how["samples"] = MIN_SAMPLES * 16
+        else:
+            kind, count, how["error_estimate"] = r.integrate_auto_to(args.target_error)
+            how["integrator"] = kind
+            how["nodes" if kind == "fourier" else "rings"] = count
+        rgb += r.rgb()
+        power = float(r.image().sum(axis=(1, 2)).mean()) * pitch**2
+        record.append({"image": g["label"], "power": power, **how,
+                       "seconds": time.perf_counter() - t0})
+        print(f"  close-up {folder.name} {g['label']}: {nx} x {ny} pixels of {pitch * 1e3:g} um, "
+              f"{how['pixel_filter']} {how['pixel_samples'][0]}x{how['pixel_samples'][1]}, "
+              f"{how.get('integrator', 'montecarlo')} (estimate "
+              f"{how.get('error_estimate', float('nan')):.2%}), power {power:.4g}, "
+              f"{record[-1]['seconds']:.1f} s", flush=True)
+    return {"folder": folder, "label": label, "f_number": f_number, "centre": centre,
+            "size_mm": (nx * pitch, ny * pitch), "pitch_mm": pitch, "rgb": rgb,
+            "record": record}
+
+
+def scale_bar(ax, x0: float, y0: float, length: float, text: str, fontsize: float = 7) -> None:
+    """A white bar of ``length`` (axes data units, mm) from (x0, y0), labelled above."""
+    ax.plot([x0, x0 + length], [y0, y0], color="white", linewidth=2, solid_capstyle="butt")
+    ax.text(x0 + length / 2, y0, text, color="white", fontsize=fontsize, ha="center",
+            va="bottom")
+
+
+def nice_length(span: float) -> float:
+    """A round length near a fifth of ``span``."""
+    target = span / 5
+    base = 10 ** math.floor(math.log10(target))
+    return max(m * base for m in (1, 2, 5) if m * base <= target)
+
+
+def main_with_closeups(args, light, frame: Frame, rt, panels: list[dict]) -> int:
+    """The figure with a row of close-ups (one exposure for all of them: white is the
+    brightest pixel over the close-ups) over the full-frame panels, each a row."""
+    closeups = [render_closeup(rt, Path(folder), label, light, args)
+                for folder, label in args.closeup]
+    lum_w = np.array([0.2126, 0.7152, 0.0722])
+    white_c = max(float((c["rgb"] @ lum_w).max()) for c in closeups) or 1.0
+    ncols = max(1, len(closeups))
+    cw, ch = closeups[0]["size_mm"]
+    row_h = [PANEL_INCHES * ch / cw + 0.5]
+    full_w = PANEL_INCHES * ncols
+    row_h += [full_w * frame.ny / frame.nx + 0.5 for _ in panels]
+    fig = plt.figure(figsize=(full_w, sum(row_h) + 0.5), facecolor="black")
+    gs = fig.add_gridspec(len(row_h), ncols, height_ratios=row_h)
+    for k, c in enumerate(closeups):
+        ax = fig.add_subplot(gs[0, k])
+        (w, h), (cx, cy) = c["size_mm"], c["centre"]
+        ax.imshow(tone_map(c["rgb"], white_c, args.closeup_decades), interpolation="nearest",
+                  extent=(cx - w / 2, cx + w / 2, cy - h / 2, cy + h / 2))
+        bar = nice_length(w)
+        scale_bar(ax, cx - w / 2 + 0.05 * w, cy - h / 2 + 0.1 * h, bar, f"{bar * 1e3:g} µm")
+        px = c["record"][0]["pixel_samples"] if c["record"] else [1, 1]
+        ax.set_title(f"{c['label']}: ghost {args.closeup_ghosts} at f/{c['f_number']:g}, "
+                     f"{c['pitch_mm'] * 1e3:g} µm pixels (box, {px[0]}x{px[1]} points)",
+                     color="white", fontsize=7)
+        ax.set_xticks([])
+        ax.set_yticks([])
+    for k, p in enumerate(panels):
+        ax = fig.add_subplot(gs[1 + k, :])
+        white = p["white"]
+        ax.imshow(tone_map(p["direct"] + p["flare"], white, DECADES),
+                  extent=(-frame.w_mm / 2, frame.w_mm / 2, -frame.h_mm / 2, frame.h_mm / 2))
+        scale_bar(ax, -frame.w_mm / 2 + 1.0, -frame.h_mm / 2 + 1.0, 5.0, "5 mm")
+        shown = [r for r in p["record"] if r["image"] != "direct" and r["window"]]
+        blades = f", {args.blades} blades" if args.blades else ""
+        ax.set_title(f"{p['label']}: full {frame.w_mm:g} x {frame.h_mm:g} mm frame at "
+                     f"{frame.nx} x {frame.ny}, f/{p['f_number']:g}{blades}, the light "
+                     f"saturated with its star and {len(shown)} ghosts; white = the "
+                     f"brightest ghost, {DECADES:g} decades", color="white", fontsize=7)
+        ax.set_xticks([])
+        ax.set_yticks([])
+    cap = (f"Light at ({light[0]:g}, {light[1]:g}) deg, {args.wavelengths} wavelengths. "
+           f"Close-ups: one exposure for all (white = their brightest pixel), "
+           f"{args.closeup_decades:g} decades (log)")
+    if args.note:
+        cap += f". {args.note}"
+    fig.suptitle(cap, color="white", fontsize=7, wrap=True)
+    fig.tight_layout()
+    out = Path(args.output)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(out, dpi=frame.nx / full_w, facecolor="black")
+    summary = {
+        "light_deg": list(light), "wavelengths": args.wavelengths, "note": args.note,
+        "closeups": [{"folder": str(c["folder"]), "label": c["label"],
+                      "f_number": c["f_number"], "ghosts": args.closeup_ghosts,
+                      "centre_mm": list(c["centre"]), "size_mm": list(c["size_mm"]),
+                      "pitch_mm": c["pitch_mm"], "white": white_c,
+                      "decades": args.closeup_decades, "images": c["record"]}
+                     for c in closeups],
+        "panels": [{"folder": str(p["folder"]), "label": p["label"], "f_number": p["f_number"],
+                    "blades": args.blades, "direct_half_mm": args.direct_half,
+                    "white": p["white"], "decades": DECADES, "images": p["record"]}
+                   for p in panels],
+        "seconds": time.perf_counter() - args.t_start}
+    out.with_suffix(".json").write_text(json.dumps(summary, indent=1) + "\n")
+    print(f"wrote {out} and {out.with_suffix('.json')} ({summary['seconds']:.1f} s)")
+    return 0
+
+
 def main(argv: list[str] | None = None) -> int:
     args = parse_args(argv)
+    args.t_start = time.perf_counter()
     light = pair(args.light, "--light")
     frame = Frame(pair(args.frame, "--frame"), pair(args.resolution, "--resolution", int))
     rt = Lensrt()
@@ -296,6 +542,10 @@ def main(argv: list[str] | None = None) -> int:
         key = p["folder"].name.removesuffix("-uncoated")
         lum = p["flare"] @ np.array([0.2126, 0.7152, 0.0722])
         groups[key] = max(groups.get(key, 0.0), float(lum.max()))
+    for p in panels:
+        p["white"] = groups[p["folder"].name.removesuffix("-uncoated")] or 1.0
+    if args.closeup:
+        return main_with_closeups(args, light, frame, rt, panels)
     cols = 2 if len(panels) > 1 else 1
     rows = math.ceil(len(panels) / cols)
     aspect = frame.ny / frame.nx

@@ -143,3 +143,32 @@ def test_small_figure_powers_match_the_exact_estimate(tmp_path, integrator):
             checked += 1
     assert checked == 1
     assert out.is_file() and out.stat().st_size > 0
+
+
+def test_pixel_samples_option():
+    """--pixel-samples: auto (0: lensrt's rule), N or NxM within lensrt's 1..16."""
+    assert ff.pixel_samples("auto") == 0 and ff.pixel_samples("0") == 0
+    assert ff.pixel_samples("3") == 3 and ff.pixel_samples("2x4") == (2, 4)
+    for bad in ("17", "x", "0x2", "1x2x3"):
+        with pytest.raises(SystemExit, match="--pixel-samples"):
+            ff.pixel_samples(bad)
+
+
+def test_closeup_records_its_pixel_filter(tmp_path):
+    """A small close-up of 2004's ghost 0-2, coated and uncoated at one exposure: the JSON
+    records each image's box filter and the automatic counts lensrt took, and the
+    uncoated ghost is the brighter."""
+    coated = ROOT / "generated" / "2004-schneider-anamorphic"
+    out = tmp_path / "closeup.png"
+    assert ff.main(["-o", str(out), "--closeup", str(coated), "coated",
+                    "--closeup", str(coated.parent / (coated.name + "-uncoated")), "bare",
+                    "--closeup-size", "0.8x0.2", "--closeup-pitch", "25",
+                    "--wavelengths", "3", "--target-error", "0.05"]) == 0
+    data = json.loads(out.with_suffix(".json").read_text())
+    (c,), (b,) = (x["images"] for x in data["closeups"])
+    for r in (c, b):
+        assert r["image"] == "0-2" and r["pixel_filter"] == "box"
+        assert r["pixel_samples_asked"] == "auto" and min(r["pixel_samples"]) >= 2
+    assert data["closeups"][0]["white"] == data["closeups"][1]["white"]
+    assert b["power"] > 3 * c["power"]
+    assert out.is_file()
