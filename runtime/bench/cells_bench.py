@@ -175,7 +175,9 @@ def defocus_cost(rt: Lensrt, args: argparse.Namespace) -> list[dict[str, Any]]:
 def flare_frame(rt: Lensrt, args: argparse.Namespace) -> dict[str, Any]:
     """Every kept ghost of 0001 over the full frame, each in its footprint's window."""
     folder = ROOT / "generated" / "0001-angenieux-double-gauss"
-    ns = argparse.Namespace(integrator="cells", target_error=0.01,
+    # Pixel centres, as before 0.8.0: this row compares integrators (the box filter's
+    # cost is pixel_area_cost's)
+    ns = argparse.Namespace(integrator="cells", target_error=0.01, pixel_filter="point",
                             wavelengths=8 if args.quick else 16, floor=0.03, splats=1e10)
     # 36 x 24 mm at 25 um (flare_figure takes square pixels: 1440 x 960, not 1440 x 1080)
     frame = flare_figure.Frame((36.0, 24.0), (1440, 960))
