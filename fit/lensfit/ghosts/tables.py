@@ -30,6 +30,7 @@ from lensfit.ghosts.enumerate import GhostEstimate, enumerate_ghosts
 from lensfit.ghosts.fit import GHOST_OPTIONS, GhostFit, fit_ghost
 from lensfit.ghosts.sample import GhostHalf
 from lensfit.poly.polynomial import System
+from lensfit.poly.tensor import single_blas
 from lensfit.prescription.model import Lens
 from lensfit.psf import exact_psf, poly_psf, sunflower_points
 from lensfit.sample.domain import Domain
@@ -166,6 +167,13 @@ def fit_with_trust(lens, estimate: GhostEstimate, direct: Table, domain: Domain,
                              f"the light at {light} or on the axis: nothing to check its "
                              f"fit against; leave it out (--ghost)")
     k = int(np.argmax(at.peak))  # footprint at the wavelength of its highest peak
+    with single_blas():
+        return _fit_with_trust(lens, estimate, direct, domain, at, where, k, f_number)
+
+
+def _fit_with_trust(lens, estimate: GhostEstimate, direct: Table, domain: Domain,
+                    at: GhostEstimate, where: tuple[float, float], k: int, f_number: float
+                    ) -> tuple[GhostFit, Table, list[TrustCell]]:
     best = None
     for options in (GHOST_OPTIONS, RETRY_OPTIONS):
         fit = fit_ghost(lens, estimate.first, estimate.second, domain, options)
