@@ -115,7 +115,8 @@ def ghost_trust(lens: Lens, table: Table, half: GhostHalf, *, f_number: float,
         ie = np.abs(exact_psf(lens, ghost=half, **kw)) ** 2
         seconds = time.perf_counter() - t0
         ip = np.abs(poly_psf(table, **kw)) ** 2
-        inn = np.abs(poly_psf(no_clip, **kw)) ** 2
+        # Without P_clip: the same table when it has none
+        inn = np.abs(poly_psf(no_clip, **kw)) ** 2 if len(no_clip) < len(table) else ip
         e = float(ie.sum())
         if not e > 0:
             raise ValueError(f"ghost {table.ghost.label}: no exact ray reaches the window "
