@@ -181,7 +181,10 @@ def bench_ghosts(outdir: Path, specs: list[str], light: tuple[float, float],
     committed figure beside it. ``specs``: LENS:I-J,... (at ``light`` and ``f_number``);
     none: every kept ghost of the lenses with a ghosts.json in generated/, at their light
     and f-number. build/bench/ghosts.json and ghosts.md."""
+    import hashlib
+
     from lensfit.cli import _direct_fit
+    from lensfit.codegen.table import write_table
     from lensfit.generate import GENERATED_DIR, lens_folder_name
     from lensfit.ghosts.enumerate import enumerate_ghosts, parse_ghost
     from lensfit.ghosts.tables import TRUST_TARGET, fit_with_trust
@@ -202,8 +205,9 @@ def bench_ghosts(outdir: Path, specs: list[str], light: tuple[float, float],
                                      fine_rays=4000)
         for g in estimates:
             w0, c0 = time.perf_counter(), time.process_time()
-            fit, _, cells = fit_with_trust(lens, g, direct, domain, at, fn)
+            fit, table, cells = fit_with_trust(lens, g, direct, domain, at, fn)
             wall, cpu = time.perf_counter() - w0, time.process_time() - c0
+            digest = hashlib.sha256(write_table(table).encode()).hexdigest()[:16]
             worst = max(cells, key=lambda c: c.rel_l2)
             old = committed.get(g.name, {})
             rows.append({"lens": lens_id, "ghost": g.name, "side": fit.half.system,
@@ -215,7 +219,8 @@ def bench_ghosts(outdir: Path, specs: list[str], light: tuple[float, float],
                          "psf_vs_exact_cell": f"{worst.wavelength_nm:g} nm",
                          "psf_target": TRUST_TARGET,
                          "committed_psf_vs_exact": old.get("psf_vs_exact"),
-                         "committed_fit_seconds": old.get("fit_seconds")})
+                         "committed_fit_seconds": old.get("fit_seconds"),
+                         "table_sha256": digest})  # the same inputs: the same bytes
             print(f"ghost {lens_id} {g.name}: {wall:.1f} s wall, {cpu:.1f} s CPU, PSF vs "
                   f"exact {worst.rel_l2:.2%}", flush=True)
     (outdir / "ghosts.json").write_text(json.dumps(rows, indent=1) + "\n")

@@ -344,7 +344,10 @@ def exact_psf(lens: Lens, *, stop_radius_mm: float, aperture_xy_mm: np.ndarray,
     exactly (every housing it crosses and, in case C, a round stop of ``stop_radius_mm``
     at its further stop crossings, or ``stop_shape`` (x, y) mm -> inside for a bladed or
     slit stop; the caller passes only ``aperture_xy_mm`` inside that shape); ``clip``
-    then applies to the direct half."""
+    then applies to the direct half. Its sensor side (the ghost's half, or the direct
+    half with "pupils" clipping) is interpolated from node rays for every stop point
+    whose checked pixels agree with exact rays (:func:`_interpolated_sensor`), the other
+    points traced per pixel."""
     if nodes and ghost is not None:
         raise ValueError("nodes: the interpolated sensor side is for the direct path only")
     if stop_shape is not None and ghost is None:
