@@ -21,7 +21,8 @@
 #                cells integrator against Monte Carlo too: cells_bench.py; the Fourier
 #                integrator against both on the demo's PSFs: fourier_bench.py), banks on Dask
 #                (scaling 1 -> 2 workers, the scheduler's overhead: banks.md), and per generated lens the fit time and the worst
-#                PSF cell against exactly traced rays (build/bench/)
+#                PSF cell against exactly traced rays, and seconds per kept ghost with its PSF
+#                against exact ghost rays (ghosts.md) (build/bench/)
 
 PYTHON ?= /usr/bin/python3
 VENV   := .venv
@@ -164,6 +165,7 @@ bench: setup runtime
 	$(VENV)/bin/lensfit report $(DEMO_LENS) -o build/bench/fit-$(DEMO_LENS) --json \
 		> build/bench/fit-$(DEMO_LENS).json
 	$(PY) -m lensfit.bench --fits --out build/bench
+	$(PY) -m lensfit.bench --ghosts --out build/bench
 
 clean:
 	rm -rf build $(VENV)

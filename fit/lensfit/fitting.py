@@ -49,7 +49,7 @@ import numpy as np
 from lensfit.errors import InputError
 from lensfit.poly.omp import OmpPath, omp
 from lensfit.poly.polynomial import Input, Polynomial, System, design_matrix, monomials
-from lensfit.poly.tensor import aperture_exponents, field_exponents, fit_tensor
+from lensfit.poly.tensor import aperture_exponents, field_exponents, fit_tensor, single_blas
 from lensfit.prescription.model import Lens
 from lensfit.sample.domain import Domain, default_domain
 from lensfit.sample.rays import (
@@ -352,13 +352,17 @@ def fit_system_tensor(name: str, inputs: tuple[Input, ...], outputs, train: Grid
             if tf.holes:  # the next rung starts from this one's values in the holes
                 fill = tf.grid(a_hat, v_hat)
             poly = _tensor_polynomial(out, unit, tf, len(inputs))
-            err = error_metric(out, poly.evaluate_normalised(xe), te.outputs[:, j], te.group)
+            # The held-out rays through W's factors (stop monomials times W times field
+            # monomials: one matrix product) rather than the polynomial's tens of thousands
+            # of terms one by one: the same sum in another order, ~20x faster
+            pred = _evaluate_tensor(tf, xe)
+            err = error_metric(out, pred, te.outputs[:, j], te.group)
             rms = float(np.sqrt(np.mean(err * err)))
             hist.append(rms)
             terms.append(poly.terms)
             previous = best[0] if best is not None else math.inf
             if best is None or rms < best[0]:
-                best = (rms, poly, err)
+                best = (rms, poly, err, pred)
             if rms <= target:
                 break
             # A higher field degree that barely helps means the stop degree is the limit
@@ -378,10 +382,9 @@ def fit_system_tensor(name: str, inputs: tuple[Input, ...], outputs, train: Grid
         if best is None:
             raise ValueError(f"{name}: {out}: the grid of {len(train.field)} field points "
                              "cannot determine even the lowest field degree")
-        _, poly, err = best
+        _, poly, err, pred = best
         extra = {}
         if phase:  # terms without the stop point: the piston; and the error with it
-            pred = poly.evaluate_normalised(xe)
             extra = {"piston_terms": int(np.sum(poly.exponents[:, list(APERTURE)].sum(1) == 0)),
                      "absolute_rms_um": float(np.sqrt(np.mean((pred - te.outputs[:, j]) ** 2))
                                               * 1e3)}
@@ -390,6 +393,12 @@ def fit_system_tensor(name: str, inputs: tuple[Input, ...], outputs, train: Grid
         polys.append(poly)
         fits.append(of)
     return System(name, inputs, tuple(polys)), fits
+
+
+def _evaluate_tensor(tf, xe: np.ndarray) -> np.ndarray:
+    """The tensor fit ``tf`` at normalised inputs ``xe`` (N, 6), single-threaded BLAS."""
+    with single_blas():
+        return tf.evaluate(xe[:, list(APERTURE)], xe[:, list(FIELD)])
 
 
 def _tensor_polynomial(out: str, unit: str, tf, n_inputs: int) -> Polynomial:

@@ -164,3 +164,36 @@ def test_fitted_ghost_against_exact_ghost_rays(direct, report, first, second, cl
         assert loose.sum() / exact.sum() > 1.05
     else:
         assert CLIP_SYSTEM not in [s.name for s in table]
+
+
+@pytest.mark.parametrize("first, second, light", [(0, 2, (-6.0, -4.0)), (4, 8, (0.0, 0.0))])
+def test_exact_ghost_psf_interpolated_sensor_side_agrees_with_every_pair(
+        monkeypatch, direct, report, first, second, light):
+    """The trust cells' exact PSF takes a ghost's sensor side (the direct half for 0-2,
+    the ghost's own half with its housings and stop crossings for 4-8) from node rays
+    interpolated to the pixels where checked rays agree (psf._interpolated_sensor); the
+    image agrees with the one from a ray traced for every (stop point, pixel) pair
+    (measured ~1e-9), and a stop point whose check fails is traced per pixel instead."""
+    import lensfit.psf as psf
+
+    lens = load_lens("0001")
+    half = ghost_half(lens, first, second)
+    g = next(x for x in report["ghosts"] if (x["first"], x["second"]) == (first, second))
+    cx, cy, width = next(c for c in g["trust"] if c["wavelength_nm"] == 550.0)["window"]
+    r = direct.lens.stop_radius_f1_mm / 8.0
+    kw = dict(stop_radius_mm=r, aperture_xy_mm=sunflower_points(60, r), wavelength_nm=550.0,
+              width=16, height=16, width_mm=width, center_x_mm=cx, center_y_mm=cy,
+              field_deg=light, ghost=half)
+    interpolated = exact_psf(lens, **kw)
+    checked = psf._interpolated_sensor
+    with monkeypatch.context() as m:  # every point fails its check: all traced per pixel
+        m.setattr(psf, "INTERP_TOL_WAVES", -1.0)
+        fallback = exact_psf(lens, **kw)
+    with monkeypatch.context() as m:  # no interpolation at all
+        m.setattr(psf, "_interpolated_sensor",
+                  lambda *a, **k: (np.zeros((16, 16), complex), np.ones(len(a[4]), bool)))
+        every = exact_psf(lens, **kw)
+    assert psf._interpolated_sensor is checked
+    assert np.abs(every).max() > 0
+    assert np.linalg.norm(interpolated - every) <= 1e-6 * np.linalg.norm(every)
+    assert np.linalg.norm(fallback - every) <= 1e-12 * np.linalg.norm(every)
