@@ -69,7 +69,8 @@ def scene(rt, lens_c, lens, f_number: float, n: int = 24):
 
 
 def render_points(rt, lens_c, points: np.ndarray, precision: str, **kwargs) -> np.ndarray:
-    r = rt.create(lens_c, precision=precision, **kwargs)
+    # Pixel centres, as the Python sums are (the box filter would average sub-pixels)
+    r = rt.create(lens_c, precision=precision, pixel_filter="point", **kwargs)
     r.splat_points(points)
     return r.image()[0]
 
