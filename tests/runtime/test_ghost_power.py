@@ -13,10 +13,11 @@ same power.
 Before the front group's flux Jacobian (lensrt 0.8) lensrt took the irradiance on the
 stop to be 1 for every path: 0001's ghosts came out at 0.36-0.78 of this reference and
 2004's ghost 0-2 at 4.1 (the issue's 1.15-2.31x and 5.4x, relative to the direct
-path's). Bound 2% (the issue's): the reference's grid of 2e5 rays per wavelength and
-path counts the footprint's edge cells to ~0.2%, the fits' transmittance agrees with
-exact rays to 0.05% (the tables' trust energy ratios), and each render is integrated to
-an estimated 1%, on windows holding the whole footprint; measured 0.3-0.9%.
+path's). Bound 2% (the issue's): the reference's grid of 1e5 rays per wavelength and
+path counts the footprint's edge cells to ~0.3% (2e5 gave the same ratios within 0.2%),
+the fits' transmittance agrees with exact rays to 0.05% (the tables' trust energy
+ratios), and each render is integrated to an estimated 1%, on windows holding the whole
+footprint; measured 0.1-1.2%.
 """
 
 from __future__ import annotations
@@ -64,7 +65,7 @@ def _check(rt, lens_name: str, folder: Path, f_number: float, labels: list[str],
     lens = load_lens(lens_name)
     pairs = [tuple(int(v) for v in lab.split("-")) for lab in labels]
     estimates = enumerate_ghosts(lens, f_number=f_number, light=light,
-                                 wavelengths_nm=WAVELENGTHS, rays=20000, fine_rays=200000,
+                                 wavelengths_nm=WAVELENGTHS, rays=10000, fine_rays=100000,
                                  pairs=pairs)
     info = estimates[0].info
     direct = np.array(info["direct_power"])

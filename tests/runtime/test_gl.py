@@ -113,7 +113,9 @@ def test_gl_matches_cpu_on_a_fitted_lens(gl, lens0001, name):
         return gl.render(lens0001, width=24, height=24, width_mm=s["width_mm"], center=center,
                          focus_offset_mm=s["focus"], f_number=s["f_number"], lights=[s["light"]],
                          wavelengths=[450.0, 650.0], samples=1 << 14, seed=3, device=device,
-                         precision=precision, **shape)
+                         precision=precision, pixel_filter="point", **shape)
+    # (pixel centres: the box filter's grid is the same kernel on more points, and its
+    # GL path is tests/runtime/test_pixel_area.py's)
 
     ref = render("cpu", "double")
     cpu = rel_l2(render("cpu"), ref)

@@ -62,7 +62,7 @@ def _gl_against_cpu(gl, path, what: str, **aperture) -> None:  # noqa: F811
         return gl.render(lens, width=24, height=24, width_mm=0.06, center=center,
                          focus_offset_mm=0.2, radius_mm=R, lights=[(-6.0, -4.0)],
                          wavelengths=[450.0, 650.0], samples=1 << 14, seed=3, device=device,
-                         precision=precision, **aperture)
+                         precision=precision, pixel_filter="point", **aperture)
 
     ref = render(ghost, "cpu", "double")
     cpu = rel_l2(render(ghost, "cpu"), ref)
