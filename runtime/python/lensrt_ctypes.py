@@ -370,6 +370,11 @@ class Lensrt:
             message = self.lib.lensrt_context_last_error(self.ctx).decode()
             raise LensrtError(code, message or self.lib.lensrt_result_string(code).decode())
 
+    def version(self) -> str:
+        """The loaded library's version ("0.8.0"), lensrt_version_string()."""
+        self.lib.lensrt_version_string.restype = C.c_char_p
+        return self.lib.lensrt_version_string().decode()
+
     def gl_info(self) -> dict[str, Any]:
         """The context's GL device (made on first use); LensrtError(NO_DEVICE) without one."""
         info = GlInfo()

@@ -7,13 +7,14 @@ centred on the chief ray's image point. What it leaves, in this order:
 1. ``nodes/<stem>.exr``: the spectral EXR (lensrt writes it atomically, without timings,
    so the same node gives the same bytes on any worker);
 2. ``nodes/<stem>.json``: its record (checked JSON, written atomically): the lens and its
-   table's CRC-32, the spec's digest, the node's coordinates, how it was integrated, the
-   error estimate, seconds, and the EXR's CRC-32.
+   table's CRC-32, the spec's digest, the lensrt version that rendered it, the node's
+   coordinates, how it was integrated, the error estimate, seconds, and the EXR's CRC-32.
 
-The record comes last: a node is finished when its record exists, matches the spec and
-the table, and its EXR has the CRC-32 the record gives. A Monte Carlo node also saves its
-phasor sums (``nodes/<stem>.phasors``, lensrt's own atomic save) at each checkpoint, and
-a rerun resumes from them (the sums add, so the finished node is the same bytes).
+The record comes last: a node is finished when its record exists, matches the spec, the
+table and the loaded lensrt's version, and its EXR has the CRC-32 the record gives. A
+Monte Carlo node also saves its phasor sums (``nodes/<stem>.phasors``, lensrt's own
+atomic save) at each checkpoint, and a rerun resumes from them (the sums add, so the
+finished node is the same bytes).
 """
 
 from __future__ import annotations
@@ -71,6 +72,7 @@ def finished_record(job: dict[str, Any]) -> dict[str, Any] | None:
     except InputError:
         return None  # damaged or foreign: rendered again, then replaced
     if (doc.get("version") != RECORD_VERSION or doc.get("spec_digest") != job["digest"]
+            or doc.get("lensrt_version") != job.get("lensrt_version", "")
             or doc.get("table_crc32") != f"{job['table_crc32']:08x}"
             or doc.get("k") != job["k"]
             or [g["table_crc32"] for g in doc.get("ghosts", [])]
@@ -184,7 +186,8 @@ def render_node(job: dict[str, Any]) -> dict[str, Any]:
         write_exr_reproducible(r, exr)
     record = {"version": RECORD_VERSION, "k": job["k"], "indices": list(job["indices"]),
               "lens": job["lens_name"], "table_crc32": f"{job['table_crc32']:08x}",
-              "spec_digest": job["digest"], **{k: _json_number(v) for k, v in c.items()},
+              "spec_digest": job["digest"], "lensrt_version": rt.version(),
+              **{k: _json_number(v) for k, v in c.items()},
               "wavelengths_nm": wavelengths, "centre_mm": list(centre),
               "chief_mm": [list(xy) for xy in chief], **how, "ghosts": ghosts,
               "seconds": seconds, "exr": f"{job['stem']}.exr",

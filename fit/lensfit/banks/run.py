@@ -141,15 +141,17 @@ def ghost_tables(spec: BankSpec, table: Path, src: str) -> list[dict[str, Any]]:
 
 
 def plan(spec: BankSpec, out: Path, table: Path, crc: int, lens_name: str, library: str,
-         ghosts: list[dict[str, Any]]) -> list[dict[str, Any]]:
-    """One job per node, in index order (f-number slowest, field x fastest)."""
+         ghosts: list[dict[str, Any]], lensrt_version: str = "") -> list[dict[str, Any]]:
+    """One job per node, in index order (f-number slowest, field x fastest). A node
+    rendered by another lensrt version is not finished (the image's physics or unit may
+    differ: 0.8.0 changed both)."""
     digest, spec_dict = spec.digest(), spec.to_dict()
     jobs = []
     for k, idx in enumerate(_indices(spec.grid.shape)):
         jobs.append({"k": k, "indices": idx, "stem": stem(idx), "out": str(out),
                      "table": str(table), "table_crc32": crc, "lens_name": lens_name,
                      "library": library, "spec": spec_dict, "digest": digest,
-                     "ghosts": ghosts})
+                     "ghosts": ghosts, "lensrt_version": lensrt_version})
     return jobs
 
 
@@ -230,7 +232,7 @@ def run_bank(spec_path: str | Path, out: str | Path, *, scheduler: str | None = 
                        "ghost_tables": {g["label"]: f"{g['table_crc32']:08x}" for g in ghosts},
                        "spec_digest": spec.digest(), "spec": spec.to_dict()}, restart)
 
-    jobs = plan(spec, out.resolve(), table, crc, lens_name, library, ghosts)
+    jobs = plan(spec, out.resolve(), table, crc, lens_name, library, ghosts, rt.version())
     finished = {j["k"]: finished_record(j) for j in jobs}
     pending = [j for j in jobs if finished[j["k"]] is None]
     keys = [f"bank-{j['digest'][:12]}-{j['stem'].split('/')[-1]}" for j in pending]

@@ -99,6 +99,31 @@ def test_local_cluster_equals_one_process(tmp_path: Path) -> None:
     assert leftovers(tmp_path / "two") == []
 
 
+def test_node_of_another_lensrt_version_is_rendered_again(tmp_path: Path) -> None:
+    """A node rendered by another lensrt (0.8.0 changed the image's unit and the pixel's
+    filter) is not finished: its record names the version, and a rerun renders it again
+    to the same bytes as a fresh bank."""
+    import json
+
+    from lensfit.codegen.checked_json import checked_json_text, load_checked_json
+
+    spec = spec_file(tmp_path)
+    first = run_bank(spec, tmp_path / "b", workers=0, progress=False, sheet=False)
+    assert first.rendered == 3
+    record = sorted((tmp_path / "b" / "nodes").glob("*.json"))[0]
+    doc = load_checked_json(record, "render the node again")
+    assert doc["lensrt_version"].count(".") == 2
+    doc = json.loads(json.dumps(doc))
+    doc.pop("checksum", None)
+    doc["lensrt_version"] = "0.7.0"
+    record.write_text(checked_json_text(doc))
+    again = run_bank(spec, tmp_path / "b", workers=0, progress=False, sheet=False)
+    assert (again.rendered, again.skipped) == (1, 2)
+    fresh = run_bank(spec, tmp_path / "c", workers=0, progress=False, sheet=False)
+    assert fresh.rendered == 3
+    assert bank_bytes(tmp_path / "b") == bank_bytes(tmp_path / "c")
+
+
 def test_worker_killed_while_it_holds_a_task(tmp_path: Path, reference_mc: Path) -> None:
     from distributed import Client
 
