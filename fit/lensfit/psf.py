@@ -304,10 +304,12 @@ def poly_front_flux(p_o: System, light: dict[str, float], pts: np.ndarray,
     p in the near light's 1 / |w . L| (their difference moves it by < 1e-6)."""
     d, e = FLUX_STEP_COSINE, FLUX_STEP_MM
     col = p_o.output_names.index("phi_o")
+    # P_o specialised once per shifted light (four of them), evaluated at four stop shifts
+    lights = {(dx, dy): p_o.specialise(dict(light, x_O=light["x_O"] + dx, y_O=light["y_O"] + dy))
+              for dx, dy in ((d, 0), (-d, 0), (0, d), (0, -d))}
 
     def phi(dx: float, dy: float, ex: float, ey: float) -> np.ndarray:
-        at = dict(light, x_O=light["x_O"] + dx, y_O=light["y_O"] + dy)
-        return _evaluate(p_o.specialise(at), {"x_a": pts[:, 0] + ex, "y_a": pts[:, 1] + ey})[col]
+        return _evaluate(lights[(dx, dy)], {"x_a": pts[:, 0] + ex, "y_a": pts[:, 1] + ey})[col]
 
     def mixed(dx: float, dy: float, ex: float, ey: float) -> np.ndarray:
         return (phi(dx, dy, ex, ey) - phi(dx, dy, -ex, -ey) - phi(-dx, -dy, ex, ey)

@@ -309,6 +309,7 @@ class Lensrt:
         self.lib = lib
         lib.lensrt_result_string.restype = C.c_char_p
         lib.lensrt_context_last_error.restype = C.c_char_p
+        lib.lensrt_version_string.restype = C.c_char_p
         lib.lensrt_context_last_error.argtypes = [C.c_void_p]
         lib.lensrt_context_create.argtypes = [C.POINTER(ContextInit), C.POINTER(C.c_void_p)]
         lib.lensrt_context_destroy.argtypes = [C.c_void_p]
@@ -372,7 +373,6 @@ class Lensrt:
 
     def version(self) -> str:
         """The loaded library's version ("0.8.0"), lensrt_version_string()."""
-        self.lib.lensrt_version_string.restype = C.c_char_p
         return self.lib.lensrt_version_string().decode()
 
     def gl_info(self) -> dict[str, Any]:
