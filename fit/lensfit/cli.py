@@ -32,6 +32,11 @@ import numpy as np
 
 from lensfit.atomic import check_target, write_atomic, write_files
 from lensfit.errors import InputError, LensError
+from lensfit.ghosts.enumerate import (
+    DEFAULT_OVEREXPOSURE_STOPS,
+    DEFAULT_PIXEL_MM,
+    DISPLAY_STOPS,
+)
 from lensfit.glass import UnknownGlassError
 
 # lensfit draw --rays: rays per fan (a fan of 10^8 rays grew to 19 GB; 1000 rays are
@@ -234,8 +239,15 @@ def cmd_ghosts(args: argparse.Namespace) -> int:
                     "glsl": "writes fitted ghosts' GLSL"}.get(flag, "runs the fits on Dask")
             raise InputError(f"--{flag}: {what}, so it needs --fit")
     _check_dask_args(args)
-    if not (math.isfinite(args.threshold) and args.threshold > 0):
+    if args.threshold is not None and not (math.isfinite(args.threshold)
+                                           and args.threshold > 0):
         raise InputError(f"--threshold {args.threshold}: expected a positive relative peak")
+    if not (math.isfinite(args.overexposure) and 0 <= args.overexposure <= 60):
+        raise InputError(f"--overexposure {args.overexposure}: expected 0 to 60 stops of "
+                         "the light's peak pixel over white")
+    if not (math.isfinite(args.pixel_um) and 0.1 <= args.pixel_um <= 1000):
+        raise InputError(f"--pixel-um {args.pixel_um}: expected a pixel pitch of 0.1 to "
+                         "1000 um")
     if not 100 <= args.rays <= 10**7:
         raise InputError(f"--rays {args.rays}: expected 100 to 10^7 rays per wavelength")
     lens_args = list(args.lens)
@@ -299,15 +311,17 @@ def _ghost_plan(lens_arg: str, args: argparse.Namespace):
     source = _direct_fit(lens, args, lens_arg) if args.fit else None
     ghosts = enumerate_ghosts(lens, f_number=args.f_number, light=light, pairs=pairs,
                               distance_mm=args.distance, rays=args.rays,
-                              fine_rays=max(100, args.rays // 5))
+                              fine_rays=max(100, args.rays // 5),
+                              pixel_mm=args.pixel_um * 1e-3)
     if not ghosts:
-        raise InputError(f"{lens.source_file}: {none_kept_message([], args.threshold)}")
+        raise InputError(f"{lens.source_file}: {none_kept_message([])}")
     # The listing shows every ghost, kept or not; only --fit needs one kept
-    keep = mark_ghosts(ghosts, count=args.count, threshold=args.threshold)
+    keep = mark_ghosts(ghosts, count=args.count, threshold=args.threshold,
+                       overexposure=args.overexposure)
+    why = none_kept_message(ghosts, args.threshold, args.overexposure)
     if source is not None and not keep:
-        raise InputError(f"--fit: no ghost to fit: "
-                         f"{none_kept_message(ghosts, args.threshold)}; lower --threshold "
-                         "or give --count")
+        raise InputError(f"--fit: no ghost to fit: {why}; raise --overexposure, or give "
+                         "--count or --ghost")
     info = ghosts[0].info
     if source is not None:
         folder, direct, domain = source
@@ -319,8 +333,11 @@ def _ghost_plan(lens_arg: str, args: argparse.Namespace):
                         distance_mm=args.distance, rays=args.rays)
     if args.json:
         print(json.dumps({**info, "threshold": None if args.count else args.threshold,
-                          "count": args.count, "ghosts": [g.to_dict() for g in ghosts]},
-                         indent=2))
+                          "count": args.count, "overexposure_stops": args.overexposure,
+                          "display_stops": DISPLAY_STOPS,
+                          "ghosts": [{**g.to_dict(), "visibility_stops":
+                                      g.visibility_stops(args.overexposure)}
+                                     for g in ghosts]}, indent=2))
         return None
     lams = info["wavelengths_nm"]
     at = "/".join(f"{v:g}" for v in lams)
@@ -331,18 +348,25 @@ def _ghost_plan(lens_arg: str, args: argparse.Namespace):
           "(file's surface numbers i-j: reflect at j, then at i)")
     strehl = " ".join(f"{s:.3g}" for s in info["strehl_estimate"])
     print(f"  direct PSF peak: Airy x Strehl estimate {strehl} at {at} nm")
-    kept = "count " + str(args.count) if args.count else f"peak > {args.threshold:g}"
+    print(f"  visible: a ghost's peak pixel ({args.pixel_um:g} um) at least "
+          f"{2.0 ** -(args.overexposure + DISPLAY_STOPS):.3g} of the light's, which is "
+          f"{args.overexposure:g} stops over white ({DISPLAY_STOPS:g} stops shown below "
+          "white); 'stops' above that black level")
+    kept = ("count " + str(args.count) if args.count else f"peak > {args.threshold:g}"
+            if args.threshold is not None else "visible")
     print(f"  {'ghost':>7s} case  {'energy / direct at ' + at + ' nm':36s}"
-          f"{'centre x,y mm':>17s} {'r mm':>7s} {'peak/PSF':>9s}  kept ({kept})")
+          f"{'centre x,y mm':>17s} {'r mm':>7s} {'peak/PSF':>9s} {'pixel':>9s} "
+          f"{'stops':>6s}  kept ({kept})")
     for g in ghosts:
         k = int(np.argmax(g.peak))  # footprint at the wavelength of the highest peak
         c = g.centre_mm[k]
         centre = "-" if c is None else f"{c[0]:+8.3f},{c[1]:+8.3f}"
         energy = " ".join(f"{e:9.2e}" for e in g.energy)
         print(f"  {g.name:>7s} {g.case:4s}  {energy:36s}{centre:>17s} {g.radius_mm[k]:7.3f} "
-              f"{g.relative_peak:9.2e}  {'yes' if g.kept else 'no'}")
+              f"{g.relative_peak:9.2e} {g.exposure_peak:9.2e} "
+              f"{g.visibility_stops(args.overexposure):+6.1f}  {'yes' if g.kept else 'no'}")
     if not keep:
-        print(f"  none kept: {none_kept_message(ghosts, args.threshold)}")
+        print(f"  none kept: {why}")
     return None
 
 
@@ -793,10 +817,20 @@ def build_parser() -> argparse.ArgumentParser:
                    help="the light's distance from the first vertex in mm (default inf)")
     p.add_argument("--json", action="store_true", help="print the estimates as JSON")
     group = p.add_mutually_exclusive_group()
-    group.add_argument("--threshold", type=float, default=1e-5,
+    group.add_argument("--threshold", type=float, default=None,
                        help="keep ghosts whose peak is above this share of the PSF peak "
-                            "(default 1e-5)")
+                            "(default: keep the visible ones, --overexposure)")
     group.add_argument("--count", type=int, default=None, help="keep the K brightest ghosts")
+    p.add_argument("--overexposure", type=float, default=DEFAULT_OVEREXPOSURE_STOPS,
+                   metavar="STOPS",
+                   help="a ghost is visible (and kept by default) when its peak pixel "
+                        "shows in a photograph whose exposure puts the light's peak pixel "
+                        f"this many stops over white (default {DEFAULT_OVEREXPOSURE_STOPS:g}: "
+                        f"the sun over a sunlit white; {DISPLAY_STOPS:g} stops shown below "
+                        "white)")
+    p.add_argument("--pixel-um", type=float, default=DEFAULT_PIXEL_MM * 1e3, metavar="UM",
+                   help="the pixel pitch both peaks are averaged over for visibility "
+                        f"(default {DEFAULT_PIXEL_MM * 1e3:g} um)")
     p.add_argument("--rays", type=int, default=20000,
                    help="rays per wavelength over the front (default 20000; a fifth of "
                         "that per ghost in the second pass)")

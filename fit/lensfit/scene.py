@@ -22,7 +22,8 @@ constant phase). Scene file (TOML)::
     ghosts = ["0-2", "4-8"]          # with flares: these ghosts (the lens file's numbers),
     # or ghost_count = 2             #   the K brightest for the scene's lights,
     # or ghost_threshold = 1e-5      #   or those peaking above this share of the PSF
-    #                                #   peak (the default when none of the three is given)
+    #                                #   peak (none of the three: the visible ones,
+    #                                #   lensfit.ghosts.enumerate "Visibility")
     [[light]]
     field_x_deg = 0.0                # field angles, the designers' convention (README,
     field_y_deg = 5.0                # "Conventions"): this light is imaged at +y
@@ -103,7 +104,7 @@ class Scene:
     f_number: float | None = None  # the stop a scene fit covers (default: the lens's)
     ghosts: tuple[str, ...] | None = None  # flares: these ghosts ("i-j", file numbering)
     ghost_count: int | None = None  # flares: the K brightest for the scene's lights
-    ghost_threshold: float | None = None  # flares: relative PSF peak (default 1e-5)
+    ghost_threshold: float | None = None  # flares: relative PSF peak (default: visible)
 
     @classmethod
     def from_dict(cls, d: dict[str, Any], source: str = "<memory>") -> Scene:

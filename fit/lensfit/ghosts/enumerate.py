@@ -52,9 +52,26 @@ the chosen f-number and every housing clipping at every crossing:
   way: a ghost's features finer than its bins (a sharp caustic rim on a large ghost)
   are averaged over a bin, and off axis a vignetted pupil has a lower Airy peak than
   the full one's for the same power.
-* **Ranking.** By the relative peak (ghost peak over the direct peak), the largest over
-  the wavelengths; ``select_ghosts`` keeps those above a threshold (default 1e-5 of
-  the PSF peak) or the brightest few.
+* **Visibility** (issue 26), as a photograph of a bright light shows a ghost. Both peaks
+  are taken again as a camera records them, averaged over a pixel of ``pixel_mm``
+  (default 6 um, a 24-megapixel full-frame sensor): the ghost's from histogram bins no
+  finer than a pixel; the direct image's likewise from its rays, but at most its
+  diffraction limit's, P EE(r) / pixel^2, where EE(r) = 1 - J0(v)^2 - J1(v)^2 (v = pi r /
+  (lambda sqrt(N_x N_y))) is the Airy pattern's power within the disc of the pixel's
+  area, r = pixel / sqrt(pi) (a pixel centred on the peak; it tends to the Airy peak as
+  the pixel shrinks). Both err as the peaks above: a sharp core finer than the bins is
+  averaged, so ghosts err towards visible. Their ratio is ``pixel_peak``, and
+  ``exposure_peak`` is its largest over the wavelengths. The photograph is exposed for
+  the scene, so the light's own image is far above white: its peak pixel is
+  ``overexposure`` stops over white (default 16: the sun's image over a sunlit white
+  wall, 1.6e9 against about 3e4 cd/m^2), and the print or screen shows DISPLAY_STOPS = 8
+  stops below white before black. A ghost is **visible** when its peak pixel reaches
+  that black level: exposure_peak >= 2^-(overexposure + 8) (6.0e-8 by default).
+  ``visibility_stops`` is how many stops above black it is.
+* **Ranking.** By ``exposure_peak``, brightest first; :func:`mark_ghosts` keeps the
+  visible ones by default, or the brightest few (``count``), or those whose
+  ``relative_peak`` (ghost peak over the direct image's Airy x Strehl peak, unaveraged)
+  is above a ``threshold``.
 """
 
 from __future__ import annotations
@@ -76,8 +93,11 @@ DEFAULT_WAVELENGTHS_NM = (450.0, 550.0, 650.0)
 # from) and per path and wavelength over that region (pass 2, the estimate)
 DEFAULT_RAYS = 20000
 DEFAULT_FINE_RAYS = 4000
-# Default threshold: a ghost is kept when its peak is above this share of the PSF peak
-DEFAULT_THRESHOLD = 1e-5
+# Visibility (module doc): the pixel a photograph is taken with, how far the light's own
+# peak pixel is above white, and how many stops below white a displayed photograph shows
+DEFAULT_PIXEL_MM = 0.006
+DEFAULT_OVEREXPOSURE_STOPS = 16.0
+DISPLAY_STOPS = 8.0
 # Footprint: bins whose irradiance is above this share of the lit bins' mean
 FOOTPRINT_LEVEL = 0.01
 # Histogram bins per side: about this many rays per occupied bin, within the bounds
@@ -95,7 +115,9 @@ class GhostEstimate:
     ``throughput`` its power over the power entering the lens (rays inside surface 0's
     housing), ``centre_mm`` (x, y), ``radius_mm`` (disc of the footprint's area),
     ``area_mm2``, ``extent_mm``, ``peak`` (ghost peak irradiance over the direct PSF's
-    peak), ``rays`` (rays reaching the sensor). ``relative_peak`` is the largest ``peak``.
+    peak), ``rays`` (rays reaching the sensor), ``pixel_peak`` (both peaks averaged over
+    a pixel, the visibility's ratio). ``relative_peak`` is the largest ``peak``,
+    ``exposure_peak`` the largest ``pixel_peak``.
     """
 
     lens: str
@@ -114,14 +136,25 @@ class GhostEstimate:
     extent_mm: list[float]
     peak: list[float]
     rays: list[int]
+    pixel_peak: list[float] = field(default_factory=list)  # ghost's / direct's peak pixel
     relative_peak: float = 0.0
-    kept: bool | None = None  # set by select_ghosts
+    exposure_peak: float = 0.0  # the largest pixel_peak
+    kept: bool | None = None  # set by mark_ghosts
+    visible: bool | None = None  # set by mark_ghosts (for its overexposure)
     info: dict = field(default_factory=dict, repr=False)  # the run's settings, shared
 
     @property
     def name(self) -> str:
         """The ghost in the file's numbering, as the table prints it."""
         return f"{self.first_file}-{self.second_file}"
+
+    def visibility_stops(self, overexposure: float = DEFAULT_OVEREXPOSURE_STOPS) -> float:
+        """Stops of the ghost's peak pixel above a photograph's black level when the
+        light's peak pixel is ``overexposure`` stops over white (module doc); >= 0:
+        visible."""
+        if not self.exposure_peak > 0:
+            return -math.inf
+        return math.log2(self.exposure_peak) + overexposure + DISPLAY_STOPS
 
     def to_dict(self) -> dict:
         d = asdict(self)
@@ -304,9 +337,10 @@ def _footprint(x: np.ndarray, y: np.ndarray, w: np.ndarray) -> dict:
     return {"centre": (cx, cy), "area": area, "extent": extent, "bin": b}
 
 
-def _ghost_peak(x, y, dirs, w, lam_mm: float, fp: dict) -> float:
-    """Peak irradiance of a ghost: histogram peak at bins no finer than its Airy radius,
-    at most its diffraction limit (see the module's docstring)."""
+def _ghost_peak(x, y, dirs, w, lam_mm: float, fp: dict, pixel_mm: float = 0.0) -> float:
+    """Peak irradiance of a ghost: histogram peak at bins no finer than its Airy radius
+    (nor than ``pixel_mm``: the peak a pixel of that pitch records), at most its
+    diffraction limit (see the module's docstring)."""
     p = float(w.sum())
     dx, dy = dirs[:, 0], dirs[:, 1]
     mx, my = 0.5 * (dx.max() + dx.min()), 0.5 * (dy.max() + dy.min())
@@ -314,8 +348,19 @@ def _ghost_peak(x, y, dirs, w, lam_mm: float, fp: dict) -> float:
     diameter = 2.0 * fp["extent"]
     na = min(1.0, na_rays + (lam_mm / diameter if diameter > lam_mm else 1.0))
     diffraction = p * math.pi * na * na / (lam_mm * lam_mm)
-    b = max(0.61 * lam_mm / na, fp["bin"])
+    b = max(0.61 * lam_mm / na, fp["bin"], pixel_mm)
     return min(_hist_peak(x, y, w, b), diffraction)
+
+
+def airy_pixel_share(pixel_mm: float, lam_mm: float, n_x: float, n_y: float) -> float:
+    """The share of an aberration-free PSF's power that a pixel centred on it collects:
+    the Airy pattern's encircled energy 1 - J0(v)^2 - J1(v)^2 within the disc of the
+    pixel's area (v = pi r / (lambda sqrt(N_x N_y)), r = pixel / sqrt(pi); the
+    geometric mean of an anamorphic lens's two f-numbers)."""
+    from scipy.special import j0, j1
+
+    v = math.pi * (pixel_mm / math.sqrt(math.pi)) / (lam_mm * math.sqrt(n_x * n_y))
+    return float(1.0 - j0(v) ** 2 - j1(v) ** 2)
 
 
 def enumerate_ghosts(
@@ -328,6 +373,7 @@ def enumerate_ghosts(
     rays: int = DEFAULT_RAYS,
     fine_rays: int = DEFAULT_FINE_RAYS,
     pairs: list[tuple[int, int]] | None = None,
+    pixel_mm: float = DEFAULT_PIXEL_MM,
 ) -> list[GhostEstimate]:
     """Every ghost of ``lens`` (or the given ``pairs`` of model indices), estimated from
     exact rays, sorted by relative peak, brightest first.
@@ -335,12 +381,15 @@ def enumerate_ghosts(
     ``f_number``: the stop (default: the widest the housing allows); ``light``: field
     angles (x, y) in degrees, designers' sign (``lensfit.scene.light_direction``), at
     ``distance_mm`` from the first vertex (default infinity); ``rays``: rays per
-    wavelength over the launch disc (pass 1), ``fine_rays`` per path (pass 2). The
-    direct peak's Airy term uses the f-number for infinity also for a near light. See the module's
-    docstring for the estimators."""
+    wavelength over the launch disc (pass 1), ``fine_rays`` per path (pass 2);
+    ``pixel_mm``: the pixel the visibility's peaks are averaged over. The direct peak's
+    Airy term uses the f-number for infinity also for a near light. See the module's
+    docstring for the estimators. Sorted by ``exposure_peak``, brightest first."""
     lams = np.array([float(v) for v in wavelengths_nm], dtype=np.float64)
     if lams.size == 0 or not np.all(np.isfinite(lams) & (lams > 0)):
         raise InputError(f"wavelengths {list(wavelengths_nm)}: expected positive nm")
+    if not (isinstance(pixel_mm, int | float) and math.isfinite(pixel_mm) and pixel_mm > 0):
+        raise InputError(f"pixel = {pixel_mm!r} mm: expected a positive pixel pitch")
     for key, v in (("rays", rays), ("fine_rays", fine_rays)):
         if not (isinstance(v, int | np.integer) and v >= 100):
             raise InputError(f"{key} = {v!r}: expected at least 100 rays per wavelength")
@@ -420,25 +469,32 @@ def enumerate_ghosts(
                          "ghosts against")
 
     # The direct image per wavelength: power and peak (Airy times the Strehl estimate)
-    d_power, d_peak, strehl = [], [], []
+    d_power, d_peak, strehl, d_pixel = [], [], [], []
     for lam in lams:
         sel = direct.wavelength_nm == lam
         w = direct.transmittance[sel] * d_cell
         p = float(w.sum())
         lam_mm = lam * 1e-6
         airy = p * math.pi / (4.0 * lam_mm * lam_mm * n_xy[0] * n_xy[1])
+        # The same peak as a pixel records it (module doc, "Visibility"): the diffraction
+        # limit's pixel average, or the rays' where they spread wider
+        pixel = p * airy_pixel_share(pixel_mm, lam_mm, *n_xy) / pixel_mm**2
         if p > 0:
             # Bins of the Airy radius, or coarser where the rays are too few for those
             # (a bin holding one ray would overstate the peak)
             x, y = direct.pos[sel, 0], direct.pos[sel, 1]
             r_airy = 1.22 * lam_mm * math.sqrt(n_xy[0] * n_xy[1])
-            geo = _hist_peak(x, y, w, max(r_airy, _footprint(x, y, w)["bin"]))
+            b = _footprint(x, y, w)["bin"]
+            geo = _hist_peak(x, y, w, max(r_airy, b))
             s = min(1.0, geo / airy)
+            # Bins of the pixel itself: the direct image's core holds most of its rays
+            pixel = min(pixel, _hist_peak(x, y, w, max(pixel_mm, r_airy)))
         else:
             s = 1.0
         d_power.append(p)
         d_peak.append(airy * s)
         strehl.append(s)
+        d_pixel.append(pixel)
 
     info = {"lens": lens.name, "file": lens.source_file, "f_number": n_xy[1],
             "f_number_x": n_xy[0], "stop_radius_mm": stop, "light_deg": list(light),
@@ -446,14 +502,15 @@ def enumerate_ghosts(
             "wavelengths_nm": lams.tolist(), "rays_per_wavelength": int(rays),
             "fine_rays_per_wavelength": int(fine_rays),
             "grid_step_mm": h, "direct_power": d_power, "direct_peak": d_peak,
-            "strehl_estimate": strehl, "entering_power": entering_power.tolist()}
+            "strehl_estimate": strehl, "entering_power": entering_power.tolist(),
+            "pixel_mm": float(pixel_mm), "direct_pixel_peak": d_pixel}
 
     out: list[GhostEstimate] = []
     for (i, j), idx in found.items():
         hits, cell = refine(ghost_path(lens, i, j), idx)
         out.append(_estimate(lens, i, j, hits, lams, cell, entering_power, d_power,
                              d_peak, info))
-    out.sort(key=lambda g: (-g.relative_peak, g.first, g.second))
+    out.sort(key=lambda g: (-g.exposure_peak, g.first, g.second))
     return out
 
 
@@ -482,6 +539,7 @@ def _estimate(lens, i, j, hits: Rays, lams, cell, entering, d_power, d_peak,
             g.area_mm2.append(0.0)
             g.extent_mm.append(0.0)
             g.peak.append(0.0)
+            g.pixel_peak.append(0.0)
             continue
         x, y = hits.pos[sel, 0], hits.pos[sel, 1]
         fp = _footprint(x, y, w)
@@ -491,46 +549,70 @@ def _estimate(lens, i, j, hits: Rays, lams, cell, entering, d_power, d_peak,
         g.extent_mm.append(fp["extent"])
         peak = _ghost_peak(x, y, hits.dir[sel], w, lam * 1e-6, fp)
         g.peak.append(peak / d_peak[k] if d_peak[k] > 0 else math.inf)
-    g.relative_peak = max(g.peak)
+        d_pixel = info["direct_pixel_peak"][k]
+        at_pixel = _ghost_peak(x, y, hits.dir[sel], w, lam * 1e-6, fp, info["pixel_mm"])
+        g.pixel_peak.append(float(at_pixel / d_pixel) if d_pixel > 0 else math.inf)
+    g.relative_peak = float(max(g.peak))
+    g.exposure_peak = float(max(g.pixel_peak))
     return g
 
 
 def mark_ghosts(estimates: list[GhostEstimate], count: int | None = None,
-                threshold: float = DEFAULT_THRESHOLD) -> list[GhostEstimate]:
-    """Mark every estimate's ``kept``: the ``count`` brightest (by relative peak) when
-    ``count`` is given, else those whose relative peak is above ``threshold`` (default
-    1e-5 of the PSF peak). Returns the kept ones, brightest first, possibly none (a
-    listing shows every ghost whatever is kept; `select_ghosts` refuses none)."""
-    ranked = sorted(estimates, key=lambda g: -g.relative_peak)
+                threshold: float | None = None,
+                overexposure: float = DEFAULT_OVEREXPOSURE_STOPS) -> list[GhostEstimate]:
+    """Mark every estimate's ``visible`` (for ``overexposure``, module doc) and ``kept``:
+    the ``count`` brightest (by exposure peak) when ``count`` is given, else those whose
+    relative peak is above ``threshold`` when one is given, else the visible ones.
+    Returns the kept ones, brightest first, possibly none (a listing shows every ghost
+    whatever is kept; `select_ghosts` refuses none)."""
+    if not (math.isfinite(overexposure) and 0 <= overexposure <= 60):
+        raise InputError(f"overexposure = {overexposure!r} stops: expected 0 to 60 stops "
+                         "of the light's peak pixel over white")
+    ranked = sorted(estimates, key=lambda g: -g.exposure_peak)
+    for g in estimates:
+        g.visible = g.visibility_stops(overexposure) >= 0.0
     if count is not None:
         if not (isinstance(count, int | np.integer) and count >= 1):
             raise InputError(f"count = {count!r}: expected a positive number of ghosts")
         keep = ranked[:count]
-    else:
+    elif threshold is not None:
         if not (math.isfinite(threshold) and threshold > 0):
             raise InputError(f"threshold = {threshold!r}: expected a positive relative peak")
         keep = [g for g in ranked if g.relative_peak > threshold]
+    else:
+        keep = [g for g in ranked if g.visible]
     ids = {id(g) for g in keep}
     for g in estimates:
         g.kept = id(g) in ids
     return keep
 
 
-def none_kept_message(estimates: list[GhostEstimate], threshold: float) -> str:
-    """Why `mark_ghosts` kept nothing: the lens, the threshold and the brightest ghost's
-    value (or that the lens has no ghost at all)."""
+def none_kept_message(estimates: list[GhostEstimate], threshold: float | None = None,
+                      overexposure: float = DEFAULT_OVEREXPOSURE_STOPS) -> str:
+    """Why `mark_ghosts` kept nothing: the lens, the rule (threshold, or visibility at
+    ``overexposure``) and the brightest ghost's value (or that the lens has no ghost)."""
     if not estimates:
         return "no ghost to select: the lens has fewer than two surfaces that are not the stop"
-    top = max(estimates, key=lambda g: g.relative_peak)
-    return (f"{top.file}: {top.lens} has no ghost above the threshold {threshold:g} of the "
-            f"PSF peak: the brightest, ghost {top.name}, peaks at {top.relative_peak:.3g}")
+    if threshold is not None:
+        top = max(estimates, key=lambda g: g.relative_peak)
+        return (f"{top.file}: {top.lens} has no ghost above the threshold {threshold:g} of "
+                f"the PSF peak: the brightest, ghost {top.name}, peaks at "
+                f"{top.relative_peak:.3g}")
+    top = max(estimates, key=lambda g: g.exposure_peak)
+    return (f"{top.file}: {top.lens} has no visible ghost with the light "
+            f"{overexposure:g} stops over white (a ghost's peak pixel must reach "
+            f"{2.0 ** -(overexposure + DISPLAY_STOPS):.3g} of the light's): the brightest, "
+            f"ghost {top.name}, is {top.visibility_stops(overexposure):.1f} stops from "
+            "that black level")
 
 
 def select_ghosts(estimates: list[GhostEstimate], count: int | None = None,
-                  threshold: float = DEFAULT_THRESHOLD) -> list[GhostEstimate]:
+                  threshold: float | None = None,
+                  overexposure: float = DEFAULT_OVEREXPOSURE_STOPS) -> list[GhostEstimate]:
     """The ghosts a scene keeps, as `mark_ghosts` marks them. No ghost kept is an error
-    naming the lens, the threshold and the brightest ghost's value."""
-    keep = mark_ghosts(estimates, count=count, threshold=threshold)
+    naming the lens, the rule and the brightest ghost's value."""
+    keep = mark_ghosts(estimates, count=count, threshold=threshold,
+                       overexposure=overexposure)
     if not keep:
-        raise InputError(none_kept_message(estimates, threshold))
+        raise InputError(none_kept_message(estimates, threshold, overexposure))
     return keep

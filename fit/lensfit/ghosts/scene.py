@@ -5,8 +5,11 @@
 
 * ``ghosts = ["i-j", ...]``: exactly these (the lens file's numbering);
 * ``ghost_count = K``: the K brightest for the scene's own lights and stop;
-* ``ghost_threshold = T`` (default 1e-5 when none of the three is given): those whose
-  peak is above T of the direct PSF's peak for at least one of the scene's lights.
+* ``ghost_threshold = T``: those whose peak is above T of the direct PSF's peak for at
+  least one of the scene's lights;
+* none of the three: the visible ones, those a photograph of at least one of the scene's
+  lights shows (:mod:`lensfit.ghosts.enumerate`, "Visibility": the light's peak pixel
+  DEFAULT_OVEREXPOSURE_STOPS over white, 8 stops shown below it).
 
 Brightness is the enumeration's exact-ray estimate (:func:`lensfit.ghosts.enumerate.
 enumerate_ghosts`) for each light at the scene's f-number (wide open without one),
@@ -21,7 +24,12 @@ from pathlib import Path
 from lensfit.codegen.checked_json import REGENERATE_FOLDER, load_checked_json
 from lensfit.codegen.table import Table, read_table
 from lensfit.errors import InputError
-from lensfit.ghosts.enumerate import DEFAULT_THRESHOLD, enumerate_ghosts, parse_ghost
+from lensfit.ghosts.enumerate import (
+    DEFAULT_OVEREXPOSURE_STOPS,
+    DISPLAY_STOPS,
+    enumerate_ghosts,
+    parse_ghost,
+)
 from lensfit.prescription.model import Lens
 from lensfit.scene import Scene, SceneError
 
@@ -72,21 +80,36 @@ def choose_ghosts(lens: Lens, scene: Scene, fitted: dict[str, Table]) -> list[st
             labels.append(label)
         return labels
     pairs = [(t.ghost.first, t.ghost.second) for t in fitted.values()]
+    # Per ghost, the largest over the scene's lights of its relative peak (for a
+    # threshold) and of its exposure peak (visibility, and the order)
     peak = dict.fromkeys(fitted, 0.0)
+    exposure = dict.fromkeys(fitted, 0.0)
     for light in scene.lights:
         for g in enumerate_ghosts(lens, f_number=scene.f_number,
                                   light=(light.field_x_deg, light.field_y_deg),
                                   distance_mm=light.distance_mm, pairs=pairs):
             peak[g.name] = max(peak[g.name], g.relative_peak)
-    ranked = sorted(peak, key=lambda k: -peak[k])
+            exposure[g.name] = max(exposure[g.name], g.exposure_peak)
     if scene.ghost_count is not None:
-        return ranked[:scene.ghost_count]
-    threshold = scene.ghost_threshold or DEFAULT_THRESHOLD
-    keep = [k for k in ranked if peak[k] > threshold]
+        return sorted(exposure, key=lambda k: -exposure[k])[:scene.ghost_count]
+    if scene.ghost_threshold is not None:
+        threshold = scene.ghost_threshold
+        ranked = sorted(peak, key=lambda k: -peak[k])
+        keep = [k for k in ranked if peak[k] > threshold]
+        if not keep:
+            raise SceneError(f"{scene.source_file}: key 'ghost_threshold': no fitted ghost of "
+                             f"{lens.name} peaks above {threshold:g} of the PSF peak for "
+                             f"this scene's lights (the brightest, {ranked[0]}, peaks at "
+                             f"{peak[ranked[0]]:.3g}); set ghost_count or ghosts instead")
+        return keep
+    black = 2.0 ** -(DEFAULT_OVEREXPOSURE_STOPS + DISPLAY_STOPS)
+    ranked = sorted(exposure, key=lambda k: -exposure[k])
+    keep = [k for k in ranked if exposure[k] >= black]
     if not keep:
-        key = "ghost_threshold" if scene.ghost_threshold else "flares"
-        raise SceneError(f"{scene.source_file}: key '{key}': no fitted ghost of {lens.name} "
-                         f"peaks above {threshold:g} of the PSF peak for this scene's "
-                         f"lights (the brightest, {ranked[0]}, peaks at "
-                         f"{peak[ranked[0]]:.3g}); set ghost_count or ghosts instead")
+        raise SceneError(f"{scene.source_file}: key 'flares': no fitted ghost of {lens.name} "
+                         f"is visible for this scene's lights (its peak pixel at least "
+                         f"{black:.3g} of the light's, the light "
+                         f"{DEFAULT_OVEREXPOSURE_STOPS:g} stops over white; the brightest, "
+                         f"{ranked[0]}, is at {exposure[ranked[0]]:.3g}); set ghost_count, "
+                         "ghost_threshold or ghosts instead")
     return keep

@@ -11,9 +11,14 @@ import pytest
 
 from lensfit.errors import InputError
 from lensfit.ghosts.enumerate import (
+    DEFAULT_OVEREXPOSURE_STOPS,
+    DISPLAY_STOPS,
+    airy_pixel_share,
     enumerate_ghosts,
     ghost_pairs,
     ghost_surfaces,
+    mark_ghosts,
+    none_kept_message,
     select_ghosts,
 )
 from lensfit.prescription import load_lens, make_lens
@@ -201,13 +206,13 @@ def ghosts_0001():
 
 def test_every_ghost_of_0001_found(ghosts_0001):
     """n (n - 1) / 2 ghosts for the n surfaces that are not the stop plane, each pair once,
-    the stop never a reflector, sorted by relative peak, named in the file's numbering."""
+    the stop never a reflector, sorted by exposure peak, named in the file's numbering."""
     lens, ghosts = ghosts_0001
     ks = ghost_surfaces(lens)
     assert lens.stop_index not in ks and len(ks) == len(lens.surfaces) - 1
     assert len(ghosts) == len(ks) * (len(ks) - 1) // 2 == 91
     assert {(g.first, g.second) for g in ghosts} == set(ghost_pairs(lens))
-    peaks = [g.relative_peak for g in ghosts]
+    peaks = [g.exposure_peak for g in ghosts]
     assert peaks == sorted(peaks, reverse=True)
     for g in ghosts:
         assert (g.first_file, g.second_file) == (lens.file_index(g.first),
@@ -290,3 +295,49 @@ def test_bad_pairs_refused():
     for pair in ((0, 2), (2, 1), (1, 3)):  # the stop, the wrong order, out of range
         with pytest.raises(InputError, match=f"ghost {pair[0]},{pair[1]}"):
             enumerate_ghosts(lens, pairs=[pair])
+
+
+def test_airy_pixel_share_against_quadrature_and_its_limit():
+    """The pixel's share of an Airy pattern, 1 - J0(v)^2 - J1(v)^2 over the disc of the
+    pixel's area, against a quadrature of the Airy intensity (2 J1(v) / v)^2 over that
+    disc (its integral over the plane, in v dv, is 2); an anamorphic lens takes the
+    geometric mean of its f-numbers; and as the pixel shrinks, share / pixel^2 tends to
+    the Airy peak pi / (4 lambda^2 N^2) (relative error ~ v^2 / 8 = 2e-8 here)."""
+    from scipy.integrate import quad
+    from scipy.special import j1
+
+    lam, n = 550e-6, 8.0
+    for pixel in (0.002, 0.006, 0.02):
+        v0 = math.pi * (pixel / math.sqrt(math.pi)) / (lam * n)
+        share = quad(lambda v: (2 * j1(v) / v) ** 2 * v, 0, v0, limit=200)[0] / 2
+        assert airy_pixel_share(pixel, lam, n, n) == pytest.approx(share, rel=1e-9)
+        assert airy_pixel_share(pixel, lam, 4.0, 16.0) == pytest.approx(share, rel=1e-12)
+    tiny = 1e-6
+    assert airy_pixel_share(tiny, lam, n, n) / tiny**2 == pytest.approx(
+        math.pi / (4 * lam * lam * n * n), rel=1e-6)
+
+
+def test_visible_ghosts_reach_the_black_level(ghosts_0001):
+    """Kept by default exactly when the ghost's peak pixel is at least 2^-(16 + 8) of the
+    light's; a stop more of overexposure is a stop more for every ghost and keeps a
+    superset; the message when none is visible names the lens, the rule and the
+    brightest ghost."""
+    lens, ghosts = ghosts_0001
+    ghosts = list(ghosts)
+    black = 2.0 ** -(DEFAULT_OVEREXPOSURE_STOPS + DISPLAY_STOPS)
+    kept = {g.name for g in mark_ghosts(ghosts)}
+    assert kept == {g.name for g in ghosts if g.exposure_peak >= black} != set()
+    assert all(g.visible == (g.name in kept) == g.kept for g in ghosts)
+    for g in ghosts:
+        assert g.exposure_peak == max(g.pixel_peak)
+        if g.exposure_peak > 0:
+            assert g.visibility_stops(17.0) == pytest.approx(g.visibility_stops() + 1.0)
+    brighter = {g.name for g in mark_ghosts(ghosts, overexposure=20.0)}
+    assert kept < brighter
+    top = ghosts[0]
+    msg = none_kept_message(ghosts, overexposure=0.0)
+    assert lens.name in msg and "0 stops over white" in msg and f"ghost {top.name}" in msg
+    with pytest.raises(InputError, match="no visible ghost"):
+        select_ghosts(ghosts, overexposure=0.0)
+    with pytest.raises(InputError, match="overexposure"):
+        mark_ghosts(ghosts, overexposure=math.nan)

@@ -71,7 +71,11 @@ def test_choice_by_name_count_and_threshold(lens, fitted):
     # At f/8 on axis 0-2 peaks at 3.0e-5 of the PSF peak and 4-8 at 2.1e-5
     # (`lensfit ghosts 0001 --f-number 8`): the brightest first, both above 1e-5
     assert choose_ghosts(lens, _scene(ghost_count=1), fitted) == ["0-2"]
-    assert choose_ghosts(lens, _scene(), fitted) == ["0-2", "4-8"]
+    assert choose_ghosts(lens, _scene(ghost_threshold=1e-5), fitted) == ["0-2", "4-8"]
+    # By default the visible ones: the peak pixel at least 2^-24 of the light's. 0-2 and
+    # 4-8 are 8.8 and 8.4 stops above that black level, 0-4 0.4 stops; 2-4 is 0.3 and 2-6
+    # 1.0 stops below it (the same command's 'stops' column)
+    assert choose_ghosts(lens, _scene(), fitted) == ["0-2", "4-8", "0-4"]
     with pytest.raises(SceneError, match=r"flare.toml: key 'ghost_threshold': no fitted "
                                          r"ghost .* above 0.001 .*the brightest, 0-2"):
         choose_ghosts(lens, _scene(ghost_threshold=1e-3), fitted)

@@ -4,6 +4,7 @@ exit status 2 and nothing on stdout (issue 13, deliverable 1)."""
 from __future__ import annotations
 
 import json
+import math
 import re
 
 import pytest
@@ -127,15 +128,27 @@ def test_no_ghost_above_threshold_still_listed(singlet, capsys):
 
 def test_0001_on_axis_wide_open_lists_every_ghost(capsys):
     """0001 on axis at f/1.1: no ghost reaches 1e-5 of the PSF peak, and the listing still
-    shows all 91, ranked by peak (the brightest first), none kept (issue 26)."""
-    assert main(["ghosts", "0001", "--rays", "2000"]) == 0
+    shows all 91, ranked by peak (the brightest first), none kept (issue 26). By default
+    the kept ones are the visible ones: the 'stops' column is log2 of the pixel column
+    plus 16 + 8 stops, kept exactly where it is >= 0."""
+    assert main(["ghosts", "0001", "--rays", "2000", "--threshold", "1e-5"]) == 0
     out = capsys.readouterr().out
     table = rows(out)
     assert len(table) == 91 and all(r[-1] == "no" for r in table), out
-    peaks = [float(r[-2]) for r in table]
-    assert peaks == sorted(peaks, reverse=True) and 0 < peaks[0] <= 1e-5
+    pixel = [float(r[-3]) for r in table]
+    assert pixel == sorted(pixel, reverse=True)
+    assert 0 < max(float(r[-4]) for r in table) <= 1e-5
     last = out.strip().splitlines()[-1]
-    assert "none kept" in last and "threshold 1e-05" in last and f"ghost {table[0][0]}" in last
+    assert "none kept" in last and "threshold 1e-05" in last
+    assert main(["ghosts", "0001", "--rays", "2000", "--overexposure", "20"]) == 0
+    out = capsys.readouterr().out
+    table = rows(out)
+    for r in table:
+        stops = float(r[-2])
+        assert stops == pytest.approx(math.log2(float(r[-3])) + 20 + 8, abs=0.06)
+        assert r[-1] == ("yes" if stops >= 0.05 else "no" if stops <= -0.05 else r[-1])
+    assert any(r[-1] == "yes" for r in table) and any(r[-1] == "no" for r in table)
+    assert "kept (visible)" in out and "20 stops over white" in out
 
 
 def test_fit_with_no_ghost_kept_refused(singlet, tmp_path, capsys, monkeypatch):
