@@ -90,6 +90,8 @@ def fit_ghost_task(job: dict[str, Any]) -> dict[str, Any]:
             f"PSF vs exact {worst.rel_l2:.2%} (f/{worst.f_number:g} "
             f"{worst.wavelength_nm:g} nm), energy {worst.energy_ratio:.4f}, without "
             f"P_clip {worst.energy_ratio_no_clip:.4f}")
+    if entry["miss_reason"]:  # named, written and kept: the report says why
+        line += f"\n  MISSES the target: {entry['miss_reason']}"
     write_atomic(job["record"], checked_json_text({"digest": job["digest"], "files": files,
                                                    "entry": entry, "line": line}))
     return {"record": job["record"], "line": line}
@@ -219,4 +221,8 @@ def write_lens(plan: LensPlan, *, c: bool, glsl: bool, add: bool) -> list[str]:
         work.rmdir()
     lines.append(f"wrote {len(plan.ghosts)} ghost table(s) and ghosts.json ({len(report)} "
                  f"ghosts) to {out}")
+    missed = [e["label"] for e in report if e.get("within_target") is False]
+    lines.append(f"{len(report) - len(missed)} of {len(report)} ghosts within the PSF target"
+                 + (f"; missing it (their reasons above and in ghosts.json, key "
+                    f"'miss_reason'): {', '.join(missed)}" if missed else ""))
     return lines

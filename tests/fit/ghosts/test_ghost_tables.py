@@ -197,3 +197,35 @@ def test_exact_ghost_psf_interpolated_sensor_side_agrees_with_every_pair(
     assert np.abs(every).max() > 0
     assert np.linalg.norm(interpolated - every) <= 1e-6 * np.linalg.norm(every)
     assert np.linalg.norm(fallback - every) <= 1e-12 * np.linalg.norm(every)
+
+
+def test_a_ghost_that_misses_its_target_is_named_with_the_reason():
+    """miss_reason (the report's and ghosts.json's 'miss_reason'): None within target;
+    otherwise the worst cell and every cause the fit's own figures show, each output
+    above its held-out target, P_clip's agreement, the aiming's reach, the power."""
+    from types import SimpleNamespace
+
+    from lensfit.fitting import OutputFit
+    from lensfit.ghosts.tables import TRUST_TARGET, TrustCell, miss_reason
+
+    def out(name, rms, target):
+        return OutputFit("P_s", name, "waves" if name == "phi" else "mm", 100, 8, rms,
+                         2 * rms, [], [], target, rms <= target)
+
+    def cell(lam, err, energy=1.0):
+        return TrustCell(8.0, lam, (-6.0, -4.0), (0.0, 0.0, 1.0), err, energy, energy, 1.0)
+
+    good = SimpleNamespace(outputs=[out("x", 1e-4, 1e-3), out("phi", 1e-3, 1e-2)],
+                           agreement_housings=1.0, converged_test=1.0)
+    assert miss_reason(good, [cell(450.0, 0.01), cell(550.0, TRUST_TARGET)]) is None
+    bad = SimpleNamespace(outputs=[out("x", 1e-2, 1e-3), out("phi", 0.75, 1e-2)],
+                          agreement_housings=0.97, converged_test=0.93)
+    why = miss_reason(bad, [cell(450.0, 0.1665, 1.08), cell(550.0, 0.05)])
+    for part in ("PSF 16.65%", "f/8 450 nm", "P_s phi 0.75 waves RMS", "P_s x 0.01 mm",
+                 "P_clip's verdict agrees on 97.00%", "exact aiming reached 93.0%",
+                 "power 1.080"):
+        assert part in why, why
+    quiet = SimpleNamespace(outputs=[out("phi", 1e-3, 1e-2)], agreement_housings=1.0,
+                            converged_test=1.0)
+    assert "every output within its held-out target" in miss_reason(quiet,
+                                                                     [cell(650.0, 0.04)])
