@@ -173,26 +173,50 @@ def _committed_ghosts() -> list[tuple[str, list[str], tuple[float, float], float
     return out
 
 
+# Where `make bench` fits every visible ghost (lensfit.ghosts.enumerate, "Visibility",
+# at the default overexposure): the committed flares' settings, 0001 on the axis too, and
+# the Biotar 0009, whose uncoated glass makes the brightest ghosts of lensdb's fitted lenses
+VISIBLE_SETTINGS = (("0001", 8.0, (-6.0, -4.0)), ("0001", 8.0, (0.0, 0.0)),
+                    ("0009", 8.0, (-6.0, -4.0)), ("2004", 4.0, (-6.0, -4.0)),
+                    ("2004", 16.0, (-6.0, -4.0)))
+
+
+def _visible_ghosts() -> list[tuple[str, list[str], tuple[float, float], float]]:
+    """(lens id, visible ghosts, light, f-number) at each of VISIBLE_SETTINGS."""
+    from lensfit.ghosts.enumerate import enumerate_ghosts, mark_ghosts
+
+    out = []
+    for lens_id, fn, light in VISIBLE_SETTINGS:
+        ghosts = enumerate_ghosts(load_lens(lens_id), f_number=fn, light=light)
+        out.append((lens_id, [g.name for g in mark_ghosts(ghosts)], light, fn))
+    return out
+
+
 def bench_ghosts(outdir: Path, specs: list[str], light: tuple[float, float],
                  f_number: float) -> int:
     """Seconds per ghost of ``lensfit ghosts <lens> --fit`` (``fit_with_trust``: the
     sampling, the tensor and clip fits, the trust cells' exact PSFs), wall and CPU, in
     this process, and each table's PSF against exact ghost rays (target 3%), the
-    committed figure beside it. ``specs``: LENS:I-J,... (at ``light`` and ``f_number``);
-    none: every kept ghost of the lenses with a ghosts.json in generated/, at their light
-    and f-number. build/bench/ghosts.json and ghosts.md."""
+    committed figure beside it, with the reason where it misses. ``specs``: LENS:I-J,...
+    (at ``light`` and ``f_number``); none: every kept ghost of the lenses with a
+    ghosts.json in generated/, at their light and f-number, then every visible ghost at
+    VISIBLE_SETTINGS. build/bench/ghosts.json and ghosts.md."""
     import hashlib
 
     from lensfit.cli import _direct_fit
     from lensfit.codegen.table import write_table
     from lensfit.generate import GENERATED_DIR, lens_folder_name
-    from lensfit.ghosts.enumerate import enumerate_ghosts, parse_ghost
-    from lensfit.ghosts.tables import TRUST_TARGET, fit_with_trust
+    from lensfit.ghosts.enumerate import enumerate_ghosts, mark_ghosts, parse_ghost
+    from lensfit.ghosts.tables import TRUST_TARGET, fit_with_trust, miss_reason
 
     jobs = ([(sp.split(":")[0], sp.split(":")[1].split(","), light, f_number)
-             for sp in specs] if specs else _committed_ghosts())
-    rows = []
+             for sp in specs] if specs else _committed_ghosts() + _visible_ghosts())
+    rows, done = [], set()
     for lens_id, labels, at, fn in jobs:
+        labels = [la for la in labels if (lens_id, la, at, fn) not in done]
+        done |= {(lens_id, la, at, fn) for la in labels}
+        if not labels:
+            continue
         lens = load_lens(lens_id)
         _, direct, domain = _direct_fit(lens, argparse.Namespace(generated=GENERATED_DIR),
                                         lens_id)
@@ -203,6 +227,7 @@ def bench_ghosts(outdir: Path, specs: list[str], light: tuple[float, float],
         # As the CLI enumerates (20000 rays per wavelength, the light at infinity)
         estimates = enumerate_ghosts(lens, f_number=fn, light=at, pairs=pairs, rays=20000,
                                      fine_rays=4000)
+        mark_ghosts(estimates, count=len(estimates))  # sets each one's visibility
         for g in estimates:
             w0, c0 = time.perf_counter(), time.process_time()
             fit, table, cells = fit_with_trust(lens, g, direct, domain, at, fn)
@@ -218,6 +243,8 @@ def bench_ghosts(outdir: Path, specs: list[str], light: tuple[float, float],
                          "psf_vs_exact": worst.rel_l2,
                          "psf_vs_exact_cell": f"{worst.wavelength_nm:g} nm",
                          "psf_target": TRUST_TARGET,
+                         "visibility_stops": g.visibility_stops(),
+                         "miss_reason": miss_reason(fit, cells),
                          "committed_psf_vs_exact": old.get("psf_vs_exact"),
                          "committed_fit_seconds": old.get("fit_seconds"),
                          "table_sha256": digest})  # the same inputs: the same bytes
@@ -225,22 +252,36 @@ def bench_ghosts(outdir: Path, specs: list[str], light: tuple[float, float],
                   f"exact {worst.rel_l2:.2%}", flush=True)
     (outdir / "ghosts.json").write_text(json.dumps(rows, indent=1) + "\n")
     lines = ["# Ghost fits: seconds per ghost and PSF against exact ghost rays", "",
-             f"`fit_with_trust` per kept ghost in one process ({os.cpu_count()} CPUs; wall "
+             f"`fit_with_trust` per ghost in one process ({os.cpu_count()} CPUs; wall "
              "and CPU seconds: sampling, tensor and clip fits, trust cells); the table's "
-             f"worst trust cell (target {TRUST_TARGET:.0%}), the committed table's beside it.",
-             "", "| lens | ghost | side | wall s | CPU s | exact PSFs s | groups | PSF vs "
-             "exact | committed |", "|---|---|---|---:|---:|---:|---:|---:|---:|"]
+             f"worst trust cell (target {TRUST_TARGET:.0%}), the committed table's beside it. "
+             "The committed ghosts at their light and f-number, then every visible ghost "
+             "(stops above a photograph's black level, the light 16 stops over white: "
+             "lensfit.ghosts.enumerate, \"Visibility\") at each setting of VISIBLE_SETTINGS.",
+             "", "| lens | f/N | light | ghost | side | stops | wall s | CPU s | exact PSFs s | "
+             "groups | PSF vs exact | committed |",
+             "|---|---:|---|---|---|---:|---:|---:|---:|---:|---:|---:|"]
     for r in rows:
         c = r["committed_psf_vs_exact"]
-        lines.append(f"| {r['lens']} | {r['ghost']} | {r['side']} | {r['wall_seconds']:.1f} | "
+        lines.append(f"| {r['lens']} | {r['f_number']:g} | {r['light_deg'][0]:g}, "
+                     f"{r['light_deg'][1]:g} | {r['ghost']} | {r['side']} | "
+                     f"{r['visibility_stops']:+.1f} | {r['wall_seconds']:.1f} | "
                      f"{r['cpu_seconds']:.1f} | {r['exact_psf_seconds']:.1f} | {r['groups']} | "
                      f"{r['psf_vs_exact']:.2%} ({r['psf_vs_exact_cell']}) | "
                      f"{'' if c is None else f'{c:.2%}'} |")
+    missed = [r for r in rows if r["miss_reason"]]
+    if missed:
+        lines += ["", "Missing the target:", ""]
+        lines += [f"* {r['lens']} {r['ghost']} (f/{r['f_number']:g}): {r['miss_reason']}"
+                  for r in missed]
     text = "\n".join(lines) + "\n"
     (outdir / "ghosts.md").write_text(text)
     print(text)
-    missed = [r for r in rows if not r["psf_vs_exact"] <= TRUST_TARGET]
-    return 1 if missed else 0
+    # A committed ghost that no longer meets the target fails the bench; a visible one
+    # that misses is named above with its reason
+    regressed = [r for r in rows if r["committed_psf_vs_exact"] is not None
+                 and not r["psf_vs_exact"] <= TRUST_TARGET]
+    return 1 if regressed else 0
 
 
 def main(argv: list[str] | None = None) -> int:
