@@ -79,7 +79,7 @@ static void usage(FILE *f)
         "  --resume FILE          start from saved phasor sums of the same scene\n"
         "  --merge FILE           add phasor sums of the same scene rendered with another seed\n"
         "  --ghost TABLE          also render this ghost table of the same lens (repeatable; each ghost once)\n"
-        "  --flares DIR           also render every ghost_*.table in DIR (sorted by name)\n"
+        "  --flares DIR           also render every ghost_*.table in DIR (sorted by name; one folder)\n"
         "                         with ghosts: -o OUT.exr holds the total (direct + ghosts) in its\n"
         "                         unprefixed channels and layers direct. and flare. (the ghosts'\n"
         "                         sum); --png shows the total\n"
@@ -636,7 +636,12 @@ int main(int argc, char **argv)
         else if (strcmp(a, "--ghost") == 0) {
             if (n_ghosts >= MAX_GHOSTS) return bad(a, v, "at most 256 ghost tables");
             ghost_paths[n_ghosts++] = (char *)v; /* not freed: only --flares paths are copies */
-        } else if (strcmp(a, "--flares") == 0) flares_dir = v;
+        } else if (strcmp(a, "--flares") == 0) {
+            // One folder: a second would silently replace the first (ghost tables of
+            // more folders are named with --ghost)
+            if (flares_dir) return bad(a, v, "given twice (one folder; name other ghost tables with --ghost)");
+            flares_dir = v;
+        }
         else if (strcmp(a, "--decades") == 0) { if (!parse_double(v, &decades) || decades <= 0) return bad(a, v, "expected a positive number"); }
         else if (strcmp(a, "--focus") == 0) { if (!parse_double(v, &focus)) return bad(a, v, "expected a number (mm)"); }
         else if (strcmp(a, "--f-number") == 0) { if (!parse_double(v, &fnum) || fnum <= 0) return bad(a, v, "expected a positive f-number"); }

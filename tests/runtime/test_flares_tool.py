@@ -182,6 +182,9 @@ def test_bad_ghosts_refused_before_rendering(tmp_path, tables):
                                              str(LENS0001)]),
         (["--ghost", str(LENS0001)], ["not a ghost table", str(LENS0001)]),
         (["--flares", str(tmp_path)], ["no ghost_*.table", str(tmp_path)]),
+        # a second folder would have replaced the first
+        (["--flares", str(tables["both"]), "--flares", str(tmp_path)],
+         ["--flares", "given twice", str(tmp_path)]),
         (["--ghost", str(tables["never"]), "--save-phasors", str(tmp_path / "s.phasors")],
          ["--save-phasors"]),
     ]
