@@ -68,6 +68,11 @@ class GhostFit:
     seconds: float
     options: FitOptions | None = None  # the budgets it was fitted with
 
+    @property
+    def stop_radius_mm(self) -> float:
+        """The stop radius it was fitted over (its x_a range)."""
+        return next(i.hi for i in self.system.inputs if i.name == "x_a")
+
 
 def select_housings(ratio: np.ndarray, exact: np.ndarray, base: np.ndarray,
                     share: float = SELECT_SHARE) -> list[int]:

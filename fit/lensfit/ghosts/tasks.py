@@ -84,7 +84,10 @@ def fit_ghost_task(job: dict[str, Any]) -> dict[str, Any]:
     entry.update(light_deg=list(light), f_number=f_number, task_digest=job["digest"],
                  table_crc32=f"{zlib.crc32(files[f'{stem}.table'].encode()) & 0xFFFFFFFF:08x}")
     worst = max(cells, key=lambda c: c.rel_l2)
-    line = (f"ghost {g.name} ({g.case}, side {fit.half.system}): {fit.seconds:.1f} s, "
+    # A ghost fitted over a narrowed stop (fit_with_trust) serves its f-number and slower
+    narrowed = (f", stop narrowed to f/{f_number:g}"
+                if fit.stop_radius_mm < job["domain"].stop_radius_mm * (1 - 1e-9) else "")
+    line = (f"ghost {g.name} ({g.case}, side {fit.half.system}{narrowed}): {fit.seconds:.1f} s, "
             f"converged {fit.converged_test:.1%}, clip agreement "
             f"{fit.agreement_housings:.2%} ({len(fit.clip_housings.outputs) // 2} pairs), "
             f"PSF vs exact {worst.rel_l2:.2%} (f/{worst.f_number:g} "
