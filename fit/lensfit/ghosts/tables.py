@@ -55,9 +55,11 @@ WINDOW_AIRY = 6.0  # ... but at least this many lambda N (a focused ghost's few 
 # them (0001's 0-6 at f/8: 4.1% with GHOST_OPTIONS)
 RETRY_OPTIONS = replace(GHOST_OPTIONS, groups=2000, field_degrees=(4, 6, 8, 10, 12),
                         test_groups=400)
-# ... but only when the first fit misses by at most this: larger misses come from the
+# ... first when the first fit misses by at most this; a larger miss often comes from the
 # stop's range, not the field's budgets (0009's 4-8 at f/8: 16.7% with RETRY_OPTIONS
-# over the f/2 stop; 0-2: 98%), and those go straight to the narrowed stop
+# over the f/2 stop; 0-2: 98%), so the narrowed stop's quick fit comes first, and the
+# retry over the whole domain only when that misses too (0001's 3-13: 20.6%, then 0.43%
+# with RETRY_OPTIONS over the domain, 46% over the f/8 stop)
 RETRY_MISS = 0.10
 
 
@@ -225,36 +227,47 @@ def _fit_with_trust(lens, estimate: GhostEstimate, direct: Table, domain: Domain
 
     1. GHOST_OPTIONS over ``domain``;
     2. RETRY_OPTIONS over ``domain``, when 1. missed by at most RETRY_MISS;
-    3. GHOST_OPTIONS, then RETRY_OPTIONS, over ``domain`` with its stop narrowed to the
-       checked ``f_number``'s. A ghost's rays over a wide stop can be far harder than
+    3. GHOST_OPTIONS over ``domain`` with its stop narrowed to the checked
+       ``f_number``'s;
+    4. RETRY_OPTIONS over ``domain``, when 1. missed by more than RETRY_MISS;
+    5. RETRY_OPTIONS over the narrowed stop.
+
+    A table over the whole domain serves every f-number and is preferred where its
+    retry is likely to reach the target. A ghost's rays over a wide stop can be far harder than
        the direct ones (0009's 0-2 and 4-8 at f/2: phi 2.6 and 0.75 waves RMS held out,
        some rays never converging near the stop's rim), and that error reaches the
        checked f/8 rays too; over the f/8 stop the same budgets fit them to 1e-4 waves.
        Such a table serves that f-number and slower ones only: its stop inputs say so,
        and lensrt refuses a wider aperture for it (``choose_stop``)."""
     stop = direct.lens.stop_radius_f1_mm / f_number
-    plans: list[tuple[Domain, FitOptions]] = [(domain, GHOST_OPTIONS), (domain, RETRY_OPTIONS)]
-    if stop < domain.stop_radius_mm * (1 - 1e-9):
-        narrow = domain.with_(stop_radius_mm=stop)
-        plans += [(narrow, GHOST_OPTIONS), (narrow, RETRY_OPTIONS)]
-    best = None
-    first_miss = None
-    for dom, options in plans:
-        if (dom is domain and options is RETRY_OPTIONS and first_miss is not None
-                and first_miss > RETRY_MISS):
-            continue
+    narrow = (domain.with_(stop_radius_mm=stop)
+              if stop < domain.stop_radius_mm * (1 - 1e-9) else None)
+    best: tuple[float, GhostFit, list[TrustCell]] | None = None
+
+    def attempt(dom: Domain, options: FitOptions) -> float:
+        """One fit and its trust cells; the best so far kept. Its worst cell."""
+        nonlocal best
         fit = fit_ghost(lens, estimate.first, estimate.second, dom, options)
         table = ghost_table(fit, direct, estimate.name)
         cells = ghost_trust(lens, table, fit.half, f_number=f_number,
                             centre_mm=tuple(at.centre_mm[k] or (0.0, 0.0)),
                             radius_mm=at.radius_mm[k], field_deg=where)
         worst = max(c.rel_l2 for c in cells)
-        if first_miss is None:
-            first_miss = worst
         if best is None or worst < best[0]:
             best = (worst, fit, cells)
-        if worst <= TRUST_TARGET:
-            break
+        return worst
+
+    first = attempt(domain, GHOST_OPTIONS)
+    if first > TRUST_TARGET:
+        near_miss = first <= RETRY_MISS
+        later = [(domain, RETRY_OPTIONS)] if near_miss else []
+        later += [(narrow, GHOST_OPTIONS)] if narrow is not None else []
+        later += [] if near_miss else [(domain, RETRY_OPTIONS)]
+        later += [(narrow, RETRY_OPTIONS)] if narrow is not None else []
+        for dom, options in later:
+            if attempt(dom, options) <= TRUST_TARGET:
+                break
+    assert best is not None
     _, fit, cells = best
     return fit, ghost_table(fit, direct, estimate.name, trust_lines(cells)), cells
 
