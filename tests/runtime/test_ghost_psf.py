@@ -179,3 +179,43 @@ def test_runtime_ghost_with_bladed_stop_matches_exact_ghost_rays(rt, lens, repor
     assert err(bladed) <= 0.03, err(bladed)
     assert err(round_) > 0.09, err(round_)
     assert power > 1.05, power
+
+
+# --- 0009's visible ghosts: fitted over the f/8 stop ------------------------------------
+
+BIOTAR = ROOT / "generated" / "0009-zeiss-biotar"
+
+
+@pytest.mark.parametrize("label", ["4-8", "0-2"])
+def test_biotar_visible_ghosts_against_exact_ghost_rays(rt, label):
+    """0009's two visible ghosts at f/8 from (-6, -4) deg (`lensfit ghosts 0009 --f-number
+    8 --light=-6,-4 --fit`: 6.5 and 1.7 stops above a photograph's black level), whose
+    tables are fitted over the f/8 stop (over the f/2 stop they missed at 16.7% and 98%):
+    lensrt's render with the exact sums' stop points against exactly traced ghost rays,
+    within the issue's 3% (the tables' own trust: 1.42% and 0.09%); and a wider stop is
+    refused with a message naming the fitted f-number, never rendered from polynomials
+    beyond their stop."""
+    from lensrt_ctypes import LensrtError
+
+    lens = load_lens("0009")
+    g = next(x for x in json.loads((BIOTAR / "ghosts" / "ghosts.json").read_text())["ghosts"]
+             if x["label"] == label)
+    cell = next(c for c in g["trust"] if c["wavelength_nm"] == LAMBDA)
+    table = BIOTAR / "ghosts" / f"ghost_{g['first']}_{g['second']}.table"
+    radius = read_table(table.read_text()).lens.stop_radius_f1_mm / F_NUMBER
+    assert g["fit_stop_radius_mm"] == pytest.approx(radius, rel=1e-12)
+    points = psf.sunflower_points(1000, radius)
+    cx, cy, width = cell["window"]
+    light = tuple(cell["field_deg"])
+    exact = psf.exact_psf(lens, ghost=ghost_half(lens, g["first"], g["second"]),
+                          stop_radius_mm=radius, aperture_xy_mm=points, wavelength_nm=LAMBDA,
+                          width=32, height=32, width_mm=width, center_x_mm=cx, center_y_mm=cy,
+                          field_deg=light)
+    got = _render(rt, table, points, radius, (cx, cy, width), 32, light)
+    err = float(np.linalg.norm(normalised(got) - normalised(exact))
+                / np.linalg.norm(normalised(exact)))
+    print(f"0009 {label}: runtime against exact ghost rays {err:.2e}")
+    assert err <= 0.03, err
+    with pytest.raises(LensrtError, match=r"f/2 .*wider than .*fitted for: f/8"):
+        rt.create(rt.load(table), width=8, height=8, width_mm=width, center=(cx, cy),
+                  f_number=2.0, wavelengths=[LAMBDA], lights=[light])
