@@ -2,7 +2,8 @@
 
     lensfit list                         lenses in lensdb with their paraxial focal length
     lensfit info LENS [--json]           paraxial table (--wavelength NM: not the d line)
-    lensfit ghosts LENS [--json]         ghosts ranked by peak relative to the PSF's
+    lensfit ghosts LENS [--json]         ghosts ranked by peak pixel, the visible ones kept
+                                         (--fit: fitted, with the reason where one misses)
     lensfit draw LENS -o FILE.png        cross-section with ray fans
     lensfit import FILE [-o OUT]         convert a Zemax .zmx, an Optiland JSON or a lentil
                                          JSON lens table to lensfit's TOML
@@ -805,8 +806,8 @@ def build_parser() -> argparse.ArgumentParser:
                         "the d line)")
     p.set_defaults(func=cmd_info)
 
-    p = sub.add_parser("ghosts", help="ghosts of a lens ranked by their peak relative to "
-                       "the PSF's (issue 13)")
+    p = sub.add_parser("ghosts", help="ghosts of a lens ranked by their peak pixel relative "
+                       "to the light's; the visible ones kept (issues 13, 26)")
     p.add_argument("lens", nargs="*", help="lens ids or files (one or more)")
     p.add_argument("--f-number", type=float, default=None,
                    help="stop the lens down to this f-number (default: wide open)")
