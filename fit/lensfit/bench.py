@@ -243,7 +243,8 @@ def bench_ghosts(outdir: Path, specs: list[str], light: tuple[float, float],
                          "psf_vs_exact": worst.rel_l2,
                          "psf_vs_exact_cell": f"{worst.wavelength_nm:g} nm",
                          "psf_target": TRUST_TARGET,
-                         "visibility_stops": g.visibility_stops(),
+                         "visibility_stops": (g.visibility_stops()
+                                              if g.exposure_peak > 0 else None),
                          "miss_reason": miss_reason(fit, cells),
                          "committed_psf_vs_exact": old.get("psf_vs_exact"),
                          "committed_fit_seconds": old.get("fit_seconds"),
@@ -262,10 +263,11 @@ def bench_ghosts(outdir: Path, specs: list[str], light: tuple[float, float],
              "groups | PSF vs exact | committed |",
              "|---|---:|---|---|---|---:|---:|---:|---:|---:|---:|---:|"]
     for r in rows:
-        c = r["committed_psf_vs_exact"]
+        c, v = r["committed_psf_vs_exact"], r["visibility_stops"]
         lines.append(f"| {r['lens']} | {r['f_number']:g} | {r['light_deg'][0]:g}, "
                      f"{r['light_deg'][1]:g} | {r['ghost']} | {r['side']} | "
-                     f"{r['visibility_stops']:+.1f} | {r['wall_seconds']:.1f} | "
+                     f"{'-' if v is None else format(v, '+.1f')} | "
+                     f"{r['wall_seconds']:.1f} | "
                      f"{r['cpu_seconds']:.1f} | {r['exact_psf_seconds']:.1f} | {r['groups']} | "
                      f"{r['psf_vs_exact']:.2%} ({r['psf_vs_exact_cell']}) | "
                      f"{'' if c is None else f'{c:.2%}'} |")

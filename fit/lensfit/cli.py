@@ -336,8 +336,8 @@ def _ghost_plan(lens_arg: str, args: argparse.Namespace):
         print(json.dumps({**info, "threshold": None if args.count else args.threshold,
                           "count": args.count, "overexposure_stops": args.overexposure,
                           "display_stops": DISPLAY_STOPS,
-                          "ghosts": [{**g.to_dict(), "visibility_stops":
-                                      g.visibility_stops(args.overexposure)}
+                          "ghosts": [{**g.to_dict(), "visibility_stops": _finite(
+                                      g.visibility_stops(args.overexposure))}
                                      for g in ghosts]}, indent=2))
         return None
     lams = info["wavelengths_nm"]
@@ -369,6 +369,12 @@ def _ghost_plan(lens_arg: str, args: argparse.Namespace):
     if not keep:
         print(f"  none kept: {why}")
     return None
+
+
+def _finite(v: float) -> float | None:
+    """A number for JSON: None where it is not finite (a ghost no ray of which reaches
+    the sensor is -inf stops from black; JSON has no infinity)."""
+    return v if math.isfinite(v) else None
 
 
 def _fit_ghost_plans(plans: list, args: argparse.Namespace) -> int:

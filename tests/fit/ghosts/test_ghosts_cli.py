@@ -57,10 +57,16 @@ def test_table_and_json(singlet, capsys):
     assert len(row) == 1 and row[0].split()[-1] == "yes", out
     assert main(["ghosts", singlet, "--f-number", "8", "--rays", "2000", "--json",
                  "--count", "1"]) == 0
-    data = json.loads(capsys.readouterr().out)
+    def no_constant(name):  # strict JSON: no Infinity or NaN
+        raise AssertionError(f"{name} in the JSON")
+
+    data = json.loads(capsys.readouterr().out, parse_constant=no_constant)
     (g,) = data["ghosts"]
     assert (g["first"], g["second"], g["name"], g["kept"]) == (1, 2, "0-1", True)
     assert data["f_number"] == pytest.approx(8.0) and data["count"] == 1
+    # Its visibility: stops above black, log2 of its peak pixel over the light's + 16 + 8
+    assert g["visibility_stops"] == pytest.approx(math.log2(g["exposure_peak"]) + 24)
+    assert g["visible"] == (g["visibility_stops"] >= 0)
     # Uncoated: the relative energy is R^2 of N-BK7 at normal incidence (f/8: incidence
     # below 1/30 rad moves R by < 1e-3 relative; 1% is the closed-form tolerance)
     lens = load_lens(singlet)
