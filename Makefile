@@ -21,8 +21,9 @@
 #                cells integrator against Monte Carlo too: cells_bench.py; the Fourier
 #                integrator against both on the demo's PSFs: fourier_bench.py), banks on Dask
 #                (scaling 1 -> 2 workers, the scheduler's overhead: banks.md), and per generated lens the fit time and the worst
-#                PSF cell against exactly traced rays, and seconds per kept ghost with its PSF
-#                against exact ghost rays (ghosts.md) (build/bench/)
+#                PSF cell against exactly traced rays, and seconds per committed ghost and per
+#                visible ghost at the committed flares' settings, with its PSF against exact
+#                ghost rays (ghosts.md) (build/bench/)
 
 PYTHON ?= /usr/bin/python3
 VENV   := .venv
