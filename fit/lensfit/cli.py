@@ -37,6 +37,7 @@ from lensfit.ghosts.enumerate import (
     DEFAULT_OVEREXPOSURE_STOPS,
     DEFAULT_PIXEL_MM,
     DISPLAY_STOPS,
+    black_level,
 )
 from lensfit.glass import UnknownGlassError
 
@@ -350,7 +351,7 @@ def _ghost_plan(lens_arg: str, args: argparse.Namespace):
     strehl = " ".join(f"{s:.3g}" for s in info["strehl_estimate"])
     print(f"  direct PSF peak: Airy x Strehl estimate {strehl} at {at} nm")
     print(f"  visible: a ghost's peak pixel ({args.pixel_um:g} um) at least "
-          f"{2.0 ** -(args.overexposure + DISPLAY_STOPS):.3g} of the light's, which is "
+          f"{black_level(args.overexposure):.3g} of the light's, which is "
           f"{args.overexposure:g} stops over white ({DISPLAY_STOPS:g} stops shown below "
           "white); 'stops' above that black level")
     kept = ("count " + str(args.count) if args.count else f"peak > {args.threshold:g}"

@@ -168,6 +168,13 @@ class GhostEstimate:
         return d
 
 
+def black_level(overexposure: float = DEFAULT_OVEREXPOSURE_STOPS) -> float:
+    """A photograph's black level as a share of the light's peak pixel when that pixel is
+    ``overexposure`` stops over white (module doc, "Visibility"): a ghost whose
+    ``exposure_peak`` reaches it is visible."""
+    return 2.0 ** -(overexposure + DISPLAY_STOPS)
+
+
 def ghost_surfaces(lens: Lens) -> list[int]:
     """The surfaces a ghost can reflect at: every surface of the model except stop
     planes (a stop on a refracting surface is the vertex plane the loader inserted; the
@@ -572,8 +579,9 @@ def mark_ghosts(estimates: list[GhostEstimate], count: int | None = None,
         raise InputError(f"overexposure = {overexposure!r} stops: expected 0 to 60 stops "
                          "of the light's peak pixel over white")
     ranked = sorted(estimates, key=lambda g: -g.exposure_peak)
+    black = black_level(overexposure)
     for g in estimates:
-        g.visible = g.visibility_stops(overexposure) >= 0.0
+        g.visible = g.exposure_peak >= black
     if count is not None:
         if not (isinstance(count, int | np.integer) and count >= 1):
             raise InputError(f"count = {count!r}: expected a positive number of ghosts")
@@ -604,7 +612,7 @@ def none_kept_message(estimates: list[GhostEstimate], threshold: float | None = 
     top = max(estimates, key=lambda g: g.exposure_peak)
     return (f"{top.file}: {top.lens} has no visible ghost with the light "
             f"{overexposure:g} stops over white (a ghost's peak pixel must reach "
-            f"{2.0 ** -(overexposure + DISPLAY_STOPS):.3g} of the light's): the brightest, "
+            f"{black_level(overexposure):.3g} of the light's): the brightest, "
             f"ghost {top.name}, is {top.visibility_stops(overexposure):.1f} stops from "
             "that black level")
 

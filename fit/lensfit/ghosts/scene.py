@@ -26,7 +26,7 @@ from lensfit.codegen.table import Table, read_table
 from lensfit.errors import InputError
 from lensfit.ghosts.enumerate import (
     DEFAULT_OVEREXPOSURE_STOPS,
-    DISPLAY_STOPS,
+    black_level,
     enumerate_ghosts,
     parse_ghost,
 )
@@ -102,7 +102,7 @@ def choose_ghosts(lens: Lens, scene: Scene, fitted: dict[str, Table]) -> list[st
                              f"this scene's lights (the brightest, {ranked[0]}, peaks at "
                              f"{peak[ranked[0]]:.3g}); set ghost_count or ghosts instead")
         return keep
-    black = 2.0 ** -(DEFAULT_OVEREXPOSURE_STOPS + DISPLAY_STOPS)
+    black = black_level()
     ranked = sorted(exposure, key=lambda k: -exposure[k])
     keep = [k for k in ranked if exposure[k] >= black]
     if not keep:

@@ -233,12 +233,12 @@ def _fit_with_trust(lens, estimate: GhostEstimate, direct: Table, domain: Domain
     5. RETRY_OPTIONS over the narrowed stop.
 
     A table over the whole domain serves every f-number and is preferred where its
-    retry is likely to reach the target. A ghost's rays over a wide stop can be far harder than
-       the direct ones (0009's 0-2 and 4-8 at f/2: phi 2.6 and 0.75 waves RMS held out,
-       some rays never converging near the stop's rim), and that error reaches the
-       checked f/8 rays too; over the f/8 stop the same budgets fit them to 1e-4 waves.
-       Such a table serves that f-number and slower ones only: its stop inputs say so,
-       and lensrt refuses a wider aperture for it (``choose_stop``)."""
+    retry is likely to reach the target. A ghost's rays over a wide stop can be far
+    harder than the direct ones (0009's 0-2 and 4-8 at f/2: phi 2.6 and 0.75 waves RMS
+    held out, some rays never converging near the stop's rim), and that error reaches
+    the checked f/8 rays too; over the f/8 stop the same budgets fit them to 1e-4 waves.
+    Such a table serves that f-number and slower ones only: its stop inputs say so, and
+    lensrt refuses a wider aperture for it (``choose_stop``)."""
     stop = direct.lens.stop_radius_f1_mm / f_number
     narrow = (domain.with_(stop_radius_mm=stop)
               if stop < domain.stop_radius_mm * (1 - 1e-9) else None)
