@@ -1,0 +1,50 @@
+"""Both systems of a lens: sample, then fit each by the chosen method."""
+
+from __future__ import annotations
+
+import time
+
+from lensfit.fitting.options import FitOptions
+from lensfit.fitting.pursuit import fit_system
+from lensfit.fitting.results import SystemFit
+from lensfit.fitting.tensor import fit_system_tensor
+from lensfit.prescription.model import Lens
+from lensfit.sample.domain import Domain, default_domain
+from lensfit.sample.rays import (
+    OUTPUTS_O,
+    OUTPUTS_S,
+    sample_grid,
+    sample_object_side,
+    sample_sensor_side,
+)
+
+
+def fit_lens(lens: Lens, domain: Domain | None = None,
+             options: FitOptions | None = None) -> list[SystemFit]:
+    """Sample and fit both systems of ``lens`` over ``domain`` (default: its default)."""
+    domain = domain or default_domain(lens)
+    options = options or FitOptions()
+    results = []
+    for name, sampler, inputs, outputs, salt in (
+        ("P_o", sample_object_side, domain.inputs_o(), OUTPUTS_O, 0),
+        ("P_s", sample_sensor_side, domain.inputs_s(), OUTPUTS_S, 1),
+    ):
+        t0 = time.perf_counter()
+        seed = 2 * (options.seed * 7919 + salt)
+        if options.method == "tensor":
+            train = sample_grid(lens, domain, name, options.groups, options.aperture_points,
+                                seed=seed)
+        else:
+            train = sampler(lens, domain, options.train_groups, options.train_per_group,
+                            seed=seed)
+        test = sampler(lens, domain, options.test_groups, options.test_per_group,
+                       seed=seed + 1)
+        t1 = time.perf_counter()
+        if options.method == "tensor":
+            system, fits = fit_system_tensor(name, inputs, outputs, train, test, options)
+        else:
+            system, fits = fit_system(name, inputs, outputs, train, test, options)
+        t2 = time.perf_counter()
+        system.info.update({"lens": lens.name, "domain": domain.to_dict()})
+        results.append(SystemFit(system, fits, train, test, t1 - t0, t2 - t1))
+    return results
