@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 
 from lensfit.fitting.options import FitOptions
 from lensfit.fitting.pursuit import fit_system
@@ -20,8 +21,11 @@ from lensfit.sample.rays import (
 
 
 def fit_lens(lens: Lens, domain: Domain | None = None,
-             options: FitOptions | None = None) -> list[SystemFit]:
-    """Sample and fit both systems of ``lens`` over ``domain`` (default: its default)."""
+             options: FitOptions | None = None,
+             progress: Callable[[str], None] | None = None) -> list[SystemFit]:
+    """Sample and fit both systems of ``lens`` over ``domain`` (default: its default).
+    ``progress`` is called with a label after each step: each system's sampling
+    ("P_o sampled") and each output fitted ("P_o phi_o")."""
     domain = domain or default_domain(lens)
     options = options or FitOptions()
     results = []
@@ -40,10 +44,13 @@ def fit_lens(lens: Lens, domain: Domain | None = None,
         test = sampler(lens, domain, options.test_groups, options.test_per_group,
                        seed=seed + 1)
         t1 = time.perf_counter()
+        if progress is not None:
+            progress(f"{name} sampled")
         if options.method == "tensor":
-            system, fits = fit_system_tensor(name, inputs, outputs, train, test, options)
+            system, fits = fit_system_tensor(name, inputs, outputs, train, test, options,
+                                             progress)
         else:
-            system, fits = fit_system(name, inputs, outputs, train, test, options)
+            system, fits = fit_system(name, inputs, outputs, train, test, options, progress)
         t2 = time.perf_counter()
         system.info.update({"lens": lens.name, "domain": domain.to_dict()})
         results.append(SystemFit(system, fits, train, test, t1 - t0, t2 - t1))

@@ -3,6 +3,8 @@ squares (``FitOptions.method = "pursuit"``)."""
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
 
 from lensfit.errors import InputError
@@ -37,7 +39,8 @@ def _pursue(A_train, y_train, A_test, name, test_group, y_test, max_terms, targe
 
 
 def fit_system(name: str, inputs: tuple[Input, ...], outputs, train: Samples, test: Samples,
-               options: FitOptions) -> tuple[System, list[OutputFit]]:
+               options: FitOptions, progress: Callable[[str], None] | None = None
+               ) -> tuple[System, list[OutputFit]]:
     """Fit every output of one system to its samples."""
     fit_rows = train.vignetting <= TRAIN_VIGNETTING
     if not np.any(fit_rows):
@@ -71,6 +74,8 @@ def fit_system(name: str, inputs: tuple[Input, ...], outputs, train: Samples, te
                              "1" if out.startswith("tau") else "um")
         polys.append(poly)
         fits.append(of)
+        if progress is not None:
+            progress(f"{name} {out}")
     return System(name, inputs, tuple(polys)), fits
 
 

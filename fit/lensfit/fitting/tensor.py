@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 
 import numpy as np
 
@@ -16,7 +17,9 @@ from lensfit.sample.rays import GridSamples, Samples
 
 
 def fit_system_tensor(name: str, inputs: tuple[Input, ...], outputs, train: GridSamples,
-                      test: Samples, options: FitOptions) -> tuple[System, list[OutputFit]]:
+                      test: Samples, options: FitOptions,
+                      progress: Callable[[str], None] | None = None
+                      ) -> tuple[System, list[OutputFit]]:
     """Fit every output of one system on grid samples by tensor least squares (module
     doc): per output, the field degrees of ``options.field_degrees`` in turn until the
     held-out error reaches the target."""
@@ -113,6 +116,8 @@ def fit_system_tensor(name: str, inputs: tuple[Input, ...], outputs, train: Grid
         of.path_terms = terms
         polys.append(poly)
         fits.append(of)
+        if progress is not None:
+            progress(f"{name} {out}")
     return System(name, inputs, tuple(polys)), fits
 
 
