@@ -517,7 +517,7 @@ def grid_samples(system: System, groups: int, points: int, seed: int,
 
 
 # Stop degree 6 for phi and 2 for the rest, field degree 4: every term of TRUTH fits
-TENSOR_SYNTH = FitOptions(aperture_degree=6, field_degrees=(4,), target_waves=1e-6,
+TENSOR_SYNTH = FitOptions(aperture_degree=6, field_degrees=(4,), target_waves=1e-6, prune=False,
                           target_position_um=1e-6, target_tau=1e-10)
 
 

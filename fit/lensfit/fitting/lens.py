@@ -8,7 +8,7 @@ from collections.abc import Callable
 from lensfit.fitting.options import FitOptions
 from lensfit.fitting.pursuit import fit_system
 from lensfit.fitting.results import SystemFit
-from lensfit.fitting.tensor import fit_system_tensor
+from lensfit.fitting.tensor import fit_system_growing
 from lensfit.prescription.model import Lens
 from lensfit.sample.domain import Domain, default_domain
 from lensfit.sample.rays import (
@@ -47,8 +47,9 @@ def fit_lens(lens: Lens, domain: Domain | None = None,
         if progress is not None:
             progress(f"{name} sampled")
         if options.method == "tensor":
-            system, fits = fit_system_tensor(name, inputs, outputs, train, test, options,
-                                             progress)
+            system, fits, train = fit_system_growing(lens, domain, name, inputs, outputs,
+                                                     train, test, options, seed=seed,
+                                                     progress=progress)
         else:
             system, fits = fit_system(name, inputs, outputs, train, test, options, progress)
         t2 = time.perf_counter()

@@ -13,6 +13,11 @@ X_LIKE, Y_LIKE = (0, 3), (1, 4)  # mirror pairs: (x_O|x_S, x_a) and (y_O|y_S, y_
 FIELD = (0, 1, 2, 5)  # the inputs a renderer fixes per pixel (or light) and wavelength
 METHODS = ("tensor", "pursuit")
 STAGNATION = 0.7  # a field degree that leaves more than this share of the error stalls
+# Adaptive fits (FitOptions.prune): the degrees grow until the held-out error is this share
+# of the target, then the terms it does not need are cut until the error is PRUNE_SHARE of
+# it, the rest of the target left as margin for the PSF (module doc of lensfit.fitting)
+GROW_SHARE = 0.6
+PRUNE_SHARE = 0.8
 
 
 @dataclass(frozen=True)
@@ -29,11 +34,16 @@ class FitOptions:
     test_per_group: int = 16
     seed: int = 1
     # tensor method
-    groups: int = 4000  # field points of the grid
-    aperture_points: int = 128  # stop points per field point (a multiple of 4)
+    groups: int = 2000  # field points of the grid, to begin with
+    aperture_points: int = 128  # stop points per field point (a multiple of 4), to begin with
+    # The grid doubles in a dimension (to these at most) while an output misses its target
+    # for want of samples there (lensfit.fitting.tensor.fit_system_growing)
+    max_groups: int = 8000
+    max_aperture_points: int = 512
     aperture_degree: int = 10  # phi; positions and transmittance use 4 less
     max_aperture_degree: int = 14  # raised to (by 2, once) when the field degree stalls
     field_degrees: tuple[int, ...] = (4, 6, 8, 10, 12)  # tried in turn against the target
+    prune: bool = True  # cut the terms the target does not need (GROW_SHARE, PRUNE_SHARE)
     # pursuit method
     max_degree: int = 9  # positions and transmittance
     phase_degree: int = 9  # phi: degree 11 measured no better at f/2 with 200 terms
@@ -59,6 +69,11 @@ class FitOptions:
         if not self.field_degrees or min(self.field_degrees) < 0 or self.aperture_degree < 2:
             raise ValueError("fit options: field_degrees must be non-empty and >= 0, "
                              "aperture_degree >= 2")
+        if self.max_groups < self.groups or (self.max_aperture_points < self.aperture_points
+                                             or self.max_aperture_points % 4):
+            raise ValueError(f"fit options: max_groups = {self.max_groups}, "
+                             f"max_aperture_points = {self.max_aperture_points}: expected at "
+                             "least groups and aperture_points, the latter a multiple of 4")
         if not self.aperture_degree <= self.max_aperture_degree <= 15:
             raise ValueError(f"fit options: max_aperture_degree = {self.max_aperture_degree}: "
                              "expected aperture_degree..15 (lensrt's limit)")

@@ -29,6 +29,8 @@ class OutputFit:
     reached: bool
     piston_terms: int = 0
     absolute_rms_um: float | None = None  # phi only: error including piston, micrometres
+    limit: str | None = None  # what stopped its degrees short of their goal (the target,
+    #   or room to cut): "stop points", "field points" (too few samples) or "degree"
     ns_per_eval_double: float | None = None  # filled in by code generation
     ns_per_eval_float: float | None = None
 

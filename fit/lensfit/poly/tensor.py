@@ -26,11 +26,13 @@ complete-grid problem also separates by class.
 
 from __future__ import annotations
 
+import heapq
 from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.linalg import solve_triangular
 
 from lensfit.poly.polynomial import design_matrix, monomials
 
@@ -94,6 +96,11 @@ class TensorFit:
     W: np.ndarray
     cg_iterations: int
     holes: int  # grid cells left out
+    # Squared coefficients in the orthonormal bases of monomials taken by degree (n_a, n_v):
+    # each (aperture monomial, field monomial) pair's share of the fitted function's sum of
+    # squares over the complete grid, the part its monomials add to those before them.
+    # None for a fit on a given support
+    energy: np.ndarray | None = None
 
     def terms(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """The nonzero terms: (aperture exponents (T, 2), field exponents (T, n_fv),
@@ -140,20 +147,41 @@ def fill_holes(a_hat: np.ndarray, values: np.ndarray, mask: np.ndarray) -> np.nd
 
 def fit_tensor(a_hat: np.ndarray, v_hat: np.ndarray, values: np.ndarray, mask: np.ndarray,
                aperture_exps: np.ndarray, field_exps: np.ndarray, *,
-               parity: tuple[int, int], fill: np.ndarray | None = None) -> TensorFit:
+               parity: tuple[int, int], fill: np.ndarray | None = None,
+               support: np.ndarray | None = None) -> TensorFit:
     """Least-squares W for ``values`` (G, K) on the grid of field points ``v_hat`` (G, n_fv)
     times aperture points ``a_hat`` (K, 2), both normalised, over the cells where ``mask``
     (G, K) is True. ``parity`` (px, py): the output's parity in x and in y (field
     variable 0 is x-like, 1 is y-like). ``fill`` (G, K): guesses for the holes (default:
-    :func:`fill_holes`), where conjugate gradients start."""
+    :func:`fill_holes`), where conjugate gradients start.
+
+    ``support`` (n_a, n_v) bool: the pairs (aperture monomial, field monomial) allowed,
+    a *staircase* (:func:`staircase_levels`): each field monomial is allowed with every
+    aperture monomial up to a degree of its own. The fit is then the exact least squares
+    over those pairs alone, and W is zero outside them."""
     with single_blas():
         return _fit_tensor(a_hat, v_hat, values, mask, aperture_exps, field_exps,
-                           parity=parity, fill=fill)
+                           parity=parity, fill=fill, support=support)
+
+
+def staircase_levels(aperture_exps: np.ndarray, support: np.ndarray) -> np.ndarray:
+    """Per field monomial, the highest aperture degree ``support`` pairs it with (-1:
+    none), after checking that ``support`` is a staircase: a field monomial allowed with
+    an aperture monomial of degree a is allowed with every aperture monomial of degree up
+    to a. ValueError if not."""
+    deg = aperture_exps.sum(axis=1)
+    level = np.where(support.any(axis=0), np.max(np.where(support, deg[:, None], -1), axis=0),
+                     -1)
+    if not np.array_equal(support, deg[:, None] <= level[None, :]):
+        raise ValueError("fit_tensor: the support is not a staircase (each field monomial "
+                         "with every aperture monomial up to a degree)")
+    return level
 
 
 def _fit_tensor(a_hat: np.ndarray, v_hat: np.ndarray, values: np.ndarray, mask: np.ndarray,
                 aperture_exps: np.ndarray, field_exps: np.ndarray, *,
-                parity: tuple[int, int], fill: np.ndarray | None) -> TensorFit:
+                parity: tuple[int, int], fill: np.ndarray | None,
+                support: np.ndarray | None = None) -> TensorFit:
     values = np.asarray(values, dtype=np.float64)
     mask = np.asarray(mask, dtype=bool)
     G, K = values.shape
@@ -164,6 +192,8 @@ def _fit_tensor(a_hat: np.ndarray, v_hat: np.ndarray, values: np.ndarray, mask: 
         raise ValueError("fit_tensor: non-finite values in the cells to fit")
     B = design_matrix(a_hat, aperture_exps)  # (K, n_a)
     D = design_matrix(v_hat, field_exps)  # (G, n_v)
+    a_deg = aperture_exps.sum(axis=1)
+    level = None if support is None else staircase_levels(aperture_exps, support)
     # Orthonormal bases per parity class of the aperture monomials, with the field
     # monomials that class may pair with
     blocks = []
@@ -172,6 +202,14 @@ def _fit_tensor(a_hat: np.ndarray, v_hat: np.ndarray, values: np.ndarray, mask: 
             rows = np.nonzero((aperture_exps[:, 0] % 2 == cx) & (aperture_exps[:, 1] % 2 == cy))[0]
             cols = np.nonzero((field_exps[:, 0] % 2 == (parity[0] + cx) % 2)
                               & (field_exps[:, 1] % 2 == (parity[1] + cy) % 2))[0]
+            allowed = None
+            if level is not None:
+                # Field monomials by the highest aperture degree they pair with, highest
+                # first: each aperture monomial's allowed field monomials are then a
+                # prefix, so W = R_B^-1 Z R_D^-T stays inside the staircase
+                cols = cols[level[cols] >= 0]
+                cols = cols[np.lexsort((cols, -level[cols]))]
+                allowed = a_deg[rows][:, None] <= level[cols][None, :]
             if rows.size == 0 or cols.size == 0:
                 continue
             if cols.size > G or rows.size > K:
@@ -187,7 +225,7 @@ def _fit_tensor(a_hat: np.ndarray, v_hat: np.ndarray, values: np.ndarray, mask: 
                     raise ValueError(f"fit_tensor: the {what} monomials of one parity class "
                                      "are linearly dependent on the grid's points: too few "
                                      "data")
-            blocks.append((rows, cols, qb, rb, qd, rd))
+            blocks.append((rows, cols, qb, rb, qd, rd, allowed))
     holes = int(mask.size - np.count_nonzero(mask))
     if holes and fill is None:
         fill = fill_holes(a_hat, values, mask)
@@ -196,12 +234,14 @@ def _fit_tensor(a_hat: np.ndarray, v_hat: np.ndarray, values: np.ndarray, mask: 
 
     def forward(Z: list[np.ndarray]) -> np.ndarray:
         out = np.zeros((K, G))
-        for z, (_, _, qb, _, qd, _) in zip(Z, blocks, strict=True):
+        for z, (_, _, qb, _, qd, _, _) in zip(Z, blocks, strict=True):
             out += qb @ (z @ qd.T)  # (n_a x G) first: n_a is the smaller side
         return out
 
     def adjoint(R: np.ndarray) -> list[np.ndarray]:
-        return [qb.T @ R @ qd for (_, _, qb, _, qd, _) in blocks]
+        # Restricted to the support: the coordinates outside it stay zero
+        return [qb.T @ R @ qd if allowed is None else np.where(allowed, qb.T @ R @ qd, 0.0)
+                for (_, _, qb, _, qd, _, allowed) in blocks]
 
     def dot(a: list[np.ndarray], b: list[np.ndarray]) -> float:
         return float(sum(np.vdot(x, y) for x, y in zip(a, b, strict=True)))
@@ -229,8 +269,87 @@ def _fit_tensor(a_hat: np.ndarray, v_hat: np.ndarray, values: np.ndarray, mask: 
             rr = rr_new
             iterations += 1
     W = np.zeros((len(aperture_exps), len(field_exps)))
-    for z, (rows, cols, _, rb, _, rd) in zip(Z, blocks, strict=True):
-        # W_c = R_B^-1 Z R_D^-T
-        w = np.linalg.solve(rb, z)
-        W[np.ix_(rows, cols)] = np.linalg.solve(rd, w.T).T
-    return TensorFit(aperture_exps, field_exps, W, iterations, holes)
+    energy = None if support is not None else np.zeros_like(W)
+    for z, (rows, cols, _, rb, _, rd, _) in zip(Z, blocks, strict=True):
+        # W_c = R_B^-1 Z R_D^-T (triangular solves: zeros of a staircase Z stay exact)
+        w = solve_triangular(rb, z)
+        W[np.ix_(rows, cols)] = solve_triangular(rd, w.T).T
+        if energy is not None:
+            energy[np.ix_(rows, cols)] = z * z
+    return TensorFit(aperture_exps, field_exps, W, iterations, holes, energy)
+
+
+def prune_support(aperture_exps: np.ndarray, field_exps: np.ndarray, energy: np.ndarray,
+                  budget: float, piston_budget: float | None = None) -> np.ndarray:
+    """The smallest staircase of (aperture monomial, field monomial) pairs found greedily
+    whose left-out ``energy`` (:attr:`TensorFit.energy`, the squared orthonormal
+    coefficients) sums to at most ``budget``: (n_a, n_v) bool for ``fit_tensor(support=)``.
+
+    The units are *blocks*: one field monomial with all aperture monomials of one total
+    degree a. The kept blocks always form a down-set (with a block, every block of lower
+    aperture degree and every block of a field monomial that divides its own), so each
+    field monomial pairs with the aperture monomials up to a degree of its own, a
+    staircase, and the polynomial hierarchy has no gaps. A maximal block (nothing kept
+    above it) is dropped while the budget lasts, the one with the least energy per
+    monomial first. ``piston_budget`` (default: ``budget``) is the separate budget of the
+    blocks without the stop point (a = 0), which for a phase is the piston: the error
+    measure that sets ``budget`` does not see it."""
+    a_deg = aperture_exps.sum(axis=1)
+    n_deg = int(a_deg.max()) + 1
+    n_v = len(field_exps)
+    block_e = np.zeros((n_deg, n_v))
+    block_n = np.zeros((n_deg, n_v), dtype=np.int64)
+    for a in range(n_deg):
+        rows = a_deg == a
+        block_e[a] = energy[rows].sum(axis=0)
+        block_n[a] = np.count_nonzero(energy[rows] > 0, axis=0)
+    # Every block starts kept, the empty ones too (a field monomial pairs only with the
+    # stop degrees of one parity): they cost nothing and go first once nothing is above
+    kept = np.ones((n_deg, n_v), dtype=bool)
+    index = {tuple(e): i for i, e in enumerate(field_exps.tolist())}
+    # Each block's neighbours in the down-set order: up (one degree more in the stop or
+    # in one field variable) and down
+    ups: list[list[int]] = []
+    downs: list[list[int]] = []
+    for e in field_exps.tolist():
+        up, down = [], []
+        for v in range(len(e)):
+            f = list(e)
+            f[v] += 1
+            if (k := index.get(tuple(f))) is not None:
+                up.append(k)
+            if e[v] > 0:
+                f[v] -= 2
+                down.append(index[tuple(f)])
+        ups.append(up)
+        downs.append(down)
+
+    def upper(a: int, m: int) -> list[tuple[int, int]]:
+        return ([(a + 1, m)] if a + 1 < n_deg else []) + [(a, k) for k in ups[m]]
+
+    def lower(a: int, m: int) -> list[tuple[int, int]]:
+        return ([(a - 1, m)] if a > 0 else []) + [(a, k) for k in downs[m]]
+
+    above = np.zeros((n_deg, n_v), dtype=np.int64)  # kept blocks directly above
+    for a, m in zip(*np.nonzero(kept), strict=True):
+        above[a, m] = sum(bool(kept[u]) for u in upper(a, m))
+    left = [budget, budget if piston_budget is None else piston_budget]  # a >= 1, a = 0
+
+    def key(a: int, m: int) -> tuple[float, int, int]:
+        return (block_e[a, m] / max(int(block_n[a, m]), 1), a, m)
+
+    heap = [key(a, m) for a, m in zip(*np.nonzero(kept & (above == 0)), strict=True)]
+    heapq.heapify(heap)
+    while heap:
+        _, a, m = heapq.heappop(heap)
+        pool = 1 if a == 0 else 0
+        if block_e[a, m] > left[pool]:
+            continue  # kept, and so is everything below it
+        left[pool] -= block_e[a, m]
+        kept[a, m] = False
+        for b in lower(a, m):
+            if kept[b]:
+                above[b] -= 1
+                if above[b] == 0:
+                    heapq.heappush(heap, key(*b))
+    return kept[a_deg]

@@ -548,23 +548,58 @@ def sample_grid(lens: Lens, domain: Domain, system: str, groups: int, points: in
     uniform on the stop disc)."""
     from lensfit.poly.tensor import symmetric_disc_points
 
+    if system not in ("P_o", "P_s"):
+        raise ValueError(f"sample_grid: system = {system!r}: expected P_o or P_s")
     rng = np.random.default_rng(seed)
+    field = _grid_field(domain, system, groups, rng)
+    ap = symmetric_disc_points(rng, points) * domain.stop_radius_mm
+    return _trace_grid(lens, domain, system, field, ap)
+
+
+def extend_grid(lens: Lens, domain: Domain, grid: GridSamples, *, points: int = 0,
+                groups: int = 0, seed: int) -> GridSamples:
+    """``grid`` with ``points`` more stop points (a multiple of 4, mirror-symmetric, for
+    every field point) or ``groups`` more field points (with every stop point), drawn
+    from ``seed`` as :func:`sample_grid` draws them: only the new rays are traced."""
+    from lensfit.poly.tensor import symmetric_disc_points
+
+    rng = np.random.default_rng(seed)
+    if points:
+        ap = symmetric_disc_points(rng, points) * domain.stop_radius_mm
+        more = _trace_grid(lens, domain, grid.system, grid.field, ap)
+        return GridSamples(grid.system, grid.field, np.concatenate([grid.aperture, ap]),
+                           np.concatenate([grid.outputs, more.outputs], axis=1),
+                           np.concatenate([grid.ok, more.ok], axis=1),
+                           np.concatenate([grid.vignetting, more.vignetting], axis=1))
+    field = _grid_field(domain, grid.system, groups, rng)
+    more = _trace_grid(lens, domain, grid.system, field, grid.aperture)
+    return GridSamples(grid.system, np.concatenate([grid.field, field]), grid.aperture,
+                       np.concatenate([grid.outputs, more.outputs]),
+                       np.concatenate([grid.ok, more.ok]),
+                       np.concatenate([grid.vignetting, more.vignetting]))
+
+
+def _grid_field(domain: Domain, system: str, groups: int,
+                rng: np.random.Generator) -> np.ndarray:
+    """``groups`` field points (G, 4) of ``system``, as :func:`sample_grid` draws them."""
     if system == "P_o":
         sin_xy = np.array([math.sin(math.radians(f)) for f in domain.field_xy_deg])
         dirs = _disc(rng, groups, 1.0) * sin_xy
         third = rng.uniform(0.0, domain.inverse_distance_max, groups)
         third[rng.random(groups) < INFINITY_SHARE] = 0.0
-        aim = aim_object_side
-    elif system == "P_s":
+    else:
         dirs = _disc(rng, groups, domain.sensor_radius_mm)
         third = rng.uniform(domain.focus_min_mm, domain.focus_max_mm, groups)
-        aim = aim_sensor_side
-    else:
-        raise ValueError(f"sample_grid: system = {system!r}: expected P_o or P_s")
     w_lo, w_hi = 1.0 / domain.wavelength_max_nm**2, 1.0 / domain.wavelength_min_nm**2
     lam = 1.0 / np.sqrt(rng.uniform(w_lo, w_hi, groups))
-    field = np.column_stack([dirs[:, 0], dirs[:, 1], third, lam])
-    ap = symmetric_disc_points(rng, points) * domain.stop_radius_mm
+    return np.column_stack([dirs[:, 0], dirs[:, 1], third, lam])
+
+
+def _trace_grid(lens: Lens, domain: Domain, system: str, field: np.ndarray,
+                ap: np.ndarray) -> GridSamples:
+    """Every field point of ``field`` (G, 4) with every stop point of ``ap`` (K, 2), aimed."""
+    aim = aim_object_side if system == "P_o" else aim_sensor_side
+    groups, points = len(field), len(ap)
     gid = np.repeat(np.arange(groups), points)
     aid = np.tile(np.arange(points), groups)
     n = groups * points
