@@ -242,7 +242,8 @@ def _prune(out, unit, tf, rms_full, target, a_hat, v_hat, values, mask, xe, y_te
 
     The budget is the energy the held-out error has room for, (PRUNE_SHARE target)^2 less
     the full fit's error^2, per grid cell: on a complete grid the refitted error^2 is
-    exactly the full fit's plus the energy left out. A phase's piston (the blocks without
+    the full fit's plus the energy left out (exactly for total-degree cuts, nearly for
+    the cuts made). A phase's piston (the blocks without
     the stop point) gets the same room against its absolute error. Should the held-out
     error still miss (holes, or rays between the grid's points), the budget is quartered
     and the cut tried again, twice at most."""
@@ -252,7 +253,7 @@ def _prune(out, unit, tf, rms_full, target, a_hat, v_hat, values, mask, xe, y_te
     if room <= 0.0:
         return None
     budget = room * cells / scale**2
-    piston = budget
+    piston = None  # shares the budget
     if phase:
         absolute = float(np.sqrt(np.mean((_evaluate_tensor(tf, xe) - y_te) ** 2)) * scale)
         piston = max((PRUNE_SHARE * target) ** 2 - absolute**2, 0.0) * cells / scale**2
@@ -270,7 +271,7 @@ def _prune(out, unit, tf, rms_full, target, a_hat, v_hat, values, mask, xe, y_te
         rms = float(np.sqrt(np.mean(err * err)))
         if rms <= target:
             return _tensor_polynomial(out, unit, cut, n_inputs), err, pred, rms
-        budget, piston = budget / 4.0, piston / 4.0
+        budget, piston = budget / 4.0, None if piston is None else piston / 4.0
     return None
 
 
