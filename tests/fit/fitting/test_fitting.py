@@ -423,8 +423,10 @@ def test_tiny_aperture_at_infinity_with_high_degree_stays_finite(lens):
 # and tau, 4 less), field degrees 2 then 4. 64 mirror-symmetric points are 16 distinct
 # points per parity class: enough for the 10 monomials of a class at stop degree 6 and
 # the 15 at 8 (the stop degree may be raised once by 2)
+# The ladder alone: no cut and no growth of the grid (tests/fit/fitting/test_adaptive.py)
 TENSOR = FitOptions(groups=150, aperture_points=64, aperture_degree=6, field_degrees=(2, 4),
-                    test_groups=40, test_per_group=8)
+                    test_groups=40, test_per_group=8, prune=False, max_groups=150,
+                    max_aperture_points=64)
 FIELD_COLUMNS, STOP_COLUMNS = [0, 1, 2, 5], [3, 4]
 
 
@@ -517,8 +519,8 @@ def grid_samples(system: System, groups: int, points: int, seed: int,
 
 
 # Stop degree 6 for phi and 2 for the rest, field degree 4: every term of TRUTH fits
-TENSOR_SYNTH = FitOptions(aperture_degree=6, field_degrees=(4,), target_waves=1e-6, prune=False,
-                          target_position_um=1e-6, target_tau=1e-10)
+TENSOR_SYNTH = FitOptions(aperture_degree=6, field_degrees=(4,), target_waves=1e-6,
+                          target_position_um=1e-6, target_tau=1e-10, prune=False)
 
 
 def test_tensor_recovers_a_synthetic_system_exactly():
@@ -620,6 +622,9 @@ def test_fit_options_defaults_and_targets():
     ({"field_degrees": ()}, "field_degrees"),
     ({"field_degrees": (4, -2)}, "field_degrees"),
     ({"aperture_degree": 1}, "aperture_degree"),
+    ({"max_groups": 100}, "max_groups = 100"),
+    ({"max_aperture_points": 64}, "max_aperture_points = 64"),
+    ({"max_aperture_points": 130}, "max_aperture_points = 130"),
 ])
 def test_fit_options_refuse_bad_values_naming_the_option(change, message):
     with pytest.raises(ValueError, match=f"^fit options: .*{message}"):
