@@ -432,19 +432,26 @@ def _glass_policy(lens, args: argparse.Namespace):
 
 
 def _print_glass_ranges(lens, wavelengths: list[str] | None) -> None:
-    """The glasses whose published range does not cover the default fit band (380-780
-    nm) and any --wavelength: extrapolated (allowed) or refused by `lensfit fit`."""
+    """The band `lensfit fit` covers by default (380-780 nm narrowed to the range every
+    glass supports, or why there is none), then, when extrapolation is allowed, the
+    glasses extrapolated over it and any --wavelength."""
+    from lensfit.errors import LensError
     from lensfit.glass.ranges import allows_extrapolation, out_of_range
+    from lensfit.sample.domain import fit_wavelengths
 
-    lams = [380.0, 780.0]
+    try:
+        band = fit_wavelengths(lens)
+        print(f"  {'default fit':20s}{band.line()}")
+        lams = list(band.range_nm)
+    except LensError as e:  # no band every glass supports: say why, as `lensfit fit` will
+        print(f"  {'default fit':20s}none: {e.detail}")
+        lams = []
     for text in wavelengths or []:
         lams += [float(v) for v in text.split(",")]
-    allowed = allows_extrapolation(lens)
+    if not lams or not allows_extrapolation(lens):
+        return  # the --wavelength values were checked against every glass already
     for o in out_of_range(lens, min(lams), max(lams)):
-        what = ("allowed (glass_extrapolation)" if allowed else
-                "refused by lensfit fit unless allowed (glass_extrapolation = \"allow\" "
-                "or --allow-glass-extrapolation) or fitted within it (--wavelengths)")
-        print(f"  {'glass range':20s}{o.describe()}: {what}")
+        print(f"  {'glass range':20s}{o.describe()}: allowed (glass_extrapolation)")
 
 
 def cmd_draw(args: argparse.Namespace) -> int:
@@ -578,15 +585,20 @@ def _pair(text: str | None, what: str) -> tuple[float, float] | None:
 
 
 def _domain_and_options(args: argparse.Namespace, lens):
+    """(domain, fit options, wavelengths): the wavelengths are the domain's band and
+    why (:func:`lensfit.sample.domain.fit_wavelengths`): --wavelengths as given, else
+    380-780 nm narrowed to the range every glass of the lens supports."""
     from lensfit.sample import default_domain
+    from lensfit.sample.domain import fit_wavelengths
 
+    pair = _pair(args.wavelengths, "--wavelengths")
+    wavelengths = fit_wavelengths(lens, pair, f"--wavelengths {args.wavelengths}")
     close = args.close_focus
     domain = default_domain(lens, f_number=args.f_number, field_deg=args.field,
-                            close_focus_mm=close,
-                            wavelengths_nm=_pair(args.wavelengths, "--wavelengths"),
+                            close_focus_mm=close, wavelengths_nm=wavelengths.range_nm,
                             focus_mm=_pair(args.focus, "--focus"),
                             image_circle_mm=args.image_circle)
-    return domain, _options(args)
+    return domain, _options(args), wavelengths
 
 
 def _options(args: argparse.Namespace):
@@ -659,7 +671,7 @@ def cmd_fit(args: argparse.Namespace) -> int:
     lens = _glass_policy(_coated(load_lens(args.lens), args), args)
     gen = Path(args.generated) if args.generated else GENERATED_DIR
     if args.scene:
-        from lensfit.scene import load_scene, scene_domain
+        from lensfit.scene import load_scene, scene_domain, scene_wavelengths
 
         given = [f"--{k.replace('_', '-')}" for k in ("f_number", "field", "image_circle",
                                                        "wavelengths", "close_focus", "focus")
@@ -669,19 +681,23 @@ def cmd_fit(args: argparse.Namespace) -> int:
                              f"wavelengths, f_number and focus); drop {', '.join(given)}")
         scene = load_scene(args.scene)
         domain, options = scene_domain(lens, scene), _options(args)
+        wavelengths = scene_wavelengths(lens, scene)
+        print(wavelengths.line())
         folder = gen / lens_folder_name(lens) / "scene-fits" / scene.name
         report_dir = (Path(args.report) if args.report
                       else Path("build/report") / lens_folder_name(lens) / scene.name)
         _, fig = stage.run(lens, domain=domain, options=options, generated_dir=folder,
                            report_dir=report_dir, timing=not args.no_timing,
-                           flat=True, scene=scene, glsl=args.glsl)
+                           flat=True, scene=scene, glsl=args.glsl, wavelengths=wavelengths)
         out = folder
     else:
-        domain, options = _domain_and_options(args, lens)
+        domain, options, wavelengths = _domain_and_options(args, lens)
+        print(wavelengths.line())
         report_dir = (Path(args.report) if args.report
                       else Path("build/report") / lens_folder_name(lens))
         _, fig = stage.run(lens, domain=domain, options=options, generated_dir=gen,
-                           report_dir=report_dir, timing=not args.no_timing, glsl=args.glsl)
+                           report_dir=report_dir, timing=not args.no_timing, glsl=args.glsl,
+                           wavelengths=wavelengths)
         out = gen / lens_folder_name(lens)
     print(f"wrote {out}/ and {report_dir / 'report.md'} (fit {fig['fit_seconds']:.1f} s, "
           f"PSF check {fig['psf_vs_exact']['seconds']:.1f} s)")
@@ -701,10 +717,12 @@ def cmd_report(args: argparse.Namespace) -> int:
     if args.out:
         _check_folder(args.out, "-o")  # before the fit, not after it
     lens = _glass_policy(_coated(load_lens(args.lens), args), args)
-    domain, options = _domain_and_options(args, lens)
+    domain, options, wavelengths = _domain_and_options(args, lens)
     report_dir = Path(args.out) if args.out else Path("build/report") / lens_folder_name(lens)
+    if not args.json:  # --json: the figures carry it (key "wavelengths")
+        print(wavelengths.line())
     _, fig = stage.run(lens, domain=domain, options=options, report_dir=report_dir,
-                       timing=not args.no_timing)
+                       timing=not args.no_timing, wavelengths=wavelengths)
     if args.json:
         print(json.dumps(fig, indent=1, allow_nan=False))
     else:
@@ -939,7 +957,8 @@ def build_parser() -> argparse.ArgumentParser:
         p.add_argument("--image-circle", type=float, default=None, metavar="MM",
                        help="radius of the sensor disc fitted (default: follows --field)")
         p.add_argument("--wavelengths", default=None, metavar="LO,HI",
-                       help="wavelength range in nm (default 380,780)")
+                       help="wavelength range in nm (default: 380,780 narrowed to the "
+                            "range every glass of the lens supports)")
         p.add_argument("--close-focus", type=float, default=None, metavar="MM",
                        help="closest scene point from the first vertex in mm, or inf "
                             "(default: ten focal lengths); the sensor travel follows")

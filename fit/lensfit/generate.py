@@ -71,12 +71,13 @@ def lens_folder_name(lens: Lens) -> str:
 
 def sources_for(systems: Sequence[System], prefix: str, comment: str, *,
                 facts: LensFacts | None = None, trust: dict[str, Any] | None = None,
-                casadi: bool = False, glsl: bool = False, c: bool = True) -> dict[str, str]:
+                casadi: bool = False, glsl: bool = False, c: bool = True,
+                table_note: str = "") -> dict[str, str]:
     """Every generated file's text, by file name (the table carries ``facts`` and
     ``trust``: give them for a lens folder). The Horner C unless ``c`` is false; casadi's
     C only with ``casadi`` (for a tensor fit ~30 MB a file and ~3x slower than the Horner
     C); GLSL only with ``glsl`` (~6 MB for a tensor fit; lensrt's GL path uploads the
-    table instead)."""
+    table instead). ``table_note``: more comment lines for the table only."""
     files: dict[str, str] = {}
     if c:
         files.update(emit_c(systems, prefix, header_comment=comment, which="horner"))
@@ -84,7 +85,8 @@ def sources_for(systems: Sequence[System], prefix: str, comment: str, *,
         files.update(emit_c(systems, prefix, header_comment=comment, which="casadi"))
     if glsl:
         files.update(emit_glsl(systems, prefix, header_comment=comment))
-    files.update(table_file(systems, prefix, comment, facts, trust))
+    files.update(table_file(systems, prefix, "\n".join(filter(None, (comment, table_note))),
+                            facts, trust))
     return files
 
 
@@ -101,16 +103,37 @@ def lens_files(lens: Lens, systems: Sequence[System], meta: dict[str, Any],
                trust: dict[str, Any]) -> dict[str, str]:
     """Every file of the folder ``generated/<lens>/``, by name (``meta``: fit.json's keys;
     ``trust``: the table's trust figures, :func:`lensfit.trust.trust_figures`; GLSL
-    when ``meta["glsl"]`` is true, as `lensfit fit --glsl` records it).
+    when ``meta["glsl"]`` is true, as `lensfit fit --glsl` records it). The table gets a
+    comment line with the fitted wavelengths and why when ``meta["wavelengths"]`` has
+    them (:func:`wavelengths_note`).
 
     A coating variant (`--coating none`) gets no C: its positions and phase are the
     lens's own, bit for bit (the same rays; only tau differs), so its 2.5 MB of Horner C
     would repeat the lens's. lensrt loads its table."""
     prefix = lens_prefix(lens)
     files = sources_for(systems, prefix, header_comment(lens), facts=lens_facts(lens),
-                        trust=trust, glsl=bool(meta.get("glsl", False)), c=not lens.variant)
+                        trust=trust, glsl=bool(meta.get("glsl", False)), c=not lens.variant,
+                        table_note=wavelengths_note(meta))
     files["fit.json"] = fit_json({**meta, "table": f"{file_stem(prefix)}.table"})
     return files
+
+
+def wavelengths_note(meta: dict[str, Any]) -> str:
+    """The table's comment line on its wavelengths, from fit.json's ``wavelengths``
+    (:meth:`lensfit.glass.ranges.Wavelengths.to_dict`): e.g. ``wavelengths 404.66-780 nm:
+    the range every glass supports (N-F2: 404.66-2325.4 nm) within 380-780 nm``. Empty
+    for a fit.json written before the key. A comment: lensrt and lensfit skip it; the
+    table's own lambda input line holds the range they check."""
+    w = meta.get("wavelengths")
+    if not isinstance(w, dict):
+        return ""
+    try:
+        from lensfit.glass.ranges import Wavelengths
+
+        line = Wavelengths(float(w["min_nm"]), float(w["max_nm"]), str(w["reason"])).line()
+    except (KeyError, TypeError, ValueError):
+        return ""
+    return " ".join(line.split())  # one line whatever the reason holds
 
 
 def regenerate(folder: Path) -> tuple[Lens, list[str]]:

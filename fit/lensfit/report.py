@@ -277,6 +277,10 @@ def _markdown(lens: Lens, fits: Sequence[SystemFit], fig: dict[str, Any]) -> str
     if reason:
         lines += ["", f"The lens file declares this domain instead of the default "
                       f"(36 x 24 mm frame, f/2 or wide open): {reason}"]
+    band = fig.get("wavelengths")
+    if isinstance(band, dict) and "reason" in band:
+        lines += ["", f"Wavelengths {band['min_nm']:g}-{band['max_nm']:g} nm: "
+                      f"{band['reason']}."]
     lines += _glass_range_markdown(lens, fig.get("domain") or dom)
     lines += [
         "",

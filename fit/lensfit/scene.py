@@ -330,11 +330,33 @@ SCENE_FOCUS_MARGIN_MM = 0.02  # either side of a fixed sensor shift
 SCENE_WAVELENGTH_MARGIN_NM = 1.0  # either side of the scene's wavelengths
 
 
+def scene_wavelengths(lens, scene: Scene):
+    """The band a scene fit covers and why (:class:`lensfit.glass.ranges.Wavelengths`):
+    the scene's wavelengths with ``SCENE_WAVELENGTH_MARGIN_NM`` either side, the margin
+    kept inside the range every glass supports (a scene at 400-700 nm fits a lens whose
+    glass is published over 400-700 nm) unless the lens allows extrapolation. A scene
+    wavelength itself outside a glass's range is refused when the fit starts, naming
+    the scene's file and key."""
+    from lensfit.glass.ranges import Wavelengths, allows_extrapolation, common_range
+
+    lam = scene.wavelengths_nm
+    lo, hi = min(lam) - SCENE_WAVELENGTH_MARGIN_NM, max(lam) + SCENE_WAVELENGTH_MARGIN_NM
+    if not allows_extrapolation(lens):
+        g_lo, g_hi = common_range(lens)
+        lo, hi = max(lo, min(min(lam), g_lo)), min(hi, max(max(lam), g_hi))
+    name = Path(scene.source_file).name
+    listed = ", ".join(f"{w:g}" for w in lam)
+    return Wavelengths(lo, hi, f"the wavelengths of scene {name} ({listed} nm) with a "
+                               f"margin of up to {SCENE_WAVELENGTH_MARGIN_NM:g} nm",
+                       f"scene {name}, key 'wavelengths_nm' = [{listed}]")
+
+
 def scene_domain(lens, scene: Scene):
     """The domain a scene fit covers (``lensfit fit --scene``): the disc of directions
     that holds its lights, the image circle of their images plus room for a PSF window,
-    their nearest distance, its wavelengths, its stop (``f_number``, default the lens's
-    default) and its focus (with small margins, named above)."""
+    their nearest distance, its wavelengths (:func:`scene_wavelengths`), its stop
+    (``f_number``, default the lens's default) and its focus (with small margins, named
+    above)."""
     from lensfit.psf import geometric_image_point
     from lensfit.sample.domain import default_domain
 
@@ -345,11 +367,9 @@ def scene_domain(lens, scene: Scene):
                                                   lt.distance_mm, 550.0, focus or 0.0))
                 for lt in scene.lights)
     close = min(lt.distance_mm for lt in scene.lights)
-    lam = scene.wavelengths_nm
     base = default_domain(lens, scene.f_number, close_focus_mm=0.98 * close,
                           focus_mm=None if focus is None else
                           (focus - SCENE_FOCUS_MARGIN_MM, focus + SCENE_FOCUS_MARGIN_MM),
-                          wavelengths_nm=(min(lam) - SCENE_WAVELENGTH_MARGIN_NM,
-                                          max(lam) + SCENE_WAVELENGTH_MARGIN_NM))
+                          wavelengths_nm=scene_wavelengths(lens, scene).range_nm)
     return base.with_(field_deg=field, field_y_deg=None,
                       sensor_radius_mm=image + SCENE_IMAGE_MARGIN_MM)

@@ -38,6 +38,7 @@ from lensfit.generate import (
     read_fit_json,
     scene_files,
     sources_for,
+    wavelengths_note,
     write_folder,
 )
 from lensfit.poly import System, design_matrix
@@ -134,7 +135,12 @@ def test_regenerating_from_fit_json_is_byte_identical(folder):
     assert systems.version == 4 and systems.trust is not None
     files = sources_for(list(systems), lens_prefix(lens), header_comment(lens),
                         facts=lens_facts(lens), trust=systems.trust,
-                        c=not lens.variant)  # a coating variant: no C (test_coating_variant)
+                        c=not lens.variant,  # a coating variant: no C (test_coating_variant)
+                        table_note=wavelengths_note(meta))  # the band's comment line
+    if "wavelengths" in meta:  # not in the committed folders fitted before the key
+        band = meta["wavelengths"]
+        assert (f"\n# wavelengths {band['min_nm']:g}-{band['max_nm']:g} nm: {band['reason']}\n"
+                in files[meta["table"]])
     files["fit.json"] = fit_json(meta)  # meta holds its own format and table keys
     rest = {k: v for k, v in meta.items() if k not in ("format", "table")}
     assert files == lens_files(lens, list(systems), rest, systems.trust)

@@ -4,6 +4,9 @@ Format ``lensfit-poly-table``, version 4 (the reader also reads versions 1 and 2
 lines end with '\\n'; fields are separated by one or more spaces or tabs (only those:
 other Unicode blanks belong to a field), and a '\r' before the '\n' is ignored. Lines that
 are empty or start with '#' (after optional blanks) are comments and are skipped anywhere.
+(lensfit writes, after the header, where the table comes from and, for a lens folder,
+``# wavelengths LO-HI nm: <why>``, the fitted band and its reason: informative only, the
+``input lambda`` lines hold the band the readers check.)
 The first other line is the header; then, in version 2, the lens lines; then one block
 per system:
 

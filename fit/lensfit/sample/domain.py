@@ -22,6 +22,7 @@ from dataclasses import asdict, dataclass, replace
 from typing import Any
 
 from lensfit.errors import InputError
+from lensfit.glass.ranges import Wavelengths, default_wavelengths
 from lensfit.paraxial.paraxial import image_distance, paraxial, stop_radius_for_f_number
 from lensfit.poly.polynomial import Input
 from lensfit.prescription.model import Lens
@@ -137,6 +138,17 @@ def declared_fit(lens: Lens) -> dict[str, Any]:
     return dict((lens.raw or {}).get("fit", {}))
 
 
+def fit_wavelengths(lens: Lens, wavelengths_nm: tuple[float, float] | None = None,
+                    asked_by: str = "wavelengths_nm") -> Wavelengths:
+    """The band a fit covers and why: ``wavelengths_nm`` as asked (``asked_by`` names
+    who asked, e.g. ``--wavelengths 400,700``), else the default of
+    :func:`lensfit.glass.ranges.default_wavelengths`: 380-780 nm narrowed to the range
+    every glass of the lens supports (unchanged when the lens allows extrapolation)."""
+    if wavelengths_nm is None:
+        return default_wavelengths(lens)
+    return Wavelengths.asked(*wavelengths_nm, asked_by)
+
+
 def default_domain(lens: Lens, f_number: float | None = None, *,
                    field_deg: float | None = None, close_focus_mm: float | None = None,
                    wavelengths_nm: tuple[float, float] | None = None,
@@ -144,14 +156,17 @@ def default_domain(lens: Lens, f_number: float | None = None, *,
                    image_circle_mm: float | None = None) -> Domain:
     """A full-frame camera: the image circle of 36 x 24 mm, the field that fills it (at
     most 60 degrees), focus from infinity to ten focal lengths, the stop open to
-    ``f_number`` (default: f/2, or wide open when the lens is slower), 380-780 nm.
+    ``f_number`` (default: f/2, or wide open when the lens is slower), 380-780 nm
+    narrowed to the range every glass of the lens supports (:func:`fit_wavelengths`;
+    an error naming the glasses when that leaves under 50 nm).
 
     Each keyword narrows (or widens) one part: ``field_deg`` the half field angle in x
     (y follows the lens's squeeze) and with it the image circle (the paraxial image of
     the field plus 10% for distortion, at most the frame's); ``image_circle_mm`` the
     radius of the sensor disc outright; ``close_focus_mm`` the nearest scene point (inf:
     infinity only) and with it the sensor travel; ``focus_mm`` the sensor shift range
-    z_S outright; ``wavelengths_nm`` (lo, hi)."""
+    z_S outright; ``wavelengths_nm`` (lo, hi) outright (checked against the glasses'
+    ranges when the fit starts: :func:`lensfit.glass.ranges.check_glass_ranges`)."""
     # A lens file may declare a narrower default ([fit] in its TOML, with the reason)
     declared = declared_fit(lens)
     if f_number is None:
@@ -199,7 +214,7 @@ def default_domain(lens: Lens, f_number: float | None = None, *,
     lo, hi = min(0.0, travel) - margin, max(0.0, travel) + margin
     if focus_mm is not None:
         lo, hi = focus_mm
-    w_lo, w_hi = (380.0, 780.0) if wavelengths_nm is None else wavelengths_nm
+    w_lo, w_hi = fit_wavelengths(lens, wavelengths_nm).range_nm
     return Domain(
         field_deg=field,
         close_focus_mm=close,

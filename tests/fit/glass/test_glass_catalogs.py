@@ -380,23 +380,34 @@ def test_cli_info_lists_glass_ranges(tmp_path: Path, capsys: pytest.CaptureFixtu
     path = _write(tmp_path, _lens(SK16_INLINE))
     assert main(["info", str(path)]) == 0
     out = capsys.readouterr().out
-    assert "SK16 (surface 0): published 400-700 nm, extrapolated at 380-400 nm and 700-780" \
-        in out and "refused by lensfit fit" in out
+    # The default fit follows the glass: nothing is extrapolated, nothing refused
+    assert ("  default fit         wavelengths 400-700 nm: the range every glass supports "
+            "(SK16: 400-700 nm) within 380-780 nm\n") in out
+    assert "glass range" not in out and "extrapolated" not in out
     assert main(["info", str(path), "--allow-glass-extrapolation"]) == 0
-    assert "allowed (glass_extrapolation)" in capsys.readouterr().out
+    out = capsys.readouterr().out
+    assert "default fit         wavelengths 380-780 nm: the default 380-780 nm" in out
+    assert "SK16 (surface 0): published 400-700 nm, extrapolated at 380-400 nm and 700-780" \
+        in out and "allowed (glass_extrapolation)" in out
     inside = _write(tmp_path, _lens({**SK16_INLINE, "range_nm": [300.0, 900.0]}))
     assert main(["info", str(inside)]) == 0
-    assert "glass range" not in capsys.readouterr().out
+    out = capsys.readouterr().out
+    assert "glass range" not in out
+    assert ("default fit         wavelengths 380-780 nm: the default range, which every "
+            "glass supports") in out
 
 
 def test_cli_fit_refuses_before_any_work(tmp_path: Path,
                                          capsys: pytest.CaptureFixture[str]) -> None:
+    """--wavelengths outside a glass's range (the default band follows the glasses:
+    tests/fit/glass/test_glass_range_default.py)."""
     path = _write(tmp_path, _lens(SK16_INLINE))
     gen, rep = tmp_path / "gen", tmp_path / "rep"
     assert main(["fit", str(path), "--quick", "--no-timing", "--generated", str(gen),
-                 "--report", str(rep)]) == 2
+                 "--report", str(rep), "--wavelengths", "380,780"]) == 2
     err = capsys.readouterr().err
-    assert err.count("\n") == 1 and "surface 0: key 'material': wavelengths 380-780 nm" in err
+    assert err.count("\n") == 1 and ("surface 0: key 'material': --wavelengths 380,780: "
+                                     "wavelengths 380-780 nm") in err
     assert "--wavelengths 400,700" in err
     assert not gen.exists() and not rep.exists()
 
