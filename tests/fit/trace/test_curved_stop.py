@@ -292,3 +292,23 @@ def test_exact_psf_matches_a_brute_force_huygens_sum(field_deg):
         # (measured 2.8%); the old model at least 7% off (measured 9.3%)
         assert got["entrance"][0] < 4.5e-2 and got["entrance"][1] > 7e-2
         assert got["entrance"][1] > 2 * got["entrance"][0]
+
+
+# --- 3. the fit ------------------------------------------------------------------------------
+
+def test_lensfit_fit_of_the_curved_stop_lens_meets_its_psf_check(tmp_path, capsys):
+    """`lensfit fit --quick` of the triplet at f/8 over a 10 degree field: its own PSF
+    check (trust.psf_vs_exact: the fitted polynomials' PSF against exact rays, on axis
+    and in the corner, 450-650 nm) is within the 1% target (measured 0.12%). At f/5 over
+    14 degrees the quick budget falls short for this lens with either stop model
+    (1.29% with the stop on the surface, 1.02% with the old vertex plane), as its phase
+    RMS target is not reached: a budget matter, not the stop's."""
+    from lensfit.cli import main
+
+    argv = ["fit", str(FIXTURE), "--quick", "--f-number", "8", "--field", "10",
+            "--no-timing", "--generated", str(tmp_path / "gen"),
+            "--report", str(tmp_path / "report")]
+    assert main(argv) == 0
+    out = capsys.readouterr().out
+    assert "within the target" in out, out
+    assert any((tmp_path / "gen").rglob("*.table"))
