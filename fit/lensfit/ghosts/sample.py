@@ -58,7 +58,8 @@ class GhostHalf:
     system: str  # "P_o" (case A) or "P_s" (cases B and C)
     steps: tuple[Step, ...]  # P_o: start plane -> stop plane; P_s: stop plane -> last surface
     stop_crossings: tuple[int, ...]  # indices into steps of the stop plane (case C: two)
-    stop_index: int  # the model's stop plane
+    stop_index: int  # the model's stop surface (a plane, or the copy of a refracting
+    #                   surface the stop lies on: stop points are x, y on it)
 
     def __iter__(self):
         """Unpacks as (system, steps, stop_crossings)."""
