@@ -248,8 +248,8 @@ PIXELS = 32
 def test_exact_psf_matches_a_brute_force_huygens_sum(field_deg):
     """lensfit's exact PSF (psf.exact_psf_nodes, as trust.psf_vs_exact takes it) against
     the Huygens sum of a collimated beam, both normalised to unit power in the trust
-    check's window at best focus, f/5, 550 nm. Measured (relative L2; the command in the
-    report of the curved-stop branch runs these functions):
+    check's window at best focus, f/5, 550 nm. Measured (relative L2; `PYTHONPATH=fit
+    .venv/bin/python tests/fit/trace/test_curved_stop.py` prints these figures):
 
     ===========  =========================  ==========================
     field        ours (surface) vs "stop"   old vertex plane vs "stop"
@@ -312,3 +312,37 @@ def test_lensfit_fit_of_the_curved_stop_lens_meets_its_psf_check(tmp_path, capsy
     out = capsys.readouterr().out
     assert "within the target" in out, out
     assert any((tmp_path / "gen").rglob("*.table"))
+
+
+def main() -> None:
+    """The figures of test_exact_psf_matches_a_brute_force_huygens_sum's table, at 0, 14
+    and 18 degrees (~2 minutes on 2 cores):
+
+        PYTHONPATH=fit .venv/bin/python tests/fit/trace/test_curved_stop.py
+    """
+    from lensfit.psf import pixel_centres
+
+    new, old = curved(), vertex_plane()
+    radius = stop_radius_for_f_number(new, F_NUMBER)
+    focus = best_focus_offset(new, radius, LAM)
+    print(f"f/{F_NUMBER:g} (stop radius {radius:.4f} mm), {LAM:g} nm, focus {focus:+.5f} mm; "
+          f"relative L2 of PSFs normalised to unit power in a {PIXELS}^2 window")
+    for field in (0.0, 14.0, 18.0):
+        width, centre = _window(new, radius, (0.0, field), math.inf, LAM, focus, F_NUMBER)
+        xs, ys = pixel_centres(PIXELS, PIXELS, width, 0.0, *centre)
+        w = ("stop", "entrance")
+        ref = huygens_psf(new, field, radius, focus, xs, ys, weights=w)
+        ref_plane = huygens_psf(old, field, radius, focus, xs, ys, weights=w)
+        ours = lensfit_psf(new, field, radius, focus, width, centre, PIXELS, POINTS)
+        before = lensfit_psf(old, field, radius, focus, width, centre, PIXELS, POINTS)
+        print(f"{field:4g} deg (window {width * 1e3:.0f} um): "
+              f"ours {rel_l2(ours, ref['stop']):.2%} / {rel_l2(ours, ref['entrance']):.2%}, "
+              f"vertex plane {rel_l2(before, ref['stop']):.2%} / "
+              f"{rel_l2(before, ref['entrance']):.2%} (stop / entrance weight); "
+              f"the weights differ by {rel_l2(ref['entrance'], ref['stop']):.2%}; "
+              f"vertex plane against its own aperture's sum "
+              f"{rel_l2(before, ref_plane['stop']):.2%}")
+
+
+if __name__ == "__main__":
+    main()
