@@ -135,9 +135,9 @@ def _info_wavelengths(texts: list[str] | None, lens) -> list[float]:
 
 def _info_rows(t: dict) -> list[tuple[str, str]]:
     ep, xp = t["entrance_pupil"], t["exit_pupil"]
+    on_surface = ", on the refracting surface" if t.get("stop_on_refracting_surface") else ""
     rows = [
-        ("surfaces", f"{t['surfaces']} (stop at surface {t['stop_index']}"
-                     f"{', its vertex plane' if t.get('stop_on_vertex_plane') else ''})"),
+        ("surfaces", f"{t['surfaces']} (stop at surface {t['stop_index']}{on_surface})"),
         ("EFL", f"{_fmt(t['efl_mm'], 'mm')}   (at {t['wavelength_nm']:.2f} nm)"),
     ]
     if t["anamorphic"]:

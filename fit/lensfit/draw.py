@@ -107,9 +107,13 @@ def _draw_section(ax, lens: Lens, axis: int, field_deg: float, n_rays: int, stop
         z = zv[k] + s.sag(*_xy(axis, h))
         prof.append((z, h))
         if s.stop:
+            # The iris blades from the stop's edge outwards, at the edge's z on the stop
+            # surface (the plane, or the refracting surface the stop lies on)
             top = s.semi_diameter_mm * 1.15
             for sign in (1, -1):
-                ax.plot([zv[k], zv[k]], [sign * stop_r, sign * top], color="k", lw=2.5)
+                z_edge = zv[k] + float(np.nan_to_num(s.sag(*_xy(axis, np.array(
+                    [sign * stop_r])))[0]))
+                ax.plot([z_edge, z_edge], [sign * stop_r, sign * top], color="k", lw=2.5)
         else:
             ax.plot(z, h, color="k", lw=1)
     # Edges of glass elements: join the rims of the two surfaces bounding the glass

@@ -60,8 +60,10 @@ def _unaimed_tracens_per_eval(lens: Lens, fit: SystemFit, n: int = 20000) -> flo
         z0 = float(lens.vertex_z[s])
     rng = np.random.default_rng(0)
     pos = np.zeros((n, 3))
-    pos[:, 2] = z0
     pos[:, :2] = rng.uniform(-1.0, 1.0, (n, 2))
+    pos[:, 2] = z0
+    if fit.system.name == "P_s":  # on the stop surface (curved for a stop on a lens)
+        pos[:, 2] += np.nan_to_num(lens.surfaces[s].sag(pos[:, 0], pos[:, 1]))
     d = np.column_stack([rng.uniform(-0.05, 0.05, (n, 2)), np.ones(n)])
     rays = Rays(pos, d, 550.0)
     t0 = time.perf_counter()

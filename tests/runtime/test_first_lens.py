@@ -5,8 +5,8 @@ The commands are read from README.md between the `first-lens` markers, so the RE
 this test cannot drift apart; they run in a scratch folder in place of build/first-lens.
 Then the result is checked against physics, not against itself:
 
-* the imported lens is the file's lens: its stop is the vertex plane of the first,
-  refracting surface, and its glasses are the catalog's;
+* the imported lens is the file's lens: its stop is on the first, refracting surface
+  (clipped on it, as OpticStudio clips it), and its glasses are the catalog's;
 * the fit states its trust (the PSF of the polynomials against exactly traced rays) and
   it is within the fit's target;
 * the light at (+2, +1) degrees is imaged at +f tan(theta) (the designers' sign
@@ -74,7 +74,7 @@ def test_the_commands_are_the_documented_four():
 def test_imported_lens_is_the_files(walk):
     lens = load_lens(str(walk["out"] / "achromat.toml"))
     # The .zmx puts STOP on surface 1 (its first refracting surface): the loader's stop is
-    # the plane tangent to that surface's vertex, in front of it, in air
+    # a zero-thickness copy of that surface, in front of it, in air
     assert lens.stop_index == 0 and lens.vertex_z[0] == lens.vertex_z[1] == 0.0
     assert [s.medium.name for s in lens.surfaces[1:3]] == ["N-BK7", "N-SF5"]
     assert lens.surfaces[1].semi_diameter_mm == 12.7

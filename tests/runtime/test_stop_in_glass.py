@@ -44,8 +44,8 @@ LENSES = {
          "stop": True},
         {"shape": "sphere", "radius": -50.0, "thickness": 47.0, "material": "air",
          "semi_diameter": 10.0}],
-    # a cemented doublet with `stop = true` on the cemented surface: its vertex plane,
-    # inserted in the crown
+    # a cemented doublet with `stop = true` on the cemented surface: it clips on that
+    # surface, through the copy of it the loader inserts in the crown
     "cemented-vertex": [
         {"shape": "sphere", "radius": 61.0, "thickness": 6.0, "material": "N-BK7",
          "semi_diameter": 12.0},

@@ -176,9 +176,9 @@ def black_level(overexposure: float = DEFAULT_OVEREXPOSURE_STOPS) -> float:
 
 
 def ghost_surfaces(lens: Lens) -> list[int]:
-    """The surfaces a ghost can reflect at: every surface of the model except stop
-    planes (a stop on a refracting surface is the vertex plane the loader inserted; the
-    refracting surface itself stays)."""
+    """The surfaces a ghost can reflect at: every surface of the model except the stop
+    surface (a stop plane, or for a stop on a refracting surface the bare copy of it the
+    loader inserted, which reflects nothing; the refracting surface itself stays)."""
     return [k for k, s in enumerate(lens.surfaces) if not s.stop]
 
 

@@ -44,7 +44,8 @@ from lensfit.sample.rays import (
 )
 from lensfit.trace.tracer import Step, ghost_path
 
-# A stop's shape: (x, y) mm arrays at the stop plane -> True inside the opening
+# A stop's shape: (x, y) mm arrays on the stop surface (the stop plane, or the refracting
+# surface a stop lies on) -> True inside the opening
 StopShape = Callable[[np.ndarray, np.ndarray], np.ndarray]
 
 
@@ -57,7 +58,8 @@ class GhostHalf:
     system: str  # "P_o" (case A) or "P_s" (cases B and C)
     steps: tuple[Step, ...]  # P_o: start plane -> stop plane; P_s: stop plane -> last surface
     stop_crossings: tuple[int, ...]  # indices into steps of the stop plane (case C: two)
-    stop_index: int  # the model's stop plane
+    stop_index: int  # the model's stop surface (a plane, or the copy of a refracting
+    #                   surface the stop lies on: stop points are x, y on it)
 
     def __iter__(self):
         """Unpacks as (system, steps, stop_crossings)."""
@@ -269,14 +271,19 @@ def _scan_guess(lens: Lens, half: GhostHalf, args: list[np.ndarray], m: int) -> 
         land, unknown = out.pos[:, :2], p
     else:
         # Backwards from each sensor point through a grid on the last vertex plane,
-        # along the half reversed, to the stop plane
+        # along the half reversed, to the stop surface (the stop plane, or the curved
+        # surface a stop on a refracting surface lies on: where the stop points are)
         last = len(lens.surfaces) - 1
         q = np.tile(grid * SCAN_REACH * lens.surfaces[last].semi_diameter_mm, (g, 1))
         sens = np.column_stack([np.repeat(uniq[:, 0], k), np.repeat(uniq[:, 1], k),
                                 lens.sensor_z + np.repeat(uniq[:, 2], k)])
         d = np.column_stack([q, np.full(len(q), lens.vertex_z[last])]) - sens
         back = [Step(st.surface, not st.from_front, st.reflect) for st in half.steps[::-1]]
-        out = trace(lens, Rays(sens, d, lam), back, clip=False, end_z=z_stop)
+        if lens.surfaces[s].curvature == 0.0 and not lens.surfaces[s].aspheric:
+            out = trace(lens, Rays(sens, d, lam), back, clip=False, end_z=z_stop)
+        else:
+            out = trace(lens, Rays(sens, d, lam), [*back, Step(s, from_front=False)],
+                        clip=False)
         land = out.pos[:, :2]
         with np.errstate(divide="ignore", invalid="ignore"):
             unknown = out.dir[:, :2] / out.dir[:, 2:3]  # the same line, either way along

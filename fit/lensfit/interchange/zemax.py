@@ -878,9 +878,10 @@ def _num(v: float) -> str:
 
 def _file_surfaces(lens: Any) -> list[tuple[Any, bool, float]]:
     """The surfaces as the lens file has them, with the stop flag and thickness of each:
-    a stop plane the loader inserted at a refracting surface's vertex (``inserted``
-    "front" or "back") is folded back into that surface, as a .zmx writes it (STOP on
-    the surface)."""
+    the stop surface the loader inserted on a refracting surface marked as the stop
+    (``inserted`` "front" or "back": a zero-thickness copy of it) is folded back into
+    that surface, as a .zmx writes it (STOP on the surface, which OpticStudio clips on
+    the surface, as lensfit does)."""
     ss = lens.surfaces
     out = []
     for k, s in enumerate(ss):

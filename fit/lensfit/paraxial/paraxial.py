@@ -227,11 +227,12 @@ def table(lens: Lens, *, stop_radius_mm: float | None = None,
     out: dict[str, Any] = {
         "name": lens.name,
         "file": lens.source_file,
-        # The file's numbering: a stop on a refracting surface is its vertex plane, which
-        # the loader inserts as a surface of its own (lensdb/README.md, The aperture stop)
+        # The file's numbering: a stop on a refracting surface clips on that surface,
+        # through a copy of it the loader inserts as a surface of its own (lensdb/README.md,
+        # The aperture stop)
         "surfaces": sum(1 for s in lens.surfaces if not s.inserted),
         "stop_index": lens.stop_file_index,
-        "stop_on_vertex_plane": bool(lens.surfaces[lens.stop_index].inserted),
+        "stop_on_refracting_surface": bool(lens.surfaces[lens.stop_index].inserted),
         "total_track_mm": lens.sensor_z,
         "wavelength_nm": py.wavelength_nm,
         "anamorphic": lens.anamorphic,

@@ -273,8 +273,9 @@ def lens_from_dict(data: dict[str, Any], *, file: str = "<memory>") -> Lens:
             key="thickness",
         )
     _check_crossing(surfaces, file)
+    # The inserted stop surface coincides with the file's surface: the crossing check
+    # above covers it
     surfaces = _stop_plane(surfaces, s_i)
-    _check_stop_plane(surfaces, file, s_i)
 
     name = info["name"]
     provenance = dict(info)
@@ -551,58 +552,42 @@ def _is_stop_plane(surfaces: list[Surface], i: int) -> bool:
 
 
 def _stop_plane(surfaces: list[Surface], s_i: int) -> list[Surface]:
-    """The model's surfaces with the stop as a plane of its own (lensdb/README.md, The
+    """The model's surfaces with the stop as a surface of its own (lensdb/README.md, The
     aperture stop). A stop on a plane with the same medium on both sides is that plane.
-    On any other surface (curved, or bounding two media) the stop is the plane tangent to
-    the surface's vertex: a zero-thickness plane is inserted on the surface's air side
-    (behind it when only its back is air, so that a stop on the last surface leaves
-    nothing but air to the sensor; in front of it otherwise, so that a stop on the first
-    surface leaves nothing but air to the scene, and on a cemented surface it lies in
-    the front glass). Its clear radius is the surface's semi_diameter. The tracer crosses
-    the zero gap by the sequential convention (Lens.virtual_gap)."""
+    On any other surface (curved, or bounding two media) the stop is that surface itself,
+    clipped where a ray meets it at its radial distance sqrt(x^2 + y^2), as design
+    programs clip it: the loader inserts a zero-thickness copy of the surface's shape
+    (sphere, conic, aspheric terms, cylinder) with the same medium on both sides (so it
+    neither refracts nor reflects and has no coating), coincident with the surface. A
+    ray's hit on the copy is its hit on the surface, so the stop point (x_a, y_a) is the
+    x, y of the ray on the refracting surface and the stop disc is the clipped aperture.
+    The copy goes on the surface's air side: behind it when only its back is air (a stop
+    on the last surface leaves nothing but air to the sensor; the refraction then belongs
+    to P_o), in front of it otherwise (a stop on the first surface leaves nothing but air
+    to the scene; on a cemented surface it lies in the front glass; the refraction belongs
+    to P_s). Its clear radius is the surface's semi_diameter. The tracer crosses the zero
+    gap by the sequential convention (Lens.virtual_gap): t is rounding-small there."""
     s = surfaces[s_i]
     if _is_stop_plane(surfaces, s_i):
         return surfaces
     before = AIR if s_i == 0 else surfaces[s_i - 1].medium
-    plane = {"shape": "plane", "radius_mm": math.inf, "semi_diameter_mm": s.semi_diameter_mm,
-             "stop": True}
+    shape = {"shape": s.shape, "radius_mm": s.radius_mm, "conic": s.conic,
+             "aspheric": s.aspheric, "semi_diameter_mm": s.semi_diameter_mm, "stop": True}
     if before.name != "air" and s.medium.name == "air":
-        stop = Surface(**plane, thickness_mm=s.thickness_mm, medium=s.medium,
+        stop = Surface(**shape, thickness_mm=s.thickness_mm, medium=s.medium,
                        material_spec=dict(s.material_spec), inserted="back")
         return [*surfaces[:s_i], dataclasses.replace(s, stop=False, thickness_mm=0.0), stop,
                 *surfaces[s_i + 1:]]
     spec = {"material": "air"} if s_i == 0 else dict(surfaces[s_i - 1].material_spec)
-    stop = Surface(**plane, thickness_mm=0.0, medium=before, material_spec=spec,
+    stop = Surface(**shape, thickness_mm=0.0, medium=before, material_spec=spec,
                    inserted="front")
     return [*surfaces[:s_i], stop, dataclasses.replace(s, stop=False), *surfaces[s_i + 1:]]
 
 
-def _check_stop_plane(surfaces: list[Surface], file: str, s_i: int) -> None:
-    """An inserted stop plane must not cross its other neighbour (the surface it does
-    not belong to): the plane is flat where the stop's surface curves."""
-    k = next(i for i, s in enumerate(surfaces) if s.stop)
-    if not surfaces[k].inserted:
-        return
-    other = (k - 1, k) if surfaces[k].inserted == "front" else (k, k + 1)
-    if not 0 <= other[0] < other[1] < len(surfaces):
-        return
-    gap, h = first_crossing(surfaces[other[0]], surfaces[other[1]])
-    if gap < -CROSSING_TOLERANCE_MM:
-        j = s_i - 1 if surfaces[k].inserted == "front" else s_i + 1
-        raise LensError(
-            f"the stop is the plane tangent to this surface's vertex, and surface {j} "
-            f"crosses that plane inside their clear aperture (gap {gap:.4g} mm at height "
-            f"{h:.4g} mm); put the stop on a plane surface of its own where the iris is",
-            file=file,
-            surface=s_i,
-            key="stop",
-        )
-
-
 def _check_crossing(surfaces: list[Surface], file: str) -> None:
     """Neighbouring surfaces must not cross inside their clear aperture; a stop plane at
-    zero distance from a surface may (the stop on that surface's vertex plane, traced by
-    the sequential convention, Lens.virtual_gap)."""
+    zero distance from a surface may (a plane written at a curved surface's vertex,
+    traced by the sequential convention, Lens.virtual_gap)."""
     for i in range(len(surfaces) - 1):
         if surfaces[i].thickness_mm == 0.0 and (_is_stop_plane(surfaces, i)
                                                or _is_stop_plane(surfaces, i + 1)):

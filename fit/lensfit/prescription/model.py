@@ -66,8 +66,9 @@ class Surface:
     coating: Coating = BARE
     material_spec: dict[str, Any] = field(default_factory=dict, compare=False)
     inserted: str = ""  # "" for a surface of the file; "front" or "back" for the stop
-    #                     plane the loader put at the vertex of a refracting surface marked
-    #                     `stop = true`, in front of that surface (the next) or behind it
+    #                     surface the loader put on a refracting surface marked `stop =
+    #                     true`: a zero-thickness copy of its shape with the same medium
+    #                     on both sides, in front of that surface (the next) or behind it
 
     @property
     def curvature(self) -> float:
@@ -161,17 +162,19 @@ class Lens:
 
     @property
     def stop_file_index(self) -> int:
-        """The file's surface marked ``stop = true`` (the refracting surface whose vertex
-        plane is the stop when the loader inserted one)."""
+        """The file's surface marked ``stop = true`` (the refracting surface the stop lies
+        on when the loader inserted a stop surface)."""
         s = self.stop_index
         k = {"": s, "front": s + 1, "back": s - 1}[self.surfaces[s].inserted]
         return self.file_index(k)  # type: ignore[return-value]
 
     def virtual_gap(self, k: int, from_front: bool = True) -> bool:
         """The ray reaches surface ``k`` across a zero-thickness gap that borders the stop
-        plane (a stop on a vertex plane, inserted or written so): the sequential
-        convention then traces the straight line to the surface even where it lies behind
-        the ray (t < 0, the OPL counted negative), as design programs do."""
+        (a stop plane written at a surface's vertex, or the stop surface the loader puts
+        on a refracting surface): the sequential convention then traces the straight line
+        to the surface even where it lies behind the ray (t < 0, the OPL counted
+        negative), as design programs do. For the loader's stop surface, which coincides
+        with its refracting surface, t is rounding-small."""
         j = k - 1 if from_front else k + 1
         if not 0 <= j < len(self.surfaces):
             return False

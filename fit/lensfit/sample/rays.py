@@ -10,6 +10,12 @@ blocked), and the outputs x_o, y_o (x_i, y_i) let a renderer clip at the outer (
 pupil. Rays that miss a surface, reflect totally, or do not converge are dropped and
 counted.
 
+A stop point (x_a, y_a) is the x, y where the ray meets the stop surface: the stop plane,
+or, for a stop on a refracting surface, that curved surface itself (the loader's stop
+surface coincides with it, lensdb/README.md "The aperture stop"). So P_o ends on, and
+P_s starts from, the point (x_a, y_a, z_stop + sag(x_a, y_a)), and the disc
+x_a^2 + y_a^2 <= r^2 is the aperture clipped on the surface as design programs clip it.
+
 Samples come in groups that share everything but the stop point (one scene point or
 sensor point and one wavelength), so that the part of the OPL that is constant per pixel
 can be removed when errors are measured.
@@ -375,7 +381,8 @@ def _front_bulge(lens: Lens) -> float:
     """How far any surface before the stop reaches in front of z = 0 (mm, >= 0)."""
     reach = 0.0
     s = lens.stop_index
-    # With the stop on a surface's vertex plane, that surface too (it may bulge in front)
+    # With the stop at zero distance in front of a surface, that surface too (it may
+    # bulge in front)
     last = s + 1 if s + 1 < len(lens.surfaces) and lens.virtual_gap(s + 1) else s
     for k in range(last + 1):
         surf = lens.surfaces[k]
@@ -450,9 +457,18 @@ def aim_sensor_side(lens: Lens, x_S: np.ndarray, y_S: np.ndarray, z_S: np.ndarra
             f"{lens.source_file or lens.name}: z_S = {bad:g} mm puts the sensor in front "
             f"of the last surface (it is {lens.sensor_z - lens.vertex_z[-1]:g} mm behind it)")
 
+    # The stop point on the stop surface: its vertex plane for a stop plane, the curved
+    # surface itself for a stop on a refracting surface (lensdb/README.md, The aperture stop)
+    z_start = z_stop + _stop_sag(lens, ap)
+    if not np.all(np.isfinite(z_start)):
+        bad = int(np.argmin(np.isfinite(z_start)))
+        raise SamplingError(
+            f"{lens.source_file or lens.name}: stop point ({xa[bad]:g}, {ya[bad]:g}) mm is "
+            "beyond the edge of the stop surface")
+
     def shoot(idx, slope, hist=None, fresnel=False):
         """Ray from the stop point with slopes (dx/dz, dy/dz), to the sensor plane."""
-        start = np.concatenate([ap[idx], np.full((len(idx), 1), z_stop)], axis=1)
+        start = np.concatenate([ap[idx], z_start[idx, None]], axis=1)
         d = np.concatenate([slope, np.ones((len(idx), 1))], axis=1)
         out = trace(lens, Rays(start, d, lam[idx]), path, clip=False, fresnel_loss=fresnel,
                     history=hist)
@@ -501,6 +517,15 @@ def aim_sensor_side(lens: Lens, x_S: np.ndarray, y_S: np.ndarray, z_S: np.ndarra
         q0 = np.where(np.all(np.isfinite(g), axis=1)[:, None], g, q0)
     return _converge(aimed, lambda i, q: shoot(i, q)[:2], final, q0, fd_scale, warm,
                      _features(ap, xs, ys, zs, lam))
+
+
+def _stop_sag(lens: Lens, ap: np.ndarray) -> np.ndarray:
+    """z of the stop surface relative to its vertex at stop points ``ap`` (N, 2) (mm): 0
+    on a stop plane, the sag of the refracting surface the stop lies on otherwise."""
+    stop = lens.surfaces[lens.stop_index]
+    if stop.curvature == 0.0 and not stop.aspheric:
+        return np.zeros(len(ap))
+    return np.asarray(stop.sag(ap[:, 0], ap[:, 1]), dtype=np.float64)
 
 
 def _finish(system, lens, inputs, outputs, gid, vig, n, dropped) -> Samples:

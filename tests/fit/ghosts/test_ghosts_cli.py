@@ -14,9 +14,9 @@ from lensfit.codegen.checked_json import checked_json_text
 from lensfit.ghosts import enumerate as ghost_enum
 from lensfit.prescription import load_lens
 
-# An uncoated N-BK7 singlet whose stop is on its front surface: the loader inserts the
-# stop's vertex plane as model surface 0, so the one ghost is (1, 2) in the model and
-# 0-1 in the file's numbering
+# An uncoated N-BK7 singlet whose stop is on its front surface: the loader inserts a copy
+# of that surface as the model's stop surface 0, so the one ghost is (1, 2) in the model
+# and 0-1 in the file's numbering
 SINGLET = """schema_version = 1
 [lens]
 id = "singlet"

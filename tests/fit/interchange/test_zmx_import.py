@@ -177,14 +177,14 @@ def test_decode_forms():
 
 def test_stop_on_a_refracting_surface(tmp_path):
     # The stop is written where the .zmx puts it: on the singlet's front surface (which
-    # lensfit's loader takes since 2444334: the stop on a refracting surface's vertex)
+    # lensfit's loader takes since 2444334, and clips on that surface as OpticStudio does)
     result = read_zmx(FIX / "stop_on_lens.zmx")
     surf = result.data["surface"]
     assert surf[0]["stop"] is True and surf[0]["material"] == "N-BK7"
     lens = load_lens(_write(tmp_path, result))
     assert lens.stop_file_index == 0
-    # Exported, the stop is again on that surface (not the loader's vertex plane), and
-    # importing the export gives the same lens, inserted plane included
+    # Exported, the stop is again on that surface (not the loader's stop copy), and
+    # importing the export gives the same lens, inserted stop surface included
     from lensfit.interchange import write_zmx
 
     text, _ = write_zmx(lens)
