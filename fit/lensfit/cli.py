@@ -615,20 +615,14 @@ def _options(args: argparse.Namespace):
         raise InputError(str(e)) from None
 
 
-LIMITS = {"stop points": "too few stop points for the stop degree it needs, at the most "
-                          "the grid may grow to (--max-aperture-points)",
-          "field points": "too few field points for the field degree it needs, at the most "
-                          "the grid may grow to",
-          "degree": "the highest degree tried (FitOptions.field_degrees, "
-                    "max_aperture_degree) does not reach it"}
-
-
 def _miss_note(o: dict) -> str:
     """'' for an output within its target; else why it is not."""
+    from lensfit.report import LIMIT_WORDS
+
     if o["reached"]:
         return ""
-    why = LIMITS.get(o.get("limit") or "degree", o.get("limit"))
-    return f"  (target {o['target']:.3g} not reached: {why})"
+    why = LIMIT_WORDS.get(o.get("limit") or "degree", o.get("limit"))
+    return f"  (target {o['target']:.3g} not reached: limited by {why})"
 
 
 def _print_trust(fig: dict) -> None:

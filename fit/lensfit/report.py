@@ -158,6 +158,15 @@ def _phase_error_by_radius(f: SystemFit) -> tuple[np.ndarray, np.ndarray]:
     return 0.5 * (edges[1:] + edges[:-1]), rms
 
 
+# OutputFit.limit in words (lensfit.fitting.tensor.fit_system_tensor)
+LIMIT_WORDS = {
+    "stop points": "the stop points: the held-out error is far above the error on the "
+                   "grid's rays, and the grid had grown to its most stop points",
+    "field points": "the field points: the held-out error is far above the error on the "
+                    "grid's rays, and the grid had grown to its most field points",
+    "degree": "the degree: the highest field and stop degrees tried do not reach it",
+}
+
 def write_report(lens: Lens, fits: Sequence[SystemFit], figures: dict[str, Any],
                  out_dir: Path) -> Path:
     """report.md with PNG plots and report.json in ``out_dir``."""
@@ -316,8 +325,11 @@ def _markdown(lens: Lens, fits: Sequence[SystemFit], fig: dict[str, Any]) -> str
                      f"OPL error (piston included) {_fmt(o['absolute_rms_um'])} µm RMS.")
     ladder = [o for o in fig["outputs"] if len(o.get("path_rms", [])) > 1]
     if ladder and fig.get("method", "tensor") == "tensor":
-        lines += ["", "Held-out RMS for each field degree tried (the fit stops at the first "
-                      "that reaches the target):", ""]
+        lines += ["", "Held-out RMS for each field degree tried (the adaptive fit grows "
+                      "until the error is 60% of the target, leaving room for the cut; its "
+                      "last entry, with fewer terms, is the cut to the terms the target "
+                      "needs; without the cut it stops at the first degree that reaches "
+                      "the target):", ""]
         for o in ladder:
             steps = ", ".join(f"{t} terms: {_fmt(r)}" for t, r in
                               zip(o["path_terms"], o["path_rms"], strict=True))
@@ -328,14 +340,15 @@ def _markdown(lens: Lens, fits: Sequence[SystemFit], fig: dict[str, Any]) -> str
         for o in unreached:
             lines.append(
                 f"* {o['system']} {o['name']}: {_fmt(o['rms'])} {o['unit']} against "
-                f"{_fmt(o['target'])} with {o['terms']} terms (the largest degree tried).")
+                f"{_fmt(o['target'])} with {o['terms']} terms; limited by "
+                f"{LIMIT_WORDS.get(o.get('limit') or 'degree', o.get('limit'))}.")
         lines += [
             "",
-            "Why: the highest field degree tried does not reach it. Where rays fail "
-            "(they miss a surface) or are far outside a housing, the grid has holes and "
-            "the polynomial must be fitted on part of the stop disc only (see "
-            "phase_error_by_radius.png); a narrower domain (f-number, field, wavelengths: "
-            "`lensfit fit --help`) or a scene fit (`lensfit fit --scene`) reaches it.",
+            "Where rays fail (they miss a surface) or are far outside a housing, the grid "
+            "has holes and the polynomial must be fitted on part of the stop disc only "
+            "(see phase_error_by_radius.png); a narrower domain (f-number, field, "
+            "wavelengths: `lensfit fit --help`) or a scene fit (`lensfit fit --scene`) "
+            "reaches it.",
         ]
     lines += _trust_markdown(fig)
     lines += ["", "## Speed", "",
