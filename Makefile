@@ -20,8 +20,10 @@
 #                per-ray evaluation against the exact tracer, error against run time (the
 #                cells integrator against Monte Carlo too: cells_bench.py; the Fourier
 #                integrator against both on the demo's PSFs: fourier_bench.py), banks on Dask
-#                (scaling 1 -> 2 workers, the scheduler's overhead: banks.md), and per generated lens the fit time and the worst
-#                PSF cell against exactly traced rays, and seconds per committed ghost and per
+#                (scaling 1 -> 2 workers, the scheduler's overhead: banks.md), and per generated
+#                lens the adaptive fit against the full one of the same degrees (fit time, worst
+#                PSF cell against exactly traced rays, table size, lensrt set-up and splat rate:
+#                fits.md, lensrt-tables.txt), and seconds per committed ghost and per
 #                visible ghost at the committed flares' settings, with its PSF against exact
 #                ghost rays (ghosts.md) (build/bench/)
 
@@ -165,7 +167,13 @@ bench: setup runtime
 	$(PY) -m lensfit.codegen.bench | tee build/bench/codegen.txt
 	$(VENV)/bin/lensfit report $(DEMO_LENS) -o build/bench/fit-$(DEMO_LENS) --json \
 		> build/bench/fit-$(DEMO_LENS).json
-	$(PY) -m lensfit.bench --fits --out build/bench
+	LENSRT_LIBRARY=$(CURDIR)/$(RUNTIME_BUILD)/runtime/liblensrt.so $(PY) -m lensfit.bench --fits --out build/bench
+	@# lensrt's splat rate against its scalar baseline on each lens's two tables, adaptive
+	@# and full, from the fits just made (issue 24: the smaller table must not be slower)
+	for t in 0001 0009; do for m in full adaptive; do echo "== $$t $$m"; \
+		$(RUNTIME_BUILD)/runtime/lensrt-bench --device cpu --repeats 3 --tile 0x0 \
+		--table build/bench/fit-tables/$$t-$$m.table --json build/bench/lensrt-$$t-$$m.json \
+		| grep -A4 '^f/N'; done; done | tee build/bench/lensrt-tables.txt
 	$(PY) -m lensfit.bench --ghosts --out build/bench
 
 clean:
