@@ -23,7 +23,7 @@ folded systems to ``scenes/<name>/``; its table carries the same lens lines.
 from __future__ import annotations
 
 import re
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -179,6 +179,19 @@ def write_folder(folder: Path, files: dict[str, str]) -> None:
     (:func:`lensfit.atomic.write_files`: a temporary then a rename, a link or a special
     file refused; every target checked before the first write)."""
     write_files(folder, files, mode=0o644)  # for everyone, whatever the umask
+
+
+def fit_folder_keep(files: dict[str, str]) -> Callable[[str], bool]:
+    """Which entries of a lens folder a new fit writing ``files`` keeps
+    (:func:`lensfit.atomic.replace_folder`): not fit.json nor an earlier fit's code of
+    the same stem (``lens0001.glsl`` of a fit with --glsl), the rest (ghosts/,
+    scenes/, scene-fits/ of other commands) yes."""
+    stems = {name.partition(".")[0] for name in files if "." in name}
+
+    def keep(name: str) -> bool:
+        return name != "fit.json" and not ("." in name and name.partition(".")[0] in stems)
+
+    return keep
 
 
 def fit_json(meta: dict[str, Any]) -> str:
