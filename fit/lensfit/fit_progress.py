@@ -53,7 +53,7 @@ class FitProgress:
             self._bar = tqdm(total=RESOLUTION, initial=round(self._pos), desc=desc,
                              unit="‰", dynamic_ncols=True, leave=False,
                              bar_format="{desc}: {percentage:3.0f}%|{bar}| "
-                                        "[{elapsed}<{remaining}] {postfix}")
+                                        "[{elapsed}<{remaining}{postfix}]")
             self._bar.set_postfix_str(self._next(), refresh=True)
 
     def _next(self) -> str:

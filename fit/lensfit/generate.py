@@ -1,8 +1,9 @@
 """Write a lens's fitted systems as code: the folder ``generated/<lens>/``.
 
 Everything written here depends only on the fitted systems and the prescription (no
-timings, no dates), so fitting the same lens again on the same machine rewrites the same
-bytes.
+timings, no dates), so fitting the same lens again rewrites the same bytes. `lensfit
+fit` replaces the folder as a whole (:func:`lensfit.atomic.replace_folder` with
+:func:`fit_folder_keep`): an interrupted fit leaves the previous folder as it was.
 
     <stem>.h, <stem>.c            hand-emitted Horner C99, double and float (the fast form)
     <stem>.glsl                   GLSL 4.30 functions (float and double), with --glsl only
