@@ -1,35 +1,37 @@
 """The progress bar of `lensfit fit` (stderr, tqdm): one step per system's sampling,
-per output fitted, and the PSF check, each weighted by its typical share of the wall
-time so that the ETA is honest.
+per output fitted, the PSF check, and writing the code and the report, each weighted by
+its typical share of the wall time so that the ETA is honest.
 
-Shares measured on lens 0001 with the default options and domain (f/2, 380-780 nm),
-lensfit.fitting.fit_lens with its progress callback and lensfit.trust.psf_vs_exact on a
-shared 2-core machine (96.8 s in all): P_o sampled 11.5 s, P_o x_o/y_o/tau_o 0.1 s
-each, phi_o 1.0 s, P_s sampled 12.8 s, x_i/y_i/tau_i 0.15 s each, phi_i 1.4 s, the PSF
-check 69.3 s. A --quick fit has the same shape (sampling 3 s of 4 s fitting, PSF check
-49 s), so one set of weights serves both.
+Shares measured on lens 0001 with the default options and domain (f/2, 380-780 nm) as
+lensfit.stage runs them (single-threaded BLAS), on a shared 2-core machine, 57.5 s in
+all: P_o sampled 6.3 s, x_o/y_o/tau_o 0.08 s each, phi_o 0.85 s; P_s sampled 6.7 s,
+x_i/y_i/tau_i 0.07 s each, phi_i 0.7 s; the PSF check 22.9 s (40%); the generated
+code, the held-out figures and the report's plots 19.5 s (34%; timing the C, without
+--no-timing, adds to this last step).
 """
 
 from __future__ import annotations
 
 from collections.abc import Iterable
 
-SAMPLING = 12.0  # seconds of the measurement above, per system
-OUTPUT = {"phi": 1.2}  # the phase fits take longest
-OTHER_OUTPUT = 0.13
-PSF_CHECK = 69.0
+SAMPLING = 6.5  # seconds of the measurement above, per system
+OUTPUT = {"phi": 0.8}  # the phase fits take longest
+OTHER_OUTPUT = 0.08
+PSF_CHECK = 23.0
+WRITE = 19.5
 RESOLUTION = 1000  # the bar counts thousandths of the whole fit
 
 
 def step_weights(systems: Iterable[tuple[str, Iterable[str]]]) -> dict[str, float]:
     """{progress label: weight}: "<system> sampled", "<system> <output>" (the labels of
-    lensfit.fitting.fit_lens's callback) and "psf"."""
+    lensfit.fitting.fit_lens's callback), "psf" and "write"."""
     w: dict[str, float] = {}
     for name, outputs in systems:
         w[f"{name} sampled"] = SAMPLING
         for out in outputs:
             w[f"{name} {out}"] = OUTPUT.get(out.split("_")[0], OTHER_OUTPUT)
     w["psf"] = PSF_CHECK
+    w["write"] = WRITE
     return w
 
 

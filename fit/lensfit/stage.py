@@ -163,4 +163,5 @@ def _run(lens, domain, options, generated_dir, report_dir, timing, flat, scene, 
     if report_dir is not None:
         with replacing_folder(report_dir) as tmp:
             write_report(lens, fits, figures, tmp)
+    bar("write")
     return fits, figures
