@@ -12,17 +12,32 @@
   removed when the same target is written next;
 * a failed write leaves nothing: no temporary, no folder it created.
 
+A whole folder is replaced at once by :func:`replace_folder` (or the context manager
+:func:`replacing_folder`): the new folder is written as a sibling
+``<folder>.tmp-<pid>-<clock>-<attempt>``, entries of the old folder that the new one
+does not replace are carried over as hard links, and the two are exchanged in one
+``renameat2(RENAME_EXCHANGE)`` (Linux; elsewhere two renames with SIGINT/SIGTERM held
+back between them); the old tree is then removed. A reader, and a write killed at any
+point, sees the old folder or the whole new one. A failure or an interrupt removes the
+temporary; one left by a killed process (SIGKILL) is removed when the same folder is
+written next.
+
 Every failure is an :class:`OutputError` (an InputError: one line, exit 2) naming the
 path. ``lensfit.generate.write_folder`` should call :func:`write_files`."""
 
 from __future__ import annotations
 
+import contextlib
+import ctypes
 import errno
 import os
 import re
+import shutil
+import signal
 import stat
+import threading
 import time
-from collections.abc import Mapping
+from collections.abc import Callable, Iterator, Mapping
 from pathlib import Path
 
 from lensfit.errors import InputError
@@ -238,3 +253,218 @@ def write_files(folder: str | os.PathLike[str], files: Mapping[str, str | bytes]
             remove_folders(created)
         raise
     return written
+
+
+# ---- whole folders -------------------------------------------------------------------
+
+_RENAME_EXCHANGE = 2
+_AT_FDCWD = -100
+
+
+def _exchange(a: Path, b: Path) -> bool:
+    """Swap the paths ``a`` and ``b`` atomically (renameat2 RENAME_EXCHANGE); False where
+    the system or the file system cannot."""
+    try:
+        fn = ctypes.CDLL(None, use_errno=True).renameat2
+    except (OSError, AttributeError):
+        return False
+    fn.argtypes = [ctypes.c_int, ctypes.c_char_p, ctypes.c_int, ctypes.c_char_p,
+                   ctypes.c_uint]
+    if fn(_AT_FDCWD, os.fsencode(a), _AT_FDCWD, os.fsencode(b), _RENAME_EXCHANGE) == 0:
+        return True
+    e = ctypes.get_errno()
+    if e in (errno.ENOSYS, errno.EINVAL, errno.ENOTSUP, errno.EOPNOTSUPP):
+        return False
+    raise OSError(e, os.strerror(e), str(b))
+
+
+@contextlib.contextmanager
+def _signals_held() -> Iterator[None]:
+    """SIGINT, SIGTERM and SIGHUP held back (delivered at the end) in the main thread."""
+    held = {signal.SIGINT, signal.SIGTERM, signal.SIGHUP}
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    old = signal.pthread_sigmask(signal.SIG_BLOCK, held)
+    try:
+        yield
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, old)
+
+
+def _folder_temp(folder: Path, kind: str, what: str) -> Path:
+    clock = time.time_ns() % 1_000_000_000
+    for attempt in range(100):
+        tmp = folder.with_name(f"{folder.name}.{kind}-{os.getpid()}-{clock}-{attempt}")
+        if kind == "old":
+            if not os.path.lexists(tmp):
+                return tmp
+            continue
+        try:
+            tmp.mkdir()
+        except FileExistsError:
+            continue
+        except OSError as e:
+            raise OutputError(f"{what}: cannot write: {_why(e)}") from None
+        return tmp
+    raise OutputError(f"{what}: cannot write: {os.strerror(errno.EEXIST)}")
+
+
+def remove_stale_folders(folder: Path) -> list[Path]:
+    """Temporaries of :func:`replace_folder` of processes that no longer run: a new
+    folder not yet in place (``.tmp-``) is removed; an old one moved aside (``.old-``,
+    the two-rename path) is put back where the folder is missing, else removed."""
+    folder = Path(folder)
+    pattern = re.compile(re.escape(folder.name) + r"\.(tmp|old)-(\d+)-(\d+)-(\d+)")
+    removed: list[Path] = []
+    try:
+        names = sorted(os.listdir(folder.parent))
+    except OSError:
+        return removed
+    for name in names:
+        m = pattern.fullmatch(name)
+        if not m or int(m.group(2)) in (0, os.getpid()) or _pid_alive(int(m.group(2))):
+            continue
+        p = folder.parent / name
+        if not p.is_dir() or p.is_symlink():
+            continue
+        if m.group(1) == "old" and not os.path.lexists(folder):
+            with contextlib.suppress(OSError):
+                os.rename(p, folder)
+                continue
+        shutil.rmtree(p, ignore_errors=True)
+        removed.append(p)
+    return removed
+
+
+def _carry(src: Path, dst: Path) -> None:
+    """``src`` (an entry of the old folder) into the new folder at ``dst``: files as hard
+    links (a copy where links are refused), folders recreated, links as links."""
+    if src.is_symlink():
+        os.symlink(os.readlink(src), dst)
+    elif src.is_dir():
+        dst.mkdir()
+        shutil.copymode(src, dst)
+        for entry in sorted(os.listdir(src)):
+            _carry(src / entry, dst / entry)
+    elif src.is_file():
+        try:
+            os.link(src, dst, follow_symlinks=False)
+        except OSError:
+            shutil.copy2(src, dst, follow_symlinks=False)
+    # sockets, FIFOs and devices are not carried over
+
+
+def _in_place_only(folder: Path) -> bool:
+    """Folders that cannot be swapped: the current directory or one above it (the
+    process would be left in the old one), or a mount point."""
+    here = Path.cwd().resolve()
+    target = folder.resolve()
+    return target == here or target in here.parents or os.path.ismount(target)
+
+
+@contextlib.contextmanager
+def replacing_folder(folder: str | os.PathLike[str], *,
+                     keep: Callable[[str], bool] | None = None,
+                     option: str = "") -> Iterator[Path]:
+    """Yield an empty temporary folder beside ``folder``; when the block ends without an
+    exception, put it in place of ``folder`` as a whole (module doc). The entries of
+    the old folder that the block did not write and ``keep(name)`` accepts (default:
+    all) are carried over. On any exception (KeyboardInterrupt included) the temporary
+    is removed and ``folder`` is left as it was.
+
+    Where a folder cannot be swapped (the current directory or above, a mount point),
+    the files are moved in one by one, each atomically."""
+    out = Path(folder)
+    what = f"{option} {out}" if option else str(out)
+    if out.is_symlink() or (os.path.lexists(out) and not out.is_dir()):
+        raise OutputError(f"{what}: is a symbolic link or a file; expected a folder")
+    created = make_folder(out.absolute().parent, what)
+    remove_stale_folders(out.absolute())
+    tmp = _folder_temp(out.absolute(), "tmp", what)
+    try:
+        yield tmp
+        if out.is_dir():
+            shutil.copymode(out, tmp)
+            for name in sorted(os.listdir(out)):
+                if not os.path.lexists(tmp / name) and (keep is None or keep(name)):
+                    _carry(out / name, tmp / name)
+        for p in sorted(tmp.rglob("*")):
+            if p.is_file() and not p.is_symlink():
+                _fsync_file(p)
+        _fsync_folder(tmp)
+        if out.is_dir() and _in_place_only(out):
+            _move_in(tmp, out)
+        else:
+            _swap(tmp, out.absolute(), what)
+    except OSError as e:
+        shutil.rmtree(tmp, ignore_errors=True)
+        remove_folders(created)
+        raise OutputError(f"{what}: cannot write: {_why(e)}") from None
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        remove_folders(created)
+        raise
+
+
+def _fsync_file(p: Path) -> None:
+    try:
+        fd = os.open(p, os.O_RDONLY)
+    except OSError:
+        return
+    try:
+        os.fsync(fd)
+    except OSError:
+        pass
+    finally:
+        os.close(fd)
+
+
+def _swap(tmp: Path, out: Path, what: str) -> None:
+    """Put the folder ``tmp`` in place of ``out``; the old tree is removed."""
+    with _signals_held():
+        if not os.path.lexists(out):
+            os.rename(tmp, out)
+        elif _exchange(tmp, out):
+            shutil.rmtree(tmp, ignore_errors=True)  # the old folder, now at tmp's name
+        else:
+            old = _folder_temp(out, "old", what)
+            os.rename(out, old)
+            try:
+                os.rename(tmp, out)
+            except BaseException:
+                os.rename(old, out)
+                raise
+            shutil.rmtree(old, ignore_errors=True)
+    _fsync_folder(out.parent)
+
+
+def _move_in(tmp: Path, out: Path) -> None:
+    """The fallback of :func:`replacing_folder`: every top-level entry of ``tmp`` moved
+    into ``out`` by rename, each atomically; then ``tmp`` removed."""
+    for name in sorted(os.listdir(tmp)):
+        dst = out / name
+        if (tmp / name).is_dir() and dst.is_dir() and not dst.is_symlink():
+            old = _folder_temp(dst, "old", str(dst))
+            with _signals_held():
+                os.rename(dst, old)
+                os.rename(tmp / name, dst)
+            shutil.rmtree(old, ignore_errors=True)
+        elif target_refusal(dst) is None:
+            os.replace(tmp / name, dst)
+    shutil.rmtree(tmp, ignore_errors=True)
+
+
+def replace_folder(folder: str | os.PathLike[str], files: Mapping[str, str | bytes], *,
+                   keep: Callable[[str], bool] | None = None, option: str = "",
+                   mode: int | None = None) -> Path:
+    """Replace ``folder`` as a whole by one that holds ``files`` (name -> text or bytes,
+    each with ``mode``) and the old folder's other entries that ``keep(name)`` accepts
+    (:func:`replacing_folder`)."""
+    out = Path(folder)
+    for name in files:
+        if not name or "/" in name or name in (".", ".."):
+            raise OutputError(f"{out}: {name!r} is not a file name")
+    with replacing_folder(out, keep=keep, option=option) as tmp:
+        write_files(tmp, files, option=option, mode=mode)
+    return out

@@ -652,6 +652,12 @@ def _print_extrapolated(lens, domain: dict) -> None:
         print(f"  glass extrapolated: {o.describe()}")
 
 
+def _resumable(args: argparse.Namespace) -> dict:
+    """stage.run's keywords of `lensfit fit`: checkpoints (lensfit.fit_cache: a rerun
+    resumes) and the progress bar, on a terminal unless --no-progress."""
+    return {"checkpoints": True, "progress": not args.no_progress and sys.stderr.isatty()}
+
+
 def cmd_fit(args: argparse.Namespace) -> int:
     from lensfit import stage
     from lensfit.generate import GENERATED_DIR, lens_folder_name
@@ -682,7 +688,8 @@ def cmd_fit(args: argparse.Namespace) -> int:
                       else Path("build/report") / lens_folder_name(lens) / scene.name)
         _, fig = stage.run(lens, domain=domain, options=options, generated_dir=folder,
                            report_dir=report_dir, timing=not args.no_timing,
-                           flat=True, scene=scene, glsl=args.glsl, wavelengths=wavelengths)
+                           flat=True, scene=scene, glsl=args.glsl, wavelengths=wavelengths,
+                           **_resumable(args))
         out = folder
     else:
         domain, options, wavelengths = _domain_and_options(args, lens)
@@ -691,7 +698,7 @@ def cmd_fit(args: argparse.Namespace) -> int:
                       else Path("build/report") / lens_folder_name(lens))
         _, fig = stage.run(lens, domain=domain, options=options, generated_dir=gen,
                            report_dir=report_dir, timing=not args.no_timing, glsl=args.glsl,
-                           wavelengths=wavelengths)
+                           wavelengths=wavelengths, **_resumable(args))
         out = gen / lens_folder_name(lens)
     print(f"wrote {out}/ and {report_dir / 'report.md'} (fit {fig['fit_seconds']:.1f} s, "
           f"PSF check {fig['psf_vs_exact']['seconds']:.1f} s)")
@@ -979,6 +986,9 @@ def build_parser() -> argparse.ArgumentParser:
             p.add_argument("--glsl", action="store_true",
                            help="also write the GLSL source (megabytes for a full fit; "
                                 "lensrt's GL path loads the table)")
+            p.add_argument("--no-progress", action="store_true",
+                           help="no progress bar (there is none when stderr is not a "
+                                "terminal)")
             p.add_argument("--scene", default=None, metavar="SCENE.toml",
                            help="fit only what this scene needs (its lights, wavelengths, "
                                 "stop and focus): generated/<lens>/scene-fits/<name>/")
@@ -1037,6 +1047,11 @@ def main(argv: list[str] | None = None) -> int:
         # (a ValueError from numpy, say) is a bug and keeps its traceback.
         print(f"lensfit: error: {e}", file=sys.stderr)
         return 2
+    except KeyboardInterrupt:
+        # Ctrl-C: what was written is whole (lensfit.atomic), and `lensfit fit` says
+        # where its checkpoints are; no traceback
+        print("lensfit: interrupted", file=sys.stderr)
+        return 130  # 128 + SIGINT
     except BrokenPipeError:
         # The reader went away (`lensfit info 0001 | head -3`): stop quietly, as Unix tools
         # do; stdout goes to /dev/null so the flush at exit does not raise again

@@ -1,8 +1,9 @@
 """Write a lens's fitted systems as code: the folder ``generated/<lens>/``.
 
 Everything written here depends only on the fitted systems and the prescription (no
-timings, no dates), so fitting the same lens again on the same machine rewrites the same
-bytes.
+timings, no dates), so fitting the same lens again rewrites the same bytes. `lensfit
+fit` replaces the folder as a whole (:func:`lensfit.atomic.replace_folder` with
+:func:`fit_folder_keep`): an interrupted fit leaves the previous folder as it was.
 
     <stem>.h, <stem>.c            hand-emitted Horner C99, double and float (the fast form)
     <stem>.glsl                   GLSL 4.30 functions (float and double), with --glsl only
@@ -23,7 +24,7 @@ folded systems to ``scenes/<name>/``; its table carries the same lens lines.
 from __future__ import annotations
 
 import re
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -202,6 +203,19 @@ def write_folder(folder: Path, files: dict[str, str]) -> None:
     (:func:`lensfit.atomic.write_files`: a temporary then a rename, a link or a special
     file refused; every target checked before the first write)."""
     write_files(folder, files, mode=0o644)  # for everyone, whatever the umask
+
+
+def fit_folder_keep(files: dict[str, str]) -> Callable[[str], bool]:
+    """Which entries of a lens folder a new fit writing ``files`` keeps
+    (:func:`lensfit.atomic.replace_folder`): not fit.json nor an earlier fit's code of
+    the same stem (``lens0001.glsl`` of a fit with --glsl), the rest (ghosts/,
+    scenes/, scene-fits/ of other commands) yes."""
+    stems = {name.partition(".")[0] for name in files if "." in name}
+
+    def keep(name: str) -> bool:
+        return name != "fit.json" and not ("." in name and name.partition(".")[0] in stems)
+
+    return keep
 
 
 def fit_json(meta: dict[str, Any]) -> str:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
+from typing import Protocol
 
 from lensfit.fitting.options import FitOptions
 from lensfit.fitting.pursuit import fit_system
@@ -20,12 +21,27 @@ from lensfit.sample.rays import (
 )
 
 
+class Checkpoints(Protocol):
+    """Where finished systems are kept and found again (lensfit.fit_cache.FitCache)."""
+
+    def load_system(self, name: str) -> SystemFit | None: ...
+
+    def save_system(self, fit: SystemFit) -> None: ...
+
+
+SYSTEMS = (("P_o", OUTPUTS_O), ("P_s", OUTPUTS_S))  # in the order fit_lens fits them
+
+
 def fit_lens(lens: Lens, domain: Domain | None = None,
              options: FitOptions | None = None,
-             progress: Callable[[str], None] | None = None) -> list[SystemFit]:
+             progress: Callable[[str], None] | None = None,
+             checkpoints: Checkpoints | None = None) -> list[SystemFit]:
     """Sample and fit both systems of ``lens`` over ``domain`` (default: its default).
     ``progress`` is called with a label after each step: each system's sampling
-    ("P_o sampled") and each output fitted ("P_o phi_o")."""
+    ("P_o sampled") and each output fitted ("P_o phi_o"); not for a system taken from
+    ``checkpoints``, which also keeps each system fitted here. Each system's samples
+    come from its own seed, so a system taken from a checkpoint leaves the other's fit
+    unchanged, bit for bit."""
     domain = domain or default_domain(lens)
     options = options or FitOptions()
     results = []
@@ -33,6 +49,10 @@ def fit_lens(lens: Lens, domain: Domain | None = None,
         ("P_o", sample_object_side, domain.inputs_o(), OUTPUTS_O, 0),
         ("P_s", sample_sensor_side, domain.inputs_s(), OUTPUTS_S, 1),
     ):
+        done = checkpoints.load_system(name) if checkpoints is not None else None
+        if done is not None:
+            results.append(done)
+            continue
         t0 = time.perf_counter()
         seed = 2 * (options.seed * 7919 + salt)
         if options.method == "tensor":
@@ -55,4 +75,6 @@ def fit_lens(lens: Lens, domain: Domain | None = None,
         t2 = time.perf_counter()
         system.info.update({"lens": lens.name, "domain": domain.to_dict()})
         results.append(SystemFit(system, fits, train, test, t1 - t0, t2 - t1))
+        if checkpoints is not None:
+            checkpoints.save_system(results[-1])
     return results
