@@ -42,7 +42,7 @@ class FitOptions:
     max_aperture_points: int = 512
     aperture_degree: int = 10  # phi; positions and transmittance use 4 less
     max_aperture_degree: int = 14  # raised to (by 2, once) when the field degree stalls
-    field_degrees: tuple[int, ...] = (4, 6, 8, 10, 12)  # tried in turn against the target
+    field_degrees: tuple[int, ...] = (4, 6, 8, 10, 12, 14)  # tried in turn against the target
     prune: bool = True  # cut the terms the target does not need (GROW_SHARE, PRUNE_SHARE)
     # pursuit method
     max_degree: int = 9  # positions and transmittance
