@@ -17,7 +17,7 @@ extern "C" {
 #endif
 
 /*
- * P_o: 6 inputs -> 4 outputs, 21531 terms, Horner form with 21751 multiplications per evaluation (4 for powers)
+ * P_o: 6 inputs -> 4 outputs, 2094 terms, Horner form with 2307 multiplications per evaluation (4 for powers)
  */
 #define lens0001_P_o_N_IN 6 /* number of inputs of lens0001_P_o_* */
 #define lens0001_P_o_N_OUT 4 /* number of outputs of lens0001_P_o_* */
@@ -39,15 +39,15 @@ extern "C" {
 #define lens0001_P_o_IN_lambda 5 /* lambda [nm], domain [380.0, 780.0] nm, inverse_square: xhat = (1/v^2 - c)/s, c = 4.2844316230210116e-06 1/nm^2, s = 2.640776133211675e-06 1/nm^2 */
 #define lens0001_P_o_LO_lambda (380.0) /* [nm] lower bound */
 #define lens0001_P_o_HI_lambda (780.0) /* [nm] upper bound */
-#define lens0001_P_o_OUT_x_o 0 /* x_o [mm]: 1460 terms, max degree 12 */
-#define lens0001_P_o_OUT_y_o 1 /* y_o [mm]: 1460 terms, max degree 12 */
-#define lens0001_P_o_OUT_tau_o 2 /* tau_o [1]: 1580 terms, max degree 12 */
-#define lens0001_P_o_OUT_phi_o 3 /* phi_o [mm]: 17031 terms, max degree 20 */
+#define lens0001_P_o_OUT_x_o 0 /* x_o [mm]: 132 terms, max degree 7 */
+#define lens0001_P_o_OUT_y_o 1 /* y_o [mm]: 168 terms, max degree 7 */
+#define lens0001_P_o_OUT_tau_o 2 /* tau_o [1]: 66 terms, max degree 6 */
+#define lens0001_P_o_OUT_phi_o 3 /* phi_o [mm]: 1728 terms, max degree 12 */
 void lens0001_P_o_d(const double in[lens0001_P_o_N_IN], double out[lens0001_P_o_N_OUT]);
 void lens0001_P_o_f(const float in[lens0001_P_o_N_IN], float out[lens0001_P_o_N_OUT]);
 
 /*
- * P_s: 6 inputs -> 4 outputs, 21531 terms, Horner form with 21751 multiplications per evaluation (4 for powers)
+ * P_s: 6 inputs -> 4 outputs, 3622 terms, Horner form with 3858 multiplications per evaluation (4 for powers)
  */
 #define lens0001_P_s_N_IN 6 /* number of inputs of lens0001_P_s_* */
 #define lens0001_P_s_N_OUT 4 /* number of outputs of lens0001_P_s_* */
@@ -69,10 +69,10 @@ void lens0001_P_o_f(const float in[lens0001_P_o_N_IN], float out[lens0001_P_o_N_
 #define lens0001_P_s_IN_lambda 5 /* lambda [nm], domain [380.0, 780.0] nm, inverse_square: xhat = (1/v^2 - c)/s, c = 4.2844316230210116e-06 1/nm^2, s = 2.640776133211675e-06 1/nm^2 */
 #define lens0001_P_s_LO_lambda (380.0) /* [nm] lower bound */
 #define lens0001_P_s_HI_lambda (780.0) /* [nm] upper bound */
-#define lens0001_P_s_OUT_x_i 0 /* x_i [mm]: 1460 terms, max degree 12 */
-#define lens0001_P_s_OUT_y_i 1 /* y_i [mm]: 1460 terms, max degree 12 */
-#define lens0001_P_s_OUT_tau_i 2 /* tau_i [1]: 1580 terms, max degree 12 */
-#define lens0001_P_s_OUT_phi_i 3 /* phi_i [mm]: 17031 terms, max degree 20 */
+#define lens0001_P_s_OUT_x_i 0 /* x_i [mm]: 191 terms, max degree 7 */
+#define lens0001_P_s_OUT_y_i 1 /* y_i [mm]: 248 terms, max degree 8 */
+#define lens0001_P_s_OUT_tau_i 2 /* tau_i [1]: 71 terms, max degree 6 */
+#define lens0001_P_s_OUT_phi_i 3 /* phi_i [mm]: 3112 terms, max degree 13 */
 void lens0001_P_s_d(const double in[lens0001_P_s_N_IN], double out[lens0001_P_s_N_OUT]);
 void lens0001_P_s_f(const float in[lens0001_P_s_N_IN], float out[lens0001_P_s_N_OUT]);
 

@@ -17,7 +17,7 @@ extern "C" {
 #endif
 
 /*
- * P_o: 6 inputs -> 4 outputs, 14168 terms, Horner form with 14962 multiplications per evaluation (4 for powers)
+ * P_o: 6 inputs -> 4 outputs, 1375 terms, Horner form with 1607 multiplications per evaluation (4 for powers)
  */
 #define lens0004_P_o_N_IN 6 /* number of inputs of lens0004_P_o_* */
 #define lens0004_P_o_N_OUT 4 /* number of outputs of lens0004_P_o_* */
@@ -39,15 +39,15 @@ extern "C" {
 #define lens0004_P_o_IN_lambda 5 /* lambda [nm], domain [380.0, 780.0] nm, inverse_square: xhat = (1/v^2 - c)/s, c = 4.2844316230210116e-06 1/nm^2, s = 2.640776133211675e-06 1/nm^2 */
 #define lens0004_P_o_LO_lambda (380.0) /* [nm] lower bound */
 #define lens0004_P_o_HI_lambda (780.0) /* [nm] upper bound */
-#define lens0004_P_o_OUT_x_o 0 /* x_o [mm]: 484 terms, max degree 10 */
-#define lens0004_P_o_OUT_y_o 1 /* y_o [mm]: 484 terms, max degree 10 */
-#define lens0004_P_o_OUT_tau_o 2 /* tau_o [1]: 1580 terms, max degree 12 */
-#define lens0004_P_o_OUT_phi_o 3 /* phi_o [mm]: 11620 terms, max degree 20 */
+#define lens0004_P_o_OUT_x_o 0 /* x_o [mm]: 59 terms, max degree 5 */
+#define lens0004_P_o_OUT_y_o 1 /* y_o [mm]: 64 terms, max degree 6 */
+#define lens0004_P_o_OUT_tau_o 2 /* tau_o [1]: 85 terms, max degree 6 */
+#define lens0004_P_o_OUT_phi_o 3 /* phi_o [mm]: 1167 terms, max degree 12 */
 void lens0004_P_o_d(const double in[lens0004_P_o_N_IN], double out[lens0004_P_o_N_OUT]);
 void lens0004_P_o_f(const float in[lens0004_P_o_N_IN], float out[lens0004_P_o_N_OUT]);
 
 /*
- * P_s: 6 inputs -> 4 outputs, 6178 terms, Horner form with 6497 multiplications per evaluation (4 for powers)
+ * P_s: 6 inputs -> 4 outputs, 958 terms, Horner form with 1074 multiplications per evaluation (4 for powers)
  */
 #define lens0004_P_s_N_IN 6 /* number of inputs of lens0004_P_s_* */
 #define lens0004_P_s_N_OUT 4 /* number of outputs of lens0004_P_s_* */
@@ -69,10 +69,10 @@ void lens0004_P_o_f(const float in[lens0004_P_o_N_IN], float out[lens0004_P_o_N_
 #define lens0004_P_s_IN_lambda 5 /* lambda [nm], domain [380.0, 780.0] nm, inverse_square: xhat = (1/v^2 - c)/s, c = 4.2844316230210116e-06 1/nm^2, s = 2.640776133211675e-06 1/nm^2 */
 #define lens0004_P_s_LO_lambda (380.0) /* [nm] lower bound */
 #define lens0004_P_s_HI_lambda (780.0) /* [nm] upper bound */
-#define lens0004_P_s_OUT_x_i 0 /* x_i [mm]: 484 terms, max degree 10 */
-#define lens0004_P_s_OUT_y_i 1 /* y_i [mm]: 484 terms, max degree 10 */
-#define lens0004_P_s_OUT_tau_i 2 /* tau_i [1]: 1580 terms, max degree 12 */
-#define lens0004_P_s_OUT_phi_i 3 /* phi_i [mm]: 3630 terms, max degree 16 */
+#define lens0004_P_s_OUT_x_i 0 /* x_i [mm]: 76 terms, max degree 7 */
+#define lens0004_P_s_OUT_y_i 1 /* y_i [mm]: 60 terms, max degree 6 */
+#define lens0004_P_s_OUT_tau_i 2 /* tau_i [1]: 64 terms, max degree 6 */
+#define lens0004_P_s_OUT_phi_i 3 /* phi_i [mm]: 758 terms, max degree 12 */
 void lens0004_P_s_d(const double in[lens0004_P_s_N_IN], double out[lens0004_P_s_N_OUT]);
 void lens0004_P_s_f(const float in[lens0004_P_s_N_IN], float out[lens0004_P_s_N_OUT]);
 

@@ -17,7 +17,7 @@ extern "C" {
 #endif
 
 /*
- * P_o: 6 inputs -> 4 outputs, 21531 terms, Horner form with 21751 multiplications per evaluation (4 for powers)
+ * P_o: 6 inputs -> 4 outputs, 1124 terms, Horner form with 1258 multiplications per evaluation (4 for powers)
  */
 #define lens2004_P_o_N_IN 6 /* number of inputs of lens2004_P_o_* */
 #define lens2004_P_o_N_OUT 4 /* number of outputs of lens2004_P_o_* */
@@ -39,15 +39,15 @@ extern "C" {
 #define lens2004_P_o_IN_lambda 5 /* lambda [nm], domain [380.0, 780.0] nm, inverse_square: xhat = (1/v^2 - c)/s, c = 4.2844316230210116e-06 1/nm^2, s = 2.640776133211675e-06 1/nm^2 */
 #define lens2004_P_o_LO_lambda (380.0) /* [nm] lower bound */
 #define lens2004_P_o_HI_lambda (780.0) /* [nm] upper bound */
-#define lens2004_P_o_OUT_x_o 0 /* x_o [mm]: 1460 terms, max degree 12 */
-#define lens2004_P_o_OUT_y_o 1 /* y_o [mm]: 1460 terms, max degree 12 */
-#define lens2004_P_o_OUT_tau_o 2 /* tau_o [1]: 1580 terms, max degree 12 */
-#define lens2004_P_o_OUT_phi_o 3 /* phi_o [mm]: 17031 terms, max degree 20 */
+#define lens2004_P_o_OUT_x_o 0 /* x_o [mm]: 56 terms, max degree 6 */
+#define lens2004_P_o_OUT_y_o 1 /* y_o [mm]: 81 terms, max degree 6 */
+#define lens2004_P_o_OUT_tau_o 2 /* tau_o [1]: 81 terms, max degree 6 */
+#define lens2004_P_o_OUT_phi_o 3 /* phi_o [mm]: 906 terms, max degree 11 */
 void lens2004_P_o_d(const double in[lens2004_P_o_N_IN], double out[lens2004_P_o_N_OUT]);
 void lens2004_P_o_f(const float in[lens2004_P_o_N_IN], float out[lens2004_P_o_N_OUT]);
 
 /*
- * P_s: 6 inputs -> 4 outputs, 21531 terms, Horner form with 21751 multiplications per evaluation (4 for powers)
+ * P_s: 6 inputs -> 4 outputs, 5462 terms, Horner form with 6037 multiplications per evaluation (4 for powers)
  */
 #define lens2004_P_s_N_IN 6 /* number of inputs of lens2004_P_s_* */
 #define lens2004_P_s_N_OUT 4 /* number of outputs of lens2004_P_s_* */
@@ -69,10 +69,10 @@ void lens2004_P_o_f(const float in[lens2004_P_o_N_IN], float out[lens2004_P_o_N_
 #define lens2004_P_s_IN_lambda 5 /* lambda [nm], domain [380.0, 780.0] nm, inverse_square: xhat = (1/v^2 - c)/s, c = 4.2844316230210116e-06 1/nm^2, s = 2.640776133211675e-06 1/nm^2 */
 #define lens2004_P_s_LO_lambda (380.0) /* [nm] lower bound */
 #define lens2004_P_s_HI_lambda (780.0) /* [nm] upper bound */
-#define lens2004_P_s_OUT_x_i 0 /* x_i [mm]: 1460 terms, max degree 12 */
-#define lens2004_P_s_OUT_y_i 1 /* y_i [mm]: 1460 terms, max degree 12 */
-#define lens2004_P_s_OUT_tau_i 2 /* tau_i [1]: 1580 terms, max degree 12 */
-#define lens2004_P_s_OUT_phi_i 3 /* phi_i [mm]: 17031 terms, max degree 20 */
+#define lens2004_P_s_OUT_x_i 0 /* x_i [mm]: 217 terms, max degree 9 */
+#define lens2004_P_s_OUT_y_i 1 /* y_i [mm]: 199 terms, max degree 9 */
+#define lens2004_P_s_OUT_tau_i 2 /* tau_i [1]: 201 terms, max degree 8 */
+#define lens2004_P_s_OUT_phi_i 3 /* phi_i [mm]: 4845 terms, max degree 16 */
 void lens2004_P_s_d(const double in[lens2004_P_s_N_IN], double out[lens2004_P_s_N_OUT]);
 void lens2004_P_s_f(const float in[lens2004_P_s_N_IN], float out[lens2004_P_s_N_OUT]);
 

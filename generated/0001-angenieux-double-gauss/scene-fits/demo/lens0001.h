@@ -17,7 +17,7 @@ extern "C" {
 #endif
 
 /*
- * P_o: 6 inputs -> 4 outputs, 2190 terms, Horner form with 2353 multiplications per evaluation (4 for powers)
+ * P_o: 6 inputs -> 4 outputs, 395 terms, Horner form with 436 multiplications per evaluation (3 for powers)
  */
 #define lens0001_P_o_N_IN 6 /* number of inputs of lens0001_P_o_* */
 #define lens0001_P_o_N_OUT 4 /* number of outputs of lens0001_P_o_* */
@@ -39,15 +39,15 @@ extern "C" {
 #define lens0001_P_o_IN_lambda 5 /* lambda [nm], domain [449.0, 651.0] nm, inverse_square: xhat = (1/v^2 - c)/s, c = 3.659945437285852e-06 1/nm^2, s = 1.3003474184043485e-06 1/nm^2 */
 #define lens0001_P_o_LO_lambda (449.0) /* [nm] lower bound */
 #define lens0001_P_o_HI_lambda (651.0) /* [nm] upper bound */
-#define lens0001_P_o_OUT_x_o 0 /* x_o [mm]: 242 terms, max degree 10 */
-#define lens0001_P_o_OUT_y_o 1 /* y_o [mm]: 242 terms, max degree 10 */
-#define lens0001_P_o_OUT_tau_o 2 /* tau_o [1]: 266 terms, max degree 10 */
-#define lens0001_P_o_OUT_phi_o 3 /* phi_o [mm]: 1440 terms, max degree 16 */
+#define lens0001_P_o_OUT_x_o 0 /* x_o [mm]: 39 terms, max degree 5 */
+#define lens0001_P_o_OUT_y_o 1 /* y_o [mm]: 43 terms, max degree 5 */
+#define lens0001_P_o_OUT_tau_o 2 /* tau_o [1]: 21 terms, max degree 4 */
+#define lens0001_P_o_OUT_phi_o 3 /* phi_o [mm]: 292 terms, max degree 10 */
 void lens0001_P_o_d(const double in[lens0001_P_o_N_IN], double out[lens0001_P_o_N_OUT]);
 void lens0001_P_o_f(const float in[lens0001_P_o_N_IN], float out[lens0001_P_o_N_OUT]);
 
 /*
- * P_s: 6 inputs -> 4 outputs, 5138 terms, Horner form with 5484 multiplications per evaluation (4 for powers)
+ * P_s: 6 inputs -> 4 outputs, 3747 terms, Horner form with 4010 multiplications per evaluation (4 for powers)
  */
 #define lens0001_P_s_N_IN 6 /* number of inputs of lens0001_P_s_* */
 #define lens0001_P_s_N_OUT 4 /* number of outputs of lens0001_P_s_* */
@@ -69,9 +69,9 @@ void lens0001_P_o_f(const float in[lens0001_P_o_N_IN], float out[lens0001_P_o_N_
 #define lens0001_P_s_IN_lambda 5 /* lambda [nm], domain [449.0, 651.0] nm, inverse_square: xhat = (1/v^2 - c)/s, c = 3.659945437285852e-06 1/nm^2, s = 1.3003474184043485e-06 1/nm^2 */
 #define lens0001_P_s_LO_lambda (449.0) /* [nm] lower bound */
 #define lens0001_P_s_HI_lambda (651.0) /* [nm] upper bound */
-#define lens0001_P_s_OUT_x_i 0 /* x_i [mm]: 484 terms, max degree 10 */
-#define lens0001_P_s_OUT_y_i 1 /* y_i [mm]: 484 terms, max degree 10 */
-#define lens0001_P_s_OUT_tau_i 2 /* tau_i [1]: 540 terms, max degree 10 */
+#define lens0001_P_s_OUT_x_i 0 /* x_i [mm]: 43 terms, max degree 5 */
+#define lens0001_P_s_OUT_y_i 1 /* y_i [mm]: 46 terms, max degree 5 */
+#define lens0001_P_s_OUT_tau_i 2 /* tau_i [1]: 28 terms, max degree 4 */
 #define lens0001_P_s_OUT_phi_i 3 /* phi_i [mm]: 3630 terms, max degree 16 */
 void lens0001_P_s_d(const double in[lens0001_P_s_N_IN], double out[lens0001_P_s_N_OUT]);
 void lens0001_P_s_f(const float in[lens0001_P_s_N_IN], float out[lens0001_P_s_N_OUT]);

@@ -17,7 +17,7 @@ extern "C" {
 #endif
 
 /*
- * P_o_light0: 3 inputs -> 4 outputs, 1163 terms, Horner form with 1174 multiplications per evaluation (2 for powers)
+ * P_o_light0: 3 inputs -> 4 outputs, 295 terms, Horner form with 293 multiplications per evaluation (1 for powers)
  */
 #define lens0001_demo_P_o_light0_N_IN 3 /* number of inputs of lens0001_demo_P_o_light0_* */
 #define lens0001_demo_P_o_light0_N_OUT 4 /* number of outputs of lens0001_demo_P_o_light0_* */
@@ -30,15 +30,15 @@ extern "C" {
 #define lens0001_demo_P_o_light0_IN_lambda 2 /* lambda [nm], domain [380.0, 780.0] nm, inverse_square: xhat = (1/v^2 - c)/s, c = 4.2844316230210116e-06 1/nm^2, s = 2.640776133211675e-06 1/nm^2 */
 #define lens0001_demo_P_o_light0_LO_lambda (380.0) /* [nm] lower bound */
 #define lens0001_demo_P_o_light0_HI_lambda (780.0) /* [nm] upper bound */
-#define lens0001_demo_P_o_light0_OUT_x_o 0 /* x_o [mm]: 168 terms, max degree 11 */
-#define lens0001_demo_P_o_light0_OUT_y_o 1 /* y_o [mm]: 168 terms, max degree 11 */
-#define lens0001_demo_P_o_light0_OUT_tau_o 2 /* tau_o [1]: 172 terms, max degree 12 */
-#define lens0001_demo_P_o_light0_OUT_phi_o 3 /* phi_o [mm]: 655 terms, max degree 20 */
+#define lens0001_demo_P_o_light0_OUT_x_o 0 /* x_o [mm]: 35 terms, max degree 5 */
+#define lens0001_demo_P_o_light0_OUT_y_o 1 /* y_o [mm]: 41 terms, max degree 6 */
+#define lens0001_demo_P_o_light0_OUT_tau_o 2 /* tau_o [1]: 32 terms, max degree 6 */
+#define lens0001_demo_P_o_light0_OUT_phi_o 3 /* phi_o [mm]: 187 terms, max degree 12 */
 void lens0001_demo_P_o_light0_d(const double in[lens0001_demo_P_o_light0_N_IN], double out[lens0001_demo_P_o_light0_N_OUT]);
 void lens0001_demo_P_o_light0_f(const float in[lens0001_demo_P_o_light0_N_IN], float out[lens0001_demo_P_o_light0_N_OUT]);
 
 /*
- * P_s: 5 inputs -> 4 outputs, 6537 terms, Horner form with 6719 multiplications per evaluation (4 for powers)
+ * P_s: 5 inputs -> 4 outputs, 1449 terms, Horner form with 1553 multiplications per evaluation (4 for powers)
  */
 #define lens0001_demo_P_s_N_IN 5 /* number of inputs of lens0001_demo_P_s_* */
 #define lens0001_demo_P_s_N_OUT 4 /* number of outputs of lens0001_demo_P_s_* */
@@ -57,10 +57,10 @@ void lens0001_demo_P_o_light0_f(const float in[lens0001_demo_P_o_light0_N_IN], f
 #define lens0001_demo_P_s_IN_lambda 4 /* lambda [nm], domain [380.0, 780.0] nm, inverse_square: xhat = (1/v^2 - c)/s, c = 4.2844316230210116e-06 1/nm^2, s = 2.640776133211675e-06 1/nm^2 */
 #define lens0001_demo_P_s_LO_lambda (380.0) /* [nm] lower bound */
 #define lens0001_demo_P_s_HI_lambda (780.0) /* [nm] upper bound */
-#define lens0001_demo_P_s_OUT_x_i 0 /* x_i [mm]: 584 terms, max degree 12 */
-#define lens0001_demo_P_s_OUT_y_i 1 /* y_i [mm]: 584 terms, max degree 12 */
-#define lens0001_demo_P_s_OUT_tau_i 2 /* tau_i [1]: 624 terms, max degree 12 */
-#define lens0001_demo_P_s_OUT_phi_i 3 /* phi_i [mm]: 4745 terms, max degree 20 */
+#define lens0001_demo_P_s_OUT_x_i 0 /* x_i [mm]: 125 terms, max degree 7 */
+#define lens0001_demo_P_s_OUT_y_i 1 /* y_i [mm]: 141 terms, max degree 8 */
+#define lens0001_demo_P_s_OUT_tau_i 2 /* tau_i [1]: 55 terms, max degree 6 */
+#define lens0001_demo_P_s_OUT_phi_i 3 /* phi_i [mm]: 1128 terms, max degree 13 */
 void lens0001_demo_P_s_d(const double in[lens0001_demo_P_s_N_IN], double out[lens0001_demo_P_s_N_OUT]);
 void lens0001_demo_P_s_f(const float in[lens0001_demo_P_s_N_IN], float out[lens0001_demo_P_s_N_OUT]);
 
