@@ -55,6 +55,42 @@ static char *edit_line(const char *text, size_t size, int line, const char *old,
     return out;
 }
 
+/* The 1-based number of the `nth` (1-based) line that starts with `prefix`; 0 if none. */
+static int line_starting(const char *text, size_t size, const char *prefix, int nth)
+{
+    const char *p = text, *end = text + size, *eol;
+    size_t lp = strlen(prefix);
+    int line = 1;
+    while (p < end) {
+        eol = memchr(p, '\n', (size_t)(end - p));
+        if (!eol) eol = end;
+        if ((size_t)(eol - p) >= lp && memcmp(p, prefix, lp) == 0 && --nth == 0) return line;
+        p = eol + 1;
+        line++;
+    }
+    return 0;
+}
+
+/* The last space-separated token of line `line` (1-based) into out (at most n bytes);
+ * "" when there is no such line. */
+static void last_token(const char *text, size_t size, int line, char *out, size_t n)
+{
+    const char *p = text, *end = text + size, *eol, *sp;
+    int i;
+    out[0] = '\0';
+    for (i = 1; i < line && p < end; i++) {
+        eol = memchr(p, '\n', (size_t)(end - p));
+        if (!eol) return;
+        p = eol + 1;
+    }
+    eol = memchr(p, '\n', (size_t)(end - p));
+    if (!eol) eol = end;
+    for (sp = eol; sp > p && sp[-1] != ' '; sp--) continue;
+    if ((size_t)(eol - sp) + 1 > n) return;
+    memcpy(out, sp, (size_t)(eol - sp));
+    out[eol - sp] = '\0';
+}
+
 /* Load text edited at one line and expect a parse error whose message holds each of the
  * NULL-terminated needles. */
 static void expect_refused(lensrt_context ctx, const char *text, size_t size, int line, const char *old,
@@ -94,28 +130,42 @@ static void expect_loaded(lensrt_context ctx, const char *text, size_t size, int
 
 static void test_table(lensrt_context ctx, const char *text, size_t size)
 {
-    // Line numbers of the committed table: 19 P_o x_a, 21 P_o lambda, 22 output x_o and
-    // 23 its first term, 2944 output tau_o and 2945 its first term, 21562 P_s x_a
-    expect_loaded(ctx, text, size, 23, "24.14820380570422", "24.14820380570422", "the table as committed");
-    expect_refused(ctx, text, size, 23, "24.14820380570422", "1e308", "a coefficient of 1e308",
-                   "lens0001.table:22:", "output x_o", "1e+308", (const char *)NULL);
+    // Lines of the committed table, found by their keys (a refit moves them): P_o's
+    // x_a and lambda, output x_o and tau_o and each first term, P_s's x_a
+    const int xa = line_starting(text, size, "input x_a ", 1);
+    const int lambda = line_starting(text, size, "input lambda ", 1);
+    const int xo = line_starting(text, size, "output x_o ", 1);
+    const int tau = line_starting(text, size, "output tau_o ", 1);
+    const int xa_s = line_starting(text, size, "input x_a ", 2);
+    char x0[64], t0[64], at_xo[64], at_tau[64], at_xa[64], at_lambda[64];
+    CHECK(xa && lambda && xo && tau && xa_s, "the committed table's keys: x_a %d, lambda %d, x_o %d, tau_o %d, P_s x_a %d",
+          xa, lambda, xo, tau, xa_s);
+    last_token(text, size, xo + 1, x0, sizeof x0);
+    last_token(text, size, tau + 1, t0, sizeof t0);
+    snprintf(at_xo, sizeof at_xo, "lens0001.table:%d:", xo);
+    snprintf(at_tau, sizeof at_tau, "lens0001.table:%d:", tau);
+    snprintf(at_xa, sizeof at_xa, "lens0001.table:%d:", xa);
+    snprintf(at_lambda, sizeof at_lambda, "lens0001.table:%d:", lambda);
+    expect_loaded(ctx, text, size, xo + 1, x0, x0, "the table as committed");
+    expect_refused(ctx, text, size, xo + 1, x0, "1e308", "a coefficient of 1e308", at_xo, "output x_o", "1e+308",
+                   (const char *)NULL);
     // The bound is where lensrt.h says: 5e5 more in x_o loads, 2e6 does not
-    expect_loaded(ctx, text, size, 23, "24.14820380570422", "5e5", "x_o's sum at half the bound");
-    expect_refused(ctx, text, size, 23, "24.14820380570422", "2e6", "x_o's sum above LENSRT_MAX_COEFFICIENT_SUM",
-                   "lens0001.table:22:", "x_o", (const char *)NULL);
-    expect_refused(ctx, text, size, 2945, "0.96004148281949564", "200", "tau_o's sum above LENSRT_MAX_TRANSMITTANCE_SUM",
-                   "lens0001.table:2944:", "output tau_o", (const char *)NULL);
+    expect_loaded(ctx, text, size, xo + 1, x0, "5e5", "x_o's sum at half the bound");
+    expect_refused(ctx, text, size, xo + 1, x0, "2e6", "x_o's sum above LENSRT_MAX_COEFFICIENT_SUM", at_xo, "x_o",
+                   (const char *)NULL);
+    expect_refused(ctx, text, size, tau + 1, t0, "200", "tau_o's sum above LENSRT_MAX_TRANSMITTANCE_SUM", at_tau,
+                   "output tau_o", (const char *)NULL);
     // A transform scale changed (x_a over +-14.5 mm normalised by 1.45: [-10, 10])
-    expect_refused(ctx, text, size, 19, "affine 0 14.527703294396176", "affine 0 1.4527703294396176",
-                   "a changed input transform", "lens0001.table:19:", "input x_a", "1.4527703294396176",
-                   "not [-1, 1]", (const char *)NULL);
-    expect_refused(ctx, text, size, 21, "inverse_square", "affine", "lambda's transform changed to affine",
-                   "lens0001.table:21:", "input lambda", (const char *)NULL);
+    expect_refused(ctx, text, size, xa, "affine 0 14.527703294396176", "affine 0 1.4527703294396176",
+                   "a changed input transform", at_xa, "input x_a", "1.4527703294396176", "not [-1, 1]",
+                   (const char *)NULL);
+    expect_refused(ctx, text, size, lambda, "inverse_square", "affine", "lambda's transform changed to affine",
+                   at_lambda, "input lambda", (const char *)NULL);
     // A zero aperture range
-    expect_refused(ctx, text, size, 19, "-14.527703294396176 14.527703294396176", "0 0", "a zero aperture range",
-                   "lens0001.table:19:", "input x_a", "is empty", (const char *)NULL);
+    expect_refused(ctx, text, size, xa, "-14.527703294396176 14.527703294396176", "0 0", "a zero aperture range",
+                   at_xa, "input x_a", "is empty", (const char *)NULL);
     // P_s's stop domain no longer P_o's (each consistent with its own transform)
-    expect_refused(ctx, text, size, 21562, "-14.527703294396176 14.527703294396176 affine 0 14.527703294396176",
+    expect_refused(ctx, text, size, xa_s, "-14.527703294396176 14.527703294396176 affine 0 14.527703294396176",
                    "-10 10 affine 0 10", "P_s's stop domain differs from P_o's", "lens0001.table", "x_a",
                    "differs", (const char *)NULL);
 }
