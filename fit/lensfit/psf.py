@@ -731,10 +731,19 @@ def _evaluate(system: System, values: dict[str, np.ndarray | float]) -> np.ndarr
 
 
 def _rear_trace(lens: Lens, aimed: Aimed, lam: float, end_z: float) -> Rays:
-    """Continue object-side rays (ending on the stop) through the rear half to z = end_z."""
+    """Continue object-side rays (ending on the stop) through the rear half to z = end_z.
+    Rays that did not reach the stop (not ``aimed.ok``: NaN where they failed) come back
+    MISSED, traced from a stand-in (lens 0003's corner rays at f/2: its window in the
+    PSF check stopped on them with "positions and directions must be finite")."""
     s, n = lens.stop_index, len(lens.surfaces)
-    rays = Rays(aimed.pos, aimed.dir, lam)
-    return trace(lens, rays, [Step(k) for k in range(s + 1, n)], clip=False, end_z=end_z)
+    failed = ~(np.all(np.isfinite(aimed.pos), axis=1) & np.all(np.isfinite(aimed.dir), axis=1))
+    pos = np.where(failed[:, None], [0.0, 0.0, float(lens.vertex_z[s])], aimed.pos)
+    direction = np.where(failed[:, None], [0.0, 0.0, 1.0], aimed.dir)
+    out = trace(lens, Rays(pos, direction, lam), [Step(k) for k in range(s + 1, n)],
+                clip=False, end_z=end_z)
+    if np.any(failed):
+        out.status[failed] = Status.MISSED
+    return out
 
 
 def geometric_image_point(lens: Lens, field_deg: tuple[float, float],
