@@ -8,6 +8,7 @@ exact rays are tested in test_trust.py.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import time
 
@@ -325,3 +326,25 @@ def test_on_axis_at_f16_is_the_airy_pattern(lens):
     err = np.max(np.abs(intensity - airy))
     print(f"Airy: max |difference| {err:.2e} of the peak")
     assert err < 2e-3
+
+
+def test_rays_that_never_reach_the_stop_come_back_missed():
+    """Lens 0003 (a Petzval) wide open from a far corner: some aimed rays fail before the
+    stop (NaN positions). The rear trace must report them MISSED and trace the others as
+    it would alone; it used to stop the PSF check of `lensfit fit 0003` with "positions
+    and directions must be finite"."""
+    from lensfit.psf import _rear_trace, aim_object_side, sunflower_points
+    from lensfit.trace.tracer import Status
+
+    lens = load_lens("0003")
+    pts = sunflower_points(400, lens.stop_radius_max_mm)
+    obj = aim_object_side(lens, -0.15, -0.1, 0.0, pts[:, 0], pts[:, 1], 450.0)
+    assert 0 < np.count_nonzero(~obj.ok) < len(pts)  # the case: some fail, most do not
+    out = _rear_trace(lens, obj, 450.0, lens.sensor_z)
+    assert np.all(out.status[~obj.ok] == Status.MISSED)
+    good = np.nonzero(obj.ok)[0]
+    sub = dataclasses.replace(obj, outputs=obj.outputs[good], vignetting=obj.vignetting[good],
+                              ok=obj.ok[good], unknowns=obj.unknowns[good], pos=obj.pos[good],
+                              dir=obj.dir[good])
+    alone = _rear_trace(lens, sub, 450.0, lens.sensor_z)
+    np.testing.assert_array_equal(out.pos[good], alone.pos)
