@@ -150,9 +150,10 @@ def _open_temporary(path: Path, what: str, *, keep_mode: bool = True,
     raise OutputError(f"{what}: cannot write: {os.strerror(errno.EEXIST)}")
 
 
-def _fsync_folder(folder: Path) -> None:
+def _fsync(path: Path) -> None:
+    """fsync a file or a folder, ignoring what cannot be synced."""
     try:
-        fd = os.open(folder, os.O_RDONLY)
+        fd = os.open(path, os.O_RDONLY)
     except OSError:
         return
     try:
@@ -196,7 +197,7 @@ def write_atomic(path: str | os.PathLike[str], data: str | bytes, *, option: str
     except BaseException:
         tmp.unlink(missing_ok=True)
         raise
-    _fsync_folder(p.absolute().parent)
+    _fsync(p.absolute().parent)
     return p
 
 
@@ -391,8 +392,8 @@ def replacing_folder(folder: str | os.PathLike[str], *,
                     _carry(out / name, tmp / name)
         for p in sorted(tmp.rglob("*")):
             if p.is_file() and not p.is_symlink():
-                _fsync_file(p)
-        _fsync_folder(tmp)
+                _fsync(p)
+        _fsync(tmp)
         if out.is_dir() and _in_place_only(out):
             _move_in(tmp, out)
         else:
@@ -405,19 +406,6 @@ def replacing_folder(folder: str | os.PathLike[str], *,
         shutil.rmtree(tmp, ignore_errors=True)
         remove_folders(created)
         raise
-
-
-def _fsync_file(p: Path) -> None:
-    try:
-        fd = os.open(p, os.O_RDONLY)
-    except OSError:
-        return
-    try:
-        os.fsync(fd)
-    except OSError:
-        pass
-    finally:
-        os.close(fd)
 
 
 def _swap(tmp: Path, out: Path, what: str) -> None:
@@ -436,7 +424,7 @@ def _swap(tmp: Path, out: Path, what: str) -> None:
                 os.rename(old, out)
                 raise
             shutil.rmtree(old, ignore_errors=True)
-    _fsync_folder(out.parent)
+    _fsync(out.parent)
 
 
 def _move_in(tmp: Path, out: Path) -> None:
