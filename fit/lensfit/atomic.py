@@ -78,19 +78,28 @@ def _pid_alive(pid: int) -> bool:
     return True
 
 
+def _of_dead_processes(path: Path, pattern: re.Pattern[str], pid: int
+                       ) -> list[tuple[str, re.Match[str]]]:
+    """Names beside ``path`` that ``pattern`` matches whole and whose process id (its
+    group ``pid``) is neither ours nor running: temporaries left by a killed writer."""
+    try:
+        names = sorted(os.listdir(path.parent))
+    except OSError:
+        return []
+    found = []
+    for name in names:
+        m = pattern.fullmatch(name)
+        if m and int(m.group(pid)) not in (0, os.getpid()) and not _pid_alive(int(m.group(pid))):
+            found.append((name, m))
+    return found
+
+
 def remove_stale(path: Path) -> list[Path]:
     """Remove ``<path>.tmp-<pid>-<digits>-<digits>`` of processes that no longer run;
     the files removed."""
     pattern = re.compile(re.escape(path.name) + r"\.tmp-(\d+)-(\d+)-(\d+)")
     removed = []
-    try:
-        names = os.listdir(path.parent)
-    except OSError:
-        return removed
-    for name in names:
-        m = pattern.fullmatch(name)
-        if not m or int(m.group(1)) in (0, os.getpid()) or _pid_alive(int(m.group(1))):
-            continue
+    for name, _ in _of_dead_processes(path, pattern, 1):
         try:
             os.unlink(path.parent / name)
             removed.append(path.parent / name)
@@ -318,14 +327,7 @@ def remove_stale_folders(folder: Path) -> list[Path]:
     folder = Path(folder)
     pattern = re.compile(re.escape(folder.name) + r"\.(tmp|old)-(\d+)-(\d+)-(\d+)")
     removed: list[Path] = []
-    try:
-        names = sorted(os.listdir(folder.parent))
-    except OSError:
-        return removed
-    for name in names:
-        m = pattern.fullmatch(name)
-        if not m or int(m.group(2)) in (0, os.getpid()) or _pid_alive(int(m.group(2))):
-            continue
+    for name, m in _of_dead_processes(folder, pattern, 2):
         p = folder.parent / name
         if not p.is_dir() or p.is_symlink():
             continue

@@ -86,6 +86,10 @@ def fit_system_tensor(name: str, inputs: tuple[Input, ...], outputs, train: Grid
             target, unit_err = options.target_position_um, "um"
         da = options.aperture_degree - (0 if phase else 4)
         values = np.where(mask, train.outputs[:, :, j], 0.0)
+        scale = _metric_scale(out, values, mask)
+        # Grow until the error leaves room to cut (GROW_SHARE of the target), or reaches
+        # the target when cutting is off
+        goal = target * (GROW_SHARE if options.prune else 1.0)
         hist: list[float] = []
         terms: list[int] = []
         best = None
@@ -106,7 +110,6 @@ def fit_system_tensor(name: str, inputs: tuple[Input, ...], outputs, train: Grid
                 break
             if tf.holes:  # the next rung starts from this one's values in the holes
                 fill = tf.grid(a_hat, v_hat)
-            poly = _tensor_polynomial(out, unit, tf, len(inputs))
             # The held-out rays through W's factors (stop monomials times W times field
             # monomials: one matrix product) rather than the polynomial's tens of thousands
             # of terms one by one: the same sum in another order, ~20x faster
@@ -114,13 +117,11 @@ def fit_system_tensor(name: str, inputs: tuple[Input, ...], outputs, train: Grid
             err = error_metric(out, pred, te.outputs[:, j], te.group)
             rms = float(np.sqrt(np.mean(err * err)))
             hist.append(rms)
-            terms.append(poly.terms)
+            terms.append(int(np.count_nonzero(tf.W)))  # the polynomial's terms
             previous = best[0] if best is not None else math.inf
             if best is None or rms < best[0]:
-                best = (rms, poly, err, pred, tf)
-            # Grow until the error leaves room to prune (GROW_SHARE of the target), or
-            # reaches the target when pruning is off
-            if rms <= target * (GROW_SHARE if options.prune else 1.0):
+                best = (rms, err, pred, tf)
+            if rms <= goal:
                 break
             # A higher field degree that makes the held-out error worse (and the fit of
             # the grid better, by construction) is fitting between too few field points
@@ -143,19 +144,19 @@ def fit_system_tensor(name: str, inputs: tuple[Input, ...], outputs, train: Grid
             just_raised = False
             degrees.pop(0)
             if options.prune and tf.energy is not None and degrees and degrees[0] >= CAP_FROM:
-                out_caps = _next_caps(out, tf, caps, target, values, mask)
+                out_caps = _next_caps(tf, caps, target / scale, values.size)
         if best is None:
             raise ValueError(f"{name}: {out}: the grid of {len(train.field)} field points "
                              "cannot determine even the lowest field degree")
-        _, poly, err, pred, tf = best
+        _, err, pred, tf = best
+        poly = _tensor_polynomial(out, unit, tf, len(inputs))
         hist_terms = list(terms)
-        goal = target * (GROW_SHARE if options.prune else 1.0)
         if best[0] > goal:
-            limit = (_sampling_limit(out, tf, best[0], a_hat, v_hat, values, mask) or limit
+            limit = (_sampling_limit(tf, best[0], a_hat, v_hat, values, mask, scale) or limit
                      or ("field points" if field_worse else None))
         if options.prune and tf.energy is not None:
-            pruned = _prune(out, unit, tf, best[0], target, a_hat, v_hat, values, mask,
-                            xe, te.outputs[:, j], te.group, len(inputs), phase)
+            pruned = _prune(out, unit, tf, best[0], pred, target, scale, parity, a_hat, v_hat,
+                            values, mask, xe, te.outputs[:, j], te.group, len(inputs), phase)
             if pruned is not None:
                 poly, err, pred, rms = pruned
                 hist.append(rms)
@@ -225,14 +226,15 @@ CAP_SHARE = 0.3
 CAP_FROM = 14
 
 
-def _next_caps(out, tf, caps, target, values, mask) -> tuple[int, ...]:
+def _next_caps(tf, caps, target, cells) -> tuple[int, ...]:
     """Each field variable's highest power for the next rung: the variable grows with
     the field degree while its highest powers matter, and stays where the energy above a
     power (:attr:`TensorFit.energy`) is below (CAP_SHARE target)^2 per cell. A triplet's
     P_o over 23 degrees needs field degree 14 in the scene direction but 4 in the inverse
     distance and 6 in the wavelength (1.35e-3 waves held out at 34068 terms, against
-    2.4e-3 at 30828 for degree 12 in all four)."""
-    threshold = (CAP_SHARE * target / _metric_scale(out, values, mask)) ** 2 * values.size
+    2.4e-3 at 30828 for degree 12 in all four). ``target`` in the output's units, over
+    ``cells`` grid cells."""
+    threshold = (CAP_SHARE * target) ** 2 * cells
     per_field = tf.energy.sum(axis=0)  # (n_v,)
     new = []
     for v, cap in enumerate(caps):
@@ -251,11 +253,12 @@ def _next_caps(out, tf, caps, target, values, mask) -> tuple[int, ...]:
 OVERFIT = 3.0
 
 
-def _sampling_limit(out, tf, rms, a_hat, v_hat, values, mask) -> str | None:
+def _sampling_limit(tf, rms, a_hat, v_hat, values, mask, scale) -> str | None:
     """"stop points" or "field points" when the held-out ``rms`` of the fit ``tf`` is
-    OVERFIT times its error on the grid, in the dimension with fewer samples per
-    monomial of one parity class; None when the grid's own error is as large."""
-    res = (tf.grid(a_hat, v_hat) - values)[mask] * _metric_scale(out, values, mask)
+    OVERFIT times its error on the grid (``scale``: to the error measure's units), in
+    the dimension with fewer samples per monomial of one parity class; None when the
+    grid's own error is as large."""
+    res = (tf.grid(a_hat, v_hat) - values)[mask] * scale
     on_grid = float(np.sqrt(np.mean(res * res)))
     if rms < OVERFIT * on_grid:
         return None
@@ -274,8 +277,8 @@ def _metric_scale(out: str, values: np.ndarray, mask: np.ndarray) -> float:
     return 1e3
 
 
-def _prune(out, unit, tf, rms_full, target, a_hat, v_hat, values, mask, xe, y_te, group_te,
-           n_inputs, phase):
+def _prune(out, unit, tf, rms_full, pred_full, target, scale, parity, a_hat, v_hat, values,
+           mask, xe, y_te, group_te, n_inputs, phase):
     """The full fit ``tf`` cut down to the pairs of monomials the target needs
     (:func:`lensfit.poly.tensor.prune_support`) and refitted on them; None when nothing
     can go or the cut fit misses the target on held-out rays.
@@ -283,22 +286,20 @@ def _prune(out, unit, tf, rms_full, target, a_hat, v_hat, values, mask, xe, y_te
     The budget is the energy the held-out error has room for, (PRUNE_SHARE target)^2 less
     the full fit's error^2, per grid cell: on a complete grid the refitted error^2 is
     the full fit's plus the energy left out (exactly for total-degree cuts, nearly for
-    the cuts made). A phase's piston (the blocks without
-    the stop point) gets the same room against its absolute error. Should the held-out
-    error still miss (holes, or rays between the grid's points), the budget is quartered
-    and the cut tried again, twice at most."""
+    the cuts made). A phase's piston (the blocks without the stop point) gets the same
+    room against its absolute error (``pred_full``: the full fit on the held-out rays).
+    Should the held-out error still miss (holes, or rays between the grid's points), the
+    budget is quartered and the cut tried again, twice at most."""
     cells = values.size
-    scale = _metric_scale(out, values, mask)
     room = (PRUNE_SHARE * target) ** 2 - rms_full**2
     if room <= 0.0:
         return None
     budget = room * cells / scale**2
     piston = None  # shares the budget
     if phase:
-        absolute = float(np.sqrt(np.mean((_evaluate_tensor(tf, xe) - y_te) ** 2)) * scale)
+        absolute = float(np.sqrt(np.mean((pred_full - y_te) ** 2)) * scale)
         piston = max((PRUNE_SHARE * target) ** 2 - absolute**2, 0.0) * cells / scale**2
     fill = tf.grid(a_hat, v_hat) if tf.holes else None
-    parity = (int(out.startswith("x_")), int(out.startswith("y_")))
     n_full = int(np.count_nonzero(tf.W))
     for _ in range(3):
         support = prune_support(tf.aperture_exps, tf.field_exps, tf.energy, budget, piston)
