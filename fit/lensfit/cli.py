@@ -16,6 +16,9 @@
 
 LENS is a lensdb id (``0001``), a file stem in lensdb, or a path to a TOML file.
 Errors go to stderr as one line naming file, surface and key; the exit code is 2.
+``lensfit fit`` and ``lensfit report`` exit 3 (EXIT_MISS) when the fit's PSF against
+exactly traced rays misses its target: the table and report are written and flagged all
+the same; ``--allow-miss`` makes that exit 0.
 """
 
 from __future__ import annotations
@@ -40,6 +43,9 @@ from lensfit.ghosts.enumerate import (
     black_level,
 )
 from lensfit.glass import UnknownGlassError
+
+# `lensfit fit` / `lensfit report`: the fit missed its PSF target (written and flagged)
+EXIT_MISS = 3
 
 # lensfit draw --rays: rays per fan (a fan of 10^8 rays grew to 19 GB; 1000 rays are
 # already finer than the 130 dpi drawing can show)
@@ -644,6 +650,26 @@ def _print_trust(fig: dict) -> None:
                     "between the held-out rays (lensfit report shows every cell)"))
 
 
+def _print_field_cap(lens, domain) -> None:
+    """One line when the field fitted is narrower than the one the lens file states."""
+    from lensfit.sample.domain import field_cap_note
+
+    note = field_cap_note(lens, domain)
+    if note:
+        print(f"field: {note}")
+
+
+def _miss_status(fig: dict, args: argparse.Namespace) -> int:
+    """The exit status of a finished fit: EXIT_MISS when its worst PSF cell is above the
+    target (unless --allow-miss), else 0."""
+    missed = fig["psf_vs_exact"]["worst"]["relative_l2"] > fig["psf_target"]
+    if missed and not args.allow_miss:
+        print(f"lensfit: the fit misses its PSF target (exit {EXIT_MISS}; the table is "
+              "written and flagged; --allow-miss exits 0)", file=sys.stderr)
+        return EXIT_MISS
+    return 0
+
+
 def _print_extrapolated(lens, domain: dict) -> None:
     """The glasses the fit used outside their published range (allowed), one line each."""
     from lensfit.glass.ranges import out_of_range
@@ -687,17 +713,18 @@ def cmd_fit(args: argparse.Namespace) -> int:
         report_dir = (Path(args.report) if args.report
                       else Path("build/report") / lens_folder_name(lens) / scene.name)
         _, fig = stage.run(lens, domain=domain, options=options, generated_dir=folder,
-                           report_dir=report_dir, timing=not args.no_timing,
+                           report_dir=report_dir, timing=args.timing,
                            flat=True, scene=scene, glsl=args.glsl, wavelengths=wavelengths,
                            **_resumable(args))
         out = folder
     else:
         domain, options, wavelengths = _domain_and_options(args, lens)
         print(wavelengths.line())
+        _print_field_cap(lens, domain)
         report_dir = (Path(args.report) if args.report
                       else Path("build/report") / lens_folder_name(lens))
         _, fig = stage.run(lens, domain=domain, options=options, generated_dir=gen,
-                           report_dir=report_dir, timing=not args.no_timing, glsl=args.glsl,
+                           report_dir=report_dir, timing=args.timing, glsl=args.glsl,
                            wavelengths=wavelengths, **_resumable(args))
         out = gen / lens_folder_name(lens)
     print(f"wrote {out}/ and {report_dir / 'report.md'} (fit {fig['fit_seconds']:.1f} s, "
@@ -707,7 +734,7 @@ def cmd_fit(args: argparse.Namespace) -> int:
               f"{o['unit']}{_miss_note(o)}")
     _print_trust(fig)
     _print_extrapolated(lens, fig["domain"])
-    return 0
+    return _miss_status(fig, args)
 
 
 def cmd_report(args: argparse.Namespace) -> int:
@@ -722,15 +749,16 @@ def cmd_report(args: argparse.Namespace) -> int:
     report_dir = Path(args.out) if args.out else Path("build/report") / lens_folder_name(lens)
     if not args.json:  # --json: the figures carry it (key "wavelengths")
         print(wavelengths.line())
+        _print_field_cap(lens, domain)
     _, fig = stage.run(lens, domain=domain, options=options, report_dir=report_dir,
-                       timing=not args.no_timing, wavelengths=wavelengths)
+                       timing=args.timing, wavelengths=wavelengths)
     if args.json:
         print(json.dumps(fig, indent=1, allow_nan=False))
     else:
         print(f"wrote {report_dir / 'report.md'}")
         _print_trust(fig)
         _print_extrapolated(lens, fig["domain"])
-    return 0
+    return _miss_status(fig, args)
 
 
 def cmd_scene(args: argparse.Namespace) -> int:
@@ -974,8 +1002,16 @@ def build_parser() -> argparse.ArgumentParser:
                             "pursuit of the first fits")
         p.add_argument("--quick", action="store_true",
                        help="small budgets and samples (for tests and trials)")
-        p.add_argument("--no-timing", action="store_true",
-                       help="skip compiling and timing the generated C")
+        timing = p.add_mutually_exclusive_group()
+        timing.add_argument("--timing", action="store_true",
+                            help="compile and time the generated C and casadi's C (the "
+                                 "report's Speed table; minutes for a large table)")
+        timing.add_argument("--no-timing", action="store_true",
+                            help="no compiling and timing (the default; kept for scripts)")
+        p.add_argument("--allow-miss", action="store_true",
+                       help=f"exit 0 even when the PSF check misses the target (the "
+                            f"table is written and flagged either way; without this the "
+                            f"exit status is {EXIT_MISS})")
         p.add_argument("--allow-glass-extrapolation", action="store_true",
                        help="use glasses outside their published range (as the lens "
                             "file's glass_extrapolation = \"allow\"); the report lists each")

@@ -26,7 +26,7 @@ from lensfit.codegen.timing import time_c
 from lensfit.fitting import SystemFit, error_metric
 from lensfit.poly import Polynomial, System
 from lensfit.prescription.model import Lens
-from lensfit.sample.domain import declared_fit
+from lensfit.sample.domain import Domain, declared_fit, field_cap_note
 from lensfit.trace.tracer import Rays, Step, trace
 from lensfit.trust import cell_label, markdown_table
 
@@ -116,6 +116,7 @@ def measure(lens: Lens, fits: Sequence[SystemFit], *, timing: bool = True) -> di
         systems[f.system.name] = sysd
     return {
         "lens": lens.name,
+        "timed": timing,
         "trace_vs_poly_speedup": min(speedups) if speedups else None,
         "systems": systems,
         "outputs": [_output_json(o) for f in fits for o in f.outputs],
@@ -284,6 +285,9 @@ def _markdown(lens: Lens, fits: Sequence[SystemFit], fig: dict[str, Any]) -> str
     ]
     lines += [f"| {k} | {_fmt(v, '.6g') if isinstance(v, float) else v} |"
               for k, v in dom.items()]
+    note = field_cap_note(lens, Domain.from_dict(dom)) if dom else None
+    if note:
+        lines += ["", f"Field: {note}."]
     reason = declared_fit(lens).get("reason")
     if reason:
         lines += ["", f"The lens file declares this domain instead of the default "
@@ -351,8 +355,12 @@ def _markdown(lens: Lens, fits: Sequence[SystemFit], fig: dict[str, Any]) -> str
             "reaches it.",
         ]
     lines += _trust_markdown(fig)
-    lines += ["", "## Speed", "",
-              "| system | Horner double | Horner float | casadi double | casadi float | "
+    lines += ["", "## Speed", ""]
+    if not fig.get("timed", True):
+        lines += ["Compiling and timing the generated C was skipped (the default of "
+                  "`lensfit fit` and `lensfit report`; `--timing` runs it): the ns columns "
+                  "below are empty.", ""]
+    lines += ["| system | Horner double | Horner float | casadi double | casadi float | "
               "kept | exact aimed trace | plain trace | speedup (aimed) | speedup (plain) |",
               "|---|---:|---:|---:|---:|---|---:|---:|---:|---:|"]
     for name, s in fig["systems"].items():

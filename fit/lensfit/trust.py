@@ -3,8 +3,11 @@
 For each cell of a small table (the widest fitted stop, f/8 and f/32; a light on the axis
 and one at 80% of the frame's corner; 450, 550 and 650 nm; the light at infinity and the
 sensor at the best focus of the axis at 550 nm for that stop, as a camera is focused),
-two PSFs are summed over the same stop points (a sunflower set, so Monte Carlo noise
-cancels and only the transport differs):
+and for the edges of the fitted field itself (the field's corner on the frame's
+diagonal, its x edge, and for an anamorphic lens its y edge; at the widest stop and f/8,
+where the polynomials' field error shows: at f/32 the small stop hides it), two PSFs are
+summed over the same stop points (a sunflower set, so Monte Carlo noise cancels and only
+the transport differs):
 
 * the exact one, :func:`lensfit.psf.exact_psf_nodes` (every ray traced in float64; the
   sensor-side rays of each stop point traced to a Chebyshev grid over the window and
@@ -13,7 +16,10 @@ cancels and only the transport differs):
 
 and the cell's figure is the relative L2 distance of the intensities,
 ||I_poly - I_exact|| / ||I_exact||, over a window that holds the geometric spot and at
-least four Airy radii around the chief ray's image. The worst cell is the fit's
+least four Airy radii around the chief ray's image. A light whose window would leave the
+fitted sensor disc (an aberrated spot at the field's edge) is moved towards the axis, 3%
+of its angle at a time, until every window of its cells lies inside (the cell records
+``field_share``, its angle over the one asked for). The worst cell is the fit's
 statement of trust: `lensfit fit` prints it, the table carries it and lensrt logs it.
 """
 
@@ -27,6 +33,7 @@ from typing import Any
 import numpy as np
 
 from lensfit import psf
+from lensfit.errors import InputError
 from lensfit.facts import lens_facts
 from lensfit.paraxial.paraxial import paraxial, stop_radius_for_f_number
 from lensfit.poly import System
@@ -37,8 +44,17 @@ from lensfit.trace.tracer import Status
 
 WAVELENGTHS_NM = (450.0, 550.0, 650.0)
 F_NUMBERS = (8.0, 32.0)  # besides the widest fitted stop
+EDGE_F_NUMBERS = (8.0,)  # the field's edges: besides the widest fitted stop
 CORNER_SHARE = 0.8  # of the frame's corner
-NODES = 7  # Chebyshev nodes per axis of the window for the exact sensor-side rays
+PULL = 0.97  # a light whose window leaves the sensor disc moves by this towards the axis
+LABELS = {"axis": "axis", "corner80": "80% corner", "corner": "field corner",
+          "edge_x": "field x edge", "edge_y": "field y edge"}
+# Chebyshev nodes per axis of the window for the exact sensor-side rays. Against 9 nodes,
+# the PSF intensity moved by at most 4e-8 relative L2 with 5 nodes (3e-7 with 4) over
+# the axis and the field's corner of a triplet, 0001 and 0004 wide open at 450 and 650
+# nm, windows of 22-588 um (tests/fit/test_trust.py checks them against every pair
+# traced): five decades below the 1% target, in 0.6 times the time of 7 nodes
+NODES = 5
 MIN_PIXELS, MAX_PIXELS = 24, 48
 MIN_POINTS, MAX_POINTS = 512, 2048
 
@@ -60,6 +76,24 @@ def corner_field(lens: Lens, domain: Domain, share: float = CORNER_SHARE
             break
         theta *= 0.97
     return -float(theta[0]), -float(theta[1])
+
+
+def edge_fields(lens: Lens, domain: Domain) -> list[tuple[str, tuple[float, float]]]:
+    """The edges of the fitted field, (name, (θx, θy) degrees): its corner on the frame's
+    diagonal (:func:`corner_field` at 100%), its x edge, and for an anamorphic lens its y
+    edge (a rotationally symmetric lens's y edge mirrors its x edge)."""
+    fx, fy = domain.field_xy_deg
+    # The frame's corner direction, scaled onto the field's ellipse in direction cosines
+    x_O, y_O = light_direction(*corner_field(lens, domain, 1.0))
+    sx, sy = (math.sin(math.radians(f)) for f in domain.field_xy_deg)
+    rho = math.hypot(x_O / sx, y_O / sy)
+    x_O, y_O = x_O / rho, y_O / rho
+    z_O = math.sqrt(max(1.0 - x_O * x_O - y_O * y_O, 0.0))
+    corner = (-math.degrees(math.atan2(x_O, z_O)), -math.degrees(math.atan2(y_O, z_O)))
+    out = [("corner", corner), ("edge_x", (-fx, 0.0))]
+    if lens.anamorphic:
+        out.append(("edge_y", (0.0, -fy)))
+    return out
 
 
 def _f_number(lens: Lens, radius: float) -> float:
@@ -106,20 +140,50 @@ def psf_vs_exact(lens: Lens, systems: Sequence[System], domain: Domain, *,
             continue
         if r < domain.stop_radius_mm:
             stops.append((f"f/{n:g}", r))
+    # One focus per stop: its own best focus at 550 nm (or the one given), in the range
+    focus_of = {}
+    for label, radius in stops:
+        focus = psf.best_focus_offset(lens, radius, 550.0) if focus_mm is None else focus_mm
+        focus_of[label] = min(max(focus, domain.focus_min_mm), domain.focus_max_mm)
+    # Wavelengths outside a narrow fitted band are replaced by its nearest edge
+    lams = sorted({min(max(float(lam), domain.wavelength_min_nm),
+                       domain.wavelength_max_nm) for lam in wavelengths})
+    radius_of = dict(stops)
+    windows: dict[tuple[str, tuple[float, float], float, float], tuple[float, Any]] = {}
+
+    def window(label: str, field: tuple[float, float], distance: float, lam: float
+               ) -> tuple[float, tuple[float, float]]:
+        """_window of a cell, computed once (_inside and the cell itself both ask)."""
+        key = (label, field, distance, lam)
+        if key not in windows:
+            r = radius_of[label]
+            windows[key] = _window(lens, r, field, distance, lam, focus_of[label],
+                                   _f_number(lens, r))
+        return windows[key]
+
+    # (name, field, distance, stops checked, share of the angle asked for)
+    plan: list[tuple[str, tuple[float, float], float, list[str], float]] = []
     if fields is None:
-        fields = [("axis", (0.0, 0.0), math.inf),
-                  ("corner80", corner_field(lens, domain), math.inf)]
+        every = [label for label, _ in stops]
+        edge_stops = [label for label, radius in stops
+                      if label == "widest" or any(label == f"f/{n:g}" for n in EDGE_F_NUMBERS)]
+        asked = [("axis", (0.0, 0.0), every), ("corner80", corner_field(lens, domain), every),
+                 *((name, f, edge_stops) for name, f in edge_fields(lens, domain))]
+        for name, field, where in asked:
+            inside, share = _inside(lens, domain, field, where, lams, window)
+            plan.append((name, inside, math.inf, where, share))
+    else:
+        plan = [(name, tuple(field), distance, [label for label, _ in stops], 1.0)
+                for name, field, distance in fields]
     cells = []
     for label, radius in stops:
         n_f = _f_number(lens, radius)
-        focus = psf.best_focus_offset(lens, radius, 550.0) if focus_mm is None else focus_mm
-        focus = min(max(focus, domain.focus_min_mm), domain.focus_max_mm)
-        # Wavelengths outside a narrow fitted band are replaced by its nearest edge
-        lams = sorted({min(max(float(lam), domain.wavelength_min_nm),
-                           domain.wavelength_max_nm) for lam in wavelengths})
-        for fname, field, distance in fields:
+        focus = focus_of[label]
+        for fname, field, distance, where, share in plan:
+            if label not in where:
+                continue
             for lam in lams:
-                width, centre = _window(lens, radius, field, distance, lam, focus, n_f)
+                width, centre = window(label, field, distance, lam)
                 airy = 1.22 * lam * 1e-6 * n_f
                 pixels = int(min(MAX_PIXELS, max(MIN_PIXELS, math.ceil(width / (0.5 * airy)))))
                 # Stop points close enough that the sum does not alias across the window
@@ -145,8 +209,46 @@ def psf_vs_exact(lens: Lens, systems: Sequence[System], domain: Domain, *,
                     "focus_offset_mm": focus, "window_um": width * 1e3, "pixels": pixels,
                     "points": int(np.count_nonzero(used)), "relative_l2": rel,
                 })
+                if share != 1.0:
+                    cells[-1]["field_share"] = share
     worst = max(cells, key=lambda c: c["relative_l2"])
     return {"cells": cells, "worst": worst, "seconds": time.perf_counter() - t0}
+
+
+def _inside(lens: Lens, domain: Domain, field: tuple[float, float], where: list[str],
+            lams: list[float], window) -> tuple[tuple[float, float], float]:
+    """``field`` moved towards the axis (PULL of its angle at a time) until the window of
+    each of its cells (stops ``where``, wavelengths ``lams``; ``window(stop, field,
+    distance, lam)`` gives (width, centre)) lies inside the fitted sensor disc: (the
+    field, its share of the angle asked for). InputError when even a light on the axis
+    does not fit (a spot wider than the fitted image circle)."""
+    h = domain.sensor_radius_mm
+    theta = np.array(field, dtype=np.float64)
+    for _ in range(200):
+        fits = True
+        for label in where:
+            for lam in lams:
+                width, (cx, cy) = window(label, (float(theta[0]), float(theta[1])),
+                                         math.inf, lam)
+                if max(abs(cx), abs(cy)) + 0.5 * width > h:
+                    fits = False
+                    break
+            if not fits:
+                break
+        if fits:
+            share = 1.0 if not np.any(field) else float(
+                np.hypot(*theta) / np.hypot(*field))
+            return (float(theta[0]), float(theta[1])), share
+        if not np.any(theta):
+            break
+        theta *= PULL
+        if np.hypot(*theta) < 1e-3:
+            theta[:] = 0.0
+    raise InputError(
+        f"{lens.source_file or lens.name}: the PSF check: the spot of a light on the axis "
+        f"at {label} ({width * 1e3:.4g} um across) does not fit in the fitted image circle "
+        f"(radius {h:g} mm); a wider image circle (--image-circle) or a narrower focus "
+        "range (--focus) fits it")
 
 
 def trust_figures(table: dict[str, Any], psf_target: float) -> dict[str, Any]:
@@ -157,7 +259,10 @@ def trust_figures(table: dict[str, Any], psf_target: float) -> dict[str, Any]:
 
 def cell_label(cell: dict[str, Any]) -> str:
     """'f/2.0 corner80 450 nm' for messages and the table."""
-    where = {"axis": "axis", "corner80": "80% corner"}.get(cell["field"], cell["field"])
+    where = LABELS.get(cell["field"], cell["field"])
+    share = cell.get("field_share")
+    if share is not None:
+        where += f" (at {share:.0%} of its angle)"
     return f"f/{cell['f_number']:.3g} {where} {cell['wavelength_nm']:g} nm"
 
 
@@ -171,7 +276,11 @@ def markdown_table(table: dict[str, Any]) -> list[str]:
     lines = ["| stop | light | " + " | ".join(f"{lam:g} nm" for lam in lams) + " | window |",
              "|---|---|" + "---:|" * len(lams) + "---:|"]
     for (stop, field), by in rows.items():
-        light = {"axis": "on axis", "corner80": "80% of the corner"}.get(field, field)
+        light = {"axis": "on axis", "corner80": "80% of the corner"}.get(
+            field, LABELS.get(field, field))
+        share = next(iter(by.values())).get("field_share")
+        if share is not None:
+            light += f" ({share:.0%})"
         vals = " | ".join(f"{by[lam]['relative_l2']:.2%}" if lam in by else "-" for lam in lams)
         win = max(c["window_um"] for c in by.values())
         lines.append(f"| {stop} | {light} | {vals} | {win:.0f} µm |")

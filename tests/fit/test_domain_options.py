@@ -22,6 +22,7 @@ from lensfit.psf import geometric_image_point
 from lensfit.sample.domain import (
     CLOSE_FOCUS_EFL,
     FULL_FRAME_HALF_DIAGONAL_MM,
+    IMAGE_MARGIN,
     declared_fit,
     default_domain,
 )
@@ -63,11 +64,14 @@ def test_each_keyword_sets_its_part_and_leaves_the_rest(lens):
     assert base.sensor_radius_mm == pytest.approx(FULL_FRAME_HALF_DIAGONAL_MM, rel=1e-12)
     assert base.close_focus_mm == pytest.approx(CLOSE_FOCUS_EFL * f, rel=1e-12)
 
-    # The field narrows the image circle with it: its paraxial image plus 10%
+    # The field narrows the image circle with it: the real image of its edge (the chief
+    # ray, farthest of 450, 550 and 650 nm: psf's own trace here) plus IMAGE_MARGIN
     d = default_domain(lens, field_deg=5.0)
     assert (d.field_deg, d.field_y_deg) == (5.0, None)
-    assert d.sensor_radius_mm == pytest.approx(1.1 * f * math.tan(math.radians(5.0)),
-                                               rel=1e-12)
+    real = max(math.hypot(*geometric_image_point(lens, (-5.0, 0.0), math.inf, lam))
+               for lam in (450.0, 550.0, 650.0))
+    assert d.sensor_radius_mm == pytest.approx(IMAGE_MARGIN * real, rel=1e-9)
+    assert real == pytest.approx(f * math.tan(math.radians(5.0)), rel=0.02)  # paraxial
     assert d.with_(field_deg=base.field_deg, sensor_radius_mm=base.sensor_radius_mm) == base
     # ... but never beyond the frame's
     assert default_domain(lens, field_deg=30.0).sensor_radius_mm == base.sensor_radius_mm

@@ -38,7 +38,8 @@ from lensfit.sample import default_domain
 
 ROOT = Path(__file__).resolve().parents[2]
 FOLDER = "0001-angenieux-double-gauss"
-ARGS = ["fit", "0001", "--quick", "--no-timing", "--f-number", "8", "--no-progress"]
+ARGS = ["fit", "0001", "--quick", "--no-timing", "--f-number", "8", "--no-progress",
+        "--allow-miss"]  # a --quick fit misses the 1% target at the field's edges (exit 3)
 # The cache tests' fits: the tensor method on test_fitting.py's small grid (TENSOR there;
 # ~1 s a fit of both systems)
 TINY = FitOptions(groups=150, aperture_points=64, aperture_degree=6, field_degrees=(2, 4),

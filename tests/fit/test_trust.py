@@ -24,6 +24,7 @@ from lensfit.facts import lens_facts
 from lensfit.generate import GENERATED_DIR, lens_folder_name, read_fit_json
 from lensfit.paraxial import stop_radius_for_f_number
 from lensfit.prescription import load_lens
+from lensfit.scene import light_direction
 
 LAMBDA_NM = 550.0
 CELL_KEYS = {"stop", "f_number", "stop_radius_mm", "field", "field_deg", "distance_mm",
@@ -94,21 +95,33 @@ def test_psf_vs_exact_of_a_quick_fit(quick_run):
     table = quick_run.figures["psf_vs_exact"]
     assert set(table) == {"cells", "worst", "seconds"} and table["seconds"] > 0
     cells = table["cells"]
-    assert [(c["stop"], c["field"], c["wavelength_nm"]) for c in cells] == list(
-        itertools.product(["widest", "f/32"], ["axis", "corner80"], trust.WAVELENGTHS_NM))
+    # The field's own edges (corner, x edge) at the widest stop only: f/8 is the widest
+    # here, and f/32 hides the field error
+    assert [(c["stop"], c["field"], c["wavelength_nm"]) for c in cells] == [
+        *itertools.product(["widest"], ["axis", "corner80", "corner", "edge_x"],
+                           trust.WAVELENGTHS_NM),
+        *itertools.product(["f/32"], ["axis", "corner80"], trust.WAVELENGTHS_NM)]
     assert table["worst"] == max(cells, key=lambda c: c["relative_l2"])
     facts = lens_facts(lens)
     radius = {"widest": domain.stop_radius_mm, "f/32": stop_radius_for_f_number(lens, 32.0)}
     corner = trust.corner_field(lens, domain)
+    edge = dict(trust.edge_fields(lens, domain))
     focus = {}
     for c in cells:
-        assert set(c) == CELL_KEYS
+        assert set(c) == CELL_KEYS  # no field_share: no light had to move inwards
         r = radius[c["stop"]]
         assert c["stop_radius_mm"] == pytest.approx(r, rel=1e-12)
         assert c["f_number"] == pytest.approx(facts.stop_radius_f1_mm / r, abs=1e-4)
         assert c["f_number"] == pytest.approx(8.0 if c["stop"] == "widest" else 32.0,
                                               rel=1e-3)
-        want = (0.0, 0.0) if c["field"] == "axis" else corner
+        want = {"axis": (0.0, 0.0), "corner80": corner, "corner": edge["corner"],
+                "edge_x": edge["edge_x"]}[c["field"]]
+        # The edge lights lie on the fitted field's boundary (direction cosines over the
+        # domain's semi-axes: 1, to 1e-9 for the trigonometry)
+        if c["field"] in ("corner", "edge_x"):
+            x_O, y_O = light_direction(*c["field_deg"])
+            sx, sy = (math.sin(math.radians(f)) for f in domain.field_xy_deg)
+            assert math.hypot(x_O / sx, y_O / sy) == pytest.approx(1.0, abs=1e-9)
         assert tuple(c["field_deg"]) == pytest.approx(want, abs=1e-12)
         assert c["distance_mm"] == "inf"
         # One focus per stop, inside the fitted range

@@ -21,6 +21,8 @@ import math
 from dataclasses import asdict, dataclass, replace
 from typing import Any
 
+import numpy as np
+
 from lensfit.errors import InputError
 from lensfit.glass.ranges import Wavelengths, default_wavelengths
 from lensfit.paraxial.paraxial import image_distance, paraxial, stop_radius_for_f_number
@@ -154,25 +156,49 @@ def default_domain(lens: Lens, f_number: float | None = None, *,
                    wavelengths_nm: tuple[float, float] | None = None,
                    focus_mm: tuple[float, float] | None = None,
                    image_circle_mm: float | None = None) -> Domain:
-    """A full-frame camera: the image circle of 36 x 24 mm, the field that fills it (at
-    most 60 degrees), focus from infinity to ten focal lengths, the stop open to
-    ``f_number`` (default: f/2, or wide open when the lens is slower), 380-780 nm
+    """The design's own domain where the lens file states it, else a full-frame camera.
+
+    Each part comes from the first of: the keyword here (the command line), the lens
+    file's ``[fit]`` table (a declared domain, with its reason), the lens file's
+    ``[lens]`` statement of the design (``f_number``, ``field_of_view_deg``: what the
+    source or ``lensfit import`` wrote), the default: the image circle of 36 x 24 mm,
+    the field that fills it (at most 60 degrees), focus from infinity to ten focal
+    lengths, the stop open to f/2 (or wide open when the lens is slower), 380-780 nm
     narrowed to the range every glass of the lens supports (:func:`fit_wavelengths`;
-    an error naming the glasses when that leaves under 50 nm).
+    an error naming the glasses when that leaves under 50 nm). A stated f-number wider
+    than the stop opens is the widest stop; a stated field of view is the full diagonal
+    field, so its half is the half field fitted, and the image circle follows.
+
+    A lens that forms no real image of a distant scene in some meridian (its paraxial
+    image lies in front of its last surface, or at infinity: an afocal group, or an
+    attachment meant to sit behind another lens) is refused with the reason, unless the
+    sensor travel is given (``focus_mm``). The sensor travel is taken from where the
+    lens really focuses: a sensor that the table puts far from the paraxial focus is
+    moved there (the travel is then not centred on z_S = 0).
 
     Each keyword narrows (or widens) one part: ``field_deg`` the half field angle in x
-    (y follows the lens's squeeze) and with it the image circle (the paraxial image of
-    the field plus 10% for distortion, at most the frame's); ``image_circle_mm`` the
+    (y follows the lens's squeeze) and with it the image circle (the real image of
+    the field's edge plus IMAGE_MARGIN, at most the frame's; for an anamorphic lens the
+    paraxial image plus 10%); ``image_circle_mm`` the
     radius of the sensor disc outright; ``close_focus_mm`` the nearest scene point (inf:
     infinity only) and with it the sensor travel; ``focus_mm`` the sensor shift range
     z_S outright; ``wavelengths_nm`` (lo, hi) outright (checked against the glasses'
     ranges when the fit starts: :func:`lensfit.glass.ranges.check_glass_ranges`)."""
     # A lens file may declare a narrower default ([fit] in its TOML, with the reason)
     declared = declared_fit(lens)
+    stated = stated_design(lens)
+    stated_f = False
     if f_number is None:
         f_number = declared.get("f_number")
+    if f_number is None and "f_number" in stated:
+        f_number, stated_f = stated["f_number"], True
+    asked_field = field_deg is not None
     if field_deg is None:
         field_deg = declared.get("field_deg")
+    if field_deg is None and "field_deg" in stated:
+        field_deg = min(stated["field_deg"], MAX_DEFAULT_FIELD_DEG)
+    if focus_mm is None:
+        refuse_without_image(lens)
     efl_x, efl_y = (abs(paraxial(lens, meridian=m).efl_mm) for m in ("x", "y"))
     efl = min(efl_x, efl_y)
     h = FULL_FRAME_HALF_DIAGONAL_MM
@@ -192,6 +218,19 @@ def default_domain(lens: Lens, f_number: float | None = None, *,
         field = field_deg
         h = min(h, 1.1 * max(efl_x * math.tan(math.radians(field)),
                              efl_y * math.tan(math.radians(field_y or field))))
+    if not lens.anamorphic:
+        # Real rays, not paraxial ones: the field ends where the chief ray stops passing
+        # (unless the field was asked for), and the image circle holds the real image of
+        # the field's edge (a retrofocus's barrel distortion puts it well inside the
+        # paraxial one, and sensor points beyond it are reached by no ray)
+        if not asked_field:
+            field = min(field, passing_field(lens, field))
+        r = chief_image_radius(lens, field)
+        if r is not None and field_deg is None:  # the frame's field: its real image
+            if r > h or IMAGE_MARGIN * r < h:
+                h = IMAGE_MARGIN * r
+        elif r is not None:  # a field asked or stated: its real image, within the frame
+            h = min(IMAGE_MARGIN * r, FULL_FRAME_HALF_DIAGONAL_MM)
     if image_circle_mm is not None:
         if not (math.isfinite(image_circle_mm) and image_circle_mm > 0):
             raise InputError(f"image circle = {image_circle_mm!r} mm: expected a positive "
@@ -202,16 +241,23 @@ def default_domain(lens: Lens, f_number: float | None = None, *,
         raise InputError(f"close focus = {close_focus_mm!r} mm: expected a positive distance "
                          "from the first vertex, or inf")
     # Sensor travel from infinity focus to close focus, with a margin both ways
-    travel = float(image_distance(lens, close) - image_distance(lens, math.inf))
+    infinity = float(image_distance(lens, math.inf))
+    travel = float(image_distance(lens, close) - infinity)
     margin = 0.01 * efl
-    if f_number is None:
+    if f_number is None or stated_f:
         try:
-            stop = stop_radius_for_f_number(lens, DEFAULT_F_NUMBER)
-        except ValueError:  # the lens is slower than f/2: wide open
+            stop = stop_radius_for_f_number(lens, f_number or DEFAULT_F_NUMBER)
+        except ValueError:  # the lens is slower than f/2 (or its stated f/N): wide open
             stop = lens.stop_radius_max_mm
     else:
         stop = stop_radius_for_f_number(lens, f_number)
-    lo, hi = min(0.0, travel) - margin, max(0.0, travel) + margin
+    # Where the table puts the sensor (z_S = 0) is the design's focus for a distant scene
+    # unless it is off by more than the margin (lens 0012's table: 23 mm behind its
+    # paraxial focus): the travel then reaches from the table's sensor to the paraxial
+    # focus of a distant scene and on to the close focus
+    shift = infinity - float(lens.sensor_z - lens.vertex_z[-1])
+    ends = [0.0, travel] if abs(shift) <= margin else [0.0, shift, shift + travel]
+    lo, hi = min(ends) - margin, max(ends) + margin
     if focus_mm is not None:
         lo, hi = focus_mm
     w_lo, w_hi = fit_wavelengths(lens, wavelengths_nm).range_nm
@@ -226,3 +272,136 @@ def default_domain(lens: Lens, f_number: float | None = None, *,
         wavelength_max_nm=w_hi,
         field_y_deg=field_y,
     )
+
+
+# A focal length this many times the lens's length (first vertex to sensor) is a group
+# that is afocal or nearly so (a telephoto's is at most 2-3 times; the rear anamorphic
+# attachment 2002 has 41 times in y): it forms no image a camera behind it can hold
+AFOCAL_TRACK = 20.0
+
+
+def stated_design(lens: Lens) -> dict[str, float]:
+    """What the lens file's ``[lens]`` table states of the design, as a domain's parts:
+    ``f_number`` (the design's aperture) and ``field_deg`` (half the stated full
+    diagonal ``field_of_view_deg``), each only when stated as a positive number. The
+    default domain caps the field at MAX_DEFAULT_FIELD_DEG (:func:`field_cap_note`)."""
+    info = (lens.raw or {}).get("lens", {})
+    out: dict[str, float] = {}
+    f = info.get("f_number")
+    if isinstance(f, (int, float)) and not isinstance(f, bool) and math.isfinite(f) and f > 0:
+        out["f_number"] = float(f)
+    fov = info.get("field_of_view_deg")
+    if (isinstance(fov, (int, float)) and not isinstance(fov, bool) and math.isfinite(fov)
+            and fov > 0):
+        out["field_deg"] = 0.5 * float(fov)
+    return out
+
+
+def field_cap_note(lens: Lens, domain: Domain) -> str | None:
+    """A line saying that the fitted field is narrower than the field of view the lens
+    file states (a fisheye's 180 degrees: the polynomials' scene-side field variables
+    are direction cosines, whose maps a single polynomial does not follow past
+    MAX_DEFAULT_FIELD_DEG), or None."""
+    half = stated_design(lens).get("field_deg")
+    if half is None or half <= domain.field_deg + 1e-9:
+        return None
+    return (f"the lens states a {2 * half:g} degree field of view; fitted over "
+            f"{2 * domain.field_deg:g} degrees (half field {domain.field_deg:g} degrees: a "
+            f"single polynomial in direction cosines is not fitted past "
+            f"{MAX_DEFAULT_FIELD_DEG:g} degrees by default; --field sets it)")
+
+
+def refuse_without_image(lens: Lens) -> None:
+    """InputError when ``lens`` forms no real image of a distant scene in some meridian:
+    its paraxial image lies in front of the last surface (a diverging group: lens 2002,
+    a rear attachment; or a table not in working order: lens 2001, whose x meridian
+    focuses 2.2 mm in front of its last surface), or when its focal length is AFOCAL_TRACK
+    times its length or more (afocal). The message says why and what to pass."""
+    where = lens.source_file or lens.name
+    track = float(lens.sensor_z - lens.vertex_z[0])
+    for m in ("x", "y") if lens.anamorphic else ("y",):
+        d = float(image_distance(lens, math.inf, meridian=m))
+        efl = float(paraxial(lens, meridian=m).efl_mm)
+        meridian = f" in the {m}-z meridian" if lens.anamorphic else ""
+        if not (math.isfinite(d) and math.isfinite(efl)
+                and abs(efl) < AFOCAL_TRACK * track):
+            raise InputError(
+                f"{where}: the lens is afocal{meridian} (paraxial EFL {efl:.6g} mm, "
+                f"{AFOCAL_TRACK:g} times its length {track:.6g} mm or more): it forms no "
+                "image a camera behind it can hold; fit the system "
+                "it belongs to, or give the sensor travel (--focus LO,HI) and the image "
+                "circle (--image-circle MM) to fit it as it is")
+        if d <= 0.0:
+            raise InputError(
+                f"{where}: the lens forms no real image of a distant scene{meridian}: its "
+                f"paraxial image lies {-d:.6g} mm in front of its last surface (EFL "
+                f"{efl:.6g} mm); an attachment meant to sit behind or in front of another "
+                "lens, or a table not in working order; fit the system it belongs to, or "
+                "give the sensor travel (--focus LO,HI) to fit it as it is")
+
+
+# The image circle fitted: the real image height of the field's edge times this (room for
+# the spots of the field's edge and for lateral colour), when the paraxial one is off by
+# more (lens 0005's field edge images at 17.2 mm against the frame's 21.6 mm)
+IMAGE_MARGIN = 1.05
+
+
+def _chief_rays(lens: Lens, field_deg: np.ndarray, wavelength_nm: float = 550.0
+                ) -> tuple[np.ndarray, np.ndarray]:
+    """The chief rays (through the stop centre) of lights at infinity at field angles
+    ``field_deg`` in x: (image height on the nominal sensor (mm; NaN where the ray
+    fails), passes: the ray exists and passes every housing)."""
+    from lensfit.sample.rays import aim_object_side
+    from lensfit.trace.tracer import Rays, Status, Step, trace
+
+    x_O = np.sin(np.radians(np.asarray(field_deg, dtype=np.float64)))
+    obj = aim_object_side(lens, x_O, 0.0, 0.0, 0.0, 0.0, wavelength_nm)
+    s, n = lens.stop_index, len(lens.surfaces)
+    front = obj.ok & (obj.vignetting <= 1.0)
+    pos = np.where(front[:, None], np.nan_to_num(obj.pos), [0.0, 0.0, lens.vertex_z[s]])
+    d = np.where(front[:, None], np.nan_to_num(obj.dir), [0.0, 0.0, 1.0])
+    out = trace(lens, Rays(pos, d, np.full(len(x_O), wavelength_nm)),
+                [Step(k) for k in range(s + 1, n)], clip=True, end_z=lens.sensor_z)
+    passes = front & (out.status == Status.OK)
+    return np.where(passes, np.hypot(out.pos[:, 0], out.pos[:, 1]), np.nan), passes
+
+
+CHIEF_WAVELENGTHS_NM = (450.0, 550.0, 650.0)
+
+
+def _chief_passes(lens: Lens, field_deg: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(largest image height over CHIEF_WAVELENGTHS_NM (mm), passes at every one)."""
+    runs = [_chief_rays(lens, field_deg, lam) for lam in CHIEF_WAVELENGTHS_NM]
+    passes = np.logical_and.reduce([p for _, p in runs])
+    heights = np.max([np.where(passes, h, 0.0) for h, _ in runs], axis=0)
+    return np.where(passes, heights, np.nan), passes
+
+
+def chief_image_radius(lens: Lens, field_deg: float) -> float | None:
+    """How far from the axis the chief ray at ``field_deg`` meets the nominal sensor,
+    the largest over CHIEF_WAVELENGTHS_NM (mm); None when it does not pass at one."""
+    heights, passes = _chief_passes(lens, np.array([field_deg]))
+    return float(heights[0]) if passes[0] else None
+
+
+def passing_field(lens: Lens, field_deg: float) -> float:
+    """The largest half field up to ``field_deg`` whose chief rays (every angle from the
+    axis out to it, at each of CHIEF_WAVELENGTHS_NM) pass every housing, to 0.1 degree
+    (a lens made for a smaller frame: lens 0007's chief ray fails behind the stop at the
+    36 x 24 mm frame's 39.8 degrees). ``field_deg`` itself when they all pass."""
+    angles = np.linspace(0.0, field_deg, 241)
+    _, passes = _chief_passes(lens, angles)
+    if passes.all():
+        return field_deg
+    first = int(np.argmin(passes))
+    if first == 0:
+        raise InputError(f"{lens.source_file or lens.name}: the ray through the centre of "
+                         "the stop on the axis does not pass the lens")
+    lo, hi = float(angles[first - 1]), float(angles[first])
+    while hi - lo > 0.1:
+        mid = 0.5 * (lo + hi)
+        if _chief_passes(lens, np.array([mid]))[1][0]:
+            lo = mid
+        else:
+            hi = mid
+    return lo

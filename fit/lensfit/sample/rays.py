@@ -606,18 +606,34 @@ def extend_grid(lens: Lens, domain: Domain, grid: GridSamples, *, points: int = 
 
 def _grid_field(domain: Domain, system: str, groups: int,
                 rng: np.random.Generator) -> np.ndarray:
-    """``groups`` field points (G, 4) of ``system``, as :func:`sample_grid` draws them."""
+    """``groups`` field points (G, 4) of ``system``, as :func:`sample_grid` draws them:
+    denser towards the domain's edges (:func:`_edge_disc`, :func:`_edge_uniform`), where
+    a least-squares polynomial on uniform points is least constrained."""
     if system == "P_o":
         sin_xy = np.array([math.sin(math.radians(f)) for f in domain.field_xy_deg])
-        dirs = _disc(rng, groups, 1.0) * sin_xy
-        third = rng.uniform(0.0, domain.inverse_distance_max, groups)
+        dirs = _edge_disc(rng, groups) * sin_xy
+        third = _edge_uniform(rng, 0.0, domain.inverse_distance_max, groups)
         third[rng.random(groups) < INFINITY_SHARE] = 0.0
     else:
-        dirs = _disc(rng, groups, domain.sensor_radius_mm)
-        third = rng.uniform(domain.focus_min_mm, domain.focus_max_mm, groups)
+        dirs = _edge_disc(rng, groups) * domain.sensor_radius_mm
+        third = _edge_uniform(rng, domain.focus_min_mm, domain.focus_max_mm, groups)
     w_lo, w_hi = 1.0 / domain.wavelength_max_nm**2, 1.0 / domain.wavelength_min_nm**2
-    lam = 1.0 / np.sqrt(rng.uniform(w_lo, w_hi, groups))
+    lam = 1.0 / np.sqrt(_edge_uniform(rng, w_lo, w_hi, groups))
     return np.column_stack([dirs[:, 0], dirs[:, 1], third, lam])
+
+
+def _edge_disc(rng: np.random.Generator, n: int) -> np.ndarray:
+    """n points on the unit disc with density 1 / sqrt(1 - r^2): uniform points of the
+    hemisphere seen from above, the disc's analogue of Chebyshev points (the measure
+    under which least-squares polynomials are as good at the rim as inside)."""
+    r = np.sqrt(1.0 - rng.random(n) ** 2)
+    a = 2.0 * math.pi * rng.random(n)
+    return np.stack([r * np.cos(a), r * np.sin(a)], axis=1)
+
+
+def _edge_uniform(rng: np.random.Generator, lo: float, hi: float, n: int) -> np.ndarray:
+    """n points on [lo, hi] with the arcsine (Chebyshev) density."""
+    return lo + (hi - lo) * 0.5 * (1.0 - np.cos(math.pi * rng.random(n)))
 
 
 def _trace_grid(lens: Lens, domain: Domain, system: str, field: np.ndarray,

@@ -27,7 +27,7 @@ from lensfit.codegen import read_table
 from lensfit.errors import LensError
 from lensfit.glass.manufacturers import load_catalog
 from lensfit.glass.ranges import DEFAULT_BAND_NM, MIN_BAND_NM, default_wavelengths
-from lensfit.paraxial import paraxial
+from lensfit.paraxial import paraxial, stop_radius_for_f_number
 from lensfit.prescription import load_lens
 from lensfit.sample.domain import default_domain, fit_wavelengths
 from lensfit.scene import SCENE_WAVELENGTH_MARGIN_NM, Scene, scene_domain
@@ -81,7 +81,8 @@ def _cli(argv: list[str], capsys) -> tuple[int, str, str]:
 
 def test_fixture_is_a_sane_cooke_triplet(triplet):
     """EFL 50 mm (the design's), f/4.5 wide open (f/5 as designed), a plane stop in air
-    between the flint and the rear crown, a 20-degree field fits the full frame."""
+    between the flint and the rear crown; the default domain is the design's own: its
+    stated f/5 and 40 degree field of view (the 36 x 24 mm frame would be 23.4)."""
     p = paraxial(triplet)
     assert p.efl_mm == pytest.approx(50.0, rel=2e-3)
     assert 4.0 <= p.f_number <= 5.0
@@ -89,7 +90,9 @@ def test_fixture_is_a_sane_cooke_triplet(triplet):
     assert stop.stop and not getattr(stop, "inserted", False)
     assert triplet.medium_before(triplet.stop_index).name == "air"
     assert triplet.medium_after(triplet.stop_index).name == "air"
-    assert 20.0 < default_domain(triplet).field_deg < 25.0  # 36 x 24 mm at 50 mm
+    d = default_domain(triplet)
+    assert d.field_deg == 20.0
+    assert d.stop_radius_mm == pytest.approx(stop_radius_for_f_number(triplet, 5.0), rel=1e-12)
 
 
 # --- the default band ----------------------------------------------------------------------
@@ -296,7 +299,7 @@ def fitted(tmp_path_factory):
     out = io.StringIO()
     with contextlib.redirect_stdout(out):
         rc = main(["fit", str(TRIPLET), "--quick", "--no-timing", "--generated", str(gen),
-                   "--report", str(rep)])
+                   "--report", str(rep), "--allow-miss"])  # the band is tested, not the PSF
     return rc, out.getvalue(), gen / "cooke_triplet_n_f2", rep
 
 
