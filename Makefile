@@ -25,7 +25,9 @@
 #                PSF cell against exactly traced rays, table size, lensrt set-up and splat rate:
 #                fits.md, lensrt-tables.txt), and seconds per committed ghost and per
 #                visible ghost at the committed flares' settings, with its PSF against exact
-#                ghost rays (ghosts.md) (build/bench/)
+#                ghost rays (ghosts.md), and a default `lensfit fit` of every lens of lensdb
+#                and the imported fixtures: CPU s, worst PSF cell, table size, refusals
+#                (sweep.md) (build/bench/)
 
 PYTHON ?= /usr/bin/python3
 VENV   := .venv
@@ -175,6 +177,9 @@ bench: setup runtime
 		--table build/bench/fit-tables/$$t-$$m.table --json build/bench/lensrt-$$t-$$m.json \
 		| grep -A4 '^f/N'; done; done | tee build/bench/lensrt-tables.txt
 	$(PY) -m lensfit.bench --ghosts --out build/bench
+	@# Every lens of lensdb (coated and uncoated) and the imported fixtures, fitted with
+	@# defaults one at a time (CPU seconds of each fit alone; at most 300 each): sweep.md
+	$(PY) -m lensfit.fitting.sweep --out build/bench --workers 1 --cpu-limit 300
 
 clean:
 	rm -rf build $(VENV)

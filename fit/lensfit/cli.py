@@ -979,10 +979,13 @@ def build_parser() -> argparse.ArgumentParser:
         p = sub.add_parser(name, help=help_)
         p.add_argument("lens")
         p.add_argument("--f-number", type=float, default=None,
-                       help="widest aperture fitted (default f/2, or wide open if slower)")
+                       help="widest aperture fitted (default: the lens file's [fit] or "
+                            "[lens] f_number, else f/2, or wide open if slower)")
         p.add_argument("--field", type=float, default=None, metavar="DEG",
-                       help="half field angle in x (default: the field of a 36 x 24 mm "
-                            "frame); the image circle follows")
+                       help="half field angle in x (default: the lens file's [fit] "
+                            "field_deg or half its [lens] field_of_view_deg, else the field "
+                            "of a 36 x 24 mm frame; at most 60 and as far as the chief ray "
+                            "passes); the image circle follows")
         p.add_argument("--image-circle", type=float, default=None, metavar="MM",
                        help="radius of the sensor disc fitted (default: follows --field)")
         p.add_argument("--wavelengths", default=None, metavar="LO,HI",

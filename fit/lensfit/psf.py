@@ -304,6 +304,17 @@ def poly_front_flux(p_o: System, light: dict[str, float], pts: np.ndarray,
     p in the near light's 1 / |w . L| (their difference moves it by < 1e-6)."""
     d, e = FLUX_STEP_COSINE, FLUX_STEP_MM
     col = p_o.output_names.index("phi_o")
+    # The differences' centres moved inside the fitted domain by their steps where a
+    # light or a stop point lies on its edge (a stop point on the rim of the stop disc:
+    # x_a + e would be outside it), so no stencil leaves the domain
+    inputs = {i.name: i for i in p_o.inputs}
+
+    def inward(name: str, v, step: float):
+        return np.clip(v, inputs[name].lo + step, inputs[name].hi - step)
+
+    light = dict(light, x_O=float(inward("x_O", light["x_O"], d)),
+                 y_O=float(inward("y_O", light["y_O"], d)))
+    pts = np.column_stack([inward("x_a", pts[:, 0], e), inward("y_a", pts[:, 1], e)])
     # P_o specialised once per shifted light (four of them), evaluated at four stop shifts
     lights = {(dx, dy): p_o.specialise(dict(light, x_O=light["x_O"] + dx, y_O=light["y_O"] + dy))
               for dx, dy in ((d, 0), (-d, 0), (0, d), (0, -d))}
@@ -637,9 +648,17 @@ def _separable(system: System, fixed: dict[str, float], rows: dict[str, np.ndarr
     for p in system.outputs:
         w = (p.coefficients * design_matrix(f_hat, p.exponents[:, idx["f"]])[0] if fixed
              else p.coefficients)
-        a = design_matrix(r_hat, p.exponents[:, idx["r"]])
-        b = design_matrix(c_hat, p.exponents[:, idx["c"]])
-        out.append((a * w) @ b.T)
+        # Terms that share their row monomial are summed over the columns first: a
+        # tensor fit has thousands of terms but tens of distinct monomials of the pixel
+        # position, so the grid costs rows x columns x (distinct row monomials) rather
+        # than x (terms) (the PSF check of lens 0001: 25x fewer products)
+        rows_e, which = np.unique(p.exponents[:, idx["r"]], axis=0, return_inverse=True)
+        which = which.reshape(-1)
+        order = np.argsort(which, kind="stable")
+        starts = np.searchsorted(which[order], np.arange(len(rows_e)))
+        b = design_matrix(c_hat, p.exponents[order][:, idx["c"]]) * w[order]  # (C, T)
+        grouped = np.add.reduceat(b, starts, axis=1)  # (C, distinct row monomials)
+        out.append(design_matrix(r_hat, rows_e) @ grouped.T)
     return np.stack(out)
 
 

@@ -9,8 +9,10 @@ against exactly traced rays (:mod:`lensfit.trust`) and where, the table's size a
 terms, or the one line it refused with (exit 2), or that it missed its target (exit 3,
 ``lensfit.cli.EXIT_MISS``), or that it did not finish within the limit. The fits are
 independent, so they run as tasks on a Dask LocalCluster (one process per worker, one
-thread each: ``--workers``, default the machine's cores); each is timed in its own
-process, so the CPU figures do not depend on how many run at once (the wall figures do).
+thread each: ``--workers``, default 1). Each is timed in its own process, but fits run
+side by side on this 2-core machine took up to 1.8 times the CPU seconds of the same fit
+alone (0001: 127 against 69; numpy's memory traffic shares the machine), so the figures
+quoted come from one worker on an otherwise idle machine.
 
     python -m lensfit.fitting.sweep --out build/bench [--cpu-limit 300] [LENS ...]
 
@@ -103,6 +105,14 @@ def fit_one(job: dict[str, Any], cpu_limit: int) -> dict[str, Any]:
         widest = [c for c in meta["psf_vs_exact"]["cells"] if c["stop"] == "widest"]
         if widest:
             row["f_number"] = widest[0]["f_number"]
+        # Where the seconds went (the report's figures; wall seconds of this process)
+        fig = json.loads((rep / "report.json").read_text())
+        systems = fig["systems"].values()
+        row["seconds"] = {
+            "sampling": sum(v["seconds_sampling"] for v in systems),
+            "fitting": sum(v["seconds_fitting"] for v in systems),
+            "psf_check": fig["psf_vs_exact"]["seconds"]}
+        row["seconds"]["rest"] = row["wall_seconds"] - sum(row["seconds"].values())
     return row
 
 
@@ -135,16 +145,17 @@ def markdown(rows: list[dict[str, Any]], cpu_limit: int, workers: int) -> str:
              f"{os.cpu_count()} cores. Worst cell: the PSF against exactly traced rays "
              f"(`lensfit.trust`, relative L2; target {PSF_TARGET:.0%}), the fitted field's "
              "edges included. Imported lenses are converted by `lensfit import` first.", "",
-             "| lens | coating | status | CPU s | wall s | worst cell | where | table KB | "
-             "terms | note |",
-             "|---|---|---|---:|---:|---:|---|---:|---:|---|"]
+             "| lens | coating | status | CPU s | wall s | sampling / fitting / PSF check / "
+             "rest s | worst cell | where | table KB | terms | note |",
+             "|---|---|---|---:|---:|---|---:|---|---:|---:|---|"]
     for r in rows:
         cpu = r.get("cpu_seconds")
         wall = r.get("wall_seconds")
         lines.append(
             f"| {r['lens']} | {r['coating']} | {r['status']} | "
             f"{'' if cpu is None else f'{cpu:.0f}'} | {'' if wall is None else f'{wall:.0f}'} | "
-            f"{'' if 'worst' not in r else format(r['worst'], '.2%')} | {r.get('where', '')} | "
+            f"{' / '.join(f'{v:.0f}' for v in r['seconds'].values()) if 'seconds' in r else ''}"
+            f" | {'' if 'worst' not in r else format(r['worst'], '.2%')} | {r.get('where', '')} | "
             f"{'' if 'table_kb' not in r else format(r['table_kb'], '.0f')} | "
             f"{r.get('terms', '')} | {r.get('reason', '').replace('|', '/')} |")
     done = [r for r in rows if r["status"] in ("fitted", "missed")]
@@ -168,7 +179,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--coatings", choices=("both", "file"), default="both",
                     help="each lens coated as its file says and uncoated (default), or "
                          "as its file says only")
-    ap.add_argument("--workers", type=int, default=os.cpu_count() or 1)
+    ap.add_argument("--workers", type=int, default=1,
+                    help="fits at once (default 1: CPU seconds as of a fit alone)")
     args = ap.parse_args(argv)
     from dask.distributed import Client, LocalCluster
 

@@ -229,8 +229,10 @@ def default_domain(lens: Lens, f_number: float | None = None, *,
         if r is not None and field_deg is None:  # the frame's field: its real image
             if r > h or IMAGE_MARGIN * r < h:
                 h = IMAGE_MARGIN * r
-        elif r is not None:  # a field asked or stated: its real image, within the frame
+        elif r is not None and asked_field:  # its real image, within the frame
             h = min(IMAGE_MARGIN * r, FULL_FRAME_HALF_DIAGONAL_MM)
+        elif r is not None:  # the design's own field (stated or declared): its image
+            h = IMAGE_MARGIN * r
     if image_circle_mm is not None:
         if not (math.isfinite(image_circle_mm) and image_circle_mm > 0):
             raise InputError(f"image circle = {image_circle_mm!r} mm: expected a positive "

@@ -169,11 +169,20 @@ def _wavelengths(rng, domain: Domain, n: int) -> np.ndarray:
     return rng.uniform(domain.wavelength_min_nm, domain.wavelength_max_nm, n)
 
 
+# A Jacobian is kept from one step to the next while each step it gives cuts the miss at
+# least this much (the chord method: one trace a step instead of three; near the solution
+# a ray's miss is nearly linear in its start, and the kept Jacobian cuts it by 1e-2 to
+# 1e-4 a step); a step that cuts less gets a fresh finite-difference Jacobian
+CHORD_GAIN = 0.25
+
+
 def _newton(residual, p0: np.ndarray, scale: float):
     """Solve residual(p) = 0 for each row of p (N, 2), vectorised; returns (p, ok).
 
     ``residual`` returns (r (N, 2), valid (N,)) for any subset of rows it is given, via
-    an index array. Steps that increase the miss are halved (up to 8 times)."""
+    an index array. Newton's method with finite-difference Jacobians, each kept while
+    its steps cut the miss CHORD_GAIN-fold (the chord method); a step with a fresh
+    Jacobian that increases the miss is halved (up to 8 times)."""
     p = p0.copy()
     n = len(p)
     done = np.zeros(n, dtype=bool)
@@ -182,44 +191,65 @@ def _newton(residual, p0: np.ndarray, scale: float):
     idx = np.arange(n)
     r, valid = residual(idx, p)
     failed |= ~valid
+    jac = np.zeros((n, 2, 2))
+    stale = np.ones(n, dtype=bool)  # no Jacobian yet, or one to be computed afresh
     for _ in range(NEWTON_MAX_ITER):
         act = np.nonzero(~done & ~failed)[0]
         if act.size == 0:
             break
-        ra = r[act]
-        miss = np.hypot(ra[:, 0], ra[:, 1])
+        miss = np.hypot(r[act, 0], r[act, 1])
         conv = miss <= NEWTON_TOL_MM
         done[act[conv]] = True
-        act, ra, miss = act[~conv], ra[~conv], miss[~conv]
+        act = act[~conv]
         if act.size == 0:
             break
-        # Finite-difference Jacobian d r / d p
-        rx, vx = residual(act, p[act] + [h, 0.0])
-        ry, vy = residual(act, p[act] + [0.0, h])
-        jac = np.stack([(rx - ra) / h, (ry - ra) / h], axis=2)  # (n, 2 r, 2 p)
+        # Finite-difference Jacobians d r / d p where there is none to keep
+        fresh = np.zeros(n, dtype=bool)
+        need = act[stale[act]]
+        if need.size:
+            rx, vx = residual(need, p[need] + [h, 0.0])
+            ry, vy = residual(need, p[need] + [0.0, h])
+            jac[need] = np.stack([(rx - r[need]) / h, (ry - r[need]) / h], axis=2)
+            fresh[need], stale[need] = vx & vy, False
+            failed[need[~(vx & vy)]] = True
         det = jac[:, 0, 0] * jac[:, 1, 1] - jac[:, 0, 1] * jac[:, 1, 0]
-        good = vx & vy & (np.abs(det) > 0) & np.isfinite(det)
-        failed[act[~good]] = True
-        act, ra, jac, det, miss = act[good], ra[good], jac[good], det[good], miss[good]
+        failed[act[~((np.abs(det[act]) > 0) & np.isfinite(det[act]))]] = True
+        act = act[~failed[act]]
+        ra, j, d = r[act], jac[act], det[act]
+        miss = np.hypot(ra[:, 0], ra[:, 1])
         step = np.stack([
-            (jac[:, 1, 1] * ra[:, 0] - jac[:, 0, 1] * ra[:, 1]) / det,
-            (-jac[:, 1, 0] * ra[:, 0] + jac[:, 0, 0] * ra[:, 1]) / det,
+            (j[:, 1, 1] * ra[:, 0] - j[:, 0, 1] * ra[:, 1]) / d,
+            (-j[:, 1, 0] * ra[:, 0] + j[:, 0, 0] * ra[:, 1]) / d,
         ], axis=1)
-        # Damped update: accept a step only if it reduces the miss
+        # The full step; kept with its Jacobian when it cuts the miss CHORD_GAIN-fold
+        trial = p[act] - step
+        rt, vt = residual(act, trial)
+        mt = np.hypot(rt[:, 0], rt[:, 1])
+        quick = vt & (mt <= CHORD_GAIN * miss)
+        p[act[quick]], r[act[quick]] = trial[quick], rt[quick]
+        # A kept Jacobian whose step cut less: a fresh one next time, from where it is
+        slow = ~quick & ~fresh[act]
+        stale[act[slow]] = True
+        # A fresh Jacobian whose step cut less: damped, accepted if it reduces the miss
+        # at all (halved up to 8 times), and a fresh Jacobian after it
+        pend = np.nonzero(~quick & fresh[act])[0]
+        stale[act[pend]] = True
         lam = np.ones(len(act))
-        pending = np.arange(len(act))
-        for _ in range(9):
-            trial = p[act[pending]] - lam[pending, None] * step[pending]
-            rt, vt = residual(act[pending], trial)
-            better = vt & (np.hypot(rt[:, 0], rt[:, 1]) < miss[pending])
-            sel = pending[better]
-            p[act[sel]] = trial[better]
-            r[act[sel]] = rt[better]
-            pending = pending[~better]
-            if pending.size == 0:
+        better = vt[pend] & (mt[pend] < miss[pend])
+        sel = pend[better]
+        p[act[sel]], r[act[sel]] = trial[sel], rt[sel]
+        pend = pend[~better]
+        for _ in range(8):
+            if pend.size == 0:
                 break
-            lam[pending] *= 0.5
-        failed[act[pending]] = True
+            lam[pend] *= 0.5
+            trial_p = p[act[pend]] - lam[pend, None] * step[pend]
+            rt_p, vt_p = residual(act[pend], trial_p)
+            better = vt_p & (np.hypot(rt_p[:, 0], rt_p[:, 1]) < miss[pend])
+            sel = pend[better]
+            p[act[sel]], r[act[sel]] = trial_p[better], rt_p[better]
+            pend = pend[~better]
+        failed[act[pend]] = True
     failed |= ~done
     return p, ~failed
 
