@@ -192,7 +192,39 @@ def cmd_info(args: argparse.Namespace) -> int:
         for label, value in _info_rows(t):
             print(f"  {label:20s}{value}")
     _print_glass_ranges(lens, getattr(args, "wavelength", None))
+    _print_default_domain(lens)
     return 0
+
+
+def _print_default_domain(lens) -> None:
+    """The domain `lensfit fit` covers by default (lensfit.sample.domain.default_domain:
+    the design's own where the lens file states it), or why it refuses the lens."""
+    from lensfit.errors import LensError
+    from lensfit.paraxial.paraxial import f_number_for_stop_radius
+    from lensfit.sample.domain import default_domain, field_cap_note, stated_design
+
+    try:
+        d = default_domain(lens)
+    except (InputError, LensError) as e:
+        print(f"  {'default domain':20s}none: {e}")
+        return
+    source = ("the lens file's [fit]" if declared_fit_keys(lens) else
+              "the design the lens file states" if stated_design(lens)
+              else "a 36 x 24 mm frame, as far as the chief ray passes")
+    field = f"{d.field_deg:.4g} deg" + (f" x {d.field_y_deg:.4g} deg" if d.field_y_deg else "")
+    print(f"  {'default domain':20s}f/{abs(f_number_for_stop_radius(lens, d.stop_radius_mm)):.3g}, "
+          f"half field {field}, image circle {d.sensor_radius_mm:.4g} mm, sensor travel "
+          f"{d.focus_min_mm:.4g} to {d.focus_max_mm:.4g} mm ({source})")
+    note = field_cap_note(lens, d)
+    if note:
+        print(f"  {'':20s}{note}")
+
+
+def declared_fit_keys(lens) -> bool:
+    """The lens file declares part of the domain in [fit]."""
+    from lensfit.sample.domain import declared_fit
+
+    return any(k in declared_fit(lens) for k in ("f_number", "field_deg"))
 
 
 def _light_arg(text: str) -> tuple[float, float]:
@@ -612,7 +644,7 @@ def _options(args: argparse.Namespace):
 
     extra = {"psf_target": args.psf_target, "method": args.method}
     if args.quick:
-        extra.update(max_terms=60, piston_terms=20, max_degree=7, phase_degree=8,
+        extra.update(retry=False, max_terms=60, piston_terms=20, max_degree=7, phase_degree=8,
                      train_groups=600, train_per_group=8, test_groups=100, groups=1000,
                      aperture_points=64, field_degrees=(4, 6), aperture_degree=8)
     try:  # FitOptions checks its values (--psf-target) and says which is wrong
@@ -634,6 +666,11 @@ def _miss_note(o: dict) -> str:
 def _print_trust(fig: dict) -> None:
     from lensfit.trust import cell_label
 
+    again = fig.get("retried")
+    if again:
+        print(f"  the first fit's worst PSF cell was {again['first_worst']:.3%} "
+              f"({cell_label(again['first_cell'])}): fitted again with the phase target "
+              f"{again['target_waves']:.3g} waves, the {again['kept']} kept")
     worst = fig["psf_vs_exact"]["worst"]
     rel, target = worst["relative_l2"], fig["psf_target"]
     verdict = "within" if rel <= target else "ABOVE"

@@ -245,6 +245,11 @@ def _trust_markdown(fig: dict[str, Any]) -> list[str]:
         *markdown_table(table), "",
         f"Worst cell: **{worst['relative_l2']:.3%}** ({cell_label(worst)}){verdict}. "
         f"Computed in {table['seconds']:.0f} s.", "",
+        *([] if not fig.get("retried") else [
+            f"The first fit's worst cell was {fig['retried']['first_worst']:.3%} "
+            f"({cell_label(fig['retried']['first_cell'])}), above the target: the lens was "
+            f"fitted again with the phase target {fig['retried']['target_waves']:.3g} waves "
+            f"and the {fig['retried']['kept']} fit kept (`lensfit.stage`).", ""]),
     ]
 
 

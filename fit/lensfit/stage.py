@@ -19,6 +19,7 @@ import sys
 import threading
 import time
 from collections.abc import Iterator
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -136,6 +137,27 @@ def run(lens: Lens, *, domain: Domain | None = None, options: FitOptions | None 
     return fits, figures
 
 
+# A fit whose worst PSF cell misses the target by at most this factor is fitted once
+# more with a tighter phase target (stage._run); beyond it the degrees, not the target,
+# are the limit and a second fit would only double the time
+RETRY_WITHIN = 3.0
+RETRY_MARGIN = 0.7  # the tighter target aims at this share of the PSF target
+
+
+def _tighter(options: FitOptions, table: dict[str, Any]) -> FitOptions | None:
+    """The options of a second fit after a PSF table that missed its target by at most
+    RETRY_WITHIN (the phase target scaled by RETRY_MARGIN target / worst, as the PSF's
+    error scales with the phase's), or None: within target, beyond RETRY_WITHIN, or
+    options that do not allow it (``retry`` off, as --quick sets, or a target in waves
+    given outright)."""
+    worst = table["worst"]["relative_l2"]
+    if (not options.retry or options.target_waves is not None
+            or not options.psf_target < worst <= RETRY_WITHIN * options.psf_target):
+        return None
+    scale = RETRY_MARGIN * options.psf_target / worst
+    return replace(options, target_waves=options.phase_target_waves * scale, retry=False)
+
+
 def _run(lens, domain, options, generated_dir, report_dir, timing, flat, scene, glsl,
          psf_args, cache, bar, wavelengths) -> tuple[list[SystemFit], dict[str, Any]]:
     # BLAS on one thread: the sums' rounding, and so the files' bytes, do not depend on
@@ -152,6 +174,25 @@ def _run(lens, domain, options, generated_dir, report_dir, timing, flat, scene, 
             table = psf_vs_exact(lens, systems, domain, **psf_args)
             if cache is not None:
                 cache.save_psf(table)
+        retry = _tighter(options, table)
+        if retry is not None:
+            # The held-out RMS met its goal but a cell of the PSF table did not (the
+            # PSF's error follows the phase error's RMS only on average: a triplet's
+            # field edge or a singlet's axis at 450 nm reached 1.1-1.9% with every
+            # output within its target): once more with the phase target cut by what
+            # the worst cell missed, and the better table of the two kept
+            t1 = time.perf_counter()
+            again = fit_lens(lens, domain, retry)
+            table2 = psf_vs_exact(lens, [f.system for f in again], domain, **psf_args)
+            fit_seconds += time.perf_counter() - t1
+            retried = {"first_worst": table["worst"]["relative_l2"],
+                       "first_cell": table["worst"], "target_waves": retry.target_waves,
+                       "kept": "second" if table2["worst"]["relative_l2"]
+                       < table["worst"]["relative_l2"] else "first"}
+            if retried["kept"] == "second":
+                fits, table, options = again, table2, retry
+        else:
+            retried = None
     bar("psf")
     trust = trust_figures(table, options.psf_target)
     if generated_dir is not None:
@@ -177,6 +218,8 @@ def _run(lens, domain, options, generated_dir, report_dir, timing, flat, scene, 
     figures["wavelengths"] = wavelengths.to_dict()
     figures["psf_vs_exact"] = table
     figures["psf_target"] = options.psf_target
+    if retried is not None:
+        figures["retried"] = retried
     figures["method"] = options.method
     if report_dir is not None:
         with replacing_folder(report_dir) as tmp:

@@ -44,6 +44,9 @@ class FitOptions:
     max_aperture_degree: int = 14  # raised to (by 2, once) when the field degree stalls
     field_degrees: tuple[int, ...] = (4, 6, 8, 10, 12, 14)  # tried in turn against the target
     prune: bool = True  # cut the terms the target does not need (GROW_SHARE, PRUNE_SHARE)
+    # Fit once more with a tighter phase target when the PSF check misses the target by
+    # a little (lensfit.stage._tighter)
+    retry: bool = True
     # pursuit method
     max_degree: int = 9  # positions and transmittance
     phase_degree: int = 9  # phi: degree 11 measured no better at f/2 with 200 terms

@@ -280,11 +280,12 @@ def sample_object_side(lens: Lens, domain: Domain, groups: int, per_group: int,
     n = groups * per_group
     gid, ap = _group_inputs(rng, groups, per_group, domain.stop_radius_mm)
 
-    # Scene points: directions uniform on the field disc (in direction cosines), inverse
+    # Scene points: directions on the field disc (in direction cosines, half of them
+    # edge-weighted: _edge_disc), inverse
     # distances uniform in [0, u_max] with a share exactly at infinity, one wavelength each
     # (an ellipse when the field differs in x and y)
     sin_xy = np.array([math.sin(math.radians(f)) for f in domain.field_xy_deg])
-    dirs = _disc(rng, groups, 1.0) * sin_xy
+    dirs = _edge_disc(rng, groups) * sin_xy
     u = rng.uniform(0.0, domain.inverse_distance_max, groups)
     u[rng.random(groups) < INFINITY_SHARE] = 0.0
     lam_g = _wavelengths(rng, domain, groups)
@@ -428,7 +429,7 @@ def sample_sensor_side(lens: Lens, domain: Domain, groups: int, per_group: int,
     rng = np.random.default_rng(seed)
     n = groups * per_group
     gid, ap = _group_inputs(rng, groups, per_group, domain.stop_radius_mm)
-    sens = _disc(rng, groups, domain.sensor_radius_mm)
+    sens = _edge_disc(rng, groups) * domain.sensor_radius_mm
     zs_g = rng.uniform(domain.focus_min_mm, domain.focus_max_mm, groups)
     lam_g = _wavelengths(rng, domain, groups)
     xs, ys, zs, lam = sens[gid, 0], sens[gid, 1], zs_g[gid], lam_g[gid]
@@ -652,18 +653,32 @@ def _grid_field(domain: Domain, system: str, groups: int,
     return np.column_stack([dirs[:, 0], dirs[:, 1], third, lam])
 
 
+# Share of the field points (the grid's, and the held-out rays' on the field's disc)
+# drawn from the edge-weighted laws below, the rest uniform. Measured, worst PSF cell:
+# a Cooke triplet over its 20 degree field 2.7% (at the field's corner) on uniform
+# points, 0.49% all edge-weighted, 0.79% half and half; a singlet with the smallest
+# budgets 1.9% on the axis all edge-weighted (the laws halve the density at the
+# centre), 0.75% half and half
+EDGE_SHARE = 0.5
+
+
 def _edge_disc(rng: np.random.Generator, n: int) -> np.ndarray:
-    """n points on the unit disc with density 1 / sqrt(1 - r^2): uniform points of the
-    hemisphere seen from above, the disc's analogue of Chebyshev points (the measure
-    under which least-squares polynomials are as good at the rim as inside)."""
-    r = np.sqrt(1.0 - rng.random(n) ** 2)
+    """n points on the unit disc, EDGE_SHARE of them with density 1 / sqrt(1 - r^2)
+    (uniform points of the hemisphere seen from above: the disc's analogue of Chebyshev
+    points, the measure under which least-squares polynomials are as good at the rim as
+    inside), the rest uniform."""
+    u = rng.random(n)
+    r = np.where(rng.random(n) < EDGE_SHARE, np.sqrt(1.0 - u**2), np.sqrt(u))
     a = 2.0 * math.pi * rng.random(n)
     return np.stack([r * np.cos(a), r * np.sin(a)], axis=1)
 
 
 def _edge_uniform(rng: np.random.Generator, lo: float, hi: float, n: int) -> np.ndarray:
-    """n points on [lo, hi] with the arcsine (Chebyshev) density."""
-    return lo + (hi - lo) * 0.5 * (1.0 - np.cos(math.pi * rng.random(n)))
+    """n points on [lo, hi], EDGE_SHARE of them with the arcsine (Chebyshev) density, the
+    rest uniform."""
+    u = rng.random(n)
+    t = np.where(rng.random(n) < EDGE_SHARE, 0.5 * (1.0 - np.cos(math.pi * u)), u)
+    return lo + (hi - lo) * t
 
 
 def _trace_grid(lens: Lens, domain: Domain, system: str, field: np.ndarray,
