@@ -175,7 +175,9 @@ def test_fit_json_records_domain_options_and_errors(folder):
     assert systems[0].inputs == domain.inputs_o()
     assert systems[1].inputs == domain.inputs_s()
     options = meta["options"]
-    assert FitOptions(**options).to_dict() == options
+    # Options added since a committed table was written (retry) take their defaults
+    assert {k: v for k, v in FitOptions(**options).to_dict().items() if k in options} \
+        == options
     held = meta["held_out"]
     assert [(h["system"], h["name"]) for h in held] == [
         (s.name, p.output) for s in systems for p in s.outputs]

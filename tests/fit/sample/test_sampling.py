@@ -136,7 +136,9 @@ def test_object_side_rays_retrace_from_the_scene_point(lens0001):
     err = np.abs(out.opl_mm + np.linalg.norm(leg, axis=1) - d_o - o[:, 3])
     assert np.all(err <= 1e-9 + 8 * EPS * d_o), err.max()
     # Same ray, same coatings: only rounding
-    np.testing.assert_allclose(out.transmittance, o[:, 2], rtol=1e-12, atol=0)
+    # The 1e-9 mm miss tilts the retraced ray by ~1e-11 rad; the transmittance follows by
+    # ~1e-12 (the chord method stops just inside the miss: 1.5e-12 measured)
+    np.testing.assert_allclose(out.transmittance, o[:, 2], rtol=1e-11, atol=0)
 
 
 def test_sensor_side_rays_retrace_backwards_from_the_sensor(lens0001):
@@ -159,7 +161,9 @@ def test_sensor_side_rays_retrace_backwards_from_the_sensor(lens0001):
     np.testing.assert_allclose(out.pos[:, :2], x[:, 3:5], rtol=0, atol=1e-8)
     # |grad OPL| <= 1 at the sensor times the 1e-9 mm miss, plus rounding of ~100 mm
     np.testing.assert_allclose(out.opl_mm, o[:, 3], rtol=0, atol=2e-9)
-    np.testing.assert_allclose(out.transmittance, o[:, 2], rtol=1e-12, atol=0)
+    # The 1e-9 mm miss tilts the retraced ray by ~1e-11 rad; the transmittance follows by
+    # ~1e-12 (the chord method stops just inside the miss: 1.5e-12 measured)
+    np.testing.assert_allclose(out.transmittance, o[:, 2], rtol=1e-11, atol=0)
 
 
 def test_phase_is_continuous_at_infinity(lens0001):
