@@ -26,6 +26,7 @@ import argparse
 import json
 import os
 import resource
+import signal
 import subprocess
 import sys
 import tempfile
@@ -85,7 +86,9 @@ def fit_one(job: dict[str, Any], cpu_limit: int) -> dict[str, Any]:
             row.update(status="refused", reason=_last_line(stderr))
             return row
         if code < 0 or code not in (0, 3):
-            killed = code < 0 and row["cpu_seconds"] >= cpu_limit - 1
+            # RLIMIT_CPU's soft limit sends SIGXCPU (the hard one SIGKILL)
+            killed = code in (-signal.SIGXCPU, -signal.SIGKILL) and \
+                row["cpu_seconds"] >= 0.95 * cpu_limit
             row.update(status="unfinished" if killed else "failed",
                        reason=(f"not finished within {cpu_limit} CPU-s" if killed
                                else _last_line(stderr) or f"exit {code}"))
@@ -121,8 +124,10 @@ def _last_line(text: str) -> str:
     return lines[-1] if lines else ""
 
 
-def jobs(lenses: list[str], coatings: tuple[str, ...]) -> list[dict[str, Any]]:
-    """Every lensdb lens (or those named) in each coating variant, then the fixtures."""
+def jobs(lenses: list[str], coatings: tuple[str, ...], fixtures: bool | None = None
+         ) -> list[dict[str, Any]]:
+    """Every lensdb lens (or those named) in each coating variant, then the imported
+    fixtures (by default only when no lens is named)."""
     from lensfit.prescription.load import lensdb_dir
 
     out = []
@@ -130,7 +135,7 @@ def jobs(lenses: list[str], coatings: tuple[str, ...]) -> list[dict[str, Any]]:
     for name in names:
         for c in coatings:
             out.append({"name": name, "lens": name, "coating": c})
-    if not lenses:
+    if fixtures or (fixtures is None and not lenses):
         for rel in IMPORTED:
             out.append({"name": rel, "lens": "", "import": str(FIXTURES / rel),
                         "coating": "file"})
@@ -179,12 +184,15 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--coatings", choices=("both", "file"), default="both",
                     help="each lens coated as its file says and uncoated (default), or "
                          "as its file says only")
+    ap.add_argument("--fixtures", action="store_true",
+                    help="the imported fixtures too when lenses are named")
     ap.add_argument("--workers", type=int, default=1,
                     help="fits at once (default 1: CPU seconds as of a fit alone)")
     args = ap.parse_args(argv)
     from dask.distributed import Client, LocalCluster
 
-    todo = jobs(args.lenses, ("file", "none") if args.coatings == "both" else ("file",))
+    todo = jobs(args.lenses, ("file", "none") if args.coatings == "both" else ("file",),
+                True if args.fixtures else None)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     with LocalCluster(n_workers=args.workers, threads_per_worker=1, processes=True,
