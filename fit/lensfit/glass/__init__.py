@@ -1,5 +1,6 @@
-"""Glass dispersion: the project catalog, the manufacturers' catalogs, inline glasses,
-the nd/vd model and air. ``resolve_glass`` turns a lens file's glass name into a medium."""
+"""Glass dispersion: the project catalog, the manufacturers' catalogs, inline glasses
+(formulas, tables, constant indices), the nd/vd(/dPgF) model and air. ``resolve_glass``
+turns a lens file's glass name into a medium."""
 
 from lensfit.glass.catalog import (
     AIR,
@@ -7,6 +8,9 @@ from lensfit.glass.catalog import (
     LAMBDA_D_NM,
     LAMBDA_F_NM,
     LAMBDA_G_NM,
+    MODEL_DPGF_MAX,
+    MODEL_ND_RANGE,
+    MODEL_VD_RANGE,
     AbbeGlass,
     Air,
     Medium,
@@ -17,9 +21,11 @@ from lensfit.glass.catalog import (
     catalog_glass,
     catalog_path,
     known_glass_names,
+    normal_line_pgf,
+    partial_dispersion,
 )
 from lensfit.glass.formulas import FORMULAS, FormulaGlass
-from lensfit.glass.inline import InlineGlassError, TableGlass, inline_glass
+from lensfit.glass.inline import ConstantGlass, InlineGlassError, TableGlass, inline_glass
 from lensfit.glass.manufacturers import MANUFACTURERS
 from lensfit.glass.resolve import AmbiguousGlassError, resolve_glass
 
@@ -28,6 +34,7 @@ __all__ = [
     "AbbeGlass",
     "Air",
     "AmbiguousGlassError",
+    "ConstantGlass",
     "FORMULAS",
     "FormulaGlass",
     "InlineGlassError",
@@ -36,6 +43,9 @@ __all__ = [
     "LAMBDA_F_NM",
     "LAMBDA_G_NM",
     "MANUFACTURERS",
+    "MODEL_DPGF_MAX",
+    "MODEL_ND_RANGE",
+    "MODEL_VD_RANGE",
     "Medium",
     "SellmeierGlass",
     "TableGlass",
@@ -46,5 +56,7 @@ __all__ = [
     "catalog_path",
     "inline_glass",
     "known_glass_names",
+    "normal_line_pgf",
+    "partial_dispersion",
     "resolve_glass",
 ]

@@ -27,6 +27,9 @@ __all__ = [
     "LAMBDA_D_NM",
     "LAMBDA_F_NM",
     "LAMBDA_G_NM",
+    "MODEL_DPGF_MAX",
+    "MODEL_ND_RANGE",
+    "MODEL_VD_RANGE",
     "Medium",
     "SellmeierGlass",
     "UnknownGlassError",
@@ -35,6 +38,8 @@ __all__ = [
     "catalog_glass",
     "catalog_path",
     "known_glass_names",
+    "normal_line_pgf",
+    "partial_dispersion",
 ]
 
 #: Fraunhofer/spectral lines used for nd, vd and partial dispersion, in nm.
@@ -48,8 +53,18 @@ LAMBDA_G_NM = 435.83  # Hg g
 _NORMAL_LINE_A = 0.6438
 _NORMAL_LINE_B = -0.001682
 #: vd is clipped to this value before entering the normal line, which keeps
-#: P_g,F >= 0.4756; the model is monotonic over 380-780 nm for P_g,F >= 0.323.
+#: P_g,F >= 0.4756; the model is monotonic over 380-780 nm for 0.323 <= P_g,F <= 1.028.
 _NORMAL_LINE_VD_MAX = 100.0
+
+#: What a lens file (and an importer) accepts for an nd/vd model glass. nd: 1-3; vd:
+#: 5-150 (the 1002 glasses of the manufacturers' catalogs span 16.5-100.8); dPgF, the
+#: deviation of P_g,F from the normal line: |dPgF| <= 0.1, twice the largest of those
+#: glasses (-0.012 N-KZFS11 ... +0.058 K-FIR100UV), which keeps P_g,F within
+#: 0.376-0.736 and so n(λ) strictly decreasing over 380-780 nm for every vd. A larger
+#: value is more likely a P_g,F written where its deviation belongs.
+MODEL_ND_RANGE = (1.0, 3.0)
+MODEL_VD_RANGE = (5.0, 150.0)
+MODEL_DPGF_MAX = 0.1
 
 _ENV_CATALOG = "LENSFIT_GLASS_CATALOG"
 
@@ -117,33 +132,47 @@ class SellmeierGlass:
         return np.sqrt(n2)
 
 
+def normal_line_pgf(vd: float) -> float:
+    """P_g,F of the model's normal line at Abbe number ``vd``: 0.6438 − 0.001682·min(vd,
+    100) (Schott's line through K7 and F2, clipped at vd = 100, see README)."""
+    return _NORMAL_LINE_A + _NORMAL_LINE_B * min(float(vd), _NORMAL_LINE_VD_MAX)
+
+
 @dataclass(frozen=True)
 class AbbeGlass:
-    """A glass known only by nd and vd (see README: "nd/vd model").
+    """A glass known only by nd and vd, and optionally dPgF (see README: "nd/vd model").
 
     n(λ) = A + B/λ² + C/λ⁴ (λ in µm), fixed by n(λd) = nd, (nd − 1)/(nF − nC) = vd and
-    a relative partial dispersion P_g,F on the Schott normal line
-    P_g,F = 0.6438 − 0.001682·min(vd, 100).
+    a relative partial dispersion P_g,F = (ng − nF)/(nF − nC) on the Schott normal line
+    plus ``dpgf`` (the deviation from it, as Zemax's MODEL glass gives it):
+    P_g,F = 0.6438 − 0.001682·min(vd, 100) + dpgf.
     """
 
     nd: float
     vd: float
     name: str = ""
+    dpgf: float = 0.0
     _coef: tuple[float, float, float] = field(init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
-        nd, vd = float(self.nd), float(self.vd)
-        if not (math.isfinite(nd) and math.isfinite(vd)):
-            raise ValueError(f"nd and vd must be finite, got nd={self.nd!r}, vd={self.vd!r}")
+        nd, vd, dpgf = float(self.nd), float(self.vd), float(self.dpgf)
+        if not (math.isfinite(nd) and math.isfinite(vd) and math.isfinite(dpgf)):
+            raise ValueError(f"nd, vd and dPgF must be finite, got nd={self.nd!r}, "
+                             f"vd={self.vd!r}, dpgf={self.dpgf!r}")
         if nd < 1.0:
             raise ValueError(f"nd must be >= 1 (index relative to air), got nd={nd!r}")
         if vd <= 0.0:
             raise ValueError(f"vd (Abbe number) must be > 0, got vd={vd!r}")
+        if abs(dpgf) > MODEL_DPGF_MAX:
+            raise ValueError(f"dPgF must be within ±{MODEL_DPGF_MAX:g} (the deviation of "
+                             f"P_g,F from the normal line), got dpgf={dpgf!r}")
         object.__setattr__(self, "nd", nd)
         object.__setattr__(self, "vd", vd)
+        object.__setattr__(self, "dpgf", dpgf)
         if not self.name:
-            object.__setattr__(self, "name", f"nd={nd:.5f} vd={vd:.2f}")
-        object.__setattr__(self, "_coef", _abbe_coefficients(nd, vd))
+            extra = f" dPgF={dpgf:+.4f}" if dpgf else ""
+            object.__setattr__(self, "name", f"nd={nd:.5f} vd={vd:.2f}{extra}")
+        object.__setattr__(self, "_coef", _abbe_coefficients(nd, vd, dpgf))
 
     def n(self, wavelength_nm: npt.ArrayLike) -> FloatArray:
         """Refractive index at ``wavelength_nm`` (nm), float64, same shape."""
@@ -152,12 +181,13 @@ class AbbeGlass:
         return a + u * (b + u * c)
 
 
-def _abbe_coefficients(nd: float, vd: float) -> tuple[float, float, float]:
+def _abbe_coefficients(nd: float, vd: float, dpgf: float = 0.0
+                       ) -> tuple[float, float, float]:
     """Coefficients (A, B, C) of n = A + B u + C u², u = 1/λ² (λ in µm)."""
     ud, uf, uc, ug = (
         (1e3 / lam) ** 2 for lam in (LAMBDA_D_NM, LAMBDA_F_NM, LAMBDA_C_NM, LAMBDA_G_NM)
     )
-    p_gf = _NORMAL_LINE_A + _NORMAL_LINE_B * min(vd, _NORMAL_LINE_VD_MAX)
+    p_gf = normal_line_pgf(vd) + dpgf
     d_fc = (nd - 1.0) / vd  # nF - nC
     # nF - nC = (uF - uC) (B + C (uF + uC));  ng - nF = (ug - uF) (B + C (ug + uF))
     k1 = d_fc / (uf - uc)
@@ -168,15 +198,22 @@ def _abbe_coefficients(nd: float, vd: float) -> tuple[float, float, float]:
     return a, b, c
 
 
-def abbe_glass(nd: float, vd: float) -> AbbeGlass:
-    """Model glass from catalog nd and vd; ValueError for nd < 1, vd <= 0 or non-finite."""
-    return AbbeGlass(nd=nd, vd=vd)
+def abbe_glass(nd: float, vd: float, dpgf: float = 0.0) -> AbbeGlass:
+    """Model glass from catalog nd, vd (and dPgF, the deviation of P_g,F from the normal
+    line); ValueError for nd < 1, vd <= 0, |dpgf| > MODEL_DPGF_MAX or non-finite."""
+    return AbbeGlass(nd=nd, vd=vd, dpgf=dpgf)
 
 
 def abbe_number(medium: Medium) -> float:
     """vd = (nd − 1)/(nF − nC) of ``medium`` evaluated from its n(λ)."""
     nd, nf, nc = medium.n(np.array([LAMBDA_D_NM, LAMBDA_F_NM, LAMBDA_C_NM]))
     return float((nd - 1.0) / (nf - nc))
+
+
+def partial_dispersion(medium: Medium) -> float:
+    """P_g,F = (ng − nF)/(nF − nC) of ``medium`` evaluated from its n(λ)."""
+    ng, nf, nc = medium.n(np.array([LAMBDA_G_NM, LAMBDA_F_NM, LAMBDA_C_NM]))
+    return float((ng - nf) / (nf - nc))
 
 
 class UnknownGlassError(KeyError):

@@ -1,11 +1,14 @@
 """A glass's dispersion written into a lens file (``material = { ... }``).
 
-Two forms (see lensdb/README.md):
+Three forms (see lensdb/README.md):
 
 * a catalog formula: ``{ name, formula, coefficients, range_nm }`` with a formula of
   ``lensfit.glass.formulas.FORMULAS`` and its coefficients in the catalog's order;
 * a table: ``{ name, table_nm, table_n }``, n at increasing wavelengths, interpolated by
-  a cubic spline of n against u = 1/λ² (``TableGlass``).
+  a cubic spline of n against u = 1/λ² (``TableGlass``);
+* a constant index: ``{ name, n }``, a non-dispersive medium with n(λ) = n at every
+  wavelength (``ConstantGlass``; what Zemax writes as a MODEL glass with vd = 0 and
+  Optiland as an ``IdealMaterial``).
 
 ``inline_glass`` checks the table and raises ``InlineGlassError`` naming the key.
 """
@@ -19,10 +22,10 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from lensfit.glass.catalog import FloatArray, _wavelengths
+from lensfit.glass.catalog import MODEL_ND_RANGE, FloatArray, _wavelengths
 from lensfit.glass.formulas import FORMULAS, FormulaGlass, formula_n_squared
 
-__all__ = ["InlineGlassError", "TableGlass", "inline_glass"]
+__all__ = ["ConstantGlass", "InlineGlassError", "TableGlass", "inline_glass"]
 
 #: Points at which a formula is checked over its range (finite, n >= 1): a pole of a
 #: Sellmeier term inside the range shows as a sign change of n² - 1 between points.
@@ -30,6 +33,7 @@ _CHECK_POINTS = 401
 
 _FORMULA_KEYS = {"formula", "coefficients", "range_nm"}
 _TABLE_KEYS = {"table_nm", "table_n"}
+_CONSTANT_KEYS = {"n"}
 
 
 class InlineGlassError(ValueError):
@@ -89,6 +93,25 @@ class TableGlass:
         return np.asarray(n, dtype=np.float64)[()]
 
 
+@dataclass(frozen=True)
+class ConstantGlass:
+    """A non-dispersive medium: n(λ) = ``index`` at every wavelength. It has no published
+    range (``range_nm`` is absent), so no wavelength is outside it: the default fit band
+    stays 380-780 nm and no range check refuses it."""
+
+    name: str
+    index: float
+    maker: str = "inline"
+
+    @property
+    def reference(self) -> str:
+        return self.name
+
+    def n(self, wavelength_nm: npt.ArrayLike) -> FloatArray:
+        """``index`` at every wavelength (nm), float64, same shape."""
+        return np.full_like(_wavelengths(wavelength_nm), self.index)[()]
+
+
 def _numbers(spec: dict[str, Any], key: str) -> list[float]:
     values = spec[key]
     if not isinstance(values, list) or not all(
@@ -100,7 +123,7 @@ def _numbers(spec: dict[str, Any], key: str) -> list[float]:
     return out
 
 
-def inline_glass(spec: dict[str, Any]) -> FormulaGlass | TableGlass:
+def inline_glass(spec: dict[str, Any]) -> FormulaGlass | TableGlass | ConstantGlass:
     """The medium of an inline ``material`` table; InlineGlassError naming the key."""
     name = spec.get("name", "inline glass")
     if not isinstance(name, str) or not name.strip():
@@ -108,21 +131,28 @@ def inline_glass(spec: dict[str, Any]) -> FormulaGlass | TableGlass:
     if name.strip().lower() == "air":
         raise InlineGlassError("name", "'air' is not a glass name (write material = 'air')")
     keys = set(spec) - {"name"}
-    unknown = keys - _FORMULA_KEYS - _TABLE_KEYS
+    unknown = keys - _FORMULA_KEYS - _TABLE_KEYS - _CONSTANT_KEYS
     if unknown:
         raise InlineGlassError(sorted(unknown)[0], "unknown key (allowed: name, formula, "
-                                                   "coefficients, range_nm, table_nm, table_n)")
-    if keys & _FORMULA_KEYS and keys & _TABLE_KEYS:
-        raise InlineGlassError(sorted(keys & _TABLE_KEYS)[0],
-                               "give a formula (formula, coefficients, range_nm) or a table "
-                               "(table_nm, table_n), not both")
+                                                   "coefficients, range_nm, table_nm, table_n, "
+                                                   "n)")
+    forms = [(f, what) for f, what in (
+        (_FORMULA_KEYS, "a formula (formula, coefficients, range_nm)"),
+        (_TABLE_KEYS, "a table (table_nm, table_n)"),
+        (_CONSTANT_KEYS, "a constant index (n)")) if keys & f]
+    if len(forms) > 1:
+        (_, first), (second_keys, second) = forms[:2]
+        raise InlineGlassError(sorted(keys & second_keys)[0],
+                               f"give {first} or {second}, not both")
     if keys & _TABLE_KEYS:
         return _table(name, spec)
+    if keys & _CONSTANT_KEYS:
+        return _constant(spec)
     missing = sorted(_FORMULA_KEYS - keys)
     if missing:
         raise InlineGlassError(missing[0], "missing key (an inline glass needs formula, "
-                                           "coefficients and range_nm, or table_nm and "
-                                           "table_n)")
+                                           "coefficients and range_nm, table_nm and "
+                                           "table_n, or n)")
     formula = spec["formula"]
     if formula not in FORMULAS:
         raise InlineGlassError("formula", f"expected one of {', '.join(FORMULAS)}, "
@@ -169,3 +199,16 @@ def _table(name: str, spec: dict[str, Any]) -> TableGlass:
     if any(v < 1.0 for v in n):
         raise InlineGlassError("table_n", f"expected indices >= 1, found {min(n)!r}")
     return TableGlass(name=name, table_nm=tuple(lam), table_n=tuple(n))
+
+
+def _constant(spec: dict[str, Any]) -> ConstantGlass:
+    n = spec["n"]
+    if isinstance(n, bool) or not isinstance(n, int | float):
+        raise InlineGlassError("n", f"expected a number, found {n!r}")
+    lo, hi = MODEL_ND_RANGE
+    if not lo <= n <= hi:  # also NaN and inf
+        raise InlineGlassError("n", f"expected a constant index {lo:g} <= n <= {hi:g} (the "
+                                    f"range of an nd/vd glass's nd), found {n!r}")
+    # Named after its index unless the file names it ("n=1.5" in reports and messages)
+    name = spec.get("name", f"n={float(n):g}")
+    return ConstantGlass(name=name, index=float(n))

@@ -4,13 +4,14 @@ they fill in, and the atomic write of an output file."""
 from __future__ import annotations
 
 import math
+import re
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 from lensfit.errors import InputError, LensError
-from lensfit.glass import AIR, UnknownGlassError, abbe_glass, catalog_glass
+from lensfit.glass import AIR, UnknownGlassError, abbe_glass, catalog_glass, inline_glass
 
 # The manufacturer qualifiers lensfit.glass knows (see /lensdb/glass/README.md); before
 # the manufacturer catalogs land only the project catalog exists and this stays empty.
@@ -69,16 +70,56 @@ def finite(value: float) -> bool:
     return isinstance(value, float) and math.isfinite(value)
 
 
+# HIKARI names its current glasses J-... (Q-... for precision moulding). Older HIKARI and
+# Nikon catalogs name many of the same glasses without a prefix (SK16) or with E-
+# (E-SK16): so do refractiveindex.info's hikari folder and Optiland, which reads it
+# (Optiland 0.6.3's Cooke triplet uses 'SK16' of 'hikari'). Measured with Optiland 0.6.3's
+# data (tests/fit/interchange/test_optiland_cross.py): the 169 such names that have a J-
+# glass in lensfit's HIKARI catalog differ from it by at most 9.6e-4 in n over 400-700 nm
+# (median 6e-5; SK16 3.0e-5), within the 1e-3 by which melts of one glass differ
+# (lensfit.prescription.lentil.GLASS_ND_MATCH): the J- glass is taken, with a note.
+_PREFIXED_MAKERS = {"HIKARI": ("J-", ("J-", "Q-"), ("E-",))}
+OLD_NAME_DIFFERENCE = 1e-3
+
+
+def _current_name(name: str, maker: str) -> str | None:
+    """The maker's current name of an older glass name ("SK16", "E-SK16" -> "J-SK16" for
+    HIKARI), or None when the maker has no such convention or the name is current."""
+    if maker not in _PREFIXED_MAKERS:
+        return None
+    prefix, current, old = _PREFIXED_MAKERS[maker]
+    upper = name.upper()
+    if upper.startswith(current):
+        return None
+    for p in old:
+        if upper.startswith(p):
+            name = name[len(p):]
+            break
+    return prefix + name
+
+
+def split_maker_suffix(name: str) -> tuple[str, str | None]:
+    """("SK16", "HIKARI") from a name that carries its maker in parentheses, as
+    lensfit's messages and some files print it: "SK16 (HIKARI)", "'SK16' (hikari)"; the
+    name unchanged and None when the parentheses name no known manufacturer."""
+    m = re.fullmatch(r"\s*(['\"]?)(.+?)\1\s*\(\s*([^()]+?)\s*\)\s*", name)
+    if m is None or m.group(3).upper() not in MANUFACTURERS:
+        return name, None
+    return m.group(2).strip(), m.group(3).upper()
+
+
 def resolve_glass(name: str, makers: list[str]) -> tuple[dict[str, Any], str | None]:
     """The ``material`` keys of a glass named in an imported file, qualified by the
     file's catalogs ``makers`` (Zemax GCAT, Optiland's reference), in order, and a note
-    when the glass was found outside them (None otherwise).
+    when the glass was found outside them or under another name (None otherwise).
 
     The project catalog (lensdb/glass/catalog.toml) comes first when it has the name
     from one of ``makers`` (or when the file names no maker), so that a lens exported
     from lensdb comes back with the same glass; then each maker's catalog in the file's
-    order (as OpticStudio searches GCAT); then the name unqualified, with the note.
-    Raises UnknownGlassError (AmbiguousGlassError is a subclass) when none resolves."""
+    order (as OpticStudio searches GCAT); then each maker's current name of an older
+    name (HIKARI's "SK16" is "J-SK16", with the note); then the name unqualified, with
+    the note. Raises UnknownGlassError (AmbiguousGlassError is a subclass) when none
+    resolves."""
     # OpticStudio names some catalog files with a date (SUMITA_AUG2011): the maker
     wanted = [m.upper().split("_")[0] for m in makers]
     try:
@@ -90,13 +131,26 @@ def resolve_glass(name: str, makers: list[str]) -> tuple[dict[str, Any], str | N
     outside = (f"glass {name} is not in the file's catalogs ({' '.join(makers)}): "
                "found as {ref}")
     if _resolve_glass is not None:
-        for m in wanted:
-            if m in MANUFACTURERS:
-                try:
-                    medium = _resolve_glass(name, m)
-                except UnknownGlassError:
-                    continue
-                return {"material": str(getattr(medium, "reference", f"{m}:{name}"))}, None
+        known = [m for m in wanted if m in MANUFACTURERS]
+        for m in known:
+            try:
+                medium = _resolve_glass(name, m)
+            except UnknownGlassError:
+                continue
+            return {"material": str(getattr(medium, "reference", f"{m}:{name}"))}, None
+        for m in known:
+            current = _current_name(name, m)
+            if current is None:
+                continue
+            try:
+                medium = _resolve_glass(current, m)
+            except UnknownGlassError:
+                continue
+            ref = str(getattr(medium, "reference", f"{m}:{current}"))
+            return {"material": ref}, (
+                f"glass {name} ({m}) taken as {ref}, {m}'s current name for it (older "
+                f"names of its glasses differ from the current ones by up to "
+                f"{OLD_NAME_DIFFERENCE:g} in n over 400-700 nm)")
         medium = _resolve_glass(name)
         ref = str(getattr(medium, "reference", medium.name))
         return {"material": ref}, (outside.format(ref=ref) if wanted else None)
@@ -159,8 +213,10 @@ D_LINE_NM = 587.5618
 
 def _medium(d: dict[str, Any]):
     if "nd" in d:
-        return abbe_glass(float(d["nd"]), float(d["vd"]))
+        return abbe_glass(float(d["nd"]), float(d["vd"]), float(d.get("dpgf", 0.0)))
     name = d.get("material", "air")
+    if isinstance(name, dict):  # an inline glass (a constant index from the importers)
+        return inline_glass(name)
     if name == "air":
         return AIR
     try:

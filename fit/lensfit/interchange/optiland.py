@@ -2,12 +2,14 @@
 ``Optic.to_dict()``): import to lensfit's TOML.
 
 The file is one JSON object: ``surface_group.surfaces`` (an ``ObjectSurface``, the
-surfaces, an ``ImageSurface``), each with a ``geometry`` (``type``; ``cs``, the
+surfaces, and the image: an ``ImageSurface`` in older files, a plain ``Surface`` as
+Optiland 0.6.3 saves it), each with a ``geometry`` (``type``; ``cs``, the
 surface's coordinate system with its absolute ``z`` and tilts/decenters; ``radius``,
 ``conic``; ``coefficients`` of an ``EvenAsphere``; ``radius_x``, ``radius_y``,
 ``conic_yz``, ``coeffs_poly_y`` of a ``ToroidalGeometry``), ``material_post`` (the
-medium behind it: ``IdealMaterial`` with ``index``, ``AbbeMaterial`` with ``index`` and
-``abbe``, ``Material`` with ``name`` and the maker as ``reference``), ``is_stop``,
+medium behind it: ``IdealMaterial`` with ``index`` and ``absorp``, ``AbbeMaterial`` with
+``index``, ``abbe`` and ``model``, ``Material`` with ``name``, the maker as
+``reference`` and, in newer files, ``catalog``), ``is_stop``,
 ``aperture`` (a physical aperture such as ``RadialAperture`` with ``r_min``, ``r_max``,
 or null), ``thickness`` (newer files), ``interaction_model`` (newer: ``is_reflective``,
 ``coating``) or ``is_reflective``/``coating`` (older); and the system ``aperture``
@@ -20,9 +22,13 @@ Plane, EvenAsphere (``coefficients[i]`` on r^(2i+2): the r^2 term must be 0; the
 become ``aspheric`` A4..), ToroidalGeometry where it is an exact cylinder
 (radius_x inf -> cylinder-x of radius_y; radius_y inf -> cylinder-y of radius_x;
 equal radii -> sphere; no conic or polynomial terms); thickness from ``thickness`` or
-from the ``cs.z`` of the next surface; media: IdealMaterial of index 1 -> air,
-AbbeMaterial -> nd/vd (lensfit's Abbe model, a note: Optiland's model differs),
-Material -> the catalog glass (qualified by ``reference``); ``is_stop``; a
+from the ``cs.z`` of the next surface; media: IdealMaterial of index 1 -> air, of
+another index n -> the constant index ``material = { n = n }`` (a medium without
+dispersion, a note); AbbeMaterial -> nd/vd (lensfit's Abbe model, a note saying by how
+much Optiland's model differs: ``OPTILAND_ABBE_DIFFERENCE``); Material -> the catalog
+glass, qualified by a maker in parentheses after the name ("SK16 (HIKARI)", a note), by
+``catalog`` and by ``reference``; an older HIKARI name is its current one ('SK16' of
+'hikari' is HIKARI:J-SK16, a note; ``common.resolve_glass``); ``is_stop``; a
 RadialAperture's ``r_max`` -> semi_diameter; aperture imageFNO -> ``f_number``; angle
 fields -> ``field_of_view_deg``.
 
@@ -32,10 +38,13 @@ physical ``aperture``. A surface without one gets the paraxial estimate |y_margi
 field angle) and a note saying so; without a usable system aperture that is an error.
 
 Errors (one line each naming the JSON path, exit 2, nothing written): other geometry,
-material, aperture or surface types, a tilted or decentered coordinate system, a
-reflecting surface, a constant index other than 1, an unknown glass, a malformed value.
+material (``AbbeMaterialE``: ne and Ve), aperture or surface types, a tilted or
+decentered coordinate system, a reflecting surface, an absorbing IdealMaterial, an index
+outside 1-3 or an Abbe number outside 5-150, the stop on the image, an unknown glass, a
+malformed value.
 Notes: wavelengths, coatings, comments, pickups, solves, apodization, the EPD and
-other aperture types, non-angle fields.
+other aperture types, non-angle fields; per surface, what each IdealMaterial (other
+than air) and AbbeMaterial became, a maker read from the name, an older HIKARI name.
 """
 
 from __future__ import annotations
@@ -46,7 +55,7 @@ from pathlib import Path
 from typing import Any
 
 from lensfit import strict_json
-from lensfit.glass import UnknownGlassError, catalog_glass
+from lensfit.glass import MODEL_ND_RANGE, MODEL_VD_RANGE, UnknownGlassError, catalog_glass
 from lensfit.interchange.common import (
     MANUFACTURERS,
     ImportProblems,
@@ -56,10 +65,12 @@ from lensfit.interchange.common import (
     lens_table,
     paraxial_semi_diameters,
     resolve_glass,
+    split_maker_suffix,
     validate,
 )
 
 IGNORED = frozenset({"version", "ray_tracer", "polarization"})
+IMAGE_SURFACE_TYPES = ("ImageSurface", "Surface")
 NOTED = {
     "wavelengths": "wavelengths not mapped (lensfit fits a wavelength range)",
     "pickups": "pickups not mapped (the values they resolved to are in the file)",
@@ -202,9 +213,14 @@ def convert_optiland(data: Any, *, label: str = "<optiland>", lens_id: str = "im
     last = surfaces_raw[-1]
     n_last = len(surfaces_raw) - 1
     if isinstance(last, dict):
-        if last.get("type") != "ImageSurface":
-            ctx.bad(f"surface_group.surfaces[{n_last}].type", "expected ImageSurface, found "
-                    f"{_show(last.get('type'))[:40]}")
+        # Optiland 0.6.3 saves its image surface as a plain "Surface" (older versions as an
+        # "ImageSurface"): the last surface of a surface group is the image either way
+        if last.get("type") not in IMAGE_SURFACE_TYPES:
+            ctx.bad(f"surface_group.surfaces[{n_last}].type", "expected ImageSurface or "
+                    f"Surface (the image), found {_show(last.get('type'))[:40]}")
+        if last.get("is_stop") is True:
+            ctx.bad(f"surface_group.surfaces[{n_last}].is_stop", "the stop on the image "
+                    "surface: unsupported")
         g = last.get("geometry")
         if isinstance(g, dict) and g.get("type") not in ("Plane", None):
             r = g.get("radius")
@@ -421,46 +437,113 @@ def _geometry(ctx: _Ctx, g: dict[str, Any], path: str) -> dict[str, Any] | None:
     return None
 
 
+# How far Optiland's AbbeMaterial models are from lensfit's Abbe model (the same nd and
+# vd), the largest |n_Optiland - n_lensfit| over 400-700 nm, measured with Optiland 0.6.3
+# (tests/fit/interchange/test_optiland_cross.py): for a crown (N-BK7's 1.5168/64.17) and
+# a dense flint (SF6's 1.80518/25.43). The polynomial model (Optiland 0.6's default) also
+# misses nd itself (by 7e-5 for the crown, 4.8e-4 for the flint); lensfit's model passes
+# through nd and vd exactly and is 1.1e-4 (crown) and 1.2e-3 (flint) from the catalog
+# glasses (lensdb/glass/README.md).
+OPTILAND_ABBE_DIFFERENCE = {"polynomial": (4.9e-4, 1.5e-3), "buchdahl": (2.4e-4, 2.1e-3)}
+
+
+def _model_glass(ctx: _Ctx, m: dict[str, Any], path: str) -> dict[str, Any]:
+    """An AbbeMaterial: nd (``index``) and vd (``abbe``) with lensfit's Abbe model."""
+    nd = ctx.number(m, "index", path)
+    vd = ctx.number(m, "abbe", path)
+    if nd is None or vd is None:
+        return {}
+    (nd_lo, nd_hi), (vd_lo, vd_hi) = MODEL_ND_RANGE, MODEL_VD_RANGE
+    if not nd_lo <= nd <= nd_hi:
+        ctx.bad(f"{path}.index", f"nd {nd:g}: expected {nd_lo:g} <= nd <= {nd_hi:g}")
+        return {}
+    if not vd_lo <= vd <= vd_hi:
+        ctx.bad(f"{path}.abbe", f"vd {vd:g}: expected {vd_lo:g} <= vd <= {vd_hi:g} (a medium "
+                "without dispersion is an IdealMaterial)")
+        return {}
+    model = m.get("model")
+    model = model if isinstance(model, str) else "polynomial"  # 0.6's default
+    if model in OPTILAND_ABBE_DIFFERENCE:
+        crown, flint = OPTILAND_ABBE_DIFFERENCE[model]
+        differs = (f"Optiland's {model} model differs from it by about {crown:g} in n over "
+                   f"400-700 nm for a crown, {flint:g} for a dense flint")
+    else:
+        differs = f"Optiland's {model!r} model is not lensfit's"
+    ctx.notes.add(path, path, f"AbbeMaterial nd {nd:g} vd {vd:g}: kept, with lensfit's "
+                  f"Abbe model (lensdb/glass/README.md); {differs}")
+    return {"nd": nd, "vd": vd}
+
+
+def _constant_index(ctx: _Ctx, m: dict[str, Any], path: str) -> dict[str, Any]:
+    """An IdealMaterial: air for n = 1, else a medium without dispersion."""
+    n = ctx.number(m, "index", path)
+    k = ctx.number(m, "absorp", path, required=False, default=0.0)
+    if n is None or k is None:
+        return {}
+    if k:
+        ctx.bad(f"{path}.absorp", f"an absorbing medium (k = {k:g}): not representable "
+                "(lensfit's media do not absorb)")
+        return {}
+    if n == 1.0:
+        return {"material": "air"}
+    lo, hi = MODEL_ND_RANGE
+    if not lo <= n <= hi:
+        ctx.bad(f"{path}.index", f"a constant index {n:g}: expected {lo:g} <= n <= {hi:g}")
+        return {}
+    ctx.notes.add(path, path, f"IdealMaterial of index {n:g}: a medium without dispersion, "
+                  f"n = {n:g} at every wavelength (material = {{ n = {n:g} }})")
+    return {"material": {"n": n}}
+
+
+def _makers(ctx: _Ctx, m: dict[str, Any], name: str, path: str) -> tuple[str, list[str]]:
+    """The glass name and the makers that qualify it, in order: one in parentheses after
+    the name ("SK16 (HIKARI)", with a note), Optiland's ``catalog`` (newer files) and its
+    ``reference`` (the maker, or an author for data that is no catalog glass's)."""
+    bare, in_name = split_maker_suffix(name)
+    makers = [in_name] if in_name else []
+    if in_name:
+        ctx.notes.add(f"{path}.name", f"{path}.name", f"glass {name!r}: {bare!r} of "
+                      f"{in_name}'s catalog")
+    for key in ("catalog", "reference"):
+        ref = m.get(key)
+        if not isinstance(ref, str) or not ref or ref.upper() in (x.upper() for x in makers):
+            continue
+        if ref.upper() in MANUFACTURERS:
+            makers.append(ref)
+            continue
+        try:  # the project catalog's maker names (Schott, ...) qualify too
+            if str(catalog_glass(bare).maker).upper() == ref.upper():
+                makers.append(ref)
+        except UnknownGlassError:
+            pass
+    return bare, makers
+
+
 def _material(ctx: _Ctx, m: dict[str, Any], path: str) -> dict[str, Any]:
     typ = m.get("type")
     if typ == "IdealMaterial":
-        n = ctx.number(m, "index", path)
-        if n is None:
-            return {}
-        if n != 1.0 or m.get("absorp"):
-            ctx.bad(path, f"a constant index {n:g}: not representable (lensfit's nd/vd "
-                    "glasses are dispersive)")
-            return {}
-        return {"material": "air"}
+        return _constant_index(ctx, m, path)
     if typ == "AbbeMaterial":
-        nd = ctx.number(m, "index", path)
-        vd = ctx.number(m, "abbe", path)
-        if nd is None or vd is None:
-            return {}
-        ctx.notes.add(path, "AbbeMaterial", "nd/vd kept; dispersion from lensfit's Abbe model "
-                      "(lensdb/glass/README.md), not Optiland's")
-        return {"nd": nd, "vd": vd}
+        return _model_glass(ctx, m, path)
+    if typ == "AbbeMaterialE":
+        ctx.bad(f"{path}.type", "an e-line Abbe material (ne, Ve): not representable "
+                "(lensfit's model glass is given by nd and vd)")
+        return {}
     if typ == "Material":
         name = ctx.get(m, "name", path, (str,))
         ref = m.get("reference")
         if name is None:
             return {}
-        makers = [ref] if isinstance(ref, str) and ref.upper() in MANUFACTURERS else []
-        if isinstance(ref, str) and ref and not makers:
-            try:  # the project catalog's maker names (Schott, ...) qualify too
-                if str(catalog_glass(name).maker).upper() == ref.upper():
-                    makers = [ref]
-            except UnknownGlassError:
-                pass
+        bare, makers = _makers(ctx, m, name, path)
         try:
-            spec, outside = resolve_glass(name, makers)
+            spec, outside = resolve_glass(bare, makers)
         except UnknownGlassError as e:
             ctx.bad(f"{path}.name", f"glass {name!r}"
                     f"{' (' + ref + ')' if isinstance(ref, str) and ref else ''}: "
                     f"{glass_message(e)} (not imported)")
             return {}
         if outside:
-            ctx.notes.add(f"{path}.name", "glass", outside)
+            ctx.notes.add(f"{path}.name", f"{path}.name", outside)
         return spec
     ctx.bad(f"{path}.type", f"material {_show(typ)[:40]}: unsupported (not imported)")
     return {}

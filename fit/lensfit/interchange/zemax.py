@@ -32,10 +32,15 @@ Mapped (each value kept exactly as written; lengths in lens units, see UNIT):
   ``sphere``; both zero -> ``plane``. A conic, a polynomial term or a Zernike term
   is an error.
 * ``GLAS NAME ...``: a catalog glass, qualified by the ``GCAT`` catalogs in their
-  order (``lensfit.interchange.common.resolve_glass``); the nd/vd that follow a
-  catalog name are ignored (OpticStudio stores placeholders there).
-  ``GLAS ___BLANK 1 0 nd vd`` (a MODEL glass) -> ``nd``/``vd`` with lensfit's Abbe
-  model (lensdb/glass/README.md). ``MIRROR`` is an error (no mirrors in lensfit).
+  order (``lensfit.interchange.common.resolve_glass``; an older HIKARI name is its
+  current one, with a note); the nd/vd that follow a catalog name are ignored
+  (OpticStudio stores placeholders there).
+  ``GLAS ___BLANK 1 0 nd vd dPgF ...`` (a MODEL glass) -> ``nd``/``vd`` and, when not
+  0, ``dpgf`` (the deviation of P_g,F from the normal line) with lensfit's Abbe model
+  (lensdb/glass/README.md); ``vd 0`` (OpticStudio's medium without dispersion) -> the
+  constant index ``material = { n = nd }`` (``nd 1 vd 0``: air); a note per surface.
+  nd outside 1-3, vd outside 5-150 (other than 0) or |dPgF| > 0.1 is an error.
+  ``MIRROR`` is an error (no mirrors in lensfit).
 * ``UNIT``: MM as is; CM, IN, METER are kept as written with ``[lens] scale`` = 10,
   25.4, 1000 (lensfit multiplies every length and scales the aspheric terms by it at
   load time: the exact conversion). Other units are an error.
@@ -66,7 +71,8 @@ other than angles, the image surface's size, comments (``COMM``), coatings (``CO
 the lens is written uncoated, ``[coating] default = "none"``, as OpticStudio traces a
 surface without a coating), pickups and variable flags (``PZUP``, ``PPAR``, ``VPAR``:
 the values they resolved to are in the file), environment (``ENVD``), configurations
-(``MNUM``, ``MOFF``), unknown keywords outside surfaces.
+(``MNUM``, ``MOFF``), unknown keywords outside surfaces; per surface, what each MODEL
+glass became and an older HIKARI name taken as the current one.
 
 Ignored without a note: pure user-interface, drawing, analysis, tolerancing and
 optimiser settings (``IGNORED_TOP``, ``IGNORED_SURFACE``; a test keeps these lists and
@@ -90,7 +96,7 @@ from pathlib import Path
 from typing import Any
 
 from lensfit.errors import regular_file_problem
-from lensfit.glass import UnknownGlassError
+from lensfit.glass import MODEL_DPGF_MAX, MODEL_ND_RANGE, MODEL_VD_RANGE, UnknownGlassError
 from lensfit.interchange.common import (
     ImportProblems,
     ImportResult,
@@ -641,7 +647,7 @@ def _surface(s: _Surf, makers: list[str], problems: list[str], notes: Notes, lab
     if len(problems) > before or not d.get("shape"):
         return None
     # Keys in the order lensdb files use
-    order = ["shape", "radius", "thickness", "material", "nd", "vd", "glass_label",
+    order = ["shape", "radius", "thickness", "material", "nd", "vd", "dpgf", "glass_label",
              "semi_diameter", "conic", "aspheric", "stop"]
     return {k: d[k] for k in order if k in d}
 
@@ -736,16 +742,7 @@ def _glass(s: _Surf, makers: list[str], problems: list[str], notes: Notes, label
                         "(lensfit traces refracting lenses)")
         return {}
     if name == MODEL_GLASS:
-        nd = _number(tokens, 4, lineno, problems, label)
-        vd = _number(tokens, 5, lineno, problems, label)
-        if nd is None or vd is None:
-            return {}
-        if vd == 0.0:
-            problems.append(f"{label}:{lineno}: SURF {n} GLAS MODEL nd {nd:g} vd 0: a "
-                            "non-dispersive medium: not representable (lensfit's nd/vd "
-                            "glasses have 5 <= vd <= 150)")
-            return {}
-        return {"nd": nd, "vd": vd}
+        return _model_glass(s, tokens, lineno, problems, notes, label)
     try:
         spec, outside = resolve_glass(name, makers)
     except UnknownGlassError as e:
@@ -756,6 +753,48 @@ def _glass(s: _Surf, makers: list[str], problems: list[str], notes: Notes, label
     if outside:
         notes.add(str(lineno), f"SURF {n} GLAS", outside)
     return spec
+
+
+def _model_glass(s: _Surf, tokens: list[str], lineno: int, problems: list[str], notes: Notes,
+                 label: str) -> dict[str, Any]:
+    """``GLAS ___BLANK 1 0 nd vd dPgF ...`` (a MODEL glass): nd/vd(/dpgf) with lensfit's
+    Abbe model, or with vd 0 (how OpticStudio writes a medium without dispersion) the
+    constant index ``material = { n = nd }``; a note either way."""
+    n = s.number
+    nd = _number(tokens, 4, lineno, problems, label, what=f"SURF {n} GLAS MODEL nd")
+    vd = _number(tokens, 5, lineno, problems, label, what=f"SURF {n} GLAS MODEL vd")
+    dpgf = (_number(tokens, 6, lineno, problems, label, what=f"SURF {n} GLAS MODEL dPgF")
+            if len(tokens) > 6 else 0.0)
+    if nd is None or vd is None or dpgf is None:
+        return {}
+    head = f"{label}:{lineno}: SURF {n} GLAS MODEL nd {nd:g} vd {vd:g}"
+    (nd_lo, nd_hi), (vd_lo, vd_hi) = MODEL_ND_RANGE, MODEL_VD_RANGE
+    before = len(problems)
+    if not nd_lo <= nd <= nd_hi:
+        problems.append(f"{head}: expected {nd_lo:g} <= nd <= {nd_hi:g} (not imported)")
+    if vd != 0.0 and not vd_lo <= vd <= vd_hi:
+        problems.append(f"{head}: expected {vd_lo:g} <= vd <= {vd_hi:g}, or vd 0 for a medium "
+                        "without dispersion (not imported)")
+    if abs(dpgf) > MODEL_DPGF_MAX:
+        problems.append(f"{head} dPgF {dpgf:g}: expected |dPgF| <= {MODEL_DPGF_MAX:g}, the "
+                        "deviation of P_g,F from the normal line (not imported)")
+    if len(problems) > before:
+        return {}
+    where, what = str(lineno), f"SURF {n} GLAS MODEL"
+    if vd == 0.0:
+        if dpgf:
+            notes.add(where, what, f"dPgF {dpgf:g} of a medium without dispersion (vd 0) "
+                      "not mapped (it has no partial dispersion)")
+        if nd == 1.0:
+            notes.add(where, what, "nd 1 vd 0: air")
+            return {"material": "air"}
+        notes.add(where, what, f"nd {nd:g} vd 0: a medium without dispersion, n = {nd:g} at "
+                  f"every wavelength (material = {{ n = {nd:g} }})")
+        return {"material": {"n": nd}}
+    extra = f" + dPgF {dpgf:g}" if dpgf else ""
+    notes.add(where, what, f"nd {nd:g} vd {vd:g}: lensfit's Abbe model (lensdb/glass/"
+              f"README.md), P_g,F on the normal line{extra}")
+    return {"nd": nd, "vd": vd, "dpgf": dpgf} if dpgf else {"nd": nd, "vd": vd}
 
 
 def _semi_diameter(s: _Surf, problems: list[str], notes: Notes, label: str) -> float | None:
@@ -939,15 +978,23 @@ def write_zmx(lens: Any) -> tuple[str, list[str]]:
             body += ["  TYPE TOROIDAL", "  CURV 0.0", f"  PARM 1 {_num(s.radius_mm)}"]
         body.append(f"  DISZ {_num(thickness)}")
         spec = s.material_spec
+        inline = spec.get("material")
         if "nd" in spec:
-            body.append(f"  GLAS {MODEL_GLASS} 1 0 {_num(spec['nd'])} {_num(spec['vd'])} 0 0 0 0 "
-                        "0 0")
+            dpgf = _num(spec["dpgf"]) if spec.get("dpgf") else "0"
+            body.append(f"  GLAS {MODEL_GLASS} 1 0 {_num(spec['nd'])} {_num(spec['vd'])} "
+                        f"{dpgf} 0 0 0 0 0")
             if "glass_label" in spec:
                 notes.append(f"surface {i}: glass label {spec['glass_label']!r} not exported "
                              "(a MODEL glass has no name)")
-        elif isinstance(spec.get("material"), dict):
-            raise ValueError(f"surface {i}: an inline dispersion table has no .zmx form "
-                             "(a catalog name or a MODEL glass)")
+        elif isinstance(inline, dict) and set(inline) <= {"name", "n"} and "n" in inline:
+            # A constant index: a MODEL glass with vd 0, OpticStudio's non-dispersive medium
+            body.append(f"  GLAS {MODEL_GLASS} 1 0 {_num(inline['n'])} 0 0 0 0 0 0 0")
+            if "name" in inline:
+                notes.append(f"surface {i}: glass name {inline['name']!r} not exported "
+                             "(a MODEL glass has no name)")
+        elif isinstance(inline, dict):
+            raise ValueError(f"surface {i}: an inline dispersion formula or table has no .zmx "
+                             "form (a catalog name or a MODEL glass)")
         elif str(spec.get("material", "air")).lower() != "air":
             ref = str(spec["material"])
             maker, _, name = ref.rpartition(":")

@@ -27,6 +27,9 @@ import numpy as np
 from lensfit.errors import InputError, LensError, regular_file_problem, toml_overflow
 from lensfit.glass import (
     AIR,
+    MODEL_DPGF_MAX,
+    MODEL_ND_RANGE,
+    MODEL_VD_RANGE,
     InlineGlassError,
     Medium,
     UnknownGlassError,
@@ -415,10 +418,14 @@ def _surface(s: dict[str, Any], i: int, file: str, scale: float) -> Surface:
 
 def _medium(s: dict[str, Any], i: int, file: str) -> tuple[Medium, dict[str, Any]]:
     has_nd = "nd" in s or "vd" in s
-    if "material" in s and has_nd:
+    if "material" in s and (has_nd or "dpgf" in s):
         raise LensError(
-            "give either 'material' or 'nd' and 'vd', not both", file=file, surface=i, key="nd"
+            "give either 'material' or 'nd' and 'vd', not both", file=file, surface=i,
+            key="nd" if has_nd else "dpgf"
         )
+    if "dpgf" in s and not has_nd:
+        raise LensError("'dpgf' goes with 'nd' and 'vd' (the model glass's deviation of "
+                        "P_g,F from the normal line)", file=file, surface=i, key="dpgf")
     if has_nd:
         for k in ("nd", "vd"):
             if k not in s:
@@ -426,14 +433,26 @@ def _medium(s: dict[str, Any], i: int, file: str) -> tuple[Medium, dict[str, Any
                     "missing key ('nd' and 'vd' go together)", file=file, surface=i, key=k
                 )
         nd, vd = float(s["nd"]), float(s["vd"])
-        if not 1.0 <= nd <= 3.0:
-            raise LensError(f"expected 1 <= nd <= 3, found {nd}", file=file, surface=i, key="nd")
-        if not 5.0 <= vd <= 150.0:
-            raise LensError(f"expected 5 <= vd <= 150, found {vd}", file=file, surface=i, key="vd")
-        spec = {"nd": nd, "vd": vd}
+        dpgf = float(s.get("dpgf", 0.0))
+        (nd_lo, nd_hi), (vd_lo, vd_hi) = MODEL_ND_RANGE, MODEL_VD_RANGE
+        if not nd_lo <= nd <= nd_hi:
+            raise LensError(f"expected {nd_lo:g} <= nd <= {nd_hi:g}, found {nd}", file=file,
+                            surface=i, key="nd")
+        if not vd_lo <= vd <= vd_hi:
+            hint = f" (a medium without dispersion: material = {{ n = {nd:g} }})" \
+                if vd == 0 else ""
+            raise LensError(f"expected {vd_lo:g} <= vd <= {vd_hi:g}, found {vd}{hint}",
+                            file=file, surface=i, key="vd")
+        if not abs(dpgf) <= MODEL_DPGF_MAX:
+            raise LensError(f"expected -{MODEL_DPGF_MAX:g} <= dpgf <= {MODEL_DPGF_MAX:g} (the "
+                            f"deviation of P_g,F from the normal line), found {dpgf}",
+                            file=file, surface=i, key="dpgf")
+        spec: dict[str, Any] = {"nd": nd, "vd": vd}
+        if "dpgf" in s:
+            spec["dpgf"] = dpgf
         if "glass_label" in s:
             spec["glass_label"] = s["glass_label"]
-        return abbe_glass(nd, vd), spec
+        return abbe_glass(nd, vd, dpgf), spec
     name = s.get("material")
     if name is None:
         raise LensError(
