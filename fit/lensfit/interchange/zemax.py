@@ -156,6 +156,8 @@ SURFACE_KEYWORDS = frozenset({"TYPE", "CURV", "CONI", "PARM", "XDAT", "DISZ", "G
                               "DIAM", "STOP", "CLAP", "FLAP", "OBDC"})
 SUPPORTED_TYPES = ("STANDARD", "EVENASPH", "TOROIDAL")
 MODEL_GLASS = "___BLANK"
+# The wavelengths `lensfit export` writes (um): the d, F and C lines, d primary
+EXPORT_WAVELENGTHS_UM = ("0.5875618", "0.4861327", "0.6562725")
 
 
 @dataclass
@@ -955,6 +957,10 @@ def write_zmx(lens: Any) -> tuple[str, list[str]]:
     if "field_of_view_deg" in info:
         half = float(info["field_of_view_deg"]) / 2.0
         lines += ["FTYP 0 0 2 1 0 0 0", "XFLN 0 0", f"YFLN 0 {_num(half)}"]
+    # Design programs need wavelengths (Optiland refuses a file without a primary one):
+    # the d, F and C lines in micrometres, d primary (lensfit's own range is the fit's)
+    lines += [f"WAVM {k} {um} 1" for k, um in enumerate(EXPORT_WAVELENGTHS_UM, start=1)]
+    lines.append("PWAV 1")
     body = ["SURF 0", "  TYPE STANDARD", "  CURV 0.0", "  DISZ INFINITY"]
     for i, (s, stop, thickness) in enumerate(_file_surfaces(lens)):
         body.append(f"SURF {i + 1}")
