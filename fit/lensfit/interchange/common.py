@@ -11,7 +11,14 @@ from pathlib import Path
 from typing import Any
 
 from lensfit.errors import InputError, LensError
-from lensfit.glass import AIR, UnknownGlassError, abbe_glass, catalog_glass, inline_glass
+from lensfit.glass import (
+    AIR,
+    MODEL_ND_RANGE,
+    UnknownGlassError,
+    abbe_glass,
+    catalog_glass,
+    inline_glass,
+)
 
 # The manufacturer qualifiers lensfit.glass knows (see /lensdb/glass/README.md); before
 # the manufacturer catalogs land only the project catalog exists and this stays empty.
@@ -167,6 +174,30 @@ def glass_message(e: UnknownGlassError) -> str:
     return text.strip('"')
 
 
+# Why an index above the loader's range (MODEL_ND_RANGE, 1-3) is refused rather than
+# clipped or kept: the media with such indices are infrared ones (germanium about 4.0,
+# silicon about 3.4, in Optiland's InfraredTriplet and IR designs), opaque over the
+# visible range lensfit traces; an index below 1 is no medium at all.
+VISIBLE_NM = (380.0, 780.0)
+
+
+def index_range_problem(n: float, what: str = "nd") -> str | None:
+    """None when the index ``n`` is within lensfit's range for an index (an nd/vd model
+    glass's nd or a constant index: ``MODEL_ND_RANGE``, 1-3), else the phrase that says
+    so and why: "expected 1 <= nd <= 3" and, above 3, that such a medium is an infrared
+    one (germanium, silicon) and lensfit traces visible light, where it is opaque."""
+    lo, hi = MODEL_ND_RANGE
+    if lo <= n <= hi:
+        return None
+    text = f"expected {lo:g} <= {what} <= {hi:g}"
+    if n > hi and math.isfinite(n):
+        a, b = VISIBLE_NM
+        text += (f"; an index above {hi:g} belongs to an infrared medium (germanium about "
+                 f"4.0, silicon about 3.4), opaque to the visible light ({a:g}-{b:g} nm) "
+                 "lensfit traces")
+    return text
+
+
 def lens_table(*, lens_id: str, name: str, source: str, notes: list[str]) -> dict[str, Any]:
     """The ``[lens]`` table of an imported file (maker and year are not in the formats:
     "unknown" and 0)."""
@@ -177,10 +208,41 @@ def lens_table(*, lens_id: str, name: str, source: str, notes: list[str]) -> dic
     return info
 
 
-def validate(data: dict[str, Any], label: str, where_surface: list[str]) -> Any:
+def file_surface_names(detail: str, names: list[str]) -> str:
+    """A loader message with the surface indices it names (lensfit's, 0 for the first
+    surface of the converted table: "surfaces 6 and 7 cross ...", "surfaces [2, 5]",
+    "surface 3") replaced by the file's own names of those surfaces (``names[i]``: "SURF
+    7" of a .zmx, "surface_group.surfaces[7]" of an Optiland file); an index without a
+    name is left as it is."""
+    def name(i: str) -> str | None:
+        k = int(i)
+        return names[k] if 0 <= k < len(names) else None
+
+    def pair(m: re.Match[str]) -> str:
+        a, b = name(m.group(1)), name(m.group(2))
+        return f"{a} and {b}" if a and b else m.group(0)
+
+    def listed(m: re.Match[str]) -> str:
+        got = [name(i) for i in re.findall(r"\d+", m.group(1))]
+        return ", ".join(g for g in got if g) if all(got) else m.group(0)
+
+    def one(m: re.Match[str]) -> str:
+        return name(m.group(1)) or m.group(0)
+
+    detail = re.sub(r"\bsurfaces (\d+) and (\d+)\b", pair, detail)
+    detail = re.sub(r"\bsurfaces \[(\d+(?:, \d+)*)\]", listed, detail)
+    return re.sub(r"\bsurface (\d+)\b", one, detail)
+
+
+def validate(data: dict[str, Any], label: str, where_surface: list[str], *,
+             sep: str = ":") -> Any:
     """Load the converted table as lensfit would (lens_from_dict) and return the Lens;
     turn a refusal into an ImportProblems line that names the source line (or JSON path)
-    of the surface."""
+    of the surface, after ``label`` and ``sep`` (":" before a .zmx line number, ": "
+    before an Optiland JSON path), and any surface the loader's message names by its index
+    (lensfit's 0-based index in the converted table) by the file's own name for it
+    (``SURF n`` of a .zmx, ``surface_group.surfaces[i]`` of an Optiland file:
+    ``where_surface[i]`` without its line number)."""
     import numpy as np
 
     from lensfit.prescription import lens_from_dict
@@ -191,12 +253,14 @@ def validate(data: dict[str, Any], label: str, where_surface: list[str]) -> Any:
         with np.errstate(over="ignore", invalid="ignore"):
             return lens_from_dict(data, file=label)
     except LensError as e:
-        where = ""
+        head = f"{label}: "
         if e.surface is not None and 0 <= e.surface < len(where_surface):
-            where = where_surface[e.surface] + ": "
+            head = f"{label}{sep}{where_surface[e.surface]}: "
         key = f"key '{e.key}': " if e.key else ""
-        raise ImportProblems([f"{label}:{where}{key}{e.detail} (lensfit's loader refuses "
-                              "the converted lens; nothing written)"]) from None
+        names = [w.split(": ", 1)[-1] for w in where_surface]
+        detail = file_surface_names(e.detail, names)
+        raise ImportProblems([f"{head}{key}{detail} (lensfit's loader refuses the "
+                              "converted lens; nothing written)"]) from None
 
 
 def write_atomic(path: Path, text: str, *, option: str = "") -> None:

@@ -27,7 +27,10 @@ another index n -> the constant index ``material = { n = n }`` (a medium without
 dispersion, a note); AbbeMaterial -> nd/vd (lensfit's Abbe model, a note saying by how
 much Optiland's model differs: ``OPTILAND_ABBE_DIFFERENCE``); Material -> the catalog
 glass, qualified by a maker in parentheses after the name ("SK16 (HIKARI)", a note), by
-``catalog`` and by ``reference``; an older HIKARI name is its current one ('SK16' of
+``catalog`` and by ``reference`` or, where the reference is missing (null in Optiland's
+published samples), by the folder of its data file's ``filename`` when that names a
+maker (``.../glass/hikari/SK16.yml``: refractiveindex.info keeps each maker's glasses in
+a folder of its name; a note); an older HIKARI name is its current one ('SK16' of
 'hikari' is HIKARI:J-SK16, a note; ``common.resolve_glass``); ``is_stop``; a
 RadialAperture's ``r_max`` -> semi_diameter; aperture imageFNO -> ``f_number``; angle
 fields -> ``field_of_view_deg``.
@@ -40,11 +43,14 @@ field angle) and a note saying so; without a usable system aperture that is an e
 Errors (one line each naming the JSON path, exit 2, nothing written): other geometry,
 material (``AbbeMaterialE``: ne and Ve), aperture or surface types, a tilted or
 decentered coordinate system, a reflecting surface, an absorbing IdealMaterial, an index
-outside 1-3 or an Abbe number outside 5-150, the stop on the image, an unknown glass, a
-malformed value.
+outside 1-3 (above 3: an infrared medium such as germanium, opaque to the visible light
+lensfit traces; the line says so) or an Abbe number outside 5-150, the stop on the image,
+an unknown glass, a malformed value, a lens lensfit's loader refuses (on the JSON path of
+the surface it names, and any other surface its message names by its JSON path).
 Notes: wavelengths, coatings, comments, pickups, solves, apodization, the EPD and
 other aperture types, non-angle fields; per surface, what each IdealMaterial (other
-than air) and AbbeMaterial became, a maker read from the name, an older HIKARI name.
+than air) and AbbeMaterial became, a maker read from the name or the filename, an older
+HIKARI name.
 """
 
 from __future__ import annotations
@@ -55,13 +61,14 @@ from pathlib import Path
 from typing import Any
 
 from lensfit import strict_json
-from lensfit.glass import MODEL_ND_RANGE, MODEL_VD_RANGE, UnknownGlassError, catalog_glass
+from lensfit.glass import MODEL_VD_RANGE, UnknownGlassError, catalog_glass
 from lensfit.interchange.common import (
     MANUFACTURERS,
     ImportProblems,
     ImportResult,
     Notes,
     glass_message,
+    index_range_problem,
     lens_table,
     paraxial_semi_diameters,
     resolve_glass,
@@ -283,7 +290,7 @@ def convert_optiland(data: Any, *, label: str = "<optiland>", lens_id: str = "im
     info.update(info_extra)
     table = {"schema_version": 1, "lens": info,
              "coating": {"default": "none", "design_wavelength_nm": 550.0}, "surface": out}
-    validate(table, label, where)
+    validate(table, label, where, sep=": ")
     return ImportResult(table, ctx.notes.lines())
 
 
@@ -453,9 +460,10 @@ def _model_glass(ctx: _Ctx, m: dict[str, Any], path: str) -> dict[str, Any]:
     vd = ctx.number(m, "abbe", path)
     if nd is None or vd is None:
         return {}
-    (nd_lo, nd_hi), (vd_lo, vd_hi) = MODEL_ND_RANGE, MODEL_VD_RANGE
-    if not nd_lo <= nd <= nd_hi:
-        ctx.bad(f"{path}.index", f"nd {nd:g}: expected {nd_lo:g} <= nd <= {nd_hi:g}")
+    vd_lo, vd_hi = MODEL_VD_RANGE
+    nd_problem = index_range_problem(nd)
+    if nd_problem:
+        ctx.bad(f"{path}.index", f"nd {nd:g}: {nd_problem}")
         return {}
     if not vd_lo <= vd <= vd_hi:
         ctx.bad(f"{path}.abbe", f"vd {vd:g}: expected {vd_lo:g} <= vd <= {vd_hi:g} (a medium "
@@ -486,19 +494,43 @@ def _constant_index(ctx: _Ctx, m: dict[str, Any], path: str) -> dict[str, Any]:
         return {}
     if n == 1.0:
         return {"material": "air"}
-    lo, hi = MODEL_ND_RANGE
-    if not lo <= n <= hi:
-        ctx.bad(f"{path}.index", f"a constant index {n:g}: expected {lo:g} <= n <= {hi:g}")
+    n_problem = index_range_problem(n, "n")
+    if n_problem:
+        ctx.bad(f"{path}.index", f"a constant index {n:g}: {n_problem}")
         return {}
     ctx.notes.add(path, path, f"IdealMaterial of index {n:g}: a medium without dispersion, "
                   f"n = {n:g} at every wavelength (material = {{ n = {n:g} }})")
     return {"material": {"n": n}}
 
 
+def _is_maker(ref: str, bare: str) -> bool:
+    """``ref`` names a glass maker lensfit has a catalog of, or the maker of the project
+    catalog's glass ``bare`` (Schott, ...)."""
+    if ref.upper() in MANUFACTURERS:
+        return True
+    try:
+        return str(catalog_glass(bare).maker).upper() == ref.upper()
+    except UnknownGlassError:
+        return False
+
+
+def filename_maker(filename: Any) -> str | None:
+    """The folder above the data file of an Optiland ``Material`` (``.../glass/hikari/
+    SK16.yml`` -> "hikari": refractiveindex.info's database, which Optiland reads, keeps
+    each maker's glasses in a folder of the maker's name), with either path separator (the
+    published files carry their authors' Windows paths); None when there is none."""
+    if not isinstance(filename, str) or not filename:
+        return None
+    parts = [p for p in filename.replace("\\", "/").split("/") if p]
+    return parts[-2] if len(parts) >= 2 else None
+
+
 def _makers(ctx: _Ctx, m: dict[str, Any], name: str, path: str) -> tuple[str, list[str]]:
     """The glass name and the makers that qualify it, in order: one in parentheses after
     the name ("SK16 (HIKARI)", with a note), Optiland's ``catalog`` (newer files) and its
-    ``reference`` (the maker, or an author for data that is no catalog glass's)."""
+    ``reference`` (the maker, or an author for data that is no catalog glass's); without a
+    ``reference``, the maker folder of its data file's ``filename`` (``.../glass/hikari/
+    SK16.yml``: Optiland found the glass there), with a note."""
     bare, in_name = split_maker_suffix(name)
     makers = [in_name] if in_name else []
     if in_name:
@@ -508,14 +540,17 @@ def _makers(ctx: _Ctx, m: dict[str, Any], name: str, path: str) -> tuple[str, li
         ref = m.get(key)
         if not isinstance(ref, str) or not ref or ref.upper() in (x.upper() for x in makers):
             continue
-        if ref.upper() in MANUFACTURERS:
+        if _is_maker(ref, bare):
             makers.append(ref)
-            continue
-        try:  # the project catalog's maker names (Schott, ...) qualify too
-            if str(catalog_glass(bare).maker).upper() == ref.upper():
-                makers.append(ref)
-        except UnknownGlassError:
-            pass
+    ref = m.get("reference")
+    folder = filename_maker(m.get("filename"))
+    if (not isinstance(ref, str) or not ref) and folder and \
+            folder.upper() not in (x.upper() for x in makers) and _is_maker(folder, bare):
+        makers.append(folder)
+        leaf = m["filename"].replace("\\", "/").rsplit("/", 1)[-1]
+        ctx.notes.add(f"{path}.filename", f"{path}.filename", f"glass {name!r} has no "
+                      f"reference: the maker {folder!r} is taken from the folder of its "
+                      f"data file (.../{folder}/{leaf[:40]})")
     return bare, makers
 
 
@@ -538,9 +573,14 @@ def _material(ctx: _Ctx, m: dict[str, Any], path: str) -> dict[str, Any]:
         try:
             spec, outside = resolve_glass(bare, makers)
         except UnknownGlassError as e:
-            ctx.bad(f"{path}.name", f"glass {name!r}"
-                    f"{' (' + ref + ')' if isinstance(ref, str) and ref else ''}: "
-                    f"{glass_message(e)} (not imported)")
+            if isinstance(ref, str) and ref:
+                maker = f" ({ref})"
+            elif makers:  # from the name's parentheses, the catalog or the filename
+                maker = f" ({', '.join(makers)})"
+            else:
+                maker = ""
+            ctx.bad(f"{path}.name", f"glass {name!r}{maker}: {glass_message(e)} (not "
+                    "imported)")
             return {}
         if outside:
             ctx.notes.add(f"{path}.name", f"{path}.name", outside)

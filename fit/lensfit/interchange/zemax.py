@@ -35,11 +35,16 @@ Mapped (each value kept exactly as written; lengths in lens units, see UNIT):
   order (``lensfit.interchange.common.resolve_glass``; an older HIKARI name is its
   current one, with a note); the nd/vd that follow a catalog name are ignored
   (OpticStudio stores placeholders there).
-  ``GLAS ___BLANK 1 0 nd vd dPgF ...`` (a MODEL glass) -> ``nd``/``vd`` and, when not
-  0, ``dpgf`` (the deviation of P_g,F from the normal line) with lensfit's Abbe model
-  (lensdb/glass/README.md); ``vd 0`` (OpticStudio's medium without dispersion) -> the
-  constant index ``material = { n = nd }`` (``nd 1 vd 0``: air); a note per surface.
-  nd outside 1-3, vd outside 5-150 (other than 0) or |dPgF| > 0.1 is an error.
+  ``GLAS ___BLANK 1 0 nd vd dPgF ...`` (a MODEL glass as OpticStudio writes it) and
+  ``GLAS MODEL 1 0 nd vd dPgF ...`` (as Optiland's .zmx writer writes it, the same
+  columns, dPgF always 0: ``optiland.fileio.zemax.writer.encoder``) -> ``nd``/``vd``
+  and, when not 0, ``dpgf`` (the deviation of P_g,F from the normal line) with lensfit's
+  Abbe model (lensdb/glass/README.md); ``vd 0`` (OpticStudio's medium without
+  dispersion) -> the constant index ``material = { n = nd }`` (``nd 1 vd 0``: air); a
+  note per surface. Optiland writes vd 99.99 for a medium without dispersion (its
+  nF = nC): kept as written (Optiland reads it back so), with a note.
+  nd outside 1-3 (above 3: an infrared medium such as germanium, opaque to the visible
+  light lensfit traces), vd outside 5-150 (other than 0) or |dPgF| > 0.1 is an error.
   ``MIRROR`` is an error (no mirrors in lensfit).
 * ``UNIT``: MM as is; CM, IN, METER are kept as written with ``[lens] scale`` = 10,
   25.4, 1000 (lensfit multiplies every length and scales the aspheric terms by it at
@@ -62,17 +67,20 @@ TYPE NONSEQCO); an unknown glass or catalog; a term that lensfit cannot represen
 surface; glass in front of the first surface; a malformed line (a bad number, a
 missing value, a truncated or misnumbered ``SURF``, a surface without ``DISZ``); an
 unknown keyword inside a surface (it may change the optics; one whose values are all
-zero is a note); a lens lensfit's loader refuses.
+zero is a note); a lens lensfit's loader refuses (on the line of the surface it names,
+and any other surface the loader's message names by its SURF number).
 
 Notes (printed on stderr, the lens is written): wavelengths (``WAVM``, ``WAVL``,
 ``WWGT``, ``PWAV``), the object distance and object-surface curvature, the entrance
 NA (``OBNA``; lensfit's aperture is the stop size), field types
 other than angles, the image surface's size, comments (``COMM``), coatings (``COAT``:
 the lens is written uncoated, ``[coating] default = "none"``, as OpticStudio traces a
-surface without a coating), pickups and variable flags (``PZUP``, ``PPAR``, ``VPAR``:
-the values they resolved to are in the file), environment (``ENVD``), configurations
-(``MNUM``, ``MOFF``), unknown keywords outside surfaces; per surface, what each MODEL
-glass became and an older HIKARI name taken as the current one.
+surface without a coating), pickups, solves and variable flags (``PZUP``, ``PPAR``,
+``MAZH``, ``VPAR``: the values they resolved to are in the file; ``MAZH h z`` is the
+thickness solve on the marginal ray's height h at pupil zone z, OpticStudio's
+"Marginal Ray Height", whose solved thickness is the surface's DISZ), environment
+(``ENVD``), configurations (``MNUM``, ``MOFF``), unknown keywords outside surfaces; per
+surface, what each MODEL glass became and an older HIKARI name taken as the current one.
 
 Ignored without a note: pure user-interface, drawing, analysis, tolerancing and
 optimiser settings (``IGNORED_TOP``, ``IGNORED_SURFACE``; a test keeps these lists and
@@ -81,11 +89,12 @@ POLS GLRS GSTD NSCD COFN BLNK TOL OPDX LANG FWGN FWGT VANN VCXN VCYN VDXN VDYN Z
 ZVCY ZVDX ZVDY ZVAN HYPR IWDP LUID OMMA TRAC EERA EFLY REAX REAY DBDT ACOS AUTH GLCB
 RCMF STUD WFNO DMFS EFFL SLAB MNCA MNEA MNCG MNEG MXCA MXCG RGLA TCMM PMAG TOTR POPS
 FIMP WWGN WAVN CONF TCED (vignetting factors and field weights aim the analysis rays,
-not the lens). In a surface: HIDE MIRR SLAB POPS MEMA OEMA FIMP SSID VDSZ TCED (hide
-flags, the drawing's mirror substrate, labels, physical-optics settings,
-mechanical semi-apertures of the drawing). ``NSCD`` is on the list: OpticStudio writes
-these non-sequential *ray-trace settings* into every sequential file; non-sequential
-*objects* (``NSOB``) are errors.
+not the lens). In a surface: HIDE MIRR SLAB POPS MEMA OEMA FIMP SSID VDSZ VCON TCED
+(hide flags, the drawing's mirror substrate, labels, physical-optics settings,
+mechanical semi-apertures of the drawing, the optimiser's variable flags on the
+thickness and the conic: the values are on DISZ and CONI). ``NSCD`` is on the list:
+OpticStudio writes these non-sequential *ray-trace settings* into every sequential file;
+non-sequential *objects* (``NSOB``) are errors.
 """
 
 from __future__ import annotations
@@ -96,12 +105,13 @@ from pathlib import Path
 from typing import Any
 
 from lensfit.errors import regular_file_problem
-from lensfit.glass import MODEL_DPGF_MAX, MODEL_ND_RANGE, MODEL_VD_RANGE, UnknownGlassError
+from lensfit.glass import MODEL_DPGF_MAX, MODEL_VD_RANGE, UnknownGlassError
 from lensfit.interchange.common import (
     ImportProblems,
     ImportResult,
     Notes,
     glass_message,
+    index_range_problem,
     lens_table,
     paraxial_semi_diameters,
     resolve_glass,
@@ -123,9 +133,11 @@ IGNORED_TOP = frozenset({
     "TCMM", "PMAG", "TOTR", "POPS", "FIMP", "WWGN", "WAVN", "CONF", "TCED",
 })
 # Surface keywords of the same kind: hide flags, the drawing's mirror substrate and
-# label, physical-optics settings, mechanical (drawing) semi-apertures, import flags.
+# label, physical-optics settings, mechanical (drawing) semi-apertures, import flags,
+# and the optimiser's variable flags on the thickness and the conic (VDSZ; VCON, written
+# without values as in RC_Lens.zmx of the corpus): the values are on DISZ and CONI.
 IGNORED_SURFACE = frozenset({"HIDE", "MIRR", "SLAB", "POPS", "MEMA", "OEMA", "FIMP", "SSID",
-                             "VDSZ", "TCED"})
+                             "VDSZ", "VCON", "TCED"})
 
 NOTED_TOP = {
     "WAVM": "wavelength not mapped (lensfit fits a wavelength range: lensfit fit "
@@ -144,6 +156,10 @@ NOTED_SURFACE = {
     "COAT": "coating not mapped (the lens is written uncoated)",
     "PZUP": "pickup not mapped (the value it resolved to is used)",
     "PPAR": "parameter pickup not mapped (the value it resolved to is used)",
+    # OpticStudio's "Marginal Ray Height" thickness solve (MAZH height pupil-zone): the
+    # thickness it solved to is the surface's DISZ
+    "MAZH": "thickness solve on the marginal ray height not mapped (the thickness it "
+            "solved to, DISZ, is used)",
     "VPAR": "variable flag not mapped (optimiser setting)",
 }
 ERROR_SURFACE = {
@@ -158,6 +174,11 @@ SUPPORTED_TYPES = ("STANDARD", "EVENASPH", "TOROIDAL")
 MODEL_GLASS = "___BLANK"
 # The wavelengths `lensfit export` writes (um): the d, F and C lines, d primary
 EXPORT_WAVELENGTHS_UM = ("0.5875618", "0.4861327", "0.6562725")
+# Optiland's .zmx writer names its model glasses MODEL, in the columns of ___BLANK
+MODEL_GLASS_NAMES = (MODEL_GLASS, "MODEL")
+# and writes this vd for a medium without dispersion (optiland.fileio.common,
+# compute_abbe_number: 99.99 when nF - nC is below 1e-12)
+OPTILAND_NO_DISPERSION_VD = 99.99
 
 
 @dataclass
@@ -473,7 +494,7 @@ def _surface_line(s: _Surf, kw: str, tokens: list[str], lineno: int, problems: l
         return
     if kw not in SURFACE_KEYWORDS:
         if len(tokens) > 1 and all(_is_zero(t) for t in tokens[1:]):
-            # A setting whose values are all zero is off (MAZH 0 0 in OpticStudio files)
+            # A setting whose values are all zero is off (a flag or an unused option)
             notes.add(str(lineno), f"SURF {s.number} {kw}", "unknown surface keyword with "
                       "zero values not mapped")
             return
@@ -743,7 +764,7 @@ def _glass(s: _Surf, makers: list[str], problems: list[str], notes: Notes, label
         problems.append(f"{label}:{lineno}: SURF {n} GLAS MIRROR: a mirror: unsupported "
                         "(lensfit traces refracting lenses)")
         return {}
-    if name == MODEL_GLASS:
+    if name in MODEL_GLASS_NAMES:
         return _model_glass(s, tokens, lineno, problems, notes, label)
     try:
         spec, outside = resolve_glass(name, makers)
@@ -759,9 +780,10 @@ def _glass(s: _Surf, makers: list[str], problems: list[str], notes: Notes, label
 
 def _model_glass(s: _Surf, tokens: list[str], lineno: int, problems: list[str], notes: Notes,
                  label: str) -> dict[str, Any]:
-    """``GLAS ___BLANK 1 0 nd vd dPgF ...`` (a MODEL glass): nd/vd(/dpgf) with lensfit's
-    Abbe model, or with vd 0 (how OpticStudio writes a medium without dispersion) the
-    constant index ``material = { n = nd }``; a note either way."""
+    """``GLAS ___BLANK 1 0 nd vd dPgF ...`` (a MODEL glass; ``GLAS MODEL ...`` from
+    Optiland's writer, the same columns): nd/vd(/dpgf) with lensfit's Abbe model, or
+    with vd 0 (how OpticStudio writes a medium without dispersion) the constant index
+    ``material = { n = nd }``; a note either way."""
     n = s.number
     nd = _number(tokens, 4, lineno, problems, label, what=f"SURF {n} GLAS MODEL nd")
     vd = _number(tokens, 5, lineno, problems, label, what=f"SURF {n} GLAS MODEL vd")
@@ -770,10 +792,11 @@ def _model_glass(s: _Surf, tokens: list[str], lineno: int, problems: list[str], 
     if nd is None or vd is None or dpgf is None:
         return {}
     head = f"{label}:{lineno}: SURF {n} GLAS MODEL nd {nd:g} vd {vd:g}"
-    (nd_lo, nd_hi), (vd_lo, vd_hi) = MODEL_ND_RANGE, MODEL_VD_RANGE
+    vd_lo, vd_hi = MODEL_VD_RANGE
     before = len(problems)
-    if not nd_lo <= nd <= nd_hi:
-        problems.append(f"{head}: expected {nd_lo:g} <= nd <= {nd_hi:g} (not imported)")
+    nd_problem = index_range_problem(nd)
+    if nd_problem:
+        problems.append(f"{head}: {nd_problem} (not imported)")
     if vd != 0.0 and not vd_lo <= vd <= vd_hi:
         problems.append(f"{head}: expected {vd_lo:g} <= vd <= {vd_hi:g}, or vd 0 for a medium "
                         "without dispersion (not imported)")
@@ -794,6 +817,11 @@ def _model_glass(s: _Surf, tokens: list[str], lineno: int, problems: list[str], 
                   f"every wavelength (material = {{ n = {nd:g} }})")
         return {"material": {"n": nd}}
     extra = f" + dPgF {dpgf:g}" if dpgf else ""
+    if tokens[1] != MODEL_GLASS:
+        extra += " (GLAS MODEL: Optiland's .zmx writer's name for OpticStudio's ___BLANK)"
+    if tokens[1] != MODEL_GLASS and vd == OPTILAND_NO_DISPERSION_VD:
+        extra += (f"; vd {vd:g} is what Optiland writes for a medium without dispersion "
+                  "(nF = nC): kept as written, as Optiland reads it back")
     notes.add(where, what, f"nd {nd:g} vd {vd:g}: lensfit's Abbe model (lensdb/glass/"
               f"README.md), P_g,F on the normal line{extra}")
     return {"nd": nd, "vd": vd, "dpgf": dpgf} if dpgf else {"nd": nd, "vd": vd}

@@ -19,11 +19,14 @@ OUT``), and its outcome is compared with the table ``CASES`` below:
   other line may appear (test_no_other_refusal): a surface type or glass lensfit has must
   never be refused.
 
-Where the importer refuses a file today only for one of the gaps issue 36 is fixing
-(model glasses written ``GLAS MODEL``, non-dispersive media, Optiland's image surface of
-type ``Surface``, a catalog glass whose maker is given apart from its name), the table
-holds what the fixed importer should do and the case is a strict xfail naming the gap:
-it fails the suite the day it passes, and then the mark comes off.
+A file refused today only for a gap being closed may be listed in ``XFAIL`` with the
+reason, for test_outcome and test_no_other_refusal: a strict xfail, which fails the suite
+the day the file passes, and then the entry comes off. None is listed now: the gaps of
+issue 36 that the corpus found (model glasses written ``GLAS MODEL`` by Optiland's .zmx
+writer, non-dispersive media, Optiland's image surface of type ``Surface``, a catalog
+glass whose maker is given apart from its name or only in its data file's path,
+OpticStudio's MAZH solve and VCON flag) are closed, and each file states what the
+importer does.
 """
 
 from __future__ import annotations
@@ -58,125 +61,123 @@ class Refused:
     optional: tuple[str, ...] = field(default=())  # may match one, need not
 
 
-# The gaps issue 36 is closing (the reasons of the xfail marks)
-MODEL = "issue 36: model glass written 'GLAS MODEL' (Optiland's .zmx writer)"
-NON_DISPERSIVE = "issue 36: non-dispersive medium (Optiland IdealMaterial)"
-IMAGE = "issue 36: Optiland image surface of type 'Surface'"
-MAKER = "issue 36: catalog glass with its maker apart ('SK16' (hikari))"
-MAKER_PATH = ("issue 36: catalog glass whose maker is only in Optiland's filename "
-              "(.../glass/hikari/SK16.yml)")
-
 _GLASS = r"unknown glass '{}'"
 _MIRROR = r"a mirror: unsupported"
+# lensfit's nd range, and why an index above it is refused (germanium, n 4.002)
+_INFRARED = (r"expected 1 <= n(d)? <= 3; an index above 3 belongs to an infrared medium "
+             r"\(germanium about 4\.0, silicon about 3\.4\), opaque to the visible light "
+             r"\(380-780 nm\) lensfit traces")
 
-# file -> (expected outcome, xfail reason of test_outcome, of test_no_other_refusal)
-CASES: dict[str, tuple[Imports | Refused, str | None, str | None]] = {
+# file -> expected outcome
+CASES: dict[str, Imports | Refused] = {
     # --- .zmx, KBG0603/Optical-design (MIT) ---------------------------------------------
-    "zmx/ColorCorrected.zmx": (Imports(5, 1, 49.99999999999999), None, None),
-    "zmx/DoubleGauss.zmx": (Imports(12, 6, 49.99997959387362), None, None),
-    "zmx/LandScape_Lens_F5.zmx": (Imports(4, 1, 49.99999999999999), None, None),
+    "zmx/ColorCorrected.zmx": Imports(5, 1, 49.99999999999999),
+    "zmx/DoubleGauss.zmx": Imports(12, 6, 49.99997959387362),
+    "zmx/LandScape_Lens_F5.zmx": Imports(4, 1, 49.99999999999999),
     # N-LASF55 is in OpticStudio's SCHOTT catalog, not in the SCHOTT spreadsheet lensfit has
-    "zmx/CookeTriplet.zmx": (Refused((r":101: SURF 2 GLAS N-LASF55 .*"
-                                      + _GLASS.format("N-LASF55"),)), None, None),
+    "zmx/CookeTriplet.zmx": Refused((r":101: SURF 2 GLAS N-LASF55 .*"
+                                     + _GLASS.format("N-LASF55"),)),
     # CaF2 is a crystal of OpticStudio's MISC catalog, which lensfit does not have
-    "zmx/MicroscopeObjective_tolerence_ready.zmx": (Refused((
+    "zmx/MicroscopeObjective_tolerence_ready.zmx": Refused((
         r":106: SURF 2 GLAS CAF2 .*" + _GLASS.format("CAF2"),
         r":190: SURF 8 GLAS CAF2 .*" + _GLASS.format("CAF2"),
-    )), None, None),
-    "zmx/RC_Lens.zmx": (Refused((
+    )),
+    # VCON (no values, lines 106 and 124: the optimiser's flag on the conic, as VDSZ is
+    # on the thickness) is ignored; the mirrors, the annulus and N-FK56 are refused
+    "zmx/RC_Lens.zmx": Refused((
         r":102: SURF 2 GLAS MIRROR: " + _MIRROR,
         r":119: SURF 3 GLAS MIRROR: " + _MIRROR,
         r":108: SURF 2 CLAP: an annular aperture \(inner radius 21\): unsupported",
         r":136: SURF 4 GLAS N-FK56 .*" + _GLASS.format("N-FK56"),
-        # VCON (no values) is refused as an unknown keyword today; it looks like an
-        # optimiser flag (a variable conic), like VPAR, which is only a note
-        r":106: SURF 2 VCON: unknown surface keyword",
-        r":124: SURF 3 VCON: unknown surface keyword",
-    )), None, None),
+    )),
     # --- .zmx, optiland/optiland tests/zemax_files (MIT) --------------------------------
-    "zmx/lens1.zmx": (Imports(7, 4, 24.990670494950276), None, None),
+    "zmx/lens1.zmx": Imports(7, 4, 24.990670494950276),
     # UNIT IN: Optiland's EFL is in inches, lensfit's in mm
-    "zmx/circular_aperture_example_with_aperture.zmx": (
-        Imports(22, 10, 0.7300961053482348 * 25.4), None, None),
+    "zmx/circular_aperture_example_with_aperture.zmx": Imports(22, 10,
+                                                               0.7300961053482348 * 25.4),
     # FLOA with a stop of 8.5 behind a biconvex lens of radius 20: the beam estimated at
     # surface 1 (no DIAM there) is wider than the sphere itself
-    "zmx/lens_floa.zmx": (Refused((
+    "zmx/lens_floa.zmx": Refused((
         r":13: SURF 1\b.*semi-diameter .* is larger than \|radius\| 20(\.0)? mm",)),
-        None, None),
-    "zmx/one_mirror_up_45deg.zmx": (Refused((
+    "zmx/one_mirror_up_45deg.zmx": Refused((
         r":106: SURF 3 TYPE COORDBRK: unsupported surface type",
         r":134: SURF 4 GLAS MIRROR: " + _MIRROR,
         r":140: SURF 5 TYPE COORDBRK: unsupported surface type",
-    )), None, None),
-    "zmx/flat_transmission_grating.zmx": (Refused((
-        r":102: SURF 3 TYPE DGRATING: unsupported surface type",)), None, None),
+    )),
+    "zmx/flat_transmission_grating.zmx": Refused((
+        r":102: SURF 3 TYPE DGRATING: unsupported surface type",)),
     # --- .zmx, mjhoptics/ray-optics (BSD-3; lens-designs.com, MIT) ----------------------
-    # MAZH 0 0.7 on the last lens surface is refused as an unknown keyword today; it looks
-    # like OpticStudio's marginal-ray-height solve on the thickness (height 0 at pupil
-    # zone 0.7), whose solved value DISZ holds. Without that line the lens imports with
-    # the EFL Optiland gives, 49.38897584676335 mm.
-    "zmx/US00583336-2-scaled.zmx": (Refused((
-        r":193: SURF 12 MAZH: unknown surface keyword",)), None, None),
-    "zmx/US08427765-1.ZMX": (Refused((
+    # MAZH 0 0.7 on the last lens surface (line 193) is OpticStudio's "Marginal Ray
+    # Height" thickness solve (height 0 at pupil zone 0.7), whose solved value DISZ
+    # holds: a note. Optiland 0.6.3 reads the same glasses (SCHOTT N-BAK1, N-BALF4)
+    "zmx/US00583336-2-scaled.zmx": Imports(12, 6, 49.38897584676335),
+    # its MAZH (line 186) is a note likewise; L-TIM28_MOLD is OHARA's L-TIM28 as
+    # moulded, in no catalog lensfit has
+    "zmx/US08427765-1.ZMX": Refused((
         r":93: SURF 3 GLAS L-TIM28_MOLD .*" + _GLASS.format("L-TIM28_MOLD"),
-        r":186: SURF 11 MAZH: unknown surface keyword",
-    )), None, None),
+    )),
     # Model glasses (___BLANK) and their pickups are read; the flat corrector plates and
     # the mirrors are not representable
-    "zmx/HoO-V2C18Ex27.zmx": (Refused((
+    "zmx/HoO-V2C18Ex27.zmx": Refused((
         r":70: SURF 1 EVENASPH: a flat asphere .*needs a radius",
         r":105: SURF 3 EVENASPH: a flat asphere .*needs a radius",
         r":134: SURF 4 GLAS MIRROR: " + _MIRROR,
         r":148: SURF 5 GLAS MIRROR: " + _MIRROR,
-    )), None, None),
+    )),
     # --- .zmx, singer-yang/DeepLens (Apache-2.0) -----------------------------------------
     # FLOA, and the stop has no DIAM: the file gives no aperture at all
-    "zmx/ef35mm_f2.0.zmx": (Refused((r"no semi-diameter on 59: SURF 6\b",)), None, None),
+    "zmx/ef35mm_f2.0.zmx": Refused((r"no semi-diameter on 59: SURF 6\b",)),
     # --- .zmx written by Optiland 0.6.3 --------------------------------------------------
-    # Germanium (n 4.002) and ZnSe (n 2.4028) as GLAS MODEL n 99.99: read as model glasses
-    # the ZnSe imports, and germanium is outside the nd range lensfit's loader has (1..3;
-    # seen today by writing ___BLANK for MODEL). Line numbers are left open: the loader
-    # names the SURF line, the importer the GLAS line
-    "zmx/optiland063_InfraredTriplet.zmx": (
-        Refused((r"SURF 1\b.*\b4\.002",), optional=(r"SURF 5\b.*\b4\.002",)),
-        MODEL, MODEL),
+    # Germanium (n 4.002) and ZnSe (n 2.4028) written GLAS MODEL n 99.99 (Optiland's vd of
+    # a medium without dispersion): read as model glasses, the ZnSe is accepted, and
+    # germanium is refused on its GLAS lines: out of lensfit's nd range, and why
+    "zmx/optiland063_InfraredTriplet.zmx": Refused((
+        r":33: SURF 1 GLAS MODEL nd 4\.002 vd 99\.99: " + _INFRARED,
+        r":63: SURF 5 GLAS MODEL nd 4\.002 vd 99\.99: " + _INFRARED,
+    )),
     # --- Optiland JSON, optiland/optiland docs/samples (MIT) -----------------------------
+    # The makers are only in the filename (.../glass/hikari/SK16.yml, reference null).
     # Optiland reads its own HIKARI SK16 data (refractiveindex.info); lensfit has HIKARI's
     # spreadsheet (J-SK16): the indices differ by ~1e-6, the EFL by ~5e-6
-    "optiland/Cooke_triplet.json": (Imports(6, 3, 50.021596510291374, rel=1e-4),
-                                    f"{IMAGE}; {MAKER_PATH}", None),
-    # E-LLF6 of Optiland's hikari folder has J-LLF6's index (1.53172 at d)
-    "optiland/heliar.json": (Imports(9, 5, 10.00652933541452, rel=1e-4),
-                             f"{IMAGE}; {MAKER_PATH}", None),
-    # N-SK10 and FK3 are in neither SCHOTT's current catalog nor any other lensfit has
-    "optiland/reverse_telephoto.json": (Refused((
-        r": surface_group\.surfaces\[1\]\.material_post\.name: .*" + _GLASS.format("N-SK10"),
-        r": surface_group\.surfaces\[7\]\.material_post\.name: .*" + _GLASS.format("FK3"),
-    )), None, f"{IMAGE}; {MAKER_PATH}"),
-    # --- Optiland JSON written by Optiland 0.6.3 -----------------------------------------
-    "optiland/optiland063_CookeTriplet.json": (
-        Imports(6, 3, 50.021596510291374, rel=1e-4), f"{IMAGE}; {MAKER}", None),
-    "optiland/optiland063_CementedAchromat.json": (
-        Imports(3, 0, 20.0059952749227), IMAGE, None),
-    "optiland/optiland063_DoubleGauss.json": (
-        Imports(11, 5, 100.00372050801042), IMAGE, None),
-    "optiland/optiland063_AsphericSinglet.json": (Refused((
+    "optiland/Cooke_triplet.json": Imports(6, 3, 50.021596510291374, rel=1e-4),
+    # E-LLF6 of Optiland's hikari folder has J-LLF6's index (1.53172 at d); the EFLs
+    # differ by ~3e-5
+    "optiland/heliar.json": Imports(9, 5, 10.00652933541452, rel=1e-4),
+    # N-SK10 and FK3 (in the schott folder) are in neither SCHOTT's current catalog nor
+    # any other lensfit has; SK15 and BASF2 of the hikari folder are HIKARI's J-SK15 and
+    # J-BASF2 (notes)
+    "optiland/reverse_telephoto.json": Refused((
+        r": surface_group\.surfaces\[1\]\.material_post\.name: glass 'N-SK10' \(schott\): "
+        + _GLASS.format("N-SK10"),
+        r": surface_group\.surfaces\[7\]\.material_post\.name: glass 'FK3' \(schott\): "
+        + _GLASS.format("FK3"),
+    )),
+    # --- Optiland JSON written by Optiland 0.6.3 (the image a plain "Surface") ------------
+    "optiland/optiland063_CookeTriplet.json": Imports(6, 3, 50.021596510291374, rel=1e-4),
+    "optiland/optiland063_CementedAchromat.json": Imports(3, 0, 20.0059952749227),
+    "optiland/optiland063_DoubleGauss.json": Imports(11, 5, 100.00372050801042),
+    "optiland/optiland063_AsphericSinglet.json": Refused((
         r": surface_group\.surfaces\[1\]\.geometry\.coefficients\[0\]: an r\^2 coefficient",
-    )), None, IMAGE),
-    # As the .zmx above: ZnSe imports, germanium's n 4.002 is out of lensfit's range
-    "optiland/optiland063_InfraredTriplet.json": (
-        Refused((r": surface_group\.surfaces\[1\].*\b4\.002",),
-                optional=(r": surface_group\.surfaces\[5\].*\b4\.002",)),
-        None, f"{NON_DISPERSIVE}; {IMAGE}"),
-    "optiland/optiland063_HubbleTelescope.json": (Refused((
+    )),
+    # As the .zmx above (IdealMaterial here): ZnSe is accepted, germanium is refused
+    "optiland/optiland063_InfraredTriplet.json": Refused((
+        r": surface_group\.surfaces\[1\]\.material_post\.index: a constant index 4\.002: "
+        + _INFRARED,
+        r": surface_group\.surfaces\[5\]\.material_post\.index: a constant index 4\.002: "
+        + _INFRARED,
+    )),
+    "optiland/optiland063_HubbleTelescope.json": Refused((
         r": surface_group\.surfaces\[4\]\.geometry: a curved image surface: unsupported",
         r": surface_group\.surfaces\[2\]\.interaction_model\.is_reflective: " + _MIRROR,
         r": surface_group\.surfaces\[3\]\.interaction_model\.is_reflective: " + _MIRROR,
         r": surface_group\.surfaces\[2\]\.aperture\.r_min: an annular aperture",
         # the obscuration's outer radius, inf in Optiland: a second line on that aperture
         r": surface_group\.surfaces\[2\]\.aperture\.r_max: expected a finite number",
-    )), None, IMAGE),
+    )),
 }
+
+# file -> (xfail reason of test_outcome, of test_no_other_refusal): gaps still open
+XFAIL: dict[str, tuple[str | None, str | None]] = {}
 
 
 def corpus_files() -> list[str]:
@@ -186,10 +187,10 @@ def corpus_files() -> list[str]:
 
 def _params(which: int, kinds: tuple[type, ...]) -> list:
     out = []
-    for name, (expect, *reasons) in CASES.items():
+    for name, expect in CASES.items():
         if not isinstance(expect, kinds):
             continue
-        reason = reasons[which]
+        reason = XFAIL.get(name, (None, None))[which]
         marks = [pytest.mark.xfail(strict=True, reason=reason)] if reason else []
         out.append(pytest.param(name, expect, id=name, marks=marks))
     return out
@@ -222,6 +223,7 @@ def run_import(name: str, tmp_path: Path, capsys) -> tuple[int, str, list[str], 
 
 def test_the_table_covers_the_corpus():
     assert corpus_files() == sorted(CASES)
+    assert set(XFAIL) <= set(CASES)
 
 
 @pytest.mark.parametrize("folder", FOLDERS)

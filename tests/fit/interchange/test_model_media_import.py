@@ -95,6 +95,49 @@ def test_zmx_model_glass_without_dpgf_and_air():
     assert any(f"d.zmx:{GLAS2}: SURF 2 GLAS MODEL: nd 1 vd 0: air" in n for n in result.notes)
 
 
+def test_zmx_model_glass_as_optilands_writer_writes_it():
+    # Optiland 0.6.3's .zmx writer (optiland.fileio.zemax.writer.encoder, _encode_glas)
+    # writes a model glass "GLAS MODEL 1 0 nd V 0 0 0 0 0 0", in the columns of
+    # OpticStudio's ___BLANK: the same model glass, dPgF included where given
+    for dpgf in ("0", "0.012"):
+        blank = parse_zmx(zmx(f"GLAS ___BLANK 1 0 1.6 40 {dpgf} 0 0 0 0 0", CONSTANT),
+                          label="d.zmx")
+        model = parse_zmx(zmx(f"GLAS MODEL 1 0 1.6 40 {dpgf} 0 0 0 0 0", CONSTANT),
+                          label="d.zmx")
+        assert model.data["surface"] == blank.data["surface"]
+    assert model.data["surface"][0]["dpgf"] == 0.012
+    assert any(n.startswith(f"d.zmx:{GLAS1}: SURF 1 GLAS MODEL: nd 1.6 vd 40: lensfit's "
+                            "Abbe model") and "Optiland's .zmx writer's name" in n
+               for n in model.notes), model.notes
+    # Optiland writes vd 99.99 for a medium without dispersion (nF = nC): kept as written,
+    # as Optiland's own reader takes it back, with a note saying so
+    znse = "GLAS MODEL 1 0 2.4028000000000000E+00 9.9989999999999995E+01 0 0 0 0 0 0"
+    result = parse_zmx(zmx(znse, "GLAS N-SF5 0 0"), label="d.zmx")
+    assert {k: result.data["surface"][0][k] for k in ("nd", "vd")} == {"nd": 2.4028,
+                                                                        "vd": 99.99}
+    assert any("vd 99.99 is what Optiland writes for a medium without dispersion" in n
+               for n in result.notes), result.notes
+
+
+INFRARED = ("an index above 3 belongs to an infrared medium (germanium about 4.0, silicon "
+            "about 3.4), opaque to the visible light (380-780 nm) lensfit traces")
+
+
+def test_germanium_is_refused_with_the_reason(tmp_path, capsys):
+    # Germanium (n 4.002, Optiland's InfraredTriplet) through Optiland's .zmx writer: one
+    # line naming the file, the GLAS line, the surface and the index, and why
+    src, out = tmp_path / "ge.zmx", tmp_path / "out" / "ge.toml"
+    out.parent.mkdir()
+    ge = "GLAS MODEL 1 0 4.0019999999999998E+00 9.9989999999999995E+01 0 0 0 0 0 0"
+    src.write_text(zmx(ge, "GLAS N-SF5 0 0"), encoding="utf-8")
+    assert main(["import", str(src), "-o", str(out)]) == 2
+    assert not list(out.parent.iterdir())
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 2 and err[-1].endswith("nothing written"), err
+    assert err[0] == (f"lensfit: error: {src}:{GLAS1}: SURF 1 GLAS MODEL nd 4.002 vd 99.99: "
+                      f"expected 1 <= nd <= 3; {INFRARED} (not imported)")
+
+
 def test_zmx_export_writes_model_glasses_back():
     lens = lens_from_dict(parse_zmx(zmx(MODEL, CONSTANT), label="d.zmx").data)
     text, notes = write_zmx(lens)
@@ -222,6 +265,64 @@ def test_optiland_maker_in_parentheses(name, ref):
 
 M1 = "surface_group.surfaces[1].material_post"
 M3 = "surface_group.surfaces[3].material_post"
+
+
+@pytest.mark.parametrize("filename", [
+    "C:\\Users\\someone\\optiland\\database\\data-nk\\glass\\hikari\\SK16.yml",
+    "/usr/lib/python3/site-packages/optiland/database/data-nk/glass/hikari/SK16.yml",
+])  # fmt: skip
+def test_optiland_maker_from_the_filename_when_no_reference(filename):
+    # Optiland's published samples (docs/samples/Cooke_triplet.json) give the glass
+    # 'SK16' with reference null: the maker is only the folder of its data file
+    d = copy.deepcopy(COOKE)
+    material(d, 1).update(reference=None, filename=filename)
+    result = convert_optiland(d, label="c.json")
+    assert result.data["surface"][0]["material"] == "HIKARI:J-SK16"
+    notes = "\n".join(result.notes)
+    assert ("c.json: surface_group.surfaces[1].material_post.filename: glass 'SK16' has no "
+            "reference: the maker 'hikari' is taken from the folder of its data file "
+            "(.../hikari/SK16.yml)") in notes
+    assert ("c.json: surface_group.surfaces[1].material_post.name: glass SK16 (HIKARI) "
+            "taken as HIKARI:J-SK16") in notes
+
+
+def test_optiland_filename_folder_that_is_no_maker_or_a_reference_given():
+    # A folder that names no maker qualifies nothing: SK16 alone is no glass lensfit has
+    d = copy.deepcopy(COOKE)
+    material(d, 1).update(reference=None, filename="/data/glass/specs/SK16.yml")
+    with pytest.raises(ImportProblems) as e:
+        convert_optiland(d, label="c.json")
+    assert e.value.problems[0].startswith("c.json: surface_group.surfaces[1].material_post."
+                                          "name: glass 'SK16': unknown glass 'SK16'")
+    # The reference, where given, is the maker; the filename is not read
+    d = copy.deepcopy(COOKE)
+    material(d, 1).update(reference="hikari", filename="/glass/schott/SK16.yml")
+    result = convert_optiland(d, label="c.json")
+    assert result.data["surface"][0]["material"] == "HIKARI:J-SK16"
+    assert not any(".filename" in n for n in result.notes)
+    # A glass unknown in the filename's maker's catalog says which maker was tried
+    d = copy.deepcopy(COOKE)
+    material(d, 1).update(name="N-SK10", reference=None,
+                          filename="C:\\optiland\\glass\\schott\\N-SK10.yml")
+    with pytest.raises(ImportProblems) as e:
+        convert_optiland(d, label="c.json")
+    assert e.value.problems[0].startswith("c.json: surface_group.surfaces[1].material_post."
+                                          "name: glass 'N-SK10' (schott): unknown glass")
+
+
+def test_optiland_germanium_is_refused_with_the_reason():
+    d = copy.deepcopy(MEDIA)
+    material(d, 1).update(index=4.002)
+    with pytest.raises(ImportProblems) as e:
+        convert_optiland(d, label="m.json")
+    assert e.value.problems == [f"m.json: {M1}.index: a constant index 4.002: expected "
+                                f"1 <= n <= 3; {INFRARED}"]
+    d = copy.deepcopy(MEDIA)
+    material(d, 3).update(index=4.002)
+    with pytest.raises(ImportProblems) as e:
+        convert_optiland(d, label="m.json")
+    assert e.value.problems == [f"m.json: {M3}.index: nd 4.002: expected 1 <= nd <= 3; "
+                                f"{INFRARED}"]
 
 
 @pytest.mark.parametrize(("edit", "path", "words"), [

@@ -126,3 +126,19 @@ def test_cli_import_optiland(tmp_path, capsys):
     err = capsys.readouterr().err.splitlines()
     assert len(err) == 3 and "nothing written" in err[-1]  # two problems, one line each
     assert not (tmp_path / "bad.toml").exists()
+
+
+def test_loader_refusal_names_the_files_surfaces():
+    # surfaces[1] 0.5 mm thick: the biconvex element's faces (radii 22 and -436, clear
+    # radius 6) cross. The loader counts lensfit's surfaces from 0 ("surfaces 0 and 1");
+    # the line names them as the file does
+    d = copy.deepcopy(DATA)
+    d["surface_group"]["surfaces"][1]["thickness"] = 0.5
+    with pytest.raises(ImportProblems) as e:
+        convert_optiland(d, label="t.json")
+    assert len(e.value.problems) == 1, e.value.problems
+    line = e.value.problems[0]
+    assert line.startswith("t.json: surface_group.surfaces[1]: key 'thickness': "
+                           "surface_group.surfaces[1] and surface_group.surfaces[2] cross "
+                           "inside their clear aperture (gap "), line
+    assert "surfaces 0 and 1" not in line

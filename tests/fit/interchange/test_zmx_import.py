@@ -338,6 +338,52 @@ def test_loader_refusal_names_the_surface_line(tmp_path):
     assert e.value.problems[0].startswith(f"a.zmx:{n}: SURF 2: key 'semi_diameter': ")
 
 
+def test_loader_refusal_names_the_files_surfaces():
+    # SURF 2 only 0.5 mm thick: its face (radius 62) and SURF 3's (radius -44) cross
+    # within their 12.7 mm clear radius. The loader counts lensfit's surfaces from 0
+    # ("surfaces 1 and 2"); the line names them by the file's SURF numbers
+    text = ACHROMAT.replace("  DISZ 6\n", "  DISZ 0.5\n")
+    assert text != ACHROMAT
+    with pytest.raises(ImportProblems) as e:
+        parse_zmx(text, label="a.zmx")
+    n = _line_of(ACHROMAT, r"^SURF 2$")
+    assert len(e.value.problems) == 1, e.value.problems
+    line = e.value.problems[0]
+    assert line.startswith(f"a.zmx:{n}: SURF 2: key 'thickness': SURF 2 and SURF 3 cross "
+                           "inside their clear aperture (gap "), line
+    assert "surfaces 1 and 2" not in line
+
+
+def test_file_surface_names_in_loader_messages():
+    from lensfit.interchange.common import file_surface_names
+
+    names = ["SURF 1", "SURF 2", "SURF 3"]
+    assert file_surface_names("surfaces 1 and 2 cross", names) == "SURF 2 and SURF 3 cross"
+    assert file_surface_names("more than one aperture stop (surfaces [0, 2]); mark one",
+                              names) == "more than one aperture stop (SURF 1, SURF 3); mark one"
+    assert file_surface_names("the glass of surface 0", names) == "the glass of SURF 1"
+    # an index the file has no name for is left as it is
+    assert file_surface_names("surfaces 2 and 3 cross", names) == "surfaces 2 and 3 cross"
+
+
+def test_marginal_ray_height_solve_is_a_note_and_vcon_is_ignored():
+    # MAZH h z: OpticStudio's "Marginal Ray Height" thickness solve (height h at pupil
+    # zone z); DISZ holds the thickness it solved to, which is used. VCON (no values):
+    # the optimiser's variable flag on the conic, ignored as VDSZ is
+    text = ACHROMAT.replace("  DISZ 95.5\n", "  DISZ 95.5\n  MAZH 0 7.0E-1\n").replace(
+        "  MEMA 12.7 0 0 0 1 \"\"\n", "  MEMA 12.7 0 0 0 1 \"\"\n  VCON\n")
+    assert text.count("MAZH") == 1 and text.count("VCON") == 1
+    result = parse_zmx(text, label="a.zmx")
+    plain = parse_zmx(ACHROMAT, label="a.zmx")
+    assert result.data["surface"] == plain.data["surface"]
+    assert result.data["surface"][3]["thickness"] == 95.5
+    n = _line_of(text, r"^  MAZH ")
+    notes = "\n".join(result.notes)
+    assert (f"a.zmx:{n}: MAZH: thickness solve on the marginal ray height not mapped (the "
+            "thickness it solved to, DISZ, is used)") in notes
+    assert "VCON" not in notes
+
+
 def test_docstring_lists_the_ignored_keywords():
     # The ignore-list is documented in the module docstring, word for word
     from lensfit.interchange import zemax
