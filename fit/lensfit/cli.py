@@ -182,6 +182,8 @@ def cmd_info(args: argparse.Namespace) -> int:
             raise LensError(str(e), file=lens.source_file, key="--f-number") from None
     tables = [table(lens, stop_radius_mm=stop, wavelength_nm=lam) for lam in wavelengths]
     if args.json:  # one object, or a list of them for several wavelengths
+        for t in tables:
+            t["semi_diameters"] = semi_diameter_kinds(lens)
         print(json.dumps(tables[0] if len(tables) == 1 else tables, indent=2))
         return 0
     print(f"{lens.name}  ({lens.source_file})")
@@ -191,9 +193,49 @@ def cmd_info(args: argparse.Namespace) -> int:
             print()
         for label, value in _info_rows(t):
             print(f"  {label:20s}{value}")
+    for i, row in enumerate(_semi_diameter_rows(lens)):
+        print(f"  {'semi-diameters' if i == 0 else '':20s}{row}")
     _print_glass_ranges(lens, getattr(args, "wavelength", None))
     _print_default_domain(lens)
     return 0
+
+
+def semi_diameter_kinds(lens) -> list[dict]:
+    """What each surface's semi-diameter is, in the lens file's numbering: ``stop`` (the
+    aperture stop's, the widest it opens), ``fixed`` (an aperture: rays beyond it are
+    blocked, as the design has them) or ``automatic`` (a housing a design program sized
+    to its beam, widened by lensfit import to pass the design beam; ``design_mm`` the
+    value in the design file, when it gave one). lensdb/README.md, ``aperture``."""
+    out = []
+    for k, s in enumerate(lens.surfaces):
+        i = lens.file_index(k)
+        if i is None:
+            continue  # the loader's copy of a stop on a refracting surface
+        stop = s.stop or (k > 0 and lens.surfaces[k - 1].inserted == "front") or (
+            k + 1 < len(lens.surfaces) and lens.surfaces[k + 1].inserted == "back")
+        row = {"surface": i, "semi_diameter_mm": s.semi_diameter_mm,
+               "kind": "stop" if stop else s.aperture}
+        if s.design_semi_diameter_mm is not None:
+            row["design_mm"] = s.design_semi_diameter_mm
+        out.append(row)
+    return out
+
+
+def _semi_diameter_rows(lens) -> list[str]:
+    """One line per surface for ``lensfit info``: whether its semi-diameter clips as an
+    aperture or is an automatic housing."""
+    rows = []
+    for r in semi_diameter_kinds(lens):
+        sd = f"surface {r['surface']:2d}  {r['semi_diameter_mm']:10.4f} mm  "
+        if r["kind"] == "stop":
+            rows.append(sd + "the stop: its aperture (the widest it opens)")
+        elif r["kind"] == "automatic":
+            design = (f", {r['design_mm']:.4f} mm in the design file" if "design_mm" in r
+                      else "")
+            rows.append(sd + f"automatic: a housing that passes the design beam{design}")
+        else:
+            rows.append(sd + "fixed: an aperture (clips)")
+    return rows
 
 
 def _print_default_domain(lens) -> None:
@@ -560,7 +602,12 @@ def _import_lens_file(args: argparse.Namespace, kind: str) -> int:
         return 2
     for line in result.notes:
         print(f"lensfit: note: {line}", file=sys.stderr)
-    write_atomic(out, to_toml(result.data), option="-o")
+    text = to_toml(result.data)
+    # What was done with each surface's semi-diameter: an aperture kept, an automatic one
+    # widened to pass the design beam (lensfit.interchange.housings)
+    for line in result.semi_diameters:
+        print(line)
+    write_atomic(out, text, option="-o")
     print(f"wrote {out}")
     return 0
 

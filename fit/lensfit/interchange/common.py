@@ -44,11 +44,14 @@ class ImportProblems(InputError):
 
 @dataclass
 class ImportResult:
-    """A lens in the TOML layout (``data``, validated) and what was not mapped
-    (``notes``: one line each, printed on stderr while the lens is written)."""
+    """A lens in the TOML layout (``data``, validated), what was not mapped (``notes``:
+    one line each, printed on stderr while the lens is written) and what was done with
+    each surface's semi-diameter (``semi_diameters``: one line per surface, after a line
+    on the design beam when one was traced; lensfit.interchange.housings)."""
 
     data: dict[str, Any]
     notes: list[str] = field(default_factory=list)
+    semi_diameters: list[str] = field(default_factory=list)
 
 
 class Notes:

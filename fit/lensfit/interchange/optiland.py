@@ -39,6 +39,11 @@ Semi-diameters: Optiland computes clear apertures by tracing and saves them only
 physical ``aperture``. A surface without one gets the paraxial estimate |y_marginal| +
 |y_chief| (d line, marginal ray from the system aperture, chief ray at the largest
 field angle) and a note saying so; without a usable system aperture that is an error.
+Such a surface's semi-diameter is automatic, not an aperture (the estimate may even be
+smaller than the real beam): it is widened to pass, with a margin, every real ray of
+the design beam and of the default fit domain, and kept as ``aperture = "automatic"``
+(``lensfit.interchange.housings``);
+a RadialAperture, and the stop's semi-diameter, are apertures and kept as written.
 
 Errors (one line each naming the JSON path, exit 2, nothing written): other geometry,
 material (``AbbeMaterialE``: ne and Ve), aperture or surface types, a tilted or
@@ -75,6 +80,7 @@ from lensfit.interchange.common import (
     split_maker_suffix,
     validate,
 )
+from lensfit.interchange.housings import FileAperture, size_housings
 
 IGNORED = frozenset({"version", "ray_tracer", "polarization"})
 IMAGE_SURFACE_TYPES = ("ImageSurface", "Surface")
@@ -290,8 +296,17 @@ def convert_optiland(data: Any, *, label: str = "<optiland>", lens_id: str = "im
     info.update(info_extra)
     table = {"schema_version": 1, "lens": info,
              "coating": {"default": "none", "design_wavelength_nm": 550.0}, "surface": out}
-    validate(table, label, where, sep=": ")
-    return ImportResult(table, ctx.notes.lines())
+    # A RadialAperture is an aperture; a surface without one had its clear aperture
+    # computed by Optiland from the beam: automatic (lensfit.interchange.housings)
+    apertures = [FileAperture("stop", "no aperture: paraxial estimate" if k in missing_sd
+                              else "RadialAperture") if d.get("stop") else
+                 FileAperture("estimated", "no aperture") if k in missing_sd else
+                 FileAperture("fixed", "RadialAperture") for k, d in enumerate(out)]
+    lens = validate(table, label, where, sep=": ")
+    _, sd_lines = size_housings(table, apertures, where, [f"{label}: {w}" for w in where],
+                                label=label, unit="mm", lens=lens,
+                                half_field_deg=half_field if field_kind == "angle" else 0.0)
+    return ImportResult(table, ctx.notes.lines(), sd_lines)
 
 
 def _is_air(mat: dict[str, Any]) -> bool:

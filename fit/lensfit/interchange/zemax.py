@@ -12,13 +12,22 @@ Mapped (each value kept exactly as written; lengths in lens units, see UNIT):
 * ``SURF n`` (consecutive from 0), ``TYPE`` STANDARD, EVENASPH, TOROIDAL;
   ``CURV c`` (1/length): ``radius = 1/c`` (``radius_for``), c = 0 is a ``plane``;
   ``CONI k``: a non-zero conic makes a STANDARD surface an ``asphere``; ``DISZ``
-  (thickness; ``INFINITY`` only on the object); ``STOP``; ``DIAM`` (the
-  semi-diameter, despite its name);
+  (thickness; ``INFINITY`` only on the object); ``STOP``; ``DIAM value solve ...`` (the
+  semi-diameter, despite its name, and its solve type);
   ``CLAP 0 r`` / ``FLAP 0 r`` (a circular hard aperture: ``semi_diameter = r``, which
   is lensfit's meaning of a semi-diameter: rays beyond it are blocked). A surface
   without DIAM (or with DIAM 0: not computed) gets the paraxial estimate
   |y_marginal| + |y_chief| from FLOA/ENPD/FNUM and the largest angle field, with a note
   (``common.paraxial_semi_diameters``); without an aperture setting that is an error.
+* Apertures and automatic semi-diameters (``lensfit.interchange.housings``): the stop's
+  semi-diameter (whatever its solve), CLAP/FLAP and a fixed DIAM (solve type 1, "U" in
+  the Lens Data Editor; a DIAM without a solve type, as typed by hand) are apertures
+  and kept as written. DIAM solve type 0 (automatic: sized by OpticStudio to just pass
+  its beam), 2 (pickup) and 3 (maximum), other solves, and the estimates are automatic:
+  widened to pass, with a margin, every real ray of the design beam and of the default
+  fit domain, ``aperture = "automatic"`` and the file's value as
+  ``design_semi_diameter``. ``lensfit import`` prints one line per surface saying which
+  it was and what was done.
 * EVENASPH: ``PARM 1..8`` are alpha_1..alpha_8 on r^2..r^16. lensfit's asphere has no
   r^2 term, so PARM 1 must be 0; PARM 2..8 become ``aspheric = [A4, ..., A16]``
   (trailing zeros dropped), ``CONI`` the ``conic``.
@@ -117,10 +126,15 @@ from lensfit.interchange.common import (
     resolve_glass,
     validate,
 )
+from lensfit.interchange.housings import FileAperture, size_housings
 
 # Lens units: the factor to millimetres, written as [lens] scale (MM: none)
 UNITS = {"MM": None, "CM": 10.0, "IN": 25.4, "INCH": 25.4, "METER": 1000.0, "METR": 1000.0,
          "M": 1000.0}
+UNIT_NAMES = {None: "mm", 10.0: "cm", 25.4: "in", 1000.0: "m"}  # in lensfit import's lines
+# DIAM's second value, the semi-diameter solve type (OpticStudio's summary of solves:
+# 0 automatic, 1 fixed "U", 2 pickup, 3 maximum); 1 is an aperture, the rest automatic
+DIAM_SOLVES = {0: "automatic", 1: "fixed", 2: "pickup", 3: "maximum"}
 
 # Top-level keywords that only set up the user interface, drawings, analyses, tolerancing
 # or the optimiser (and never the lens): ignored without a note.
@@ -340,6 +354,7 @@ def parse_zmx(text: str, *, label: str = "<zmx>", lens_id: str = "import") -> Im
     makers = top["GCAT"][0][1:] if "GCAT" in top else []
     info_notes: list[str] = []
     surfaces, where = _surfaces(surfs, makers, problems, notes, label, info_notes)
+    apertures = [_aperture_kind(s, problems, label) for s in surfs[1:-1]]
     if not surfs:
         problems.append(f"{label}: no SURF lines: not a sequential .zmx lens file")
     if problems:
@@ -373,7 +388,12 @@ def parse_zmx(text: str, *, label: str = "<zmx>", lens_id: str = "import") -> Im
     }
     lens = validate(data, label, where)
     _design_aperture(data, lens, top, notes, label)
-    return ImportResult(data, notes.lines())
+    # Automatic semi-diameters widened for the design beam and the domain lensfit fits by
+    # default (with the [fit] aperture just found)
+    _, sd_lines = size_housings(data, apertures, where, [f"{label}:{w}" for w in where],
+                                label=label, half_field_deg=(fov or 0.0) / 2.0,
+                                unit=UNIT_NAMES.get(scale, "mm"), lens=lens)
+    return ImportResult(data, notes.lines(), sd_lines)
 
 
 def _design_aperture(data: dict[str, Any], lens: Any, top: dict[str, tuple[list[str], int]],
@@ -868,6 +888,45 @@ def _semi_diameter(s: _Surf, problems: list[str], notes: Notes, label: str) -> f
     return diam
 
 
+def _aperture_kind(s: _Surf, problems: list[str], label: str) -> FileAperture:
+    """What the file says the surface's semi-diameter is (lensfit.interchange.housings):
+    the stop's is its aperture; CLAP/FLAP and a fixed DIAM (solve type 1, or none given)
+    are apertures; DIAM with another solve type is automatic; no DIAM (or DIAM 0: not
+    computed) is estimated. A solve type that is not an integer is a problem."""
+    what = "no DIAM"
+    solve: int | None = None
+    if "DIAM" in s.values:
+        tokens, lineno = s.values["DIAM"]
+        if len(tokens) > 2:
+            try:
+                v = float(tokens[2])
+            except ValueError:
+                v = math.nan
+            if not (math.isfinite(v) and v == int(v) and 0 <= v <= 1e6):
+                problems.append(f"{label}:{lineno}: SURF {s.number} DIAM: expected an integer "
+                                f"semi-diameter solve type, found {tokens[2]!r:.40}")
+                return FileAperture("fixed", "DIAM")
+            solve = int(v)
+        try:
+            zero = float(tokens[1]) == 0.0 if len(tokens) > 1 else True
+        except ValueError:
+            zero = False  # _semi_diameter reports it
+        if zero:
+            what = "DIAM 0: not computed"
+        elif solve is None:
+            what = "DIAM without a solve type: fixed"
+        else:
+            what = f"DIAM solve {solve}: {DIAM_SOLVES.get(solve, 'computed')}"
+    hard = [kw for kw in ("CLAP", "FLAP") if kw in s.values]
+    if "STOP" in s.values:
+        return FileAperture("stop", hard[0] if hard else what)
+    if hard:
+        return FileAperture("fixed", f"{hard[0]}: a circular aperture")
+    if what in ("no DIAM", "DIAM 0: not computed"):
+        return FileAperture("estimated", what)
+    return FileAperture("fixed" if solve in (None, 1) else "automatic", what)
+
+
 def _field_of_view(top: dict[str, tuple[list[str], int]], xfld, yfld, notes: Notes,
                    problems: list[str], label: str) -> float | None:
     """Twice the largest field angle (FTYP 0: angles in degrees), or None with a note."""
@@ -969,12 +1028,16 @@ def write_zmx(lens: Any) -> tuple[str, list[str]]:
     """The .zmx text (ASCII, sequential, lens units mm) of a loaded ``Lens``, and the
     notes on what the format does not hold (coatings, glass labels, provenance). The
     values are the loaded lens's own floats (scale applied), written with repr, so that
-    importing the file gives the same lens."""
+    importing the file gives the same lens. A semi-diameter is written as an aperture
+    (fixed DIAM, solve 1, and CLAP) unless it is automatic (``aperture = "automatic"``):
+    then as OpticStudio's automatic one (DIAM solve 0, no aperture) at its widened
+    value, which importing keeps (it passes the same design beam)."""
     from lensfit.glass import catalog_glass
 
     notes: list[str] = []
     makers: list[str] = []
     coated: list[int] = []
+    automatic: list[int] = []
     info = lens.provenance
     lines = ["MODE SEQ", f"NAME {lens.name}", "UNIT MM X W X CM MR CPMM", "FLOA"]
     if lens.raw and "fit" in lens.raw:
@@ -1043,7 +1106,13 @@ def write_zmx(lens: Any) -> tuple[str, list[str]]:
             vd = getattr(s.medium, "vd", 40.0)
             body.append(f"  GLAS {name} 0 0 {_num(nd)} {_num(vd)} 0 0 0 0 0 0")
         sd = _num(s.semi_diameter_mm)
-        body += [f"  DIAM {sd} 1 0 0 1 \"\"", f"  CLAP 0 {sd} 0"]
+        if s.aperture == "automatic" and not stop:
+            # A housing sized to the beam: OpticStudio's automatic semi-diameter (solve
+            # 0), no aperture; importing it keeps the value (it passes the same beam)
+            body.append(f"  DIAM {sd} 0 0 0 1 \"\"")
+            automatic.append(i)
+        else:  # an aperture: fixed ("U", solve 1) and a circular aperture
+            body += [f"  DIAM {sd} 1 0 0 1 \"\"", f"  CLAP 0 {sd} 0"]
         if not s.coating.bare:
             coated.append(i)
     body += [f"SURF {len(_file_surfaces(lens)) + 1}", "  TYPE STANDARD", "  CURV 0.0",
@@ -1051,6 +1120,11 @@ def write_zmx(lens: Any) -> tuple[str, list[str]]:
     if coated:
         notes.append(f"coatings of surfaces {', '.join(map(str, coated))} not exported (a .zmx "
                      "names coatings from OpticStudio's coating file)")
+    if automatic:
+        notes.append(f"automatic semi-diameters of surfaces {', '.join(map(str, automatic))} "
+                     "exported as OpticStudio's automatic ones (DIAM solve 0, no aperture) at "
+                     "the widened housing; the design file's values (design_semi_diameter) "
+                     "not exported")
     if makers:
         lines.insert(3, "GCAT " + " ".join(makers))
     return "\n".join(lines + body) + "\n", notes

@@ -397,6 +397,20 @@ def _surface(s: dict[str, Any], i: int, file: str, scale: float) -> Surface:
     # Medium behind the surface
     medium, spec = _medium(s, i, file)
     stop = bool(s.get("stop", False))
+    # What the semi-diameter is: an aperture ("fixed") or a housing sized to the beam
+    aperture = s.get("aperture", "fixed")
+    if aperture == "automatic" and stop:
+        raise err("the stop's semi-diameter is its aperture: aperture = 'automatic' is not "
+                  "allowed on the stop", "aperture")
+    design_sd = None
+    if "design_semi_diameter" in s:
+        if aperture != "automatic":
+            raise err("only an automatic semi-diameter (aperture = 'automatic') has a "
+                      "design_semi_diameter", "design_semi_diameter")
+        design_sd = float(s["design_semi_diameter"]) * scale
+        if design_sd <= 0:
+            raise err(f"expected a positive semi-diameter, found {design_sd}",
+                      "design_semi_diameter")
     surf = Surface(
         shape=shape,
         radius_mm=radius,
@@ -407,6 +421,8 @@ def _surface(s: dict[str, Any], i: int, file: str, scale: float) -> Surface:
         aspheric=aspheric,
         stop=stop,
         material_spec=spec,
+        aperture=aperture,
+        design_semi_diameter_mm=design_sd,
     )
     edge = surf.sag(sd, 0.0) if shape != "cylinder-x" else surf.sag(0.0, sd)
     if not np.isfinite(edge):

@@ -69,6 +69,13 @@ class Surface:
     #                     surface the loader put on a refracting surface marked `stop =
     #                     true`: a zero-thickness copy of its shape with the same medium
     #                     on both sides, in front of that surface (the next) or behind it
+    # What the semi-diameter is (lensdb/README.md, `aperture`): "fixed", an aperture of
+    # the lens; "automatic", a housing sized to pass the design beam (a design program's
+    # automatic semi-diameter, widened by lensfit import), whose value in the design file
+    # was ``design_semi_diameter_mm`` (None: the file gave none). The tracer clips at
+    # ``semi_diameter_mm`` either way; these only say what it is.
+    aperture: str = field(default="fixed", compare=False)
+    design_semi_diameter_mm: float | None = field(default=None, compare=False)
 
     @property
     def curvature(self) -> float:
@@ -129,6 +136,10 @@ class Surface:
         d["thickness"] = self.thickness_mm
         d.update(self.material_spec)
         d["semi_diameter"] = self.semi_diameter_mm
+        if self.aperture != "fixed":
+            d["aperture"] = self.aperture
+        if self.design_semi_diameter_mm is not None:
+            d["design_semi_diameter"] = self.design_semi_diameter_mm
         if self.shape == "asphere":
             d["conic"] = self.conic
             d["aspheric"] = list(self.aspheric)

@@ -199,6 +199,18 @@ BAD_CASES: list[tuple[str, str, str, int | None, str, tuple[str, ...]]] = [
         "coating.layers.0.thick_nm",
         ("unknown", "thickness_nm"),
     ),
+    # What a semi-diameter is (lensdb/README.md, `aperture`): the stop's is its aperture,
+    # a design value belongs to an automatic one, an unknown kind is refused
+    ("automatic-stop", "stop = true", 'stop = true\naperture = "automatic"', 0, "aperture",
+     ("stop", "automatic")),
+    ("design-sd-of-a-fixed-one", "semi_diameter = 9.5",
+     "semi_diameter = 9.5\ndesign_semi_diameter = 9.0", 2, "design_semi_diameter",
+     ("automatic",)),
+    ("design-sd-negative", "semi_diameter = 9.5",
+     'semi_diameter = 9.5\naperture = "automatic"\ndesign_semi_diameter = -1.0', 2,
+     "design_semi_diameter", ("positive",)),
+    ("aperture-unknown", "semi_diameter = 9.5", 'semi_diameter = 9.5\naperture = "floating"',
+     2, "aperture", ("'floating'", "'automatic'")),
     (
         "coating-unknown-name",
         "semi_diameter = 9.5",
@@ -350,6 +362,32 @@ def test_scale_keeps_the_asphere_shape(write_lens: LensWriter) -> None:
     r = np.linspace(0.0, a.semi_diameter_mm, 21)
     np.testing.assert_allclose(b.sag(s * r, 0.0), s * a.sag(r, 0.0), rtol=1e-12, atol=0.0)
     np.testing.assert_allclose(b.sag(0.0, s * r), s * a.sag(0.0, r), rtol=1e-12, atol=0.0)
+
+
+def test_automatic_semi_diameter_is_kept_and_scaled(write_lens: LensWriter,
+                                                     singlet_toml: str) -> None:
+    """aperture = "automatic" (a housing sized to the beam, lensfit import) and the design
+    file's value load with the surface, scaled like every length, and come back through
+    to_dict; the default is "fixed" (an aperture). The tracer clips at semi_diameter
+    either way, so neither key is part of the optics (two lenses that differ only in them
+    compare equal)."""
+    text = singlet_toml.replace(
+        "semi_diameter = 9.5",
+        'semi_diameter = 9.5\naperture = "automatic"\ndesign_semi_diameter = 9.25').replace(
+        'source = "unit test"', 'source = "unit test"\nscale = 2.0')
+    lens = load_lens(write_lens(text))
+    back = lens.surfaces[2]
+    assert (back.aperture, back.semi_diameter_mm, back.design_semi_diameter_mm) == \
+        ("automatic", 19.0, 18.5)
+    assert [s.aperture for s in lens.surfaces[:2]] == ["fixed", "fixed"]
+    assert lens.surfaces[1].design_semi_diameter_mm is None
+    assert back.to_dict()["aperture"] == "automatic"
+    assert back.to_dict()["design_semi_diameter"] == 18.5
+    assert "aperture" not in lens.surfaces[1].to_dict()
+    assert lens_from_dict(lens.to_dict()).surfaces[2].aperture == "automatic"
+    plain = load_lens(write_lens(singlet_toml.replace(
+        'source = "unit test"', 'source = "unit test"\nscale = 2.0'), name="plain"))
+    assert plain.surfaces == lens.surfaces
 
 
 def test_scale_must_be_positive(write_lens: LensWriter, singlet_toml: str) -> None:
