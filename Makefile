@@ -180,10 +180,11 @@ bench: setup runtime
 	@# Every lens of lensdb (coated and uncoated) and the imported fixtures, fitted with
 	@# defaults one at a time (CPU seconds of each fit alone; at most 300 each): sweep.md
 	$(PY) -m lensfit.fitting.sweep --out build/bench --workers 1 --cpu-limit 300
-	@# Exact-ray PSFs against Optiland's Huygens PSF, every stop position and field (issue
-	@# 36; `make test` runs three of the eight)
-	LENSFIT_REFERENCE_FULL=1 $(PY) -m pytest tests/fit/trace/test_against_optiland.py -q \
-		| tee build/bench/optiland-reference.txt
+	@# The slow physics checks (`-m slow`: each has a faster sibling in `make test`), and
+	@# exact-ray PSFs against Optiland's Huygens PSF at every stop position and field
+	@# (issue 36; `make test` runs three of the eight)
+	$(PY) -m pytest tests -m slow -q \
+		| tee build/bench/slow-tests.txt
 
 clean:
 	rm -rf build $(VENV)

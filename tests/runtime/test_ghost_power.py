@@ -25,6 +25,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from lensfit.ghosts.enumerate import enumerate_ghosts
 from lensfit.prescription import load_lens
@@ -89,6 +90,7 @@ def _check(rt, lens_name: str, folder: Path, f_number: float, labels: list[str],
         assert np.all(np.abs(q - 1.0) <= BOUND), (name, q)
 
 
+@pytest.mark.slow  # 76 s; test_2004_ghosts_against_traced_rays checks the same in make test
 def test_0001_ghosts_against_traced_rays(rt):
     # Every ghost table of 0001 whose path reaches the sensor from this light; 4-8 (its
     # reflections on both sides of the stop) is blocked here and seen on the axis

@@ -88,8 +88,9 @@ SHAPES = {
 
 
 @pytest.mark.parametrize(("side", "shape"),
-                         [("P_o", "blades"), ("P_s", "blades"), ("P_s", "curved"),
-                          ("P_s", "slits")])
+                         [("P_o", "blades"), pytest.param("P_s", "blades", marks=pytest.mark.slow),
+                          ("P_s", "curved"),
+                          pytest.param("P_s", "slits", marks=pytest.mark.slow)])  # 17 s each
 def test_gl_ghost_shaped_stop_matches_cpu(gl, tmp_path, side, shape):  # noqa: F811
     text = LENS0001.read_text()
     s = float(re.search(r"^input x_a \S+ \S+ (\S+) affine", text, re.M).group(1))

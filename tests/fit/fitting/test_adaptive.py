@@ -23,6 +23,7 @@ import math
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 import lensfit.fitting.tensor as tensor_fit
 from lensfit import stage
@@ -174,6 +175,7 @@ def test_an_achromat_imported_from_zmx_meets_the_target(tmp_path):
 
 
 
+@pytest.mark.slow  # 26 s; test_glass_range_default.py fits this triplet in make test
 def test_a_triplet_with_a_narrow_glass_range_meets_the_target(tmp_path):
     """The Cooke triplet with N-F2 (published from 404.66 nm): the default domain, which
     is the design's own (the file states f/5 and a 40 degree field of view: 20 degrees

@@ -253,6 +253,7 @@ def test_0001_ghost_throughput_and_energy_from_independent_rays(ghosts_0001):
         assert g.energy[k] == pytest.approx(energy, rel=0.03)
 
 
+@pytest.mark.slow  # 17 s
 def test_0001_ranking_stable_under_more_rays(ghosts_0001):
     """Four times the rays in both passes: the kept set at the default threshold and the
     order of the ten brightest are the same where neighbours differ by more than 30%,

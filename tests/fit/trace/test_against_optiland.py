@@ -36,7 +36,6 @@ explicitly, each difference measured (issue 36's note, DESIGN.md pitfalls):
 from __future__ import annotations
 
 import math
-import os
 import warnings
 
 import numpy as np
@@ -241,11 +240,11 @@ def assert_no_vignetting(lens, r_stop: float, field_deg: float) -> None:
 # of the field each case's housings pass without clipping (14 deg; 8 deg behind the lens,
 # where the entrance pupil lies deep inside and the front housing clips at 14)
 # (measured relative L2 with the settings of psf_pair: 0.30, 0.78, 0.30, 0.80, 0.29, 0.32,
-# 0.30, 0.23%). `make test` runs three (about 35 s); `make bench` all of them
-# (LENSFIT_REFERENCE_FULL=1, about 150 s)
-CASES = [(2, 0.0), (2, 14.0), (3, 0.0), (3, 14.0), (0, 0.0), (0, 8.0), (5, 0.0), (5, 8.0)]
-if not os.environ.get("LENSFIT_REFERENCE_FULL"):
-    CASES = [(2, 14.0), (5, 0.0), (5, 8.0)]
+# 0.30, 0.23%). `make test` runs three (about 30 s); `make bench` the other five (slow)
+SLOW = pytest.mark.slow
+CASES = [pytest.param(2, 0.0, marks=SLOW), (2, 14.0), pytest.param(3, 0.0, marks=SLOW),
+         pytest.param(3, 14.0, marks=SLOW), pytest.param(0, 0.0, marks=SLOW),
+         pytest.param(0, 8.0, marks=SLOW), (5, 0.0), (5, 8.0)]
 
 
 @pytest.mark.parametrize(("stop", "field_deg"), CASES)
