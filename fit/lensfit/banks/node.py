@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import math
 import os
+import threading
 import time
 import zlib
 from pathlib import Path
@@ -32,10 +33,23 @@ from lensfit.errors import InputError
 
 RECORD_VERSION = 1
 
-# One lensrt context per (library, threads) and one loaded lens per (table, CRC-32) in
-# each worker process: a task reuses what the previous task of the same bank loaded
-_CONTEXTS: dict[tuple[str, int], Any] = {}
-_LENSES: dict[tuple[str, int, str, int], Any] = {}
+# Each worker thread keeps one lensrt context per (library, threads) and the tables it
+# loaded into that context per (table, CRC-32): a task reuses what the previous task of
+# the same bank loaded in its thread. Per thread, not per process: a Dask worker runs
+# tasks in several threads of one process, and a context serves one thread at a time
+# (lensrt.h). Dicts shared by the threads and filled check-then-set gave two threads one
+# context, and a context that lost the race freed lenses the cache still held (issue 37:
+# 28 of 30 nodes failed, a lens named "(null)")
+_THREAD = threading.local()
+
+
+def _cache(name: str) -> dict[Any, Any]:
+    """This thread's cache ``name`` (made empty on the thread's first use)."""
+    cache = getattr(_THREAD, name, None)
+    if cache is None:
+        cache = {}
+        setattr(_THREAD, name, cache)
+    return cache
 
 
 def file_crc32(path: str | os.PathLike[str]) -> int:
@@ -90,22 +104,24 @@ def _load(rt, threads: int, library: str, table: str, crc: int):
     """A lens table loaded once per worker process, refused when it is not the table the
     bank was planned with (never mix two tables)."""
     key = (library, threads, table, crc)
-    if key not in _LENSES:
+    lenses = _cache("lenses")
+    if key not in lenses:
         now = file_crc32(table)
         if now != crc:
             raise InputError(f"{table}: the table changed since the bank was planned "
                              f"(CRC-32 {now:08x}, planned {crc:08x}); run the bank again")
-        _LENSES[key] = rt.load(table)
-    return _LENSES[key]
+        lenses[key] = rt.load(table)
+    return lenses[key]
 
 
 def _context(job: dict[str, Any]):
     from lensrt_ctypes import Lensrt
 
     key = (job["library"], int(job["spec"]["render"]["threads"]))
-    if key not in _CONTEXTS:
-        _CONTEXTS[key] = Lensrt(key[0], threads=key[1])
-    return _CONTEXTS[key], key[1]
+    contexts = _cache("contexts")
+    if key not in contexts:
+        contexts[key] = Lensrt(key[0], threads=key[1])
+    return contexts[key], key[1]
 
 
 def _integrate(r, r_spec: dict[str, Any], phasors: Path) -> dict[str, Any]:

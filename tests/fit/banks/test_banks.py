@@ -99,6 +99,48 @@ def test_local_cluster_equals_one_process(tmp_path: Path) -> None:
     assert leftovers(tmp_path / "two") == []
 
 
+def test_threads_of_one_worker_render_the_same_bank(tmp_path: Path) -> None:
+    """A worker running tasks in several threads of one process (`dask worker`'s default
+    on a 2-core machine; here a LocalCluster without processes): every node renders, byte
+    for byte as in one process (issue 37: caches shared by the threads corrupted nodes)."""
+    from distributed import LocalCluster
+
+    spec = spec_file(tmp_path, **{"field_x_deg = [0, 5, 10]": "field_x_deg = [0, 2, 4, 6, 8, 10]"})
+    one = run_bank(spec, tmp_path / "one", workers=0, progress=False, sheet=False)
+    with LocalCluster(n_workers=1, threads_per_worker=3, processes=False,
+                      dashboard_address=None) as cluster:
+        many = run_bank(spec, tmp_path / "many", scheduler=cluster.scheduler_address,
+                        progress=False, sheet=False)
+    assert (one.nodes, many.nodes, many.rendered) == (6, 6, 6)
+    assert bank_bytes(tmp_path / "many") == bank_bytes(tmp_path / "one")
+
+
+def test_each_thread_has_its_own_context_and_lenses() -> None:
+    """The invariant behind the test above, checked directly: two threads asking at once
+    get two contexts and two loaded tables, and a thread asking again gets its own back."""
+    from lensfit.banks import node
+
+    table = str(ROOT / "generated" / "0001-angenieux-double-gauss" / "lens0001.table")
+    job = {"library": str(LIBRARY), "spec": {"render": {"threads": 1}}}
+    start, got = threading.Barrier(2), {}
+
+    def work(i: int) -> None:
+        start.wait()
+        rt, threads = node._context(job)
+        lens = node._load(rt, threads, job["library"], table, node.file_crc32(table))
+        got[i] = (rt, node._context(job)[0], lens,
+                  node._load(rt, threads, job["library"], table, node.file_crc32(table)))
+
+    workers = [threading.Thread(target=work, args=(i,)) for i in range(2)]
+    for t in workers:
+        t.start()
+    for t in workers:
+        t.join()
+    (rt0, again0, lens0, lens0b), (rt1, _, lens1, _) = got[0], got[1]
+    assert rt0 is again0 and lens0.value == lens0b.value  # a thread reuses its own
+    assert rt0 is not rt1 and lens0.value != lens1.value  # never another thread's
+
+
 def test_node_of_another_lensrt_version_is_rendered_again(tmp_path: Path) -> None:
     """A node rendered by another lensrt (0.8.0 changed the image's unit and the pixel's
     filter) is not finished: its record names the version, and a rerun renders it again
