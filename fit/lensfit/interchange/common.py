@@ -237,6 +237,27 @@ def file_surface_names(detail: str, names: list[str]) -> str:
     return re.sub(r"\bsurface (\d+)\b", one, detail)
 
 
+def file_surfaces(lens: Any) -> list[tuple[int, Any, bool, float]]:
+    """The surfaces as the lens file has them: (index in ``lens.surfaces``, surface, stop
+    flag, thickness). The stop surface the loader inserted on a refracting surface marked
+    as the stop (``inserted`` "front" or "back": a zero-thickness copy of it) is folded
+    back into that surface, as a .zmx writes it (STOP on the surface, which OpticStudio
+    clips on the surface, as lensfit does); a copy behind its surface held the gap that
+    follows."""
+    ss = lens.surfaces
+    out = []
+    for k, s in enumerate(ss):
+        if getattr(s, "inserted", ""):
+            continue
+        stop, thickness = s.stop, s.thickness_mm
+        if k + 1 < len(ss) and getattr(ss[k + 1], "inserted", "") == "back":
+            stop, thickness = True, ss[k + 1].thickness_mm  # the plane kept the gap
+        if k > 0 and getattr(ss[k - 1], "inserted", "") == "front":
+            stop = True
+        out.append((k, s, stop, thickness))
+    return out
+
+
 def validate(data: dict[str, Any], label: str, where_surface: list[str], *,
              sep: str = ":") -> Any:
     """Load the converted table as lensfit would (lens_from_dict) and return the Lens;

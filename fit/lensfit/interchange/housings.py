@@ -303,22 +303,6 @@ def trace_design_beam(lens: Any, half_field_deg: float, apertures: set[int],
     return Beam(heights, rays, text)
 
 
-def _file_surfaces(lens: Any) -> tuple[list[Any], list[int]]:
-    """The surfaces as the lens file has them (the loader's stop copy folded back: a
-    copy behind its surface holds the gap that follows) and the index of each in
-    ``lens.surfaces``."""
-    out, index = [], []
-    ss = lens.surfaces
-    for j, s in enumerate(ss):
-        if s.inserted:
-            continue
-        if j + 1 < len(ss) and ss[j + 1].inserted == "back":
-            s = dataclasses.replace(s, thickness_mm=ss[j + 1].thickness_mm)
-        out.append(s)
-        index.append(j)
-    return out, index
-
-
 def _fits(surfaces: list[Any], k: int, sd_mm: float, names: list[str]) -> str:
     """'' when surface ``k`` may have the semi-diameter ``sd_mm`` (the loader's rules:
     within the shape, not crossing a neighbour), else what stops it (``names``: how the
@@ -359,13 +343,15 @@ def size_housings(data: dict[str, Any], apertures: list[FileAperture], where: li
     on the design beam when one was traced. ``where`` names the surfaces for a loader
     refusal (lensfit.interchange.common.validate); ``unit`` is the file's length unit;
     ``lens``: ``data`` validated, when the caller has it."""
-    from lensfit.interchange.common import validate
+    from lensfit.interchange.common import file_surfaces, validate
 
     if lens is None:
         lens = validate(data, label, where)
     rows = data["surface"]
     scale = float(data["lens"].get("scale", 1.0))
-    surfaces, index = _file_surfaces(lens)
+    folded = file_surfaces(lens)
+    surfaces = [dataclasses.replace(s, thickness_mm=t) for _, s, _, t in folded]
+    index = [k for k, _, _, _ in folded]
     lines: list[str] = []
     beam = None
     if any(a.widened for a in apertures):

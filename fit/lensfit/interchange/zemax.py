@@ -119,6 +119,7 @@ from lensfit.interchange.common import (
     ImportProblems,
     ImportResult,
     Notes,
+    file_surfaces,
     glass_message,
     index_range_problem,
     lens_table,
@@ -1004,26 +1005,6 @@ def _num(v: float) -> str:
     return repr(float(v))
 
 
-def _file_surfaces(lens: Any) -> list[tuple[Any, bool, float]]:
-    """The surfaces as the lens file has them, with the stop flag and thickness of each:
-    the stop surface the loader inserted on a refracting surface marked as the stop
-    (``inserted`` "front" or "back": a zero-thickness copy of it) is folded back into
-    that surface, as a .zmx writes it (STOP on the surface, which OpticStudio clips on
-    the surface, as lensfit does)."""
-    ss = lens.surfaces
-    out = []
-    for k, s in enumerate(ss):
-        if getattr(s, "inserted", ""):
-            continue
-        stop, thickness = s.stop, s.thickness_mm
-        if k + 1 < len(ss) and getattr(ss[k + 1], "inserted", "") == "back":
-            stop, thickness = True, ss[k + 1].thickness_mm  # the plane kept the gap
-        if k > 0 and getattr(ss[k - 1], "inserted", "") == "front":
-            stop = True
-        out.append((s, stop, thickness))
-    return out
-
-
 def write_zmx(lens: Any) -> tuple[str, list[str]]:
     """The .zmx text (ASCII, sequential, lens units mm) of a loaded ``Lens``, and the
     notes on what the format does not hold (coatings, glass labels, provenance). The
@@ -1053,7 +1034,7 @@ def write_zmx(lens: Any) -> tuple[str, list[str]]:
     lines += [f"WAVM {k} {um} 1" for k, um in enumerate(EXPORT_WAVELENGTHS_UM, start=1)]
     lines.append("PWAV 1")
     body = ["SURF 0", "  TYPE STANDARD", "  CURV 0.0", "  DISZ INFINITY"]
-    for i, (s, stop, thickness) in enumerate(_file_surfaces(lens)):
+    for i, (_, s, stop, thickness) in enumerate(file_surfaces(lens)):
         body.append(f"SURF {i + 1}")
         if stop:
             body.append("  STOP")
@@ -1115,7 +1096,7 @@ def write_zmx(lens: Any) -> tuple[str, list[str]]:
             body += [f"  DIAM {sd} 1 0 0 1 \"\"", f"  CLAP 0 {sd} 0"]
         if not s.coating.bare:
             coated.append(i)
-    body += [f"SURF {len(_file_surfaces(lens)) + 1}", "  TYPE STANDARD", "  CURV 0.0",
+    body += [f"SURF {len(file_surfaces(lens)) + 1}", "  TYPE STANDARD", "  CURV 0.0",
              "  DISZ 0"]
     if coated:
         notes.append(f"coatings of surfaces {', '.join(map(str, coated))} not exported (a .zmx "

@@ -43,6 +43,7 @@ import pytest
 
 from lensfit import psf as psf_module
 from lensfit.interchange import write_zmx
+from lensfit.interchange.common import file_surfaces
 from lensfit.paraxial import paraxial, stop_radius_for_f_number
 from lensfit.prescription import load_lens, make_lens
 from lensfit.psf import (
@@ -95,15 +96,11 @@ def scalar(v) -> float:
     return float(np.asarray(v).ravel()[0])
 
 
-def file_surfaces(lens):
-    return [s for s in lens.surfaces if not s.inserted]
-
-
 def ideal_media(twin, lens, lam_nm: float) -> None:
     """Give the Optiland twin lensfit's index at ``lam_nm`` after every surface, so that the
     glass data of the two programs drop out."""
     surfs = twin.surface_group.surfaces
-    for k, s in enumerate(file_surfaces(lens)):
+    for k, (_, s, _, _) in enumerate(file_surfaces(lens)):
         n = float(s.medium.n(lam_nm))
         m = IdealMaterial(n)
         surfs[k + 1].material_post = m
@@ -290,7 +287,7 @@ def test_psf_of_exact_rays_agrees_on_an_exported_lens(lens_id, f_number, field_s
     """As above (1%), for a lens of lensdb read by Optiland from the .zmx we export."""
     lens = load_lens(lens_id)
     r_stop = stop_radius_for_f_number(lens, f_number, wavelength_nm=LAM_NM)
-    stop = next(k for k, s in enumerate(file_surfaces(lens)) if s.stop)
+    stop = next(k for k, (_, _, is_stop, _) in enumerate(file_surfaces(lens)) if is_stop)
     field = field_share * max(default_domain(lens).field_xy_deg)  # the fitted field's edge
     focus = best_focus_offset(lens, r_stop, LAM_NM)
     assert_no_vignetting(lens, r_stop, field, focus)
