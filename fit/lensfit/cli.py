@@ -943,7 +943,8 @@ def cmd_bank(args: argparse.Namespace) -> int:
     try:
         summary = run_bank(args.spec, out, scheduler=args.scheduler, workers=args.workers,
                            restart=args.restart, progress=not args.no_progress,
-                           sheet=not args.no_sheet)
+                           sheet=not args.no_sheet, verbose=args.verbose,
+                           say=lambda line: print(line, file=sys.stderr, flush=True))
     except TaskError as e:
         print(f"lensfit: error: {e}; rerun the same command to resume", file=sys.stderr)
         return 1
@@ -1135,11 +1136,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--scheduler", default=None,
                    help="address of a running Dask scheduler (default: a LocalCluster here)")
     p.add_argument("--workers", type=int, default=None,
-                   help="LocalCluster worker processes (default: one per core; 0: render "
-                        "in this process without Dask)")
+                   help="LocalCluster worker processes (default: one per core, at most two "
+                        "per core; 0: render in this process without Dask)")
     p.add_argument("--restart", action="store_true",
-                   help="discard the nodes of a bank of another spec or table in the "
-                        "folder (the same bank resumes either way)")
+                   help="discard the nodes of a bank of another spec or table, or of a "
+                        "damaged bank.json, in the folder (the same bank resumes either way)")
+    p.add_argument("-v", "--verbose", action="store_true",
+                   help="show the Dask cluster's logs (INFO; default: errors only)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.add_argument("--no-sheet", action="store_true", help="no contact-sheet PNG")
     p.set_defaults(func=cmd_bank)

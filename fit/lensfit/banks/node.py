@@ -74,11 +74,28 @@ def node_coordinates(spec: dict[str, Any], indices: tuple[int, ...]) -> dict[str
             "field_y_deg": g["field_y_deg"][y], "field_x_deg": g["field_x_deg"][x]}
 
 
+def refuse_special(path: Path) -> None:
+    """A node's file that is there but not a regular file (a FIFO, a device, a socket, a
+    folder, a link) is refused naming it: lensfit never opens one for reading (a FIFO
+    would block the run) and never replaces one."""
+    from lensfit.atomic import target_refusal
+
+    why = target_refusal(path)
+    if why is not None:
+        raise InputError(f"{path} {why}; a bank's nodes/ holds only its own files: remove "
+                         "it or give another folder")
+
+
 def finished_record(job: dict[str, Any]) -> dict[str, Any] | None:
     """The node's record when the node is finished for this job (spec, table, EXR bytes);
-    None when it must be rendered."""
+    None when it must be rendered. A node path that is not a regular file is refused
+    (:func:`refuse_special`)."""
     out = Path(job["out"])
     record, exr = out / f"{job['stem']}.json", out / f"{job['stem']}.exr"
+    for p in (record, exr, out / f"{job['stem']}.phasors",
+              *(out / f"{job['stem']}.ghost-{g['label']}.phasors"
+                for g in job.get("ghosts", []))):
+        refuse_special(p)
     if not record.exists():
         return None
     try:
@@ -100,6 +117,16 @@ def finished_record(job: dict[str, Any]) -> dict[str, Any] | None:
     return doc
 
 
+def task_key(job: dict[str, Any]) -> str:
+    """The node's Dask key: its bank's spec digest and folder, and its stem. Two banks of
+    one spec in two folders on one scheduler are two tasks (a key of the digest alone
+    gave the second bank the first's results, and its folder no nodes)."""
+    import hashlib
+
+    where = hashlib.sha256(f"{job['digest']}\0{job['out']}".encode()).hexdigest()[:16]
+    return f"bank-{where}-{job['stem'].split('/')[-1]}"
+
+
 def _load(rt, threads: int, library: str, table: str, crc: int):
     """A lens table loaded once per worker process, refused when it is not the table the
     bank was planned with (never mix two tables)."""
@@ -114,10 +141,25 @@ def _load(rt, threads: int, library: str, table: str, crc: int):
     return lenses[key]
 
 
+def worker_library(job: dict[str, Any]) -> str:
+    """The lensrt library this worker loads: its own $LENSRT_LIBRARY where it sets one
+    (a worker on another machine, another build), else the driver's (the job's) where
+    that path exists here, else the binding's default. A node rendered by another lensrt
+    version records it, and is rendered again by a run of the driver's version."""
+    own = os.environ.get("LENSRT_LIBRARY")
+    if own:
+        return own
+    if os.path.exists(job["library"]):
+        return job["library"]
+    from lensrt_ctypes import LIBRARY
+
+    return str(LIBRARY)
+
+
 def _context(job: dict[str, Any]):
     from lensrt_ctypes import Lensrt
 
-    key = (job["library"], int(job["spec"]["render"]["threads"]))
+    key = (worker_library(job), int(job["spec"]["render"]["threads"]))
     contexts = _cache("contexts")
     if key not in contexts:
         contexts[key] = Lensrt(key[0], threads=key[1])
@@ -173,7 +215,7 @@ def render_node(job: dict[str, Any]) -> dict[str, Any]:
                          rotation_deg=a["rotation_deg"], lights=[light],
                          wavelengths=wavelengths, seed=r_spec["seed"])
 
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), _cpu_clock(threads)()
     r = create(lens)
     how = {"integrator": r_spec["integrator"],
            **_integrate(r, r_spec, stem_path.with_suffix(".phasors"))}
@@ -185,7 +227,7 @@ def render_node(job: dict[str, Any]) -> dict[str, Any]:
                        **_integrate(rg, r_spec,
                                     stem_path.with_suffix(f".ghost-{g['label']}.phasors"))})
         ghost_renders.append(rg)
-    seconds = time.perf_counter() - t0
+    seconds, cpu_seconds = time.perf_counter() - t0, _cpu_clock(threads)() - c0
     if ghosts:
         images = [x.image() for x in (r, *ghost_renders)]
         how["direct_error_estimate"] = how["error_estimate"]
@@ -206,12 +248,19 @@ def render_node(job: dict[str, Any]) -> dict[str, Any]:
               **{k: _json_number(v) for k, v in c.items()},
               "wavelengths_nm": wavelengths, "centre_mm": list(centre),
               "chief_mm": [list(xy) for xy in chief], **how, "ghosts": ghosts,
-              "seconds": seconds, "exr": f"{job['stem']}.exr",
+              "seconds": seconds, "cpu_seconds": cpu_seconds, "exr": f"{job['stem']}.exr",
               "exr_crc32": f"{file_crc32(exr):08x}"}
     write_atomic(stem_path.with_suffix(".json"), checked_json_text(record))
     for p in out.glob(f"{job['stem']}.*phasors"):
         p.unlink()
     return {**record, "skipped": False}
+
+
+def _cpu_clock(threads: int):
+    """The CPU clock of a node's render: with one lensrt thread the render runs in the
+    calling thread, so that thread's CPU time is the node's; with more (OpenMP threads) the
+    process's, which on a worker running several tasks at once includes the others'."""
+    return time.thread_time if threads == 1 else time.process_time
 
 
 def _json_number(v: float) -> float | str:

@@ -19,9 +19,16 @@ from pathlib import Path
 from typing import Any
 
 from lensfit.atomic import OutputError, make_folder, write_atomic
-from lensfit.banks.engine import default_workers, run_tasks
+from lensfit.banks.engine import check_scheduler, check_workers, run_tasks
 from lensfit.banks.index import INDEX_NAME, index_text
-from lensfit.banks.node import file_crc32, finished_record, render_node, stem
+from lensfit.banks.node import (
+    file_crc32,
+    finished_record,
+    refuse_special,
+    render_node,
+    stem,
+    task_key,
+)
 from lensfit.banks.spec import BankSpec, SpecError, load_spec
 from lensfit.codegen.checked_json import checked_json_text, load_checked_json
 from lensfit.errors import InputError, refuse_repeated_tables
@@ -164,11 +171,26 @@ def _indices(shape: tuple[int, ...]) -> list[tuple[int, ...]]:
 
 def _bank_record(out: Path, doc: dict[str, Any], restart: bool) -> None:
     """Record this bank in its folder. A folder that holds another bank (another lens,
-    table or spec) is refused, or with ``restart`` emptied of its nodes; the same bank
-    resumes."""
+    table or spec), or a damaged record, is refused, or with ``restart`` emptied of its
+    nodes; the same bank resumes. Anything in nodes/ that is not a regular file or a
+    folder (a FIFO where a node's EXR goes) is refused first, restart or not: lensfit
+    never opens one nor replaces one."""
     path = out / BANK_RECORD
+    nodes = out / "nodes"
+    refuse_special(path)
+    for name in (INDEX_NAME, SHEET_NAME):
+        refuse_special(out / name)
+    for p in sorted(nodes.iterdir()) if nodes.is_dir() else []:
+        if not p.is_dir() or p.is_symlink():
+            refuse_special(p)
     if path.exists():
-        old = load_checked_json(path, "remove the folder or run with --restart")
+        try:
+            old = load_checked_json(path, "run with --restart to discard it and the bank's "
+                                          "nodes, or remove the folder")
+        except InputError:
+            if not restart:
+                raise
+            old = {}  # damaged: discarded with the nodes
         changed = [k for k in ("lens", "table_crc32", "ghost_tables", "spec_digest")
                    if old.get(k) != doc[k]]
         if not changed:
@@ -179,7 +201,7 @@ def _bank_record(out: Path, doc: dict[str, Any], restart: bool) -> None:
                 f"{path}: this folder holds a bank of another {key.split('_')[0]} "
                 f"({key} {old.get(key)!r}, now {doc[key]!r}); run with --restart to "
                 "discard its nodes, or give another folder")
-        for p in sorted((out / "nodes").glob("*")) if (out / "nodes").is_dir() else []:
+        for p in sorted(nodes.glob("*")) if nodes.is_dir() else []:
             if p.is_file() and p.suffix in (".exr", ".json", ".phasors"):
                 p.unlink()
         for name in (INDEX_NAME, SHEET_NAME):
@@ -189,10 +211,15 @@ def _bank_record(out: Path, doc: dict[str, Any], restart: bool) -> None:
 
 def run_bank(spec_path: str | Path, out: str | Path, *, scheduler: str | None = None,
              workers: int | None = None, restart: bool = False, progress: bool = True,
-             sheet: bool = True, generated: Path | None = None) -> Summary:
-    """Render every unfinished node of a bank and write its index (and contact sheet)."""
+             sheet: bool = True, generated: Path | None = None, verbose: bool = False,
+             say=None) -> Summary:
+    """Render every unfinished node of a bank and write its index (and contact sheet).
+    ``verbose``: the Dask cluster's logs at INFO; ``say``: lines for the user (the
+    dashboard's address)."""
     from lensrt_ctypes import LIBRARY, Lensrt, LensrtError
 
+    check_workers(workers)  # before anything is loaded or written
+    check_scheduler(scheduler)
     t0 = time.perf_counter()
     spec = load_spec(spec_path)
     src = spec.source_file
@@ -235,9 +262,9 @@ def run_bank(spec_path: str | Path, out: str | Path, *, scheduler: str | None = 
     jobs = plan(spec, out.resolve(), table, crc, lens_name, library, ghosts, rt.version())
     finished = {j["k"]: finished_record(j) for j in jobs}
     pending = [j for j in jobs if finished[j["k"]] is None]
-    keys = [f"bank-{j['digest'][:12]}-{j['stem'].split('/')[-1]}" for j in pending]
+    keys = [task_key(j) for j in pending]
     done = run_tasks(render_node, pending, keys, scheduler=scheduler, workers=workers,
-                     progress=progress, label=f"bank {spec.name}")
+                     progress=progress, label=f"bank {spec.name}", verbose=verbose, say=say)
 
     # Every node finished: the index, from the records as written (checked above, or
     # returned by the task that wrote them)
@@ -258,7 +285,6 @@ def run_bank(spec_path: str | Path, out: str | Path, *, scheduler: str | None = 
     return Summary(nodes=len(records), rendered=len(rendered),
                    skipped=len(records) - len(rendered),
                    worst_error=max(errors) if min(errors) >= 0 else -1.0,
-                   # each task's render seconds times its lensrt threads (0: all cores)
-                   cpu_seconds=sum(r["seconds"] for r in rendered)
-                   * (spec.render.threads or default_workers()),
+                   # each task's CPU time of rendering (node.py; records before it: none)
+                   cpu_seconds=sum(r.get("cpu_seconds", 0.0) for r in rendered),
                    wall_seconds=time.perf_counter() - t0, index=index)
