@@ -30,6 +30,7 @@ import asyncio
 import logging
 import os
 import signal
+import sys
 import threading
 import time
 from collections.abc import Callable, Sequence
@@ -194,6 +195,8 @@ class _terminate_as_exit:
         self.old = None
         if threading.current_thread() is threading.main_thread():
             def handler(signum, frame):
+                print("lensfit: terminated; closing the Dask cluster (rerun the same "
+                      "command to resume)", file=sys.stderr, flush=True)
                 raise _Terminated(128 + signum)
             self.old = signal.signal(signal.SIGTERM, handler)
         return self
@@ -214,7 +217,7 @@ async def _probe(address: str, timeout: float) -> dict[str, Any]:
 
     args = Security().get_connection_args("client")
     # connect's own timeout first (its error names the address), then ours
-    comm = await asyncio.wait_for(connect(address, timeout=timeout, **args), timeout + 5)
+    comm = await asyncio.wait_for(connect(address, timeout=timeout, **args), timeout + 1)
     try:
         await asyncio.wait_for(comm.write({"op": "identity", "reply": True}), timeout)
         return await asyncio.wait_for(comm.read(), timeout)

@@ -184,12 +184,12 @@ def _bank_record(out: Path, doc: dict[str, Any], restart: bool) -> None:
         if not p.is_dir() or p.is_symlink():
             refuse_special(p)
     if path.exists():
+        hint = "run with --restart to discard it and the bank's nodes, or remove the folder"
         try:
-            old = load_checked_json(path, "run with --restart to discard it and the bank's "
-                                          "nodes, or remove the folder")
-        except InputError:
+            old = load_checked_json(path, hint)
+        except InputError as e:
             if not restart:
-                raise
+                raise InputError(str(e) if hint in str(e) else f"{e}; {hint}") from None
             old = {}  # damaged: discarded with the nodes
         changed = [k for k in ("lens", "table_crc32", "ghost_tables", "spec_digest")
                    if old.get(k) != doc[k]]
