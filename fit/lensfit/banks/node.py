@@ -8,7 +8,8 @@ centred on the chief ray's image point. What it leaves, in this order:
    so the same node gives the same bytes on any worker);
 2. ``nodes/<stem>.json``: its record (checked JSON, written atomically): the lens and its
    table's CRC-32, the spec's digest, the lensrt version that rendered it, the node's
-   coordinates, how it was integrated, the error estimate, seconds, and the EXR's CRC-32.
+   coordinates, how it was integrated, the error estimate, seconds (wall) and
+   cpu_seconds (the render's CPU time), and the EXR's CRC-32.
 
 The record comes last: a node is finished when its record exists, matches the spec, the
 table and the loaded lensrt's version, and its EXR has the CRC-32 the record gives. A
