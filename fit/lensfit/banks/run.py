@@ -14,6 +14,7 @@ import math
 import os
 import re
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -212,7 +213,7 @@ def _bank_record(out: Path, doc: dict[str, Any], restart: bool) -> None:
 def run_bank(spec_path: str | Path, out: str | Path, *, scheduler: str | None = None,
              workers: int | None = None, restart: bool = False, progress: bool = True,
              sheet: bool = True, generated: Path | None = None, verbose: bool = False,
-             say=None) -> Summary:
+             say: Callable[[str], None] | None = None) -> Summary:
     """Render every unfinished node of a bank and write its index (and contact sheet).
     ``verbose``: the Dask cluster's logs at INFO; ``say``: lines for the user (the
     dashboard's address)."""

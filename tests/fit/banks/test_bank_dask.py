@@ -330,6 +330,16 @@ def test_a_fifo_in_a_finished_bank_is_refused_also_with_restart(tmp_path: Path) 
     assert r.returncode == 2 and r.stderr.count("\n") == 1 and "is a FIFO" in r.stderr
 
 
+@pytest.mark.parametrize("name", ["bank.json", "bank.index", "contact-sheet.png"])
+def test_a_fifo_in_place_of_a_bank_file_is_refused(tmp_path: Path, name: str) -> None:
+    spec, out = spec_file(tmp_path), tmp_path / "b"
+    out.mkdir()
+    os.mkfifo(out / name)
+    with pytest.raises(InputError, match=rf"{out / name} is a FIFO"):
+        within(30, run_bank, spec, out, workers=0, progress=False, restart=True)
+    assert stat.S_ISFIFO(os.lstat(out / name).st_mode)
+
+
 # --- a damaged bank.json -----------------------------------------------------------------
 
 @pytest.mark.parametrize("damage", ["not json", "checksum"])
