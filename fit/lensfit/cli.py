@@ -943,7 +943,7 @@ def cmd_bank(args: argparse.Namespace) -> int:
     try:
         summary = run_bank(args.spec, out, scheduler=args.scheduler, workers=args.workers,
                            restart=args.restart, progress=not args.no_progress,
-                           sheet=not args.no_sheet)
+                           sheet=not args.no_sheet, check=not args.no_check)
     except TaskError as e:
         print(f"lensfit: error: {e}; rerun the same command to resume", file=sys.stderr)
         return 1
@@ -1142,6 +1142,9 @@ def build_parser() -> argparse.ArgumentParser:
                         "folder (the same bank resumes either way)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.add_argument("--no-sheet", action="store_true", help="no contact-sheet PNG")
+    p.add_argument("--no-check", action="store_true",
+                   help="do not measure the reader between nodes against direct renders "
+                        "(check.json; a few seconds)")
     p.set_defaults(func=cmd_bank)
 
     p = sub.add_parser("scene", help="specialise a fitted lens for one scene")

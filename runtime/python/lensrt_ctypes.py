@@ -503,6 +503,24 @@ class Lensrt:
             arr[k] = ExrLayer(name.encode(), C.cast(handles, C.c_void_p), len(renders))
         self._check(fn(arr, len(layers), os.fsencode(path), *extra))
 
+    def spectrum_rgb(self, wavelengths_nm: Sequence[float], spectral: np.ndarray) -> np.ndarray:
+        """Linear sRGB (height, width, 3) of a spectral image (n_wavelengths, height,
+        width), as lensrt_render_rgb converts a render's (lensrt_spectrum_rgb, 0.9.0)."""
+        fn = _need(self.lib, "lensrt_spectrum_rgb", "0.9.0")
+        fn.argtypes = [C.c_void_p, C.c_int, C.POINTER(C.c_double), C.POINTER(C.c_float),
+                       C.c_size_t, C.POINTER(C.c_float)]
+        planes = np.ascontiguousarray(spectral, dtype=np.float32)
+        if planes.ndim != 3 or planes.shape[0] != len(wavelengths_nm):
+            raise ValueError(f"spectrum_rgb: expected ({len(wavelengths_nm)}, height, width) "
+                             f"values, got {planes.shape}")
+        lam = np.ascontiguousarray(wavelengths_nm, dtype=np.float64)
+        out = np.zeros(planes.shape[1:] + (3,), dtype=np.float32)
+        self._check(fn(self.ctx, len(lam), lam.ctypes.data_as(C.POINTER(C.c_double)),
+                       planes.ctypes.data_as(C.POINTER(C.c_float)),
+                       C.c_size_t(planes.shape[1] * planes.shape[2]),
+                       out.ctypes.data_as(C.POINTER(C.c_float))))
+        return out
+
     # ------------------------------------------------- per-ray evaluation -----
 
     def _eval_functions(self) -> None:
@@ -605,13 +623,15 @@ class BankQuery(Versioned):
     _fields_ = [("struct_size", C.c_size_t), ("field_x_deg", C.c_double),
                 ("field_y_deg", C.c_double), ("wavelength_nm", C.c_double),
                 ("f_number", C.c_double), ("focus_offset_mm", C.c_double),
-                ("distance_mm", C.c_double)]
+                ("distance_mm", C.c_double), ("chief_given", C.c_int32),
+                ("chief_x_mm", C.c_double), ("chief_y_mm", C.c_double)]
 
 
-def _need(lib: Any, name: str) -> Any:
+def _need(lib: Any, name: str, since: str = "0.5.0") -> Any:
     """The library's function `name`, or LensrtError(UNSUPPORTED) for a library before it."""
     if not hasattr(lib, name):
-        raise LensrtError(Result.UNSUPPORTED, f"{name}: this lensrt library predates it (0.5.0)")
+        raise LensrtError(Result.UNSUPPORTED,
+                          f"{name}: this lensrt library predates it ({since})")
     return getattr(lib, name)
 
 
@@ -657,6 +677,13 @@ class Bank:
     def __exit__(self, *exc: object) -> None:
         self.close()
 
+    def load_nodes(self) -> None:
+        """Read and check every node's image now (lensrt_bank_load_nodes, 0.9.0); a
+        query reads the nodes it needs otherwise."""
+        fn = _need(self.rt.lib, "lensrt_bank_load_nodes", "0.9.0")
+        fn.argtypes = [C.c_void_p]
+        self.rt._check(fn(self.handle))
+
     def info(self) -> dict[str, Any]:
         """lensrt_bank_info as a dict: lists for the grids, the lens name as str."""
         info = BankInfo()
@@ -674,16 +701,19 @@ class Bank:
         return d
 
     def psf(self, field_x_deg: float, field_y_deg: float, wavelength_nm: float,
-            f_number: float = 0.0, focus_offset_mm: float = 0.0, distance_mm: float = 0.0
+            f_number: float = 0.0, focus_offset_mm: float = 0.0, distance_mm: float = 0.0,
+            chief_mm: tuple[float, float] | None = None
             ) -> tuple[np.ndarray, tuple[float, float]]:
         """The PSF (float32, (height, width), row 0 at +y) on the bank's pixel grid centred
-        on the interpolated chief point, and that point (mm)."""
+        on the interpolated chief point (or ``chief_mm`` when given: the lens's own,
+        lensrt_lens_image_point), and that point (mm)."""
         info = BankInfo()
         self.rt._check(self.rt.lib.lensrt_bank_get_info(self.handle, C.byref(info)))
         out = np.zeros((info.height, info.width), dtype=np.float32)
         chief = (C.c_double * 2)()
         query = BankQuery(field_x_deg, field_y_deg, wavelength_nm, f_number, focus_offset_mm,
-                          distance_mm)
+                          distance_mm, chief_mm is not None,
+                          *(chief_mm if chief_mm is not None else (0.0, 0.0)))
         self.rt._check(self.rt.lib.lensrt_bank_psf(
             self.handle, C.byref(query), out.ctypes.data_as(C.POINTER(C.c_float)),
             C.c_size_t(out.size), chief))
