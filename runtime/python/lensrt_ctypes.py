@@ -1,12 +1,25 @@
 """A thin ctypes binding of the lensrt C API, for tests, benchmarks and notebooks.
 
-    from lensrt_ctypes import Lensrt
-    rt = Lensrt()                                  # finds build/runtime/runtime/liblensrt.so
+    from lensrt_ctypes import Lensrt               # or: from lensrt import Lensrt
+    rt = Lensrt()                                  # loads LIBRARY (below)
     lens = rt.analytic(focal_length_mm=50, sensor_distance_mm=50)
     img = rt.render(lens, width=64, height=64, width_mm=0.05, f_number=8,
                     wavelengths=[550], samples=1 << 16)   # numpy (n_wl, height, width)
 
 Every failing call raises LensrtError with the library's message.
+
+Which shared library Lensrt() loads (``find_library()``, once at import as ``LIBRARY``;
+``Lensrt(library=...)`` overrides it), the first of:
+
+1. ``$LENSRT_LIBRARY``, when set (another build; an error if that file is missing);
+2. ``liblensrt.so`` inside the installed package ``lensrt`` (``<site-packages>/lensrt/``),
+   which ``pip install runtime/python`` builds into the wheel (scikit-build-core);
+3. in a source checkout (this file at ``runtime/python/``), the build tree's
+   ``build/runtime/runtime/liblensrt.so`` that ``make runtime`` builds: what the editable
+   install of ``make setup`` uses.
+
+When none exists, LIBRARY is the path that was expected (the checkout's build tree, else
+the package's) and Lensrt() raises FileNotFoundError naming every place searched.
 """
 
 from __future__ import annotations
@@ -21,10 +34,51 @@ from typing import Any
 
 import numpy as np
 
+LIBRARY_ENV = "LENSRT_LIBRARY"
+LIBRARY_NAME = "liblensrt.so"
+# The library a wheel installs: <site-packages>/lensrt/liblensrt.so (runtime/python/CMakeLists.txt)
+PACKAGE_LIBRARY = Path(__file__).resolve().parent / "lensrt" / LIBRARY_NAME
+# The repository root when this file is runtime/python/lensrt_ctypes.py of a checkout
 ROOT = Path(__file__).resolve().parents[2]
-DEFAULT_LIBRARY = ROOT / "build" / "runtime" / "runtime" / "liblensrt.so"
-# The library Lensrt() loads: $LENSRT_LIBRARY (another build), else what `make runtime` builds
-LIBRARY = Path(os.environ.get("LENSRT_LIBRARY") or DEFAULT_LIBRARY)
+IN_CHECKOUT = (ROOT / "runtime" / "python" / "pyproject.toml").is_file()
+DEFAULT_LIBRARY = ROOT / "build" / "runtime" / "runtime" / LIBRARY_NAME  # `make runtime`'s
+
+
+def library_candidates() -> list[tuple[Path, str]]:
+    """The places the library lookup tries, in order, each with the setting it came from
+    (the module docstring's rule)."""
+    env = os.environ.get(LIBRARY_ENV)
+    if env:
+        return [(Path(env), f"${LIBRARY_ENV}")]
+    places = [(PACKAGE_LIBRARY, "the installed package (pip install runtime/python)")]
+    if IN_CHECKOUT:
+        places.append((DEFAULT_LIBRARY, "the checkout's build tree (make runtime)"))
+    return places
+
+
+def find_library() -> Path:
+    """The shared library Lensrt() loads: the first existing place of
+    library_candidates(), else the place expected (the checkout's build tree in a checkout,
+    else the package's), which does not exist."""
+    places = library_candidates()
+    for path, _ in places:
+        if path.is_file():
+            return path
+    return places[-1][0]
+
+
+def library_not_found(path: Path) -> str:
+    """The message of a missing library: what was searched and how to get one."""
+    tried = [f"{p} ({how})" for p, how in library_candidates()]
+    if str(path) not in {str(p) for p, _ in library_candidates()}:
+        tried.insert(0, f"{path} (given)")
+    return ("lensrt's shared library not found; looked at " + "; ".join(tried)
+            + f". Build it (`make runtime` in a checkout, or `pip install runtime/python`), "
+            f"or set ${LIBRARY_ENV} to a liblensrt.so")
+
+
+# The library Lensrt() loads by default
+LIBRARY = find_library()
 
 SAMPLERS = {"default": 0, "random": 1, "stratified": 2, "sobol": 3}
 ESTIMATORS = {"default": 0, "paper": 1, "unbiased": 2}
@@ -304,7 +358,7 @@ class Lensrt:
                  gl_platform: str = "auto") -> None:
         path = Path(library or LIBRARY)
         if not path.exists():
-            raise FileNotFoundError(f"{path}: lensrt is not built (run `make runtime`)")
+            raise FileNotFoundError(library_not_found(path))
         lib = C.CDLL(str(path))
         self.lib = lib
         lib.lensrt_result_string.restype = C.c_char_p
