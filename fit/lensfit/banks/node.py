@@ -310,9 +310,19 @@ def write_channel_exr(rt, exr: Path, parts: list[list[Any]], wavelengths: list[f
                 header = header or h
                 estimates.append(float(np.max(h.get("lensrt/errorEstimate", -1.0))))
                 rings.append(int(h.get("lensrt/cellsRings", 0)))
-                for name, ch in f.channels().items():
-                    if name.rsplit(".", 1)[-1] not in ("R", "G", "B"):
-                        spectral[name] = np.array(ch.pixels, dtype=np.float32)
+                # The values from the renders themselves: lensrt's EXR writer has been
+                # seen to write NaN into the channel of a one-wavelength render whose image
+                # is finite (lens 0001, field (0, -3.25) deg, 670 nm; see the issue 37 note)
+                direct = renders[0].image()[0]
+                flare = (np.sum([x.image()[0].astype(np.float64) for x in renders[1:]], axis=0)
+                         if layered else None)
+                for name in f.channels():
+                    if name.rsplit(".", 1)[-1] in ("R", "G", "B"):
+                        continue
+                    layer = (_split_layer(name) or ("", name))[0]
+                    plane = {"": direct if flare is None else direct + flare,  # in doubles
+                             "direct": direct, "flare": flare}[layer]
+                    spectral[name] = np.ascontiguousarray(plane, dtype=np.float32)
         # R, G, B of each layer ('' the unprefixed sum) from its spectral channels
         channels: dict[str, np.ndarray] = dict(spectral)
         by_layer: dict[str, list[tuple[float, np.ndarray]]] = {}
