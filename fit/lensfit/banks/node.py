@@ -310,9 +310,8 @@ def write_channel_exr(rt, exr: Path, parts: list[list[Any]], wavelengths: list[f
                 header = header or h
                 estimates.append(float(np.max(h.get("lensrt/errorEstimate", -1.0))))
                 rings.append(int(h.get("lensrt/cellsRings", 0)))
-                # The values from the renders themselves: lensrt's EXR writer has been
-                # seen to write NaN into the channel of a one-wavelength render whose image
-                # is finite (lens 0001, field (0, -3.25) deg, 670 nm; see the issue 37 note)
+                # The values straight from the renders (the EXR gives the names and the
+                # header): nothing of a render is decoded back
                 direct = renders[0].image()[0]
                 flare = (np.sum([x.image()[0].astype(np.float64) for x in renders[1:]], axis=0)
                          if layered else None)
