@@ -132,7 +132,8 @@ def test_library_rule(clean_env: pytest.MonkeyPatch, tmp_path: Path) -> None:
     places = [p for p, _ in lensrt_ctypes.library_candidates()]
     assert places == [lensrt_ctypes.PACKAGE_LIBRARY, lensrt_ctypes.DEFAULT_LIBRARY]
     assert lensrt_ctypes.PACKAGE_LIBRARY.parent.name == "lensrt"
-    assert lensrt_ctypes.DEFAULT_LIBRARY == ROOT / "build/runtime/runtime/liblensrt.so"
+    checkout = Path(lensrt_ctypes.__file__).resolve().parents[2]  # runtime/python/..
+    assert lensrt_ctypes.DEFAULT_LIBRARY == checkout / "build/runtime/runtime/liblensrt.so"
     installed = tmp_path / "lensrt" / "liblensrt.so"
     installed.parent.mkdir()
     installed.write_bytes(b"")
