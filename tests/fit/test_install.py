@@ -205,6 +205,10 @@ print(info["lens_name"], info["n_nodes"], float(psf.sum()))
 """
 
 
+# About a minute (a venv and pip install of both packages from pip's cache): with the
+# slow tests of `make bench`, so that `make test` keeps within its time (the lookup rules
+# above are checked in `make test`)
+@pytest.mark.slow
 def test_install_outside_checkout(tmp_path: Path) -> None:
     venv = tmp_path / "venv"
     work = tmp_path / "work"  # the current directory: no lensdb/, generated/ or repo
