@@ -16,7 +16,10 @@ the bank's first, middle and last wavelength:
 Each direct render is integrated to the spec's target (its own error is part of both
 figures). Linear blending has an error of second order in the grid spacing: halving the
 spacing divides the between-node error by about four, down to the nodes' own error; the
-check says how many field points per axis would reach the spec's target.
+check says how many field points per axis would bring the blend (on the lens's chief
+point) to the spec's target, and when the interpolated chief point is off by more than a
+tenth of a pixel (a cubic needs 4 points on an axis: with 3, 4 px at the cell centres of
+banks/demo.toml's y axis).
 """
 
 from __future__ import annotations
@@ -101,10 +104,12 @@ def check_bank(spec: BankSpec, index: Path, library: str, table: Path,
     worst = {k: max((r[k] for r in rows), default=0.0)
              for k in ("bank", "bank_lens_chief", "nearest", "chief_px")}
     n_axis = max(len(g.field_x_deg), len(g.field_y_deg))
-    # Second order in the spacing: n points per axis -> about n sqrt(worst / target)
+    # Second order in the spacing: the blend's own error (on the lens's chief point) with
+    # n points per axis -> about n sqrt(worst / target) points for the target
     target = spec.render.target_error
-    advice = (math.ceil((n_axis - 1) * math.sqrt(worst["bank"] / target)) + 1
-              if worst["bank"] > target and n_axis > 1 else n_axis)
+    shape = worst["bank_lens_chief"]
+    advice = (math.ceil((n_axis - 1) * math.sqrt(shape / target)) + 1
+              if shape > target and n_axis > 1 else n_axis)
     return {"points": rows, "worst_bank": worst["bank"],
             "worst_bank_lens_chief": worst["bank_lens_chief"], "worst_nearest": worst["nearest"],
             "worst_chief_px": worst["chief_px"],
@@ -133,7 +138,10 @@ def check_line(result: dict[str, Any]) -> str:
     if result["worse_than_nearest"]:
         line += (f"; worse than the nearest node at {result['worse_than_nearest']} of {n} "
                  "points")
-    if result["worst_bank"] > result["target"]:
+    if result["worst_bank_lens_chief"] > result["target"]:
         line += (f"; about {result['field_points_for_target']} field points per axis would "
                  f"reach the target {result['target']:.2%}")
+    if result["worst_chief_px"] > 0.1:
+        line += ("; the interpolated chief point is more than 0.1 px off: pass the lens's "
+                 "(chief_mm) or give the field axes 4 points or more")
     return line
