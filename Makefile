@@ -57,8 +57,12 @@ $(STAMP): fit/requirements.lock fit/pyproject.toml runtime/python/pyproject.toml
 	@# of opticalglass; --no-deps because its declared deps pull in PySide6 (a GUI of
 	@# hundreds of MB) and pandas, which lensfit does not use: xlrd and openpyxl are locked
 	$(PY) -m pip install --quiet --disable-pip-version-check --no-deps opticalglass==1.1.1
-	@# lensrt's Python binding, an installable package (Dask workers pip install it too)
-	$(PY) -m pip install --quiet --disable-pip-version-check --no-deps -e runtime/python
+	@# lensrt's Python binding, an installable package (Dask workers pip install it too).
+	@# Editable: scikit-build-core (pinned above) builds nothing here, and the binding loads
+	@# `make runtime`'s build/runtime/runtime/liblensrt.so; `pip install runtime/python`
+	@# (no -e) builds a wheel with the library inside (README, Install)
+	$(PY) -m pip install --quiet --disable-pip-version-check --no-deps --no-build-isolation \
+		-e runtime/python
 	$(PY) -m pip install --quiet --disable-pip-version-check --no-deps -e fit
 	touch $@
 

@@ -15,6 +15,10 @@
     lensfit scene LENS SCENE.toml        specialise generated/<lens>/ for one scene
 
 LENS is a lensdb id (``0001``), a file stem in lensdb, or a path to a TOML file.
+Where lensdb and generated/ are (lensfit.data_folder): ``--generated DIR`` on the commands
+that read or write generated folders (fit, regenerate, scene, ghosts, bank), else
+$LENSFIT_GENERATED / $LENSFIT_LENSDB, else the checkout's folders when lensfit runs from
+one, else ``generated/`` and ``lensdb/`` in the current directory.
 Errors go to stderr as one line naming file, surface and key; the exit code is 2.
 ``lensfit fit`` and ``lensfit report`` exit 3 (EXIT_MISS) when the fit's PSF against
 exactly traced rays misses its target: the table and report are written and flagged all
@@ -285,18 +289,38 @@ def _direct_fit(lens, args: argparse.Namespace, lens_arg: str):
     from lensfit.generate import lens_folder_name, read_fit_json
     from lensfit.sample.domain import Domain
 
-    folder = Path(args.generated) / lens_folder_name(lens)
+    gen = _generated(args)
+    folder = gen / lens_folder_name(lens)
     fit_file = folder / "fit.json"
     if not fit_file.is_file():
         raise InputError(f"{fit_file}: not found: the ghosts are fitted over the direct "
                          f"fit's domain; run `lensfit fit {lens_arg} --generated "
-                         f"{args.generated}` first")
+                         f"{gen}` first")
     direct, meta = read_fit_json(fit_file)
     try:
         domain = Domain.from_dict(meta["domain"])
     except (KeyError, TypeError, ValueError) as e:
         raise InputError(f"{fit_file}: key 'domain': {e}") from None
     return folder, direct, domain
+
+
+def _generated(args: argparse.Namespace, must_exist: bool = False) -> Path:
+    """The generated folder of a command: --generated, else $LENSFIT_GENERATED, else the
+    checkout's, else the current directory's (lensfit.data_folder); with ``must_exist``
+    an InputError naming the folder and the settings when it is missing."""
+    from lensfit import data_folder, require_data_folder
+
+    if must_exist:
+        return require_data_folder("generated", args.generated)
+    return data_folder("generated", args.generated)
+
+
+def _generated_arg(p: argparse.ArgumentParser, what: str) -> None:
+    """--generated DIR: the generated folder the command reads (or writes)."""
+    p.add_argument("--generated", default=None, metavar="DIR",
+                   help=f"the generated folder {what} (default: $LENSFIT_GENERATED, else "
+                        "the checkout's generated/ when lensfit runs from one, else "
+                        "./generated)")
 
 
 def _check_dask_args(args: argparse.Namespace) -> None:
@@ -336,7 +360,7 @@ def cmd_ghosts(args: argparse.Namespace) -> int:
     if args.all:
         if not args.fit:
             raise InputError("--all: fits the ghosts of every fitted lens, so it needs --fit")
-        lens_args += _fitted_lenses(Path(args.generated))
+        lens_args += _fitted_lenses(_generated(args, must_exist=True))
     if not lens_args:
         raise InputError("no lens: name one or more, or --all with --fit")
     plans = [_ghost_plan(lens_arg, args) for lens_arg in dict.fromkeys(lens_args)]
@@ -770,7 +794,7 @@ def _resumable(args: argparse.Namespace) -> dict:
 
 def cmd_fit(args: argparse.Namespace) -> int:
     from lensfit import stage
-    from lensfit.generate import GENERATED_DIR, lens_folder_name
+    from lensfit.generate import lens_folder_name
     from lensfit.prescription import load_lens
 
     # Outputs first: a bad folder must not surface after the whole fit
@@ -779,7 +803,7 @@ def cmd_fit(args: argparse.Namespace) -> int:
     if args.report:
         _check_folder(args.report, "--report")
     lens = _glass_policy(_coated(load_lens(args.lens), args), args)
-    gen = Path(args.generated) if args.generated else GENERATED_DIR
+    gen = _generated(args)
     if args.scene:
         from lensfit.scene import load_scene, scene_domain, scene_wavelengths
 
@@ -849,7 +873,6 @@ def cmd_scene(args: argparse.Namespace) -> int:
     from lensfit import scene as sc
     from lensfit.codegen import emit_c
     from lensfit.generate import (
-        GENERATED_DIR,
         lens_folder_name,
         lens_prefix,
         read_fit_json,
@@ -861,7 +884,7 @@ def cmd_scene(args: argparse.Namespace) -> int:
     if args.out:
         _check_folder(args.out, "-o")
     lens = load_lens(args.lens)
-    gen = (Path(args.generated) if args.generated else GENERATED_DIR) / lens_folder_name(lens)
+    gen = _generated(args, must_exist=True) / lens_folder_name(lens)
     fit_file = gen / "fit.json"
     if not fit_file.exists():
         raise InputError(f"{fit_file}: no fit for {lens.name}; run `lensfit fit {args.lens}`")
@@ -920,10 +943,10 @@ def cmd_scene(args: argparse.Namespace) -> int:
 
 
 def cmd_regenerate(args: argparse.Namespace) -> int:
-    from lensfit.generate import GENERATED_DIR, lens_folder_name, regenerate
+    from lensfit.generate import lens_folder_name, regenerate
     from lensfit.prescription import load_lens
 
-    gen = Path(args.generated) if args.generated else GENERATED_DIR
+    gen = _generated(args, must_exist=True)
     # A generated folder's whole name (e.g. a coating variant's), else a lens id or file
     if "/" not in args.lens and (gen / args.lens / "fit.json").is_file():
         folder = gen / args.lens
@@ -937,14 +960,25 @@ def cmd_regenerate(args: argparse.Namespace) -> int:
 def cmd_bank(args: argparse.Namespace) -> int:
     from lensfit.banks.engine import TaskError
     from lensfit.banks.run import run_bank
+    from lensfit.banks.spec import SpecError
 
     _check_dask_args(args)
     out = Path(args.out) if args.out else Path("build") / "banks" / Path(args.spec).stem
+    gen = _generated(args)
     try:
         summary = run_bank(args.spec, out, scheduler=args.scheduler, workers=args.workers,
                            restart=args.restart, progress=not args.no_progress,
-                           sheet=not args.no_sheet, verbose=args.verbose,
+                           sheet=not args.no_sheet, generated=gen,
+                           check=not args.no_check, verbose=args.verbose,
                            say=lambda line: print(line, file=sys.stderr, flush=True))
+    except SpecError as e:
+        # A lens id looked up in a generated folder that is not there: say which folder
+        # the rule chose and how to choose another
+        if "key 'lens'" not in str(e) or gen.is_dir():
+            raise
+        from lensfit import missing_data_folder
+
+        raise InputError(f"{e}; {missing_data_folder('generated', args.generated)}") from None
     except TaskError as e:
         print(f"lensfit: error: {e}; rerun the same command to resume", file=sys.stderr)
         return 1
@@ -1014,8 +1048,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--add", action="store_true",
                    help="with --fit: keep the ghosts fitted before (replacing those fitted "
                         "again) instead of writing exactly the kept ones")
-    p.add_argument("--generated", default="generated", help="where the lens folders are "
-                   "(with --fit; default generated)")
+    _generated_arg(p, "of the lens folders (with --fit)")
     p.add_argument("--all", action="store_true",
                    help="with --fit: also every lens of lensdb with a direct fit in "
                         "--generated")
@@ -1105,7 +1138,7 @@ def build_parser() -> argparse.ArgumentParser:
                             "file's glass_extrapolation = \"allow\"); the report lists each")
         _coating_arg(p)
         if name == "fit":
-            p.add_argument("--generated", default=None, help="folder for generated code")
+            _generated_arg(p, "to write the lens folder to")
             p.add_argument("--report", default=None, help="folder for the report")
             p.add_argument("--glsl", action="store_true",
                            help="also write the GLSL source (megabytes for a full fit; "
@@ -1125,7 +1158,7 @@ def build_parser() -> argparse.ArgumentParser:
                        help="rewrite generated/<lens>/ from its fit.json, without fitting")
     p.add_argument("lens", help="lens id or file, or a generated folder's name "
                    "(e.g. 0001-angenieux-double-gauss-uncoated)")
-    p.add_argument("--generated", default=None, help="folder of generated code")
+    _generated_arg(p, "of the lens folder")
     p.set_defaults(func=cmd_regenerate)
 
     p = sub.add_parser("bank", help="render a bank of PSFs (field points x focus x stops x "
@@ -1145,12 +1178,16 @@ def build_parser() -> argparse.ArgumentParser:
                    help="show the Dask cluster's logs (INFO; default: errors only)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.add_argument("--no-sheet", action="store_true", help="no contact-sheet PNG")
+    p.add_argument("--no-check", action="store_true",
+                   help="do not measure the reader between nodes against direct renders "
+                        "(check.json; a few seconds)")
+    _generated_arg(p, "where the spec's lens id is looked up")
     p.set_defaults(func=cmd_bank)
 
     p = sub.add_parser("scene", help="specialise a fitted lens for one scene")
     p.add_argument("lens")
     p.add_argument("scene", help="scene TOML file (see lensfit.scene)")
-    p.add_argument("--generated", default=None, help="folder of generated code (to read)")
+    _generated_arg(p, "of the fitted lens (to read)")
     p.add_argument("-o", "--out", default=None,
                    help="folder to write (default: generated/<lens>/scenes/<name>)")
     p.add_argument("--json", action="store_true", help="print the comparison as JSON")

@@ -23,11 +23,13 @@ folded systems to ``scenes/<name>/``; its table carries the same lens lines.
 
 from __future__ import annotations
 
+import os
 import re
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
+from lensfit import data_folder
 from lensfit.atomic import write_files
 from lensfit.codegen import emit_c, emit_glsl, write_table
 from lensfit.codegen.c_horner import file_stem
@@ -45,7 +47,19 @@ from lensfit.facts import LensFacts, lens_facts
 from lensfit.poly import System
 from lensfit.prescription.model import Lens
 
-GENERATED_DIR = Path(__file__).resolve().parents[2] / "generated"
+
+def generated_dir(given: str | os.PathLike[str] | None = None) -> Path:
+    """The generated folder: ``given`` (a command's --generated), else $LENSFIT_GENERATED,
+    else the checkout's generated/, else the current directory's (lensfit.data_folder)."""
+    return data_folder("generated", given)
+
+
+def __getattr__(name: str) -> Path:
+    # GENERATED_DIR, the generated folder by lensfit.data_folder's rule, looked up at each
+    # use (it follows $LENSFIT_GENERATED and, outside a checkout, the current directory)
+    if name == "GENERATED_DIR":
+        return generated_dir()
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
 def lens_id(lens: Lens) -> str:

@@ -52,7 +52,7 @@ extern "C" {
  * when a program built against one header runs with a newer shared library, which the
  * versioned structs below allow within one major version. */
 #define LENSRT_VERSION_MAJOR 0
-#define LENSRT_VERSION_MINOR 8
+#define LENSRT_VERSION_MINOR 9
 #define LENSRT_VERSION_PATCH 0
 #define LENSRT_VERSION \
     ((uint32_t)LENSRT_VERSION_MAJOR * 1000000u + (uint32_t)LENSRT_VERSION_MINOR * 1000u + \
@@ -740,6 +740,12 @@ LENSRT_API lensrt_result lensrt_render_image(lensrt_render render, float *out, s
 /* Linear sRGB (D65 white) from the spectral image through the CIE 1931 2-degree
  * observer: out[(y * width + x) * 3 + c], count = 3 * width * height. */
 LENSRT_API lensrt_result lensrt_render_rgb(lensrt_render render, float *out, size_t count);
+/* The same colour conversion for a spectral image the caller holds (since 0.9.0; a PSF
+ * bank's node whose channels are renders of their own): spectral[w * n_pixels + p] at
+ * n_wavelengths strictly increasing wavelengths (each weighted by the span to the
+ * midpoints between its neighbours, as lensrt_render_rgb does), rgb[p * 3 + c]. */
+LENSRT_API lensrt_result lensrt_spectrum_rgb(lensrt_context ctx, int n_wavelengths, const double *wavelengths_nm,
+                                             const float *spectral, size_t n_pixels, float *rgb);
 
 /* Phasor sums: save, load (replace), merge (add; the scene must match and the sample
  * ranges must not overlap). Files are written atomically. */
@@ -836,7 +842,7 @@ LENSRT_API lensrt_result lensrt_layers_write_exr_with(const lensrt_exr_layer *la
  *   width <pixels>
  *   height <pixels>
  *   pixel_mm <pitch x> <pitch y>                     > 0
- *   registration chief|window                        optional (chief): below
+ *   registration chief|window|channel                optional (chief): below
  *   wavelengths_nm <n> <l_1> ... <l_n>               strictly increasing, > 0
  *   f_numbers <n> <v_1> ... <v_n>                    distinct, > 0
  *   focus_offsets_mm <n> <v_1> ... <v_n>             distinct
@@ -855,10 +861,18 @@ LENSRT_API lensrt_result lensrt_layers_write_exr_with(const lensrt_exr_layer *la
  * width x height pixels of the bank's pitch centred on (center_x_mm, center_y_mm), as a
  * render's window (lensrt_sensor) is: row 0 at the top (+y), pixel (i, j)'s centre at
  * (center_x + (i + 0.5 - width / 2) pitch_x, center_y + (height / 2 - j - 0.5) pitch_y).
- * With `registration chief` (or no registration line) each node's window is placed on
- * its chief point (which must lie inside it), and lensrt_bank_psf registers each channel
- * on its chief point; with `registration window` the nodes share one window (flare
- * banks: a light's ghosts far from its image) and are blended in place, pixel for pixel.
+ * With `registration channel` (since 0.9.0; what lensfit writes for a bank of PSFs) each
+ * channel of a node is a window of its own centred on that wavelength's chief point, so
+ * that no channel is ever resampled: node_center is informative only, and the EXR must
+ * name its node in the string attribute "lensrt/bankNode", "<i_f> <i_z> <i_d> <i_y> <i_x>
+ * <f_number> <focus_offset_mm> <distance_mm> <field_x_deg> <field_y_deg>" (the index's
+ * values, read back exactly; an EXR of another node is refused). With `registration
+ * chief` (or no registration line) each node's window is placed on its chief point
+ * (which must lie inside it), and lensrt_bank_psf registers each channel on its chief
+ * point by a bilinear shift (which blurs: a shift of 2-9 pixels cost 6-25% at the outer
+ * wavelengths of a bank of lens 0009); with `registration window` the nodes share one
+ * window (flare banks: a light's ghosts far from its image) and are blended in place,
+ * pixel for pixel.
  * A node EXR may also hold layers ("<layer>.S0.<lambda>nm", lensrt_layers_write_exr):
  * they are ignored, the unprefixed channels being their sum.
  * error_estimate is the node's relative L2 error estimate (>= 0; -1: none). Paths use
@@ -867,15 +881,20 @@ LENSRT_API lensrt_result lensrt_layers_write_exr_with(const lensrt_exr_layer *la
  *
  * lensrt_bank_open checks everything it reads as the table reader does: the checksum
  * line first, then every line (keys in order, counts, finite numbers, ranges, node
- * indices, duplicates, paths); then each node's EXR, whose bytes must have the CRC-32 the
- * index gives, and whose image must be width x height FLOAT pixels (one scanline part,
- * data window from 0, 0) with exactly the index's spectral channels (plus R, G, B),
- * every value finite and >= 0. Any failure is LENSRT_ERROR_PARSE (or _IO for a file
- * that cannot be read; _UNSUPPORTED in a build without OpenEXR) with a message naming
- * the file (the index or the EXR), the line or the node, the key and the value. The
- * node images are kept in memory (through the context's allocator) until the bank is
- * closed. A bank is used from one thread at a time (its messages go to its context);
- * close it before destroying that context. */
+ * indices, duplicates, paths), and that each node's EXR is a regular file. A node's EXR
+ * is read when a query first needs it (since 0.9.0; lensrt_bank_load_nodes reads them
+ * all now), so opening a bank of LENSRT_MAX_BANK_NODES nodes takes memory for its index
+ * only: its bytes must have the CRC-32 the index gives, and its image must be width x
+ * height FLOAT pixels (one scanline part, data window from 0, 0) with exactly the index's
+ * spectral channels (plus R, G, B), every value finite and >= 0. Any failure is
+ * LENSRT_ERROR_PARSE (or _IO for a file that cannot be read; _UNSUPPORTED in a build
+ * without OpenEXR) with a message naming the file (the index or the EXR), the line or
+ * the node, the key and the value, from lensrt_bank_open, lensrt_bank_load_nodes or the
+ * query that needed the node (a node that failed is read again by the next query that
+ * needs it). Node images once read are kept in memory (through the context's allocator)
+ * until the bank is closed: width x height x wavelengths x 4 bytes each. A bank is used
+ * from one thread at a time (its messages go to its context); close it before
+ * destroying that context. */
 #define LENSRT_MAX_BANK_NODES 65536
 
 typedef struct lensrt_bank_s *lensrt_bank;
@@ -912,11 +931,21 @@ typedef struct lensrt_bank_query {
     double f_number;             /* one of the bank's f-numbers; 0: the first */
     double focus_offset_mm;      /* one of the bank's (exact) */
     double distance_mm;          /* one of the bank's (exact; 0: infinity) */
+    /* Since 0.9.0: the chief point the caller knows (lensrt_lens_image_point of the bank's
+     * lens at this field point, wavelength, focus and distance), used instead of the
+     * interpolated one when chief_given is 1. With 3 field points per axis the
+     * interpolated one can be pixels off (4 px at the cell centres of banks/demo.toml's
+     * y axis: 0.36% of distortion at its edge); with 5, 0.03 px. */
+    int32_t chief_given;
+    double chief_x_mm, chief_y_mm;
 } lensrt_bank_query;
-#define LENSRT_BANK_QUERY_INIT {sizeof(lensrt_bank_query), 0, 0, 0, 0, 0, 0}
+#define LENSRT_BANK_QUERY_INIT {sizeof(lensrt_bank_query), 0, 0, 0, 0, 0, 0, 0, 0, 0}
 
 /* Open the bank whose index is index_path (node paths are relative to its folder). */
 LENSRT_API lensrt_result lensrt_bank_open(lensrt_context ctx, const char *index_path, lensrt_bank *out);
+/* Read, check and keep every node's image now (what a query does for the nodes it
+ * needs): the first failure, naming its node. */
+LENSRT_API lensrt_result lensrt_bank_load_nodes(lensrt_bank bank);
 /* Free the bank (NULL: nothing). */
 LENSRT_API void lensrt_bank_close(lensrt_bank bank);
 LENSRT_API lensrt_result lensrt_bank_get_info(lensrt_bank bank, lensrt_bank_info *out);
@@ -928,16 +957,19 @@ LENSRT_API lensrt_result lensrt_bank_get_info(lensrt_bank bank, lensrt_bank_info
  * The f-number, focus offset and distance pick a slice of the bank by exact match (f_number
  * 0: the first); a value the bank does not hold is LENSRT_ERROR_OUT_OF_DOMAIN with a
  * message listing the bank's values. In the slice, the field point's cell gives bilinear
- * weights over the up to 4 nodes around it (along an axis with one value the query must
- * equal it); each node's image at the wavelength is the linear blend of its two bracketing
- * channels, each channel registered on its own chief point: output pixel (i, j), at
- * offset o = ((i + 0.5 - width / 2) pitch_x, (height / 2 - j - 0.5) pitch_y) from the
- * output's centre, takes channel c at the point chief_c + o, by bilinear interpolation
- * between the node's pixel centres (zero outside the node image). The nodes' images are
- * blended with the field weights, and the output's centre (chief_mm) is the same
- * weights applied to the nodes' chief points (linear in wavelength, bilinear in field).
- * At a node and one of its wavelengths whose chief point is the node's centre, the output
- * is that channel of the node's EXR bit for bit. A bank of `registration window` blends
+ * weights over the up to 4 nodes around it, bilinear in (tan field_x, tan field_y) (along
+ * an axis with one value the query must equal it); each node's image at the wavelength
+ * is the linear blend of its two bracketing channels, each channel registered on its own
+ * chief point: output pixel (i, j), at offset o = ((i + 0.5 - width / 2) pitch_x,
+ * (height / 2 - j - 0.5) pitch_y) from the output's centre, takes channel c at the point
+ * chief_c + o of the channel's window, by bilinear interpolation between its pixel
+ * centres (zero outside it; with `registration channel` that is the channel's pixel
+ * (i, j) itself). The output's centre (chief_mm) is the chief points interpolated by the
+ * Lagrange polynomial in (tan field_x, tan field_y) through up to 4 x 4 nodes around the
+ * cell (a cubic in each; linear in wavelength), exact for a lens without distortion up
+ * to a cubic in its distortion. At a node and one of its wavelengths the output is that
+ * channel of the node's EXR bit for bit (with `registration chief`, at the wavelength
+ * whose chief point is the node's centre). A bank of `registration window` blends
  * its nodes' images in place (no shift; the output is the shared window, chief_mm still
  * the blended chief point). A field angle or wavelength outside the
  * bank's range: LENSRT_ERROR_OUT_OF_DOMAIN naming the value and the range; one that is

@@ -1,12 +1,25 @@
 """A thin ctypes binding of the lensrt C API, for tests, benchmarks and notebooks.
 
-    from lensrt_ctypes import Lensrt
-    rt = Lensrt()                                  # finds build/runtime/runtime/liblensrt.so
+    from lensrt_ctypes import Lensrt               # or: from lensrt import Lensrt
+    rt = Lensrt()                                  # loads LIBRARY (below)
     lens = rt.analytic(focal_length_mm=50, sensor_distance_mm=50)
     img = rt.render(lens, width=64, height=64, width_mm=0.05, f_number=8,
                     wavelengths=[550], samples=1 << 16)   # numpy (n_wl, height, width)
 
 Every failing call raises LensrtError with the library's message.
+
+Which shared library Lensrt() loads (``find_library()``, once at import as ``LIBRARY``;
+``Lensrt(library=...)`` overrides it), the first of:
+
+1. ``$LENSRT_LIBRARY``, when set (another build; an error if that file is missing);
+2. ``liblensrt.so`` inside the installed package ``lensrt`` (``<site-packages>/lensrt/``),
+   which ``pip install runtime/python`` builds into the wheel (scikit-build-core);
+3. in a source checkout (this file at ``runtime/python/``), the build tree's
+   ``build/runtime/runtime/liblensrt.so`` that ``make runtime`` builds: what the editable
+   install of ``make setup`` uses.
+
+When none exists, LIBRARY is the path that was expected (the checkout's build tree, else
+the package's) and Lensrt() raises FileNotFoundError naming every place searched.
 """
 
 from __future__ import annotations
@@ -21,10 +34,51 @@ from typing import Any
 
 import numpy as np
 
+LIBRARY_ENV = "LENSRT_LIBRARY"
+LIBRARY_NAME = "liblensrt.so"
+# The library a wheel installs: <site-packages>/lensrt/liblensrt.so (runtime/python/CMakeLists.txt)
+PACKAGE_LIBRARY = Path(__file__).resolve().parent / "lensrt" / LIBRARY_NAME
+# The repository root when this file is runtime/python/lensrt_ctypes.py of a checkout
 ROOT = Path(__file__).resolve().parents[2]
-DEFAULT_LIBRARY = ROOT / "build" / "runtime" / "runtime" / "liblensrt.so"
-# The library Lensrt() loads: $LENSRT_LIBRARY (another build), else what `make runtime` builds
-LIBRARY = Path(os.environ.get("LENSRT_LIBRARY") or DEFAULT_LIBRARY)
+IN_CHECKOUT = (ROOT / "runtime" / "python" / "pyproject.toml").is_file()
+DEFAULT_LIBRARY = ROOT / "build" / "runtime" / "runtime" / LIBRARY_NAME  # `make runtime`'s
+
+
+def library_candidates() -> list[tuple[Path, str]]:
+    """The places the library lookup tries, in order, each with the setting it came from
+    (the module docstring's rule)."""
+    env = os.environ.get(LIBRARY_ENV)
+    if env:
+        return [(Path(env), f"${LIBRARY_ENV}")]
+    places = [(PACKAGE_LIBRARY, "the installed package (pip install runtime/python)")]
+    if IN_CHECKOUT:
+        places.append((DEFAULT_LIBRARY, "the checkout's build tree (make runtime)"))
+    return places
+
+
+def find_library() -> Path:
+    """The shared library Lensrt() loads: the first existing place of
+    library_candidates(), else the place expected (the checkout's build tree in a checkout,
+    else the package's), which does not exist."""
+    places = library_candidates()
+    for path, _ in places:
+        if path.is_file():
+            return path
+    return places[-1][0]
+
+
+def library_not_found(path: Path) -> str:
+    """The message of a missing library: what was searched and how to get one."""
+    tried = [f"{p} ({how})" for p, how in library_candidates()]
+    if str(path) not in {str(p) for p, _ in library_candidates()}:
+        tried.insert(0, f"{path} (given)")
+    return ("lensrt's shared library not found; looked at " + "; ".join(tried)
+            + f". Build it (`make runtime` in a checkout, or `pip install runtime/python`), "
+            f"or set ${LIBRARY_ENV} to a liblensrt.so")
+
+
+# The library Lensrt() loads by default
+LIBRARY = find_library()
 
 SAMPLERS = {"default": 0, "random": 1, "stratified": 2, "sobol": 3}
 ESTIMATORS = {"default": 0, "paper": 1, "unbiased": 2}
@@ -304,7 +358,7 @@ class Lensrt:
                  gl_platform: str = "auto") -> None:
         path = Path(library or LIBRARY)
         if not path.exists():
-            raise FileNotFoundError(f"{path}: lensrt is not built (run `make runtime`)")
+            raise FileNotFoundError(library_not_found(path))
         lib = C.CDLL(str(path))
         self.lib = lib
         lib.lensrt_result_string.restype = C.c_char_p
@@ -503,6 +557,24 @@ class Lensrt:
             arr[k] = ExrLayer(name.encode(), C.cast(handles, C.c_void_p), len(renders))
         self._check(fn(arr, len(layers), os.fsencode(path), *extra))
 
+    def spectrum_rgb(self, wavelengths_nm: Sequence[float], spectral: np.ndarray) -> np.ndarray:
+        """Linear sRGB (height, width, 3) of a spectral image (n_wavelengths, height,
+        width), as lensrt_render_rgb converts a render's (lensrt_spectrum_rgb, 0.9.0)."""
+        fn = _need(self.lib, "lensrt_spectrum_rgb", "0.9.0")
+        fn.argtypes = [C.c_void_p, C.c_int, C.POINTER(C.c_double), C.POINTER(C.c_float),
+                       C.c_size_t, C.POINTER(C.c_float)]
+        planes = np.ascontiguousarray(spectral, dtype=np.float32)
+        if planes.ndim != 3 or planes.shape[0] != len(wavelengths_nm):
+            raise ValueError(f"spectrum_rgb: expected ({len(wavelengths_nm)}, height, width) "
+                             f"values, got {planes.shape}")
+        lam = np.ascontiguousarray(wavelengths_nm, dtype=np.float64)
+        out = np.zeros(planes.shape[1:] + (3,), dtype=np.float32)
+        self._check(fn(self.ctx, len(lam), lam.ctypes.data_as(C.POINTER(C.c_double)),
+                       planes.ctypes.data_as(C.POINTER(C.c_float)),
+                       C.c_size_t(planes.shape[1] * planes.shape[2]),
+                       out.ctypes.data_as(C.POINTER(C.c_float))))
+        return out
+
     # ------------------------------------------------- per-ray evaluation -----
 
     def _eval_functions(self) -> None:
@@ -605,13 +677,15 @@ class BankQuery(Versioned):
     _fields_ = [("struct_size", C.c_size_t), ("field_x_deg", C.c_double),
                 ("field_y_deg", C.c_double), ("wavelength_nm", C.c_double),
                 ("f_number", C.c_double), ("focus_offset_mm", C.c_double),
-                ("distance_mm", C.c_double)]
+                ("distance_mm", C.c_double), ("chief_given", C.c_int32),
+                ("chief_x_mm", C.c_double), ("chief_y_mm", C.c_double)]
 
 
-def _need(lib: Any, name: str) -> Any:
+def _need(lib: Any, name: str, since: str = "0.5.0") -> Any:
     """The library's function `name`, or LensrtError(UNSUPPORTED) for a library before it."""
     if not hasattr(lib, name):
-        raise LensrtError(Result.UNSUPPORTED, f"{name}: this lensrt library predates it (0.5.0)")
+        raise LensrtError(Result.UNSUPPORTED,
+                          f"{name}: this lensrt library predates it ({since})")
     return getattr(lib, name)
 
 
@@ -657,6 +731,13 @@ class Bank:
     def __exit__(self, *exc: object) -> None:
         self.close()
 
+    def load_nodes(self) -> None:
+        """Read and check every node's image now (lensrt_bank_load_nodes, 0.9.0); a
+        query reads the nodes it needs otherwise."""
+        fn = _need(self.rt.lib, "lensrt_bank_load_nodes", "0.9.0")
+        fn.argtypes = [C.c_void_p]
+        self.rt._check(fn(self.handle))
+
     def info(self) -> dict[str, Any]:
         """lensrt_bank_info as a dict: lists for the grids, the lens name as str."""
         info = BankInfo()
@@ -674,16 +755,19 @@ class Bank:
         return d
 
     def psf(self, field_x_deg: float, field_y_deg: float, wavelength_nm: float,
-            f_number: float = 0.0, focus_offset_mm: float = 0.0, distance_mm: float = 0.0
+            f_number: float = 0.0, focus_offset_mm: float = 0.0, distance_mm: float = 0.0,
+            chief_mm: tuple[float, float] | None = None
             ) -> tuple[np.ndarray, tuple[float, float]]:
         """The PSF (float32, (height, width), row 0 at +y) on the bank's pixel grid centred
-        on the interpolated chief point, and that point (mm)."""
+        on the interpolated chief point (or ``chief_mm`` when given: the lens's own,
+        lensrt_lens_image_point), and that point (mm)."""
         info = BankInfo()
         self.rt._check(self.rt.lib.lensrt_bank_get_info(self.handle, C.byref(info)))
         out = np.zeros((info.height, info.width), dtype=np.float32)
         chief = (C.c_double * 2)()
         query = BankQuery(field_x_deg, field_y_deg, wavelength_nm, f_number, focus_offset_mm,
-                          distance_mm)
+                          distance_mm, chief_mm is not None,
+                          *(chief_mm if chief_mm is not None else (0.0, 0.0)))
         self.rt._check(self.rt.lib.lensrt_bank_psf(
             self.handle, C.byref(query), out.ctypes.data_as(C.POINTER(C.c_float)),
             C.c_size_t(out.size), chief))

@@ -6,8 +6,9 @@
  * and opened twice: as given (the checksum line and what comes before it), and stamped,
  * its last line replaced by the checksum of the rest as a bank writer would write it, so
  * that mutations reach the index parser and the node checks rather than stopping at the
- * checksum. The fuzz build has no OpenEXR: a bank whose index passes and whose node files
- * match their CRCs ends in LENSRT_ERROR_UNSUPPORTED, after every check of the index. */
+ * checksum. The fuzz build has no OpenEXR: a bank whose index passes opens (its nodes are
+ * read on first use), and a query and lensrt_bank_load_nodes then end, for node files that
+ * match their CRCs, in LENSRT_ERROR_UNSUPPORTED. */
 #include <stddef.h>
 #include <stdint.h>
 #include <stdio.h>
@@ -56,7 +57,23 @@ static void open_index(lensrt_context ctx, const char *path, const void *text, s
     fclose(f);
     if (lensrt_bank_open(ctx, path, &bank) == LENSRT_SUCCESS) {
         lensrt_bank_info info = LENSRT_BANK_INFO_INIT;
+        lensrt_bank_query q = LENSRT_BANK_QUERY_INIT;
+        float *psf;
         if (lensrt_bank_get_info(bank, &info) != LENSRT_SUCCESS) abort();
+        // Nodes are read on first use: a query at the grid's first values (its chief
+        // point interpolated over the index's nodes), then every node
+        q.field_x_deg = info.field_x_deg[0];
+        q.field_y_deg = info.field_y_deg[0];
+        q.wavelength_nm = info.wavelengths_nm[0];
+        q.f_number = info.f_numbers[0];
+        q.focus_offset_mm = info.focus_offsets_mm[0];
+        q.distance_mm = info.distances_mm[0];
+        if ((size_t)info.width * (size_t)info.height <= ((size_t)1 << 20) &&
+            (psf = malloc(sizeof(float) * (size_t)info.width * (size_t)info.height)) != NULL) {
+            (void)lensrt_bank_psf(bank, &q, psf, (size_t)info.width * (size_t)info.height, NULL);
+            free(psf);
+        }
+        (void)lensrt_bank_load_nodes(bank);
         lensrt_bank_close(bank);
     }
 }

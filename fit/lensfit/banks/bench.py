@@ -5,9 +5,10 @@
 2. Scaling: the same bank (banks/demo.toml) on 1 worker and on 2 workers, each on a
    cluster started beforehand (its start-up is not counted), interleaved, medians; the
    ratio is the claim.
-3. The node's seconds (rendering alone, and the whole task: lens, render, EXR, record)
+3. The reader against direct renders at the cell centres of the bank (check.py): a table.
+4. The node's seconds (rendering alone, and the whole task: lens, render, EXR, record)
    and the overhead's share of a node.
-4. On paper, from these figures: nodes per hour of a 1,000-node bank on 10 and 100
+5. On paper, from these figures: nodes per hour of a 1,000-node bank on 10 and 100
    workers, and what would limit them (the scheduler's task rate, the writes).
 
 Writes build/bench/banks.md and banks.json.
@@ -76,6 +77,21 @@ def scaling(out: Path, repeats: int) -> dict[str, Any]:
                 (out / "bank-2" / r["exr"]).stat().st_size for r in records)}
 
 
+def accuracy(folder: Path) -> dict[str, Any]:
+    """The demo bank's reader against direct renders at its cell centres (check.py)."""
+    import os
+
+    from lensrt_ctypes import LIBRARY
+
+    from lensfit.banks.check import check_bank
+    from lensfit.banks.run import resolve_table
+    from lensfit.banks.spec import load_spec
+
+    spec = load_spec(SPEC)
+    library = os.environ.get("LENSRT_LIBRARY") or str(LIBRARY)
+    return check_bank(spec, folder / "bank.index", library, resolve_table(spec.lens, SPEC.parent))
+
+
 def node_task_seconds(out: Path) -> float:
     """The whole task of a node in this process (lens loaded once, as a worker does)."""
     folder = out / "bank-0"
@@ -110,11 +126,12 @@ def main(argv: list[str] | None = None) -> int:
 
     ov = overhead(args.empty_tasks, args.repeats)
     sc = scaling(work, args.repeats)
+    acc = accuracy(work / "bank-2")
     task_s = node_task_seconds(work)
     share = ov["worker_seconds_per_task"] / task_s
     rows = projection(task_s, ov["tasks_per_second"], sc["node_exr_bytes"])
     result = {"overhead": ov, "scaling": sc, "node_task_seconds": task_s,
-              "overhead_share": share, "projection": rows}
+              "overhead_share": share, "projection": rows, "accuracy": acc}
     (out / "banks.json").write_text(json.dumps(result, indent=1) + "\n")
     lines = [
         "# Banks on Dask (lensfit.banks.bench)", "",
@@ -143,6 +160,22 @@ def main(argv: list[str] | None = None) -> int:
               "scheduler's task rate (measured here with the scheduler sharing 2 cores with "
               "its workers: a scheduler on a core of its own is faster), each node one EXR "
               "and one record written to a shared file system."]
+    lines += ["", "## The reader against direct renders (lensfit.banks.check)", "",
+              "At every node and bank wavelength the reader returns the node's own render "
+              "bit for bit (registration channel; tests/fit/banks/test_bank_accuracy.py). "
+              "Between nodes, at cell centres of the demo bank (relative L2 against a direct "
+              "render to the same 1% target):", "",
+              "| field (deg) | nm | bank, interpolated chief | bank, lens's chief | nearest "
+              "node | chief error (px) |", "|---|---:|---:|---:|---:|---:|"]
+    for p in acc["points"]:
+        lines.append(f"| ({p['field_x_deg']:g}, {p['field_y_deg']:g}) | "
+                     f"{p['wavelength_nm']:g} | {p['bank']:.2%} | {p['bank_lens_chief']:.2%} | "
+                     f"{p['nearest']:.2%} | {p['chief_px']:.2f} |")
+    lines += ["", f"Worst: {acc['worst_bank']:.2%} (lens's chief "
+              f"{acc['worst_bank_lens_chief']:.2%}) against the nearest node's "
+              f"{acc['worst_nearest']:.2%}; the check suggests "
+              f"{acc['field_points_for_target']} field points per axis for "
+              f"{acc['target']:.0%}."]
     text = "\n".join(lines) + "\n"
     (out / "banks.md").write_text(text)
     print(text)

@@ -10,7 +10,8 @@ a last line ``checksum crc32 <8 lowercase hex>`` over every byte before it::
     width <pixels>
     height <pixels>
     pixel_mm <px> <py>
-    registration chief|window          chief: each node on its chief ray; window: one window
+    registration channel|window        channel: each wavelength of a node in a window of its
+                                       own, centred on its chief point; window: one window
     wavelengths_nm <n> <l_1> ... <l_n>
     f_numbers <n> ...
     focus_offsets_mm <n> ...
@@ -24,9 +25,11 @@ a last line ``checksum crc32 <8 lowercase hex>`` over every byte before it::
     checksum crc32 <hex>
 
 Node k's window (``width`` x ``height`` pixels of ``pixel_mm``) is centred on the centre
-given; its EXR is ``path`` (relative to the index) with the CRC-32 of its bytes; ``error``
-is the node's error estimate (relative L2; -1 when the integrator gives none). The nodes
-come in the order of their indices (f-number slowest, field x fastest).
+given (with ``registration channel``, each channel's on its own chief point, the centre
+being the middle wavelength's); its EXR is ``path`` (relative to the index) with the
+CRC-32 of its bytes; ``error`` is the node's error estimate (relative L2; -1 when the
+integrator gives none). The nodes come in the order of their indices (f-number slowest,
+field x fastest).
 """
 
 from __future__ import annotations
@@ -62,7 +65,7 @@ def index_text(spec: BankSpec, lens_name: str, table_crc32: int,
     lines = [FORMAT, f"lens {lens_name}", f"table_crc32 {table_crc32:08x}",
              f"width {w.pixels[0]}", f"height {w.pixels[1]}",
              f"pixel_mm {_num(w.pitch_mm[0])} {_num(w.pitch_mm[1])}",
-             f"registration {'chief' if w.center_mm is None else 'window'}",
+             f"registration {'channel' if w.center_mm is None else 'window'}",
              _list("wavelengths_nm", g.wavelengths_nm), _list("f_numbers", g.f_numbers),
              _list("focus_offsets_mm", g.focus_offsets_mm),
              _list("distances_mm", [0.0 if math.isinf(v) else v for v in g.distances_mm]),

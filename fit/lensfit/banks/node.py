@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import math
 import os
+import re
 import threading
 import time
 import zlib
@@ -32,7 +33,7 @@ from lensfit.atomic import write_atomic
 from lensfit.codegen.checked_json import checked_json_text, load_checked_json
 from lensfit.errors import InputError
 
-RECORD_VERSION = 1
+RECORD_VERSION = 2  # 2: each channel on its own chief point (lensrt 0.9.0)
 
 # Each worker thread keeps one lensrt context per (library, threads) and the tables it
 # loaded into that context per (table, CRC-32): a task reuses what the previous task of
@@ -167,6 +168,25 @@ def _context(job: dict[str, Any]):
     return contexts[key], key[1]
 
 
+def node_light(c: dict[str, float]) -> tuple[float, float, float, float]:
+    """The unit light of a node's (or any field point's) coordinates (0: infinity)."""
+    dist = 0.0 if math.isinf(c["distance_mm"]) else c["distance_mm"]
+    return (c["field_x_deg"], c["field_y_deg"], dist, 1.0)
+
+
+def create_render(rt, lens, spec: dict[str, Any], c: dict[str, float],
+                  wavelengths: list[float], centre: tuple[float, float]):
+    """A render of the spec's window, aperture and seed for the light at coordinates
+    ``c`` at these wavelengths, its window centred on ``centre`` (mm)."""
+    w, a = spec["window"], spec["aperture"]
+    return rt.create(lens, width=w["pixels"][0], height=w["pixels"][1],
+                     width_mm=w["size_mm"][0], height_mm=w["size_mm"][1], center=centre,
+                     focus_offset_mm=c["focus_offset_mm"], f_number=c["f_number"],
+                     shape=a["shape"], blades=a["blades"], blade_curvature=a["blade_curvature"],
+                     rotation_deg=a["rotation_deg"], lights=[node_light(c)],
+                     wavelengths=wavelengths, seed=spec["render"]["seed"])
+
+
 def _integrate(r, r_spec: dict[str, Any], phasors: Path) -> dict[str, Any]:
     """One render by the spec's integrator: how, and its error estimate (-1: none)."""
     if r_spec["integrator"] == "cells":
@@ -197,40 +217,54 @@ def render_node(job: dict[str, Any]) -> dict[str, Any]:
     rt, threads = _context(job)
     lens = _load(rt, threads, job["library"], job["table"], job["table_crc32"])
     c = node_coordinates(spec, job["indices"])
-    dist = 0.0 if math.isinf(c["distance_mm"]) else c["distance_mm"]
-    light = (c["field_x_deg"], c["field_y_deg"], dist, 1.0)
+    light = node_light(c)
     wavelengths = spec["grid"]["wavelengths_nm"]
 
-    # Register the node on the chief ray: its image point at every wavelength, the window
-    # centred on the middle wavelength's (or the spec's one window for every node)
+    # Register the node on the chief ray: its image point at every wavelength. Each
+    # wavelength is rendered in a window of its own centred on its chief point, so that a
+    # reader never resamples a channel (lensrt.h, `registration channel`); a spec with one
+    # window for every node (a flare bank's) renders every wavelength in that window
     chief = [rt.image_point(lens, light, lam, c["focus_offset_mm"]) for lam in wavelengths]
-    w, a, r_spec = spec["window"], spec["aperture"], spec["render"]
-    centre = tuple(w["center_mm"]) if "center_mm" in w else chief[len(chief) // 2]
+    w, r_spec = spec["window"], spec["render"]
+    per_channel = "center_mm" not in w
+    groups = ([([lam], tuple(xy)) for lam, xy in zip(wavelengths, chief, strict=True)]
+              if per_channel else [(wavelengths, tuple(w["center_mm"]))])
 
-    def create(table_lens):
-        return rt.create(table_lens, width=w["pixels"][0], height=w["pixels"][1],
-                         width_mm=w["size_mm"][0], height_mm=w["size_mm"][1], center=centre,
-                         focus_offset_mm=c["focus_offset_mm"], f_number=c["f_number"],
-                         shape=a["shape"], blades=a["blades"],
-                         blade_curvature=a["blade_curvature"],
-                         rotation_deg=a["rotation_deg"], lights=[light],
-                         wavelengths=wavelengths, seed=r_spec["seed"])
+    def create(table_lens, lams, centre):
+        return create_render(rt, table_lens, spec, c, lams, centre)
 
-    t0, c0 = time.perf_counter(), _cpu_clock(threads)()
-    r = create(lens)
-    how = {"integrator": r_spec["integrator"],
-           **_integrate(r, r_spec, stem_path.with_suffix(".phasors"))}
-    # A flare bank: every ghost in the same window, in a layer of its own
-    ghosts, ghost_renders = [], []
-    for g in job.get("ghosts", []):
-        rg = create(_load(rt, threads, job["library"], g["table"], g["table_crc32"]))
-        ghosts.append({"label": g["label"], "table_crc32": f"{g['table_crc32']:08x}",
-                       **_integrate(rg, r_spec,
-                                    stem_path.with_suffix(f".ghost-{g['label']}.phasors"))})
-        ghost_renders.append(rg)
-    seconds, cpu_seconds = time.perf_counter() - t0, _cpu_clock(threads)() - c0
+    ghost_lenses = [_load(rt, threads, job["library"], g["table"], g["table_crc32"])
+                    for g in job.get("ghosts", [])]
+    cpu_clock = _cpu_clock(threads)
+    t0, cpu0 = time.perf_counter(), cpu_clock()
+    # Per group (one wavelength, or all in the shared window): the direct render, then
+    # each ghost in the same window, each integrated by the spec's integrator
+    parts: list[list[Any]] = []  # per group: [direct, ghost...]
+    direct_how: list[dict[str, Any]] = []
+    ghost_how: list[list[dict[str, Any]]] = [[] for _ in ghost_lenses]
+    for gi, (lams, centre) in enumerate(groups):
+        suffix = f".{gi}" if per_channel else ""
+        r = create(lens, lams, centre)
+        direct_how.append(_integrate(r, r_spec, stem_path.with_suffix(f"{suffix}.phasors")))
+        renders = [r]
+        for k, (g, gl) in enumerate(zip(job.get("ghosts", []), ghost_lenses, strict=True)):
+            rg = create(gl, lams, centre)
+            ghost_how[k].append(_integrate(
+                rg, r_spec, stem_path.with_suffix(f"{suffix}.ghost-{g['label']}.phasors")))
+            renders.append(rg)
+        parts.append(renders)
+    seconds, cpu_seconds = time.perf_counter() - t0, cpu_clock() - cpu0
+
+    # How each was integrated. Per channel, a channel's estimate is its own relative L2
+    # error; the node's is the largest (what a query at any one wavelength may see, and a
+    # bound on the whole spectral image's)
+    how = {"integrator": r_spec["integrator"], **_merge_how(direct_how)}
+    ghosts = [{"label": g["label"], "table_crc32": f"{g['table_crc32']:08x}",
+               **_merge_how(hs)} for g, hs in zip(job.get("ghosts", []), ghost_how,
+                                                  strict=True)]
     if ghosts:
-        images = [x.image() for x in (r, *ghost_renders)]
+        # A flare bank: the estimate of the sum from each image's (estimate, L2 norm)
+        images = [np.concatenate([p[k].image() for p in parts]) for k in range(len(parts[0]))]
         how["direct_error_estimate"] = how["error_estimate"]
         how["error_estimate"] = _total_estimate(
             [(e, float(np.linalg.norm(im))) for e, im in
@@ -239,15 +273,22 @@ def render_node(job: dict[str, Any]) -> dict[str, Any]:
 
     # The EXR first, then the record that declares the node finished
     exr = stem_path.with_suffix(".exr")
-    if ghost_renders:
-        rt.write_exr_layers(exr, {"direct": [r], "flare": ghost_renders}, reproducible=True)
+    identity = node_identity(job["indices"], c)
+    if per_channel:
+        write_channel_exr(rt, exr, parts, wavelengths, chief, identity,
+                          layered=bool(ghosts))
+    elif ghosts:
+        rt.write_exr_layers(exr, {"direct": [parts[0][0]], "flare": parts[0][1:]},
+                            reproducible=True)
     else:
-        write_exr_reproducible(r, exr)
+        write_exr_reproducible(parts[0][0], exr)
+    centre = tuple(chief[len(chief) // 2]) if per_channel else groups[0][1]
     record = {"version": RECORD_VERSION, "k": job["k"], "indices": list(job["indices"]),
               "lens": job["lens_name"], "table_crc32": f"{job['table_crc32']:08x}",
               "spec_digest": job["digest"], "lensrt_version": rt.version(),
               **{k: _json_number(v) for k, v in c.items()},
               "wavelengths_nm": wavelengths, "centre_mm": list(centre),
+              "registration": "channel" if per_channel else "window",
               "chief_mm": [list(xy) for xy in chief], **how, "ghosts": ghosts,
               "seconds": seconds, "cpu_seconds": cpu_seconds, "exr": f"{job['stem']}.exr",
               "exr_crc32": f"{file_crc32(exr):08x}"}
@@ -262,6 +303,104 @@ def _cpu_clock(threads: int):
     calling thread, so that thread's CPU time is the node's; with more (OpenMP threads) the
     process's, which on a worker running several tasks at once includes the others'."""
     return time.thread_time if threads == 1 else time.process_time
+
+
+def _merge_how(hows: list[dict[str, Any]]) -> dict[str, Any]:
+    """One record of how a node (or one ghost of it) was integrated from its groups'
+    (one per wavelength, or one): the largest estimate (-1 when any has none), the most
+    rings or samples, and each group's estimate when there are several."""
+    est = [h["error_estimate"] for h in hows]
+    out: dict[str, Any] = {"error_estimate": -1.0 if min(est) < 0 else max(est)}
+    for key in ("rings", "samples"):
+        if key in hows[0]:
+            out[key] = max(h[key] for h in hows)
+    if len(hows) > 1:
+        out["channel_error_estimates"] = est
+    return out
+
+
+def node_identity(indices: tuple[int, ...], c: dict[str, float]) -> str:
+    """The EXR attribute lensrt/bankNode: "<i_f> <i_z> <i_d> <i_y> <i_x> <f_number>
+    <focus_offset_mm> <distance_mm (0: infinity)> <field_x_deg> <field_y_deg>", numbers
+    as repr (which the reader's strtod reads back exactly; lensrt.h, PSF banks)."""
+    dist = 0.0 if math.isinf(c["distance_mm"]) else c["distance_mm"]
+    values = (c["f_number"], c["focus_offset_mm"], dist, c["field_x_deg"], c["field_y_deg"])
+    return " ".join([*(str(i) for i in indices), *(repr(float(v)) for v in values)])
+
+
+def write_channel_exr(rt, exr: Path, parts: list[list[Any]], wavelengths: list[float],
+                      chief: list[tuple[float, float]], identity: str, layered: bool) -> None:
+    """A node whose channels are renders of their own (one wavelength each, each window on
+    its chief point) as one spectral EXR: each group's EXR as lensrt writes it
+    (reproducible; with layers ``direct`` and ``flare`` for a flare bank), its spectral
+    channels gathered, R, G, B of each layer converted from them (lensrt_spectrum_rgb),
+    the header of the first with what differs per channel stated, written atomically."""
+    import tempfile
+
+    import numpy as np
+    import OpenEXR
+    from lensrt_ctypes import write_exr_reproducible
+    from lensrt_exr import _split_layer, _wavelength_nm
+
+    header: dict[str, Any] = {}
+    spectral: dict[str, np.ndarray] = {}
+    estimates, rings = [], []
+    with tempfile.TemporaryDirectory(dir=exr.parent, prefix=".node-") as tmp:
+        for gi, renders in enumerate(parts):
+            path = Path(tmp) / f"{gi}.exr"
+            if layered:
+                rt.write_exr_layers(path, {"direct": renders[:1], "flare": renders[1:]},
+                                    reproducible=True)
+            else:
+                write_exr_reproducible(renders[0], path)
+            with OpenEXR.File(str(path), separate_channels=True) as f:
+                h = dict(f.header())
+                header = header or h
+                estimates.append(float(np.max(h.get("lensrt/errorEstimate", -1.0))))
+                rings.append(int(h.get("lensrt/cellsRings", 0)))
+                # The values straight from the renders (the EXR gives the names and the
+                # header): nothing of a render is decoded back
+                direct = renders[0].image()[0]
+                flare = (np.sum([x.image()[0].astype(np.float64) for x in renders[1:]], axis=0)
+                         if layered else None)
+                for name in f.channels():
+                    if name.rsplit(".", 1)[-1] in ("R", "G", "B"):
+                        continue
+                    layer = (_split_layer(name) or ("", name))[0]
+                    plane = {"": direct if flare is None else direct + flare,  # in doubles
+                             "direct": direct, "flare": flare}[layer]
+                    spectral[name] = np.ascontiguousarray(plane, dtype=np.float32)
+        # R, G, B of each layer ('' the unprefixed sum) from its spectral channels
+        channels: dict[str, np.ndarray] = dict(spectral)
+        by_layer: dict[str, list[tuple[float, np.ndarray]]] = {}
+        for name, plane in spectral.items():
+            layer, rest = _split_layer(name) or ("", name)
+            by_layer.setdefault(layer, []).append((_wavelength_nm(rest), plane))
+        for layer, planes in by_layer.items():
+            planes.sort(key=lambda x: x[0])
+            rgb = rt.spectrum_rgb([lam for lam, _ in planes], np.stack([p for _, p in planes]))
+            for k, name in enumerate("RGB"):
+                channels[f"{layer}.{name}" if layer else name] = np.ascontiguousarray(rgb[..., k])
+        del header["channels"]
+        mid = chief[len(chief) // 2]
+        header.update({
+            "lensrt/bankNode": identity,
+            "lensrt/registration": "channel: each spectral channel is a window of its own, "
+                                   "centred on its wavelength's chief point "
+                                   "(lensrt/channelCentersMm, x y per wavelength)",
+            "lensrt/channelCentersMm": " ".join(repr(float(v)) for xy in chief for v in xy),
+            "lensrt/centerMm": np.array(mid, dtype=np.float64),
+            "lensrt/errorEstimate": np.array([-1.0 if min(estimates) < 0 else max(estimates)]),
+            "lensrt/cellsRings": max(rings)})
+        if "comments" in header:
+            header["comments"] = re.sub(
+                r"1 wavelengths? [0-9.]+-[0-9.]+ nm",
+                f"{len(wavelengths)} wavelengths {wavelengths[0]:g}-{wavelengths[-1]:g} nm, "
+                "each in a window on its own chief point", str(header["comments"]))
+        merged = Path(tmp) / "node.exr"
+        with OpenEXR.File(header, channels) as f:
+            f.write(str(merged))
+        write_atomic(exr, merged.read_bytes())
 
 
 def _json_number(v: float) -> float | str:

@@ -36,6 +36,7 @@ from lensfit.errors import InputError, refuse_repeated_tables
 
 BANK_RECORD = "bank.json"
 SHEET_NAME = "contact-sheet.png"
+CHECK_NAME = "check.json"
 
 
 @dataclass
@@ -47,13 +48,19 @@ class Summary:
     cpu_seconds: float
     wall_seconds: float
     index: Path
+    check: dict[str, Any] | None = None  # check.py's measure between the nodes
 
     def line(self) -> str:
         worst = f"{self.worst_error:.2%}" if self.worst_error >= 0 else "none (Monte Carlo)"
-        return (f"bank {self.index.parent}: {self.nodes} nodes ({self.rendered} rendered, "
-                f"{self.skipped} already finished), worst error estimate {worst}, "
-                f"{self.cpu_seconds:.1f} CPU-seconds of rendering, {self.wall_seconds:.1f} s "
-                "in all")
+        text = (f"bank {self.index.parent}: {self.nodes} nodes ({self.rendered} rendered, "
+                f"{self.skipped} already finished), worst error estimate {worst} (at a node "
+                f"the reader gives the node's own render), {self.cpu_seconds:.1f} "
+                f"CPU-seconds of rendering, {self.wall_seconds:.1f} s in all")
+        if self.check is not None:
+            from lensfit.banks.check import check_line
+
+            text += "\n" + check_line(self.check)
+        return text
 
 
 def resolve_table(lens: str, base: Path, generated: Path | None = None) -> Path:
@@ -108,15 +115,19 @@ def _check_domain(spec: BankSpec, rt, lens, src: str) -> None:
         if math.isfinite(d) and info["distance_min_mm"] > 0 and d < info["distance_min_mm"]:
             raise SpecError(f"{src}: key 'grid.distances_mm[{i}]': {d!r} mm is closer than the "
                             f"lens's {info['distance_min_mm']:g} mm")
-    for key, values, limit, axis in (("grid.field_x_deg", g.field_x_deg, info["field_x"], 0),
-                                     ("grid.field_y_deg", g.field_y_deg, info["field_y"], 1)):
-        for i, v in enumerate(values):
-            cos = rt.light_direction_cosines((v if axis == 0 else 0.0,
-                                              v if axis == 1 else 0.0))
-            if abs(cos[axis]) > limit * (1 + 1e-9):
-                raise SpecError(f"{src}: key '{key}[{i}]': {v!r} deg is outside the lens's "
-                                f"fitted field (direction cosine {abs(cos[axis]):.4g} > "
-                                f"{limit:.4g})")
+    # The fitted field is an ellipse in direction cosines (lensrt_lens_info field_x,
+    # field_y): every node (x, y), corners included, inside it, as lensrt checks a light
+    fx, fy = info["field_x"], info["field_y"]
+    for j, y in enumerate(g.field_y_deg):
+        for i, x in enumerate(g.field_x_deg):
+            cx, cy = rt.light_direction_cosines((x, y))
+            if (cx / fx) ** 2 + (cy / fy) ** 2 > 1 + 1e-9:
+                raise SpecError(
+                    f"{src}: keys 'grid.field_x_deg[{i}]' = {x!r} and 'grid.field_y_deg[{j}]' "
+                    f"= {y!r}: the node at ({x:g}, {y:g}) deg is outside the lens's fitted "
+                    f"field, an ellipse of {math.degrees(math.asin(fx)):.4g} x "
+                    f"{math.degrees(math.asin(fy)):.4g} deg (direction cosines {abs(cx):.4g}, "
+                    f"{abs(cy):.4g}); every node of the grid must lie inside it")
 
 
 def ghost_tables(spec: BankSpec, table: Path, src: str) -> list[dict[str, Any]]:
@@ -205,7 +216,7 @@ def _bank_record(out: Path, doc: dict[str, Any], restart: bool) -> None:
         for p in sorted(nodes.glob("*")) if nodes.is_dir() else []:
             if p.is_file() and p.suffix in (".exr", ".json", ".phasors"):
                 p.unlink()
-        for name in (INDEX_NAME, SHEET_NAME):
+        for name in (INDEX_NAME, SHEET_NAME, CHECK_NAME):
             (out / name).unlink(missing_ok=True)
     write_atomic(path, checked_json_text(doc))
 
@@ -213,10 +224,10 @@ def _bank_record(out: Path, doc: dict[str, Any], restart: bool) -> None:
 def run_bank(spec_path: str | Path, out: str | Path, *, scheduler: str | None = None,
              workers: int | None = None, restart: bool = False, progress: bool = True,
              sheet: bool = True, generated: Path | None = None, verbose: bool = False,
-             say: Callable[[str], None] | None = None) -> Summary:
+             say: Callable[[str], None] | None = None, check: bool = True) -> Summary:
     """Render every unfinished node of a bank and write its index (and contact sheet).
     ``verbose``: the Dask cluster's logs at INFO; ``say``: lines for the user (the
-    dashboard's address)."""
+    dashboard's address); ``check``: measure the reader between nodes (check.py)."""
     from lensrt_ctypes import LIBRARY, Lensrt, LensrtError
 
     check_workers(workers)  # before anything is loaded or written
@@ -281,11 +292,19 @@ def run_bank(spec_path: str | Path, out: str | Path, *, scheduler: str | None = 
         from lensfit.banks.sheet import contact_sheet
 
         write_atomic(out / SHEET_NAME, contact_sheet(spec, out, records))
+    # What the bank is worth between its nodes: the reader against direct renders
+    checked = None
+    if check and spec.window.center_mm is None:
+        from lensfit.banks.check import check_bank
+
+        checked = check_bank(spec, index, library, table)
+        write_atomic(out / CHECK_NAME, checked_json_text(checked))
     rendered = [r for r in done if not r.get("skipped")]
     errors = [r["error_estimate"] for r in records]
     return Summary(nodes=len(records), rendered=len(rendered),
                    skipped=len(records) - len(rendered),
                    worst_error=max(errors) if min(errors) >= 0 else -1.0,
-                   # each task's CPU time of rendering (node.py; records before it: none)
+                   # each task's CPU time (its thread's, or its process's with lensrt
+                   # threads: node.py)
                    cpu_seconds=sum(r.get("cpu_seconds", 0.0) for r in rendered),
-                   wall_seconds=time.perf_counter() - t0, index=index)
+                   wall_seconds=time.perf_counter() - t0, index=index, check=checked)

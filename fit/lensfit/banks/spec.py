@@ -51,7 +51,7 @@ from lensfit.errors import InputError, read_toml, toml_overflow
 
 NAME = re.compile(r"[A-Za-z0-9_-]{1,64}")
 GHOST = re.compile(r"[0-9]{1,3}-[0-9]{1,3}")  # a ghost's label: the file's surfaces i-j
-MAX_NODES = 100_000  # a bank index past this is a mistake in a grid, not a bank
+MAX_NODES = 65_536  # what lensrt_bank_open reads (LENSRT_MAX_BANK_NODES)
 MAX_PIXELS = 4096
 
 

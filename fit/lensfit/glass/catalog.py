@@ -235,11 +235,15 @@ class UnknownGlassError(KeyError):
 
 
 def catalog_path() -> pathlib.Path:
-    """Path of the catalog TOML ($LENSFIT_GLASS_CATALOG, else lensdb/glass/catalog.toml)."""
+    """Path of the catalog TOML ($LENSFIT_GLASS_CATALOG, else glass/catalog.toml of the
+    lensdb folder that lensfit.data_folder finds: $LENSFIT_LENSDB, the checkout's, the
+    current directory's)."""
     env = os.environ.get(_ENV_CATALOG)
     if env:
         return pathlib.Path(env)
-    return pathlib.Path(__file__).resolve().parents[3] / "lensdb" / "glass" / "catalog.toml"
+    from lensfit import data_folder
+
+    return data_folder("lensdb") / "glass" / "catalog.toml"
 
 
 def _normalise(name: str) -> str:

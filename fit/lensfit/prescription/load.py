@@ -24,6 +24,7 @@ from typing import Any
 import jsonschema
 import numpy as np
 
+from lensfit import data_folder, missing_data_folder
 from lensfit.errors import InputError, LensError, regular_file_problem, toml_overflow
 from lensfit.glass import (
     AIR,
@@ -50,8 +51,12 @@ def repo_root() -> Path:
 
 
 def lensdb_dir() -> Path:
-    """The lens database folder (override with LENSFIT_LENSDB)."""
-    return Path(os.environ.get("LENSFIT_LENSDB", repo_root() / "lensdb"))
+    """The lens database folder: $LENSFIT_LENSDB, else the checkout's lensdb/, else the
+    current directory's (lensfit.data_folder); LensError naming it when it is missing."""
+    db = data_folder("lensdb")
+    if not db.is_dir():
+        raise LensError(missing_data_folder("lensdb"))
+    return db
 
 
 @functools.cache

@@ -34,6 +34,13 @@
 #include <OpenEXR/openexr.h>
 #endif
 
+/* How node images are placed (the index's `registration`): chief, each node's window on
+ * its middle chief point (channels shifted on read); window, one window shared by every
+ * node (blended in place); channel, each channel's window on its own chief point (read
+ * with no shift at all: a node's channel is the PSF bit for bit). */
+enum { REGISTRATION_CHIEF = 0, REGISTRATION_WINDOW, REGISTRATION_CHANNEL };
+static const char *const REGISTRATION_NAMES[] = {"chief", "window", "channel"};
+
 /* The grids of a bank, in the index's order after the wavelengths. */
 enum { AXIS_WAVELENGTH = 0, AXIS_F, AXIS_FOCUS, AXIS_DISTANCE, AXIS_FIELD_X, AXIS_FIELD_Y, N_AXES };
 static const char *const AXIS_KEYS[N_AXES] = {"wavelengths_nm",   "f_numbers",   "focus_offsets_mm",
@@ -52,8 +59,10 @@ typedef struct bank_node {
     double center_x, center_y, error_estimate;
     uint32_t crc;
     char path[BANK_PATH_SIZE]; /* relative to the index's folder */
+    long tuple[5];      /* its indices (i_f, i_z, i_d, i_y, i_x) */
     double *chief;      /* x, y per wavelength (mm) */
-    float *image;       /* n_wavelengths planes of width x height, row 0 at the top */
+    float *image;       /* n_wavelengths planes of width x height, row 0 at the top; NULL
+                           until the node is first used (read_node) */
 } bank_node;
 
 struct lensrt_bank_s {
@@ -68,7 +77,7 @@ struct lensrt_bank_s {
     double *values[N_AXES];
     int n_nodes;
     bank_node *nodes;   /* by their index tuple: ((((f * nz + z) * nd + d) * ny + y) * nx + x) */
-    int window;         /* registration window: the nodes share one window, blended in place */
+    int registration;   /* REGISTRATION_* below */
     double worst_error;
 };
 
@@ -410,6 +419,7 @@ static lensrt_result read_nodes(bank_reader *r, lensrt_bank b)
             break;
         }
         node = &b->nodes[slot];
+        memcpy(node->tuple, tuple, sizeof tuple);
         node->k = (int)k;
         node->line = line;
         node->center_x = cx;
@@ -430,7 +440,7 @@ static lensrt_result read_nodes(bank_reader *r, lensrt_bank b)
             break;
         }
         for (w = 0; w < 2 * nw && res == LENSRT_SUCCESS; w++) res = read_number(r, "chief", w + 2, &node->chief[w]);
-        for (w = 0; w < nw && res == LENSRT_SUCCESS && !b->window; w++) {
+        for (w = 0; w < nw && res == LENSRT_SUCCESS && b->registration == REGISTRATION_CHIEF; w++) {
             const double hx = 0.5 * b->width * b->pixel_x, hy = 0.5 * b->height * b->pixel_y;
             const double ux = node->chief[2 * w], uy = node->chief[2 * w + 1];
             if (!(fabs(ux - cx) <= hx && fabs(uy - cy) <= hy))
@@ -489,10 +499,11 @@ static lensrt_result read_index(bank_reader *r, lensrt_bank b)
     if (v && strcmp(r->key = next_token(r), "registration") == 0) {
         r->pending = 0;
         t = next_token(r);
-        if (!t || tokens_left(r) != 0 || (strcmp(t, "chief") != 0 && strcmp(t, "window") != 0))
-            return index_fail(r, "'registration' takes 'chief' or 'window', found '%.64s%s'", t ? t : "",
+        for (v = 0; v < 3 && t && strcmp(t, REGISTRATION_NAMES[v]) != 0; v++) continue;
+        if (!t || tokens_left(r) != 0 || v == 3)
+            return index_fail(r, "'registration' takes 'chief', 'window' or 'channel', found '%.64s%s'", t ? t : "",
                               t && tokens_left(r) ? " ..." : "");
-        b->window = strcmp(t, "window") == 0;
+        b->registration = (int)v;
     }
     // The grids, then the nodes
     for (axis = 0; axis < N_AXES; axis++)
@@ -580,6 +591,40 @@ static void exr_quiet(exr_const_context_t ctxt, exr_result_t code, const char *m
     (void)msg;
 }
 
+/* The node's identity in its EXR (attribute "lensrt/bankNode", written by lensfit's bank
+ * nodes): "<i_f> <i_z> <i_d> <i_y> <i_x> <f_number> <focus_offset_mm> <distance_mm>
+ * <field_x_deg> <field_y_deg>" (distance 0: infinity), equal to the index's. */
+static lensrt_result check_identity(lensrt_bank b, const bank_node *node, const char *path, exr_context_t ctxt)
+{
+    // The values in the attribute's order, and which index of the tuple picks each
+    const int value_axis[5] = {AXIS_F, AXIS_FOCUS, AXIS_DISTANCE, AXIS_FIELD_X, AXIS_FIELD_Y};
+    const int value_slot[5] = {0, 1, 2, 4, 3};
+    const char *text = NULL;
+    char buf[512], *tok, *save = NULL;
+    int32_t len = 0;
+    long v;
+    double x;
+    int i, ok = 1;
+    if (exr_attr_get_string(ctxt, 0, "lensrt/bankNode", &len, &text) != EXR_ERR_SUCCESS || !text)
+        return lensrt_fail(b->ctx, LENSRT_ERROR_PARSE,
+                           "%s: node %d (bank index %s:%d): no string attribute 'lensrt/bankNode' (which node the "
+                           "image is); a `registration channel` bank's nodes carry it", path, node->k, b->index_path,
+                           node->line);
+    snprintf(buf, sizeof buf, "%.*s", len > 0 && len < (int32_t)sizeof buf ? (int)len : (int)sizeof buf - 1, text);
+    tok = strtok_r(buf, " ", &save);
+    for (i = 0; i < 5 && ok; i++, tok = strtok_r(NULL, " ", &save))
+        ok = tok && parse_integer(tok, 0, LENSRT_MAX_BANK_NODES, &v) && v == node->tuple[i];
+    for (i = 0; i < 5 && ok; i++, tok = strtok_r(NULL, " ", &save))
+        ok = tok && parse_number(tok, &x) && x == b->values[value_axis[i]][node->tuple[value_slot[i]]];
+    if (!ok || tok)
+        return lensrt_fail(b->ctx, LENSRT_ERROR_PARSE,
+                           "%s: node %d (bank index %s:%d): the image says it is node '%.200s' (lensrt/bankNode), not "
+                           "this one (indices %ld %ld %ld %ld %ld): an EXR of another node or bank; refused", path,
+                           node->k, b->index_path, node->line, text, node->tuple[0], node->tuple[1], node->tuple[2],
+                           node->tuple[3], node->tuple[4]);
+    return LENSRT_SUCCESS;
+}
+
 /* Decode node's EXR (bytes already checked against its CRC) into node->image: one
  * scanline part of width x height FLOAT pixels from (0, 0), exactly the index's spectral
  * channels plus R, G, B, every value finite and >= 0. */
@@ -640,6 +685,11 @@ static lensrt_result decode_node(lensrt_bank b, bank_node *node, const char *pat
                           h);
         goto done;
     }
+    // A node of a `registration channel` bank says which node it is: its index tuple and
+    // coordinates must be the index's (an EXR of another node, with the CRC in the index
+    // updated to match, is refused)
+    if (b->registration == REGISTRATION_CHANNEL && (res = check_identity(b, node, path, ctxt)) != LENSRT_SUCCESS)
+        goto done;
     // The channels: each of the index's wavelengths once, FLOAT, full resolution; R, G, B ignored
     step = "reading the channels";
     if ((rv = exr_get_channels(ctxt, 0, &chlist)) != EXR_ERR_SUCCESS) goto exr_failed;
@@ -778,7 +828,43 @@ static lensrt_result read_node(lensrt_bank b, bank_node *node)
     return res;
 }
 
+/* A node's EXR is there and is a regular file (its bytes are read on first use). */
+static lensrt_result stat_node(lensrt_bank b, const bank_node *node)
+{
+    char path[2 * BANK_PATH_SIZE];
+    struct stat st;
+    snprintf(path, sizeof path, "%s%s", b->folder, node->path);
+    if (stat(path, &st) != 0)
+        return lensrt_fail(b->ctx, LENSRT_ERROR_IO, "%s: cannot open node image (EXR): %s (node %d, bank index %s:%d)",
+                           path, strerror(errno), node->k, b->index_path, node->line);
+    if (!S_ISREG(st.st_mode))
+        return lensrt_fail(b->ctx, LENSRT_ERROR_IO, "%s: not a regular file (node image (EXR)) (node %d, bank index %s:%d)",
+                           path, node->k, b->index_path, node->line);
+    return LENSRT_SUCCESS;
+}
+
+/* The node's image, read on its first use. */
+static lensrt_result need_node(lensrt_bank b, bank_node *node)
+{
+    lensrt_result res;
+    if (node->image) return LENSRT_SUCCESS;
+    if ((res = read_node(b, node)) != LENSRT_SUCCESS) {
+        lensrt_free(b->ctx, node->image);
+        node->image = NULL;
+    }
+    return res;
+}
+
 /* ------------------------------------------------------------------ the API ----- */
+
+lensrt_result lensrt_bank_load_nodes(lensrt_bank b)
+{
+    lensrt_result res = LENSRT_SUCCESS;
+    int k;
+    if (!b) return LENSRT_ERROR_INVALID_ARGUMENT;
+    for (k = 0; res == LENSRT_SUCCESS && k < b->n_nodes; k++) res = need_node(b, &b->nodes[k]);
+    return res;
+}
 
 void lensrt_bank_close(lensrt_bank b)
 {
@@ -839,7 +925,9 @@ lensrt_result lensrt_bank_open(lensrt_context ctx, const char *index_path, lensr
     r.end = (char *)text + start;
     res = read_index(&r, b);
     lensrt_free(ctx, text);
-    for (k = 0; res == LENSRT_SUCCESS && k < b->n_nodes; k++) res = read_node(b, &b->nodes[k]);
+    // Each node's EXR must be a regular file now; its bytes are read, checked and decoded
+    // when a query first needs the node (lensrt_bank_load_nodes: all of them now)
+    for (k = 0; res == LENSRT_SUCCESS && k < b->n_nodes; k++) res = stat_node(b, &b->nodes[k]);
     if (res != LENSRT_SUCCESS) {
         lensrt_bank_close(b);
         return res;
@@ -940,13 +1028,49 @@ typedef struct psf_term {
     double tap[4];      /* (0, 0), (1, 0), (0, 1), (1, 1) */
 } psf_term;
 
+/* Field angles are interpolated in t = tan(angle): a lens without distortion images a
+ * light at (f tan field_x, f tan field_y), so its chief point is linear in t and only
+ * the distortion is left to the interpolant. */
+static double tan_deg(double deg)
+{
+    return tan(deg * (3.14159265358979323846 / 180.0));
+}
+
+/* The weight of a field cell's second node in t (cell_of's t in degrees: 0 and 1 kept exact). */
+static double tan_weight(const double *v, int i0, double q, double t)
+{
+    if (t == 0.0 || t == 1.0) return t;
+    return (tan_deg(q) - tan_deg(v[i0])) / (tan_deg(v[i0 + 1]) - tan_deg(v[i0]));
+}
+
+/* The chief point's weights along a field axis: the Lagrange polynomial in t through up to
+ * four grid values around the cell i0 (a cubic inside the grid, the polynomial through
+ * the three or two there are at its ends). Exactly 1 and 0s on a grid value. */
+static void chief_weights(const double *v, int n, int i0, double q, int *first, int *count, double w[4])
+{
+    const int lo = i0 - 1 < 0 ? 0 : i0 - 1, hi = i0 + 2 > n - 1 ? n - 1 : i0 + 2;
+    const double tq = tan_deg(q);
+    double t[4];
+    int a, c;
+    *first = lo;
+    *count = hi - lo + 1;
+    for (a = 0; a < *count; a++) t[a] = tan_deg(v[lo + a]);
+    for (a = 0; a < *count; a++) {
+        w[a] = 1.0;
+        for (c = 0; c < *count; c++)
+            if (c != a) w[a] *= (tq - t[c]) / (t[a] - t[c]);
+    }
+}
+
 lensrt_result lensrt_bank_psf(lensrt_bank b, const lensrt_bank_query *query, float *out, size_t count, double chief_mm[2])
 {
     lensrt_bank_query q;
     psf_term terms[8];
     const size_t plane = b ? (size_t)b->width * (size_t)b->height : 0;
-    double tx, ty, tl, centre[2] = {0.0, 0.0};
+    double tx, ty, tl, wx[4], wy[4], centre[2] = {0.0, 0.0};
     int i_f = 0, i_z = 0, i_d = 0, ix = 0, iy = 0, il = 0, a, c, n_terms = 0, i, j;
+    int x0, nx, y0, ny;
+    size_t slice;
     lensrt_result res;
     if (!b) return LENSRT_ERROR_INVALID_ARGUMENT;
     if ((res = lensrt_struct_in(b->ctx, "lensrt_bank_query", query, &q, sizeof q)) != LENSRT_SUCCESS) return res;
@@ -964,32 +1088,58 @@ lensrt_result lensrt_bank_psf(lensrt_bank b, const lensrt_bank_query *query, flo
     if (q.f_number != 0.0 && (res = exact_index(b, AXIS_F, "f_number", q.f_number, &i_f)) != LENSRT_SUCCESS) return res;
     if ((res = exact_index(b, AXIS_FOCUS, "focus_offset_mm", q.focus_offset_mm, &i_z)) != LENSRT_SUCCESS) return res;
     if ((res = exact_index(b, AXIS_DISTANCE, "distance_mm", q.distance_mm, &i_d)) != LENSRT_SUCCESS) return res;
+    slice = (((size_t)i_f * (size_t)b->n[AXIS_FOCUS] + (size_t)i_z) * (size_t)b->n[AXIS_DISTANCE] + (size_t)i_d) *
+            (size_t)b->n[AXIS_FIELD_Y];
     // The field cell and the wavelength's two channels
     if ((res = cell_of(b, AXIS_FIELD_X, "field_x_deg", q.field_x_deg, &ix, &tx)) != LENSRT_SUCCESS) return res;
     if ((res = cell_of(b, AXIS_FIELD_Y, "field_y_deg", q.field_y_deg, &iy, &ty)) != LENSRT_SUCCESS) return res;
     if ((res = cell_of(b, AXIS_WAVELENGTH, "wavelength_nm", q.wavelength_nm, &il, &tl)) != LENSRT_SUCCESS) return res;
+    // The image weights: bilinear in tan(field) over the cell's nodes
+    if (b->n[AXIS_FIELD_X] > 1) tx = tan_weight(b->values[AXIS_FIELD_X], ix, q.field_x_deg, tx);
+    if (b->n[AXIS_FIELD_Y] > 1) ty = tan_weight(b->values[AXIS_FIELD_Y], iy, q.field_y_deg, ty);
+    // The chief point: a cubic in tan(field) over up to 4 x 4 nodes, linear in wavelength
+    chief_weights(b->values[AXIS_FIELD_X], b->n[AXIS_FIELD_X], ix, q.field_x_deg, &x0, &nx, wx);
+    chief_weights(b->values[AXIS_FIELD_Y], b->n[AXIS_FIELD_Y], iy, q.field_y_deg, &y0, &ny, wy);
+    for (j = 0; j < ny; j++)
+        for (i = 0; i < nx; i++) {
+            const bank_node *node = &b->nodes[(slice + (size_t)(y0 + j)) * (size_t)b->n[AXIS_FIELD_X] + (size_t)(x0 + i)];
+            for (c = 0; c < 2; c++) {
+                const double w = wy[j] * wx[i] * (c ? tl : 1.0 - tl);
+                if (w == 0.0) continue;
+                centre[0] += w * node->chief[2 * (il + c)];
+                centre[1] += w * node->chief[2 * (il + c) + 1];
+            }
+        }
+    // or the caller's own
+    if (q.chief_given) {
+        if (!isfinite(q.chief_x_mm) || !isfinite(q.chief_y_mm))
+            return lensrt_fail(b->ctx, LENSRT_ERROR_INVALID_ARGUMENT, "bank %s: the given chief point (%g, %g) mm is not "
+                               "finite", b->index_path, q.chief_x_mm, q.chief_y_mm);
+        centre[0] = q.chief_x_mm;
+        centre[1] = q.chief_y_mm;
+    }
     // The terms: up to 4 nodes x 2 channels of non-zero weight, each registered on its chief point
     for (a = 0; a < 4; a++) {
         const int dy = a / 2, dx = a % 2;
         const double wf = (dy ? ty : 1.0 - ty) * (dx ? tx : 1.0 - tx);
-        const bank_node *node;
+        bank_node *node;
         if (wf == 0.0) continue;
-        node = &b->nodes[((((size_t)i_f * (size_t)b->n[AXIS_FOCUS] + (size_t)i_z) * (size_t)b->n[AXIS_DISTANCE] +
-                           (size_t)i_d) * (size_t)b->n[AXIS_FIELD_Y] + (size_t)(iy + dy)) * (size_t)b->n[AXIS_FIELD_X] +
-                         (size_t)(ix + dx)];
+        node = &b->nodes[(slice + (size_t)(iy + dy)) * (size_t)b->n[AXIS_FIELD_X] + (size_t)(ix + dx)];
+        if ((res = need_node(b, node)) != LENSRT_SUCCESS) return res;
         for (c = 0; c < 2; c++) {
             const double w = wf * (c ? tl : 1.0 - tl);
             const int ch = il + c;
             const double ux = node->chief[2 * ch], uy = node->chief[2 * ch + 1];
-            double sx, sy, fx, fy;
+            double sx = 0.0, sy = 0.0, fx, fy;
             psf_term *t;
             if (w == 0.0) continue;
-            centre[0] += w * ux;
-            centre[1] += w * uy;
-            // The shift in pixels (row 0 at +y), whole and fractional parts; none when the
-            // nodes share one window
-            sx = b->window ? 0.0 : (ux - node->center_x) / b->pixel_x;
-            sy = b->window ? 0.0 : -(uy - node->center_y) / b->pixel_y;
+            // The shift in pixels (row 0 at +y), whole and fractional parts: a node centred
+            // on its middle chief point moves each channel onto its own; none when each
+            // channel is centred on its own, or the nodes share one window
+            if (b->registration == REGISTRATION_CHIEF) {
+                sx = (ux - node->center_x) / b->pixel_x;
+                sy = -(uy - node->center_y) / b->pixel_y;
+            }
             t = &terms[n_terms++];
             t->plane = node->image + (size_t)ch * plane;
             t->sx = (long)floor(sx);

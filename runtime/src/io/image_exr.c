@@ -181,6 +181,29 @@ static void exr_silent_error(exr_const_context_t ctxt, exr_result_t code, const 
     (void)msg;
 }
 
+/* OpenEXRCore's ZIP step (3.1 to 3.4.7, Debian 12 ships 3.1.5) keeps a chunk whose zlib
+ * stream is exactly as long as its packed pixels as the zlib stream, while readers take a
+ * chunk of that size for the raw pixels: they decode the zlib bytes as floats (NaN and
+ * -1e38 in a node of a bank whose render was finite: lens 0001, field (0, -3.25) deg,
+ * 670 nm, 48 x 48 pixels; OpenEXR issue #2306). The format stores a chunk that does not
+ * compress raw, so such a chunk is stored raw here: the library's compressor, then, when
+ * its output is as long as the input and is not the input, the input. */
+typedef struct zip_guard {
+    exr_result_t (*compress)(exr_encode_pipeline_t *encode);
+} zip_guard;
+
+static exr_result_t compress_or_store(exr_encode_pipeline_t *encode)
+{
+    const zip_guard *guard = encode->encoding_user_data;
+    exr_result_t rv = guard->compress(encode);
+    if (rv == EXR_ERR_SUCCESS && encode->compressed_buffer && encode->packed_buffer &&
+        encode->compressed_buffer != encode->packed_buffer && encode->compressed_bytes == encode->packed_bytes &&
+        encode->compressed_alloc_size >= encode->packed_bytes &&
+        memcmp(encode->compressed_buffer, encode->packed_buffer, (size_t)encode->packed_bytes) != 0)
+        memcpy(encode->compressed_buffer, encode->packed_buffer, (size_t)encode->packed_bytes);
+    return rv;
+}
+
 /* pwrite-like write callback: OpenEXRCore gives absolute offsets (it writes the chunk
  * offset table last, at its reserved place after the header). */
 static int64_t exr_write_to_fd(exr_const_context_t ctxt, void *userdata, const void *buffer,
@@ -277,6 +300,7 @@ lensrt_result lensrt_write_exr_layers(const lensrt_allocator *allocator, const c
     exr_context_initializer_t init = EXR_DEFAULT_CONTEXT_INITIALIZER;
     exr_context_t ctxt = NULL;
     exr_encode_pipeline_t encoder;
+    zip_guard guard = {NULL};
     int encoder_live = 0;
     exr_sink sink;
     char (*names)[EXR_CHANNEL_NAME_SIZE] = NULL;
@@ -633,6 +657,12 @@ lensrt_result lensrt_write_exr_layers(const lensrt_allocator *allocator, const c
             rv = exr_encoding_choose_default_routines(ctxt, part, &encoder);
             if (rv != EXR_ERR_SUCCESS)
                 goto exr_failed;
+            // Every compressed chunk through compress_or_store (above)
+            if (encoder.compress_fn) {
+                guard.compress = encoder.compress_fn;
+                encoder.encoding_user_data = &guard;
+                encoder.compress_fn = &compress_or_store;
+            }
         }
         rv = exr_encoding_run(ctxt, part, &encoder);
         if (rv != EXR_ERR_SUCCESS)

@@ -132,6 +132,25 @@ lensrt_result lensrt_render_rgb(lensrt_render r, float *out, size_t count)
     return res;
 }
 
+lensrt_result lensrt_spectrum_rgb(lensrt_context ctx, int n_wavelengths, const double *wavelengths_nm, const float *spectral,
+                                  size_t n_pixels, float *rgb)
+{
+    int w;
+    if (!ctx || !wavelengths_nm || !spectral || !rgb)
+        return lensrt_fail(ctx, LENSRT_ERROR_INVALID_ARGUMENT, "spectrum_rgb: NULL argument");
+    if (n_wavelengths < 1 || n_wavelengths > LENSRT_MAX_WAVELENGTHS)
+        return lensrt_fail(ctx, LENSRT_ERROR_INVALID_ARGUMENT, "spectrum_rgb: %d wavelengths; expected 1 to %d",
+                           n_wavelengths, LENSRT_MAX_WAVELENGTHS);
+    // The cell widths come from the neighbours: finite, positive and strictly increasing
+    for (w = 0; w < n_wavelengths; w++)
+        if (!(isfinite(wavelengths_nm[w]) && wavelengths_nm[w] > 0.0) || (w > 0 && !(wavelengths_nm[w] > wavelengths_nm[w - 1])))
+            return lensrt_fail(ctx, LENSRT_ERROR_INVALID_ARGUMENT,
+                               "spectrum_rgb: wavelength %d is %g nm; expected finite, > 0 and strictly increasing", w,
+                               wavelengths_nm[w]);
+    lensrt_spectrum_to_rgb(n_wavelengths, wavelengths_nm, spectral, n_pixels, rgb);
+    return LENSRT_SUCCESS;
+}
+
 static void describe_aperture(const lensrt_render r, char *buf, size_t size)
 {
     const lensrt_aperture *a = &r->desc.aperture;
