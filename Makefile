@@ -125,7 +125,7 @@ demo: setup runtime
 		--resolution 96x64 --wavelengths 4 --integrator auto --rings 64 --quiet \
 		--flares generated/0001-angenieux-double-gauss/ghosts \
 		-o build/demo/flare/flares.exr --png build/demo/flare/flares.png
-	@# A bank (issue 23): lens 0001 at f/8, 5 x 3 field points over the frame, 8
+	@# A bank (issue 23): lens 0001 at f/8, 9 x 5 field points over the frame, 8
 	@# wavelengths, each node to 1%, on a Dask LocalCluster; bank.index is what
 	@# lensrt_bank_open reads, contact-sheet.png the picture to look at first. A rerun
 	@# resumes (renders only unfinished nodes)

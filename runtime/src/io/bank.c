@@ -1043,12 +1043,14 @@ static double tan_weight(const double *v, int i0, double q, double t)
     return (tan_deg(q) - tan_deg(v[i0])) / (tan_deg(v[i0 + 1]) - tan_deg(v[i0]));
 }
 
-/* The chief point's weights along a field axis: the Lagrange polynomial in t through up to
- * four grid values around the cell i0 (a cubic inside the grid, the polynomial through
- * the three or two there are at its ends). Exactly 1 and 0s on a grid value. */
+/* The chief point's weights along a field axis: the Lagrange polynomial in t through four
+ * grid values around the cell i0 (the cell's two and one on each side, or at an end of
+ * the grid the four nearest: a cubic wherever the axis has 4 values; else the polynomial
+ * through the 3, 2 or 1 there are). Exactly 1 and 0s on a grid value. */
 static void chief_weights(const double *v, int n, int i0, double q, int *first, int *count, double w[4])
 {
-    const int lo = i0 - 1 < 0 ? 0 : i0 - 1, hi = i0 + 2 > n - 1 ? n - 1 : i0 + 2;
+    const int lo = n <= 4 ? 0 : i0 - 1 < 0 ? 0 : i0 - 1 > n - 4 ? n - 4 : i0 - 1;
+    const int hi = n <= 4 ? n - 1 : lo + 3;
     const double tq = tan_deg(q);
     double t[4];
     int a, c;
