@@ -14,10 +14,11 @@ the bank's first, middle and last wavelength:
 * ``chief_px``: the reader's chief point's distance from the true one, in pixels.
 
 Each direct render is integrated to the spec's target (its own error is part of both
-figures). Linear blending has an error of second order in the grid spacing: halving the
-spacing divides the between-node error by about four, down to the nodes' own error; the
-check says how many field points per axis would bring the blend (on the lens's chief
-point) to the spec's target, and when the interpolated chief point is off by more than a
+figures). The reader's cubic blend has an error of fourth order in the grid spacing once
+the grid resolves the PSF's changes, of second order at worst: halving the spacing
+divides the between-node error by 4 to 16, down to the nodes' own error; the check says
+how many field points per axis would at most bring the blend (on the lens's chief point)
+to the spec's target (second order), and when the interpolated chief point is off by more than a
 tenth of a pixel (a cubic needs 4 points on an axis: with 3, 4 px at the cell centres of
 banks/demo.toml's y axis).
 """
@@ -139,8 +140,8 @@ def check_line(result: dict[str, Any]) -> str:
         line += (f"; worse than the nearest node at {result['worse_than_nearest']} of {n} "
                  "points")
     if result["worst_bank_lens_chief"] > result["target"]:
-        line += (f"; about {result['field_points_for_target']} field points per axis would "
-                 f"reach the target {result['target']:.2%}")
+        line += (f"; at most about {result['field_points_for_target']} field points per axis "
+                 f"would reach the target {result['target']:.2%}")
     if result["worst_chief_px"] > 0.1:
         line += ("; the interpolated chief point is more than 0.1 px off: pass the lens's "
                  "(chief_mm) or give the field axes 4 points or more")

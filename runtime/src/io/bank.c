@@ -1036,14 +1036,8 @@ static double tan_deg(double deg)
     return tan(deg * (3.14159265358979323846 / 180.0));
 }
 
-/* The weight of a field cell's second node in t (cell_of's t in degrees: 0 and 1 kept exact). */
-static double tan_weight(const double *v, int i0, double q, double t)
-{
-    if (t == 0.0 || t == 1.0) return t;
-    return (tan_deg(q) - tan_deg(v[i0])) / (tan_deg(v[i0 + 1]) - tan_deg(v[i0]));
-}
-
-/* The chief point's weights along a field axis: the Lagrange polynomial in t through four
+/* The weights along a field axis (of the images and of the chief points): the Lagrange
+ * polynomial in t through four
  * grid values around the cell i0 (the cell's two and one on each side, or at an end of
  * the grid the four nearest: a cubic wherever the axis has 4 values; else the polynomial
  * through the 3, 2 or 1 there are). Exactly 1 and 0s on a grid value. */
@@ -1067,7 +1061,7 @@ static void chief_weights(const double *v, int n, int i0, double q, int *first, 
 lensrt_result lensrt_bank_psf(lensrt_bank b, const lensrt_bank_query *query, float *out, size_t count, double chief_mm[2])
 {
     lensrt_bank_query q;
-    psf_term terms[8];
+    psf_term terms[32];
     const size_t plane = b ? (size_t)b->width * (size_t)b->height : 0;
     double tx, ty, tl, wx[4], wy[4], centre[2] = {0.0, 0.0};
     int i_f = 0, i_z = 0, i_d = 0, ix = 0, iy = 0, il = 0, a, c, n_terms = 0, i, j;
@@ -1096,10 +1090,10 @@ lensrt_result lensrt_bank_psf(lensrt_bank b, const lensrt_bank_query *query, flo
     if ((res = cell_of(b, AXIS_FIELD_X, "field_x_deg", q.field_x_deg, &ix, &tx)) != LENSRT_SUCCESS) return res;
     if ((res = cell_of(b, AXIS_FIELD_Y, "field_y_deg", q.field_y_deg, &iy, &ty)) != LENSRT_SUCCESS) return res;
     if ((res = cell_of(b, AXIS_WAVELENGTH, "wavelength_nm", q.wavelength_nm, &il, &tl)) != LENSRT_SUCCESS) return res;
-    // The image weights: bilinear in tan(field) over the cell's nodes
-    if (b->n[AXIS_FIELD_X] > 1) tx = tan_weight(b->values[AXIS_FIELD_X], ix, q.field_x_deg, tx);
-    if (b->n[AXIS_FIELD_Y] > 1) ty = tan_weight(b->values[AXIS_FIELD_Y], iy, q.field_y_deg, ty);
-    // The chief point: a cubic in tan(field) over up to 4 x 4 nodes, linear in wavelength
+    // The weights: a cubic in tan(field) over up to 4 x 4 nodes (images and chief points
+    // alike), linear in wavelength
+    (void)tx;
+    (void)ty;
     chief_weights(b->values[AXIS_FIELD_X], b->n[AXIS_FIELD_X], ix, q.field_x_deg, &x0, &nx, wx);
     chief_weights(b->values[AXIS_FIELD_Y], b->n[AXIS_FIELD_Y], iy, q.field_y_deg, &y0, &ny, wy);
     for (j = 0; j < ny; j++)
@@ -1120,40 +1114,41 @@ lensrt_result lensrt_bank_psf(lensrt_bank b, const lensrt_bank_query *query, flo
         centre[0] = q.chief_x_mm;
         centre[1] = q.chief_y_mm;
     }
-    // The terms: up to 4 nodes x 2 channels of non-zero weight, each registered on its chief point
-    for (a = 0; a < 4; a++) {
-        const int dy = a / 2, dx = a % 2;
-        const double wf = (dy ? ty : 1.0 - ty) * (dx ? tx : 1.0 - tx);
-        bank_node *node;
-        if (wf == 0.0) continue;
-        node = &b->nodes[(slice + (size_t)(iy + dy)) * (size_t)b->n[AXIS_FIELD_X] + (size_t)(ix + dx)];
-        if ((res = need_node(b, node)) != LENSRT_SUCCESS) return res;
-        for (c = 0; c < 2; c++) {
-            const double w = wf * (c ? tl : 1.0 - tl);
-            const int ch = il + c;
-            const double ux = node->chief[2 * ch], uy = node->chief[2 * ch + 1];
-            double sx = 0.0, sy = 0.0, fx, fy;
-            psf_term *t;
-            if (w == 0.0) continue;
-            // The shift in pixels (row 0 at +y), whole and fractional parts: a node centred
-            // on its middle chief point moves each channel onto its own; none when each
-            // channel is centred on its own, or the nodes share one window
-            if (b->registration == REGISTRATION_CHIEF) {
-                sx = (ux - node->center_x) / b->pixel_x;
-                sy = -(uy - node->center_y) / b->pixel_y;
+    // The terms: up to 4 x 4 nodes x 2 channels of non-zero weight, each registered on its
+    // chief point
+    for (j = 0; j < ny; j++)
+        for (i = 0; i < nx; i++) {
+            const double wf = wy[j] * wx[i];
+            bank_node *node;
+            if (wf == 0.0) continue;
+            node = &b->nodes[(slice + (size_t)(y0 + j)) * (size_t)b->n[AXIS_FIELD_X] + (size_t)(x0 + i)];
+            if ((res = need_node(b, node)) != LENSRT_SUCCESS) return res;
+            for (c = 0; c < 2; c++) {
+                const double w = wf * (c ? tl : 1.0 - tl);
+                const int ch = il + c;
+                const double ux = node->chief[2 * ch], uy = node->chief[2 * ch + 1];
+                double sx = 0.0, sy = 0.0, fx, fy;
+                psf_term *t;
+                if (w == 0.0) continue;
+                // The shift in pixels (row 0 at +y), whole and fractional parts: a node
+                // centred on its middle chief point moves each channel onto its own; none
+                // when each channel is centred on its own, or the nodes share one window
+                if (b->registration == REGISTRATION_CHIEF) {
+                    sx = (ux - node->center_x) / b->pixel_x;
+                    sy = -(uy - node->center_y) / b->pixel_y;
+                }
+                t = &terms[n_terms++];
+                t->plane = node->image + (size_t)ch * plane;
+                t->sx = (long)floor(sx);
+                t->sy = (long)floor(sy);
+                fx = sx - floor(sx);
+                fy = sy - floor(sy);
+                t->tap[0] = w * (1.0 - fx) * (1.0 - fy);
+                t->tap[1] = w * fx * (1.0 - fy);
+                t->tap[2] = w * (1.0 - fx) * fy;
+                t->tap[3] = w * fx * fy;
             }
-            t = &terms[n_terms++];
-            t->plane = node->image + (size_t)ch * plane;
-            t->sx = (long)floor(sx);
-            t->sy = (long)floor(sy);
-            fx = sx - floor(sx);
-            fy = sy - floor(sy);
-            t->tap[0] = w * (1.0 - fx) * (1.0 - fy);
-            t->tap[1] = w * fx * (1.0 - fy);
-            t->tap[2] = w * (1.0 - fx) * fy;
-            t->tap[3] = w * fx * fy;
         }
-    }
     // Each output pixel: the taps that fall inside their node image
     for (j = 0; j < b->height; j++)
         for (i = 0; i < b->width; i++) {
@@ -1165,7 +1160,8 @@ lensrt_result lensrt_bank_psf(lensrt_bank b, const lensrt_bank_query *query, flo
                     if (terms[k].tap[a] != 0.0 && x >= 0 && x < b->width && y >= 0 && y < b->height)
                         sum += terms[k].tap[a] * (double)terms[k].plane[(size_t)y * (size_t)b->width + (size_t)x];
                 }
-            out[(size_t)j * (size_t)b->width + (size_t)i] = (float)sum;
+            // A cubic's weights are partly negative: irradiance is not
+            out[(size_t)j * (size_t)b->width + (size_t)i] = sum > 0.0 ? (float)sum : 0.0f;
         }
     if (chief_mm) {
         chief_mm[0] = centre[0];
