@@ -24,6 +24,7 @@ from pathlib import Path
 
 import lensrt_ctypes
 import pytest
+from bank_specs import bank_spec
 
 import lensfit
 from lensfit import data_folder, missing_data_folder, require_data_folder
@@ -37,20 +38,7 @@ SETTINGS = ("PYTHONPATH", "PYTHONHOME", "LENSRT_LIBRARY", "LENSFIT_GENERATED",
             "LENSFIT_LENSDB", "LENSFIT_GLASS_CATALOG", "VIRTUAL_ENV")
 
 # 2 x 1 field nodes, 2 wavelengths, 16 x 16 pixels: seconds to render
-TINY_BANK = """name = "tiny"
-lens = "0001"
-[grid]
-field_x_deg = [0, 5]
-field_y_deg = [0]
-f_numbers = [8]
-wavelengths_nm = [500, 600]
-[window]
-pixels = [16, 16]
-size_mm = [0.04, 0.04]
-[render]
-integrator = "cells"
-target_error = 0.05
-"""
+TINY_BANK = bank_spec("tiny", size_mm=0.04)
 
 
 @pytest.fixture

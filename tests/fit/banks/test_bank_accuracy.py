@@ -17,6 +17,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from bank_specs import bank_spec
 
 from lensfit.banks.check import check_bank
 from lensfit.banks.node import create_render, node_coordinates
@@ -30,20 +31,8 @@ from lensrt_ctypes import LIBRARY, Bank, Lensrt, LensrtError  # noqa: E402
 pytestmark = pytest.mark.skipif(not LIBRARY.exists(),
                                 reason=f"needs {LIBRARY}: build it with `make runtime`")
 
-SPEC = """name = "acc"
-lens = "0001"
-[grid]
-field_x_deg = {fields}
-field_y_deg = [0]
-f_numbers = [8]
-wavelengths_nm = [450, 550, 650]
-[window]
-pixels = [24, 24]
-size_mm = [0.06, 0.06]
-[render]
-integrator = "cells"
-target_error = 0.02
-"""
+SPEC = bank_spec("acc", fields_x="{fields}", wavelengths=(450, 550, 650), pixels=24,
+                 render='integrator = "cells"\ntarget_error = 0.02')
 
 
 def make_bank(tmp_path: Path, fields: str) -> tuple[Path, Path]:

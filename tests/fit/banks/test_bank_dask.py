@@ -22,6 +22,7 @@ import time
 from pathlib import Path
 
 import pytest
+from bank_specs import bank_spec
 
 from lensfit.banks import engine, node
 from lensfit.banks.engine import TaskError, run_tasks
@@ -35,19 +36,7 @@ from lensrt_ctypes import LIBRARY  # noqa: E402
 pytestmark = pytest.mark.skipif(not LIBRARY.exists(),
                                 reason=f"needs {LIBRARY}: build it with `make runtime`")
 
-SPEC = """name = "{name}"
-lens = "0001"
-[grid]
-field_x_deg = [0, 5]
-field_y_deg = [0]
-f_numbers = [8]
-wavelengths_nm = [500, 600]
-[window]
-pixels = [16, 16]
-size_mm = [0.06, 0.06]
-[render]
-{render}
-"""
+SPEC = bank_spec("{name}", render="{render}")
 CELLS = 'integrator = "cells"\ntarget_error = 0.05'
 MONTE_CARLO = 'integrator = "monte-carlo"\nsamples = {samples}\ncheckpoints = 2'
 NODE = "nodes/f0-z0-d0-y0-x0"

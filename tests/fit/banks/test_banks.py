@@ -20,6 +20,7 @@ import zlib
 from pathlib import Path
 
 import pytest
+from bank_specs import bank_spec
 
 from lensfit.banks.run import run_bank
 from lensfit.banks.spec import SpecError, load_spec
@@ -32,19 +33,7 @@ from lensrt_ctypes import LIBRARY  # noqa: E402
 pytestmark = pytest.mark.skipif(not LIBRARY.exists(),
                                 reason=f"needs {LIBRARY}: build it with `make runtime`")
 
-SPEC = """name = "{name}"
-lens = "0001"
-[grid]
-field_x_deg = [0, 5, 10]
-field_y_deg = [0]
-f_numbers = [8]
-wavelengths_nm = [500, 600]
-[window]
-pixels = [24, 24]
-size_mm = [0.06, 0.06]
-[render]
-{render}
-"""
+SPEC = bank_spec("{name}", fields_x=(0, 5, 10), pixels=24, render="{render}")
 MONTE_CARLO = 'integrator = "monte-carlo"\nsamples = 262144\ncheckpoints = 4'
 CELLS = 'integrator = "cells"\ntarget_error = 0.02'
 
