@@ -3,8 +3,9 @@
 One panel per (f-number, focus offset, distance) slice, the nodes laid out as the frame
 shows them (+field y up, +field x right), each tile the node's sRGB preview tone-mapped
 against its own peak (a log scale over 3 decades, so the wings show), labelled with its
-field angles and error estimate. Returned as PNG bytes (the caller writes them
-atomically).
+field angles and error estimate. A bank of PSFs renders each wavelength of a node on its
+own chief point (node.py), so the tiles show no lateral colour: the index holds it, as
+each wavelength's chief point. Returned as PNG bytes (the caller writes them atomically).
 """
 
 from __future__ import annotations
@@ -59,7 +60,9 @@ def contact_sheet(spec: BankSpec, out: Path, records: list[dict[str, Any]]) -> b
     fig.suptitle(f"bank {spec.name}: {records[0]['lens'] if records else ''}, "
                  f"{per_slice} field points x {slices} slices, {w.size_mm[0]:g} x "
                  f"{w.size_mm[1]:g} mm windows on the chief ray, "
-                 f"{len(g.wavelengths_nm)} wavelengths", fontsize=7)
+                 f"{len(g.wavelengths_nm)} wavelengths"
+                 + (" (each on its own chief point: no lateral colour)" if w.center_mm is None
+                    else ""), fontsize=7)
     fig.tight_layout()
     buf = io.BytesIO()
     fig.savefig(buf, format="png", dpi=110)
