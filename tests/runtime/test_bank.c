@@ -752,6 +752,100 @@ static void test_bank_without_exr(lensrt_context ctx)
     free(body);
 }
 
+/* The context's allocator, counting: the bytes live now and the most at once. Each block
+ * carries its size in front (16 bytes, keeping malloc's alignment). */
+typedef struct counted {
+    size_t live, peak;
+} counted;
+
+static void *counting_alloc(size_t size, void *user_data)
+{
+    counted *c = user_data;
+    unsigned char *p = malloc(size + 16);
+    if (!p) return NULL;
+    memcpy(p, &size, sizeof size);
+    c->live += size;
+    if (c->live > c->peak) c->peak = c->live;
+    return p + 16;
+}
+
+static void counting_free(void *ptr, void *user_data)
+{
+    counted *c = user_data;
+    size_t size;
+    if (!ptr) return;
+    memcpy(&size, (unsigned char *)ptr - 16, sizeof size);
+    c->live -= size;
+    free((unsigned char *)ptr - 16);
+}
+
+/* A bank of LENSRT_MAX_BANK_NODES nodes (256 x 256 field points, 64 x 64 pixels, one
+ * wavelength: 1 GiB of node images) opens in the memory of its index: node images are
+ * read when first used. Every node names the same file, so the test writes one. */
+static void test_largest_bank(void)
+{
+    enum { SIDE = 256, PIX = 64 };
+    static const char fake[] = "not read until a query needs it";
+    lensrt_context_init init = LENSRT_CONTEXT_INIT;
+    lensrt_context ctx = NULL;
+    lensrt_bank bank = NULL;
+    lensrt_bank_info info = LENSRT_BANK_INFO_INIT;
+    counted use = {0, 0};
+    size_t before;
+    char folder[4300], path[4400], *text;
+    size_t n = 0, cap = (size_t)SIDE * SIDE * 96 + 65536;
+    int k;
+    init.alloc_fn = counting_alloc;
+    init.free_fn = counting_free;
+    init.user_data = &use;
+    init.threads = 1;
+    if (lensrt_context_create(&init, &ctx) != LENSRT_SUCCESS) {
+        CHECK(0, "lensrt_context_create with a counting allocator failed");
+        return;
+    }
+    snprintf(folder, sizeof folder, "%s/largest", g_scratch);
+    snprintf(path, sizeof path, "%s/nodes", folder);
+    CHECK((mkdir(folder, 0777) == 0 || errno == EEXIST) && (mkdir(path, 0777) == 0 || errno == EEXIST),
+          "cannot create %s", path);
+    snprintf(path, sizeof path, "%s/nodes/n.exr", folder);
+    CHECK(write_bytes(path, fake, sizeof fake), "cannot write %s", path);
+    if (!(text = malloc(cap))) {
+        lensrt_context_destroy(ctx);
+        return;
+    }
+    n += (size_t)sprintf(text + n, "lensrt-bank 1\nlens big\ntable_crc32 00000000\nwidth %d\nheight %d\n"
+                         "pixel_mm 0.001 0.001\nregistration channel\nwavelengths_nm 1 550\nf_numbers 1 8\n"
+                         "focus_offsets_mm 1 0\ndistances_mm 1 0\n", PIX, PIX);
+    n += (size_t)sprintf(text + n, "field_x_deg %d", SIDE);
+    for (k = 0; k < SIDE; k++) n += (size_t)sprintf(text + n, " %g", -12.8 + 0.1 * k);
+    n += (size_t)sprintf(text + n, "\nfield_y_deg %d", SIDE);
+    for (k = 0; k < SIDE; k++) n += (size_t)sprintf(text + n, " %g", -12.8 + 0.1 * k);
+    n += (size_t)sprintf(text + n, "\nnodes %d\n", SIDE * SIDE);
+    for (k = 0; k < SIDE * SIDE; k++)
+        n += (size_t)sprintf(text + n, "node %d 0 0 0 %d %d 0 0 0.01 %08x nodes/n.exr\nchief %d %g %g\n", k, k / SIDE,
+                             k % SIDE, (unsigned)test_crc32(fake, sizeof fake), k, 0.1 * (k % SIDE), 0.1 * (k / SIDE));
+    n += (size_t)sprintf(text + n, "checksum crc32 %08x\n", (unsigned)test_crc32(text, n));
+    snprintf(path, sizeof path, "%s/bank.index", folder);
+    CHECK(write_bytes(path, text, n), "cannot write %s", path);
+    free(text);
+    before = use.live; /* the context's own */
+    use.peak = before;
+    CHECK_OK(ctx, lensrt_bank_open(ctx, path, &bank));
+    if (bank) {
+        CHECK_OK(ctx, lensrt_bank_get_info(bank, &info));
+        CHECK(info.n_nodes == LENSRT_MAX_BANK_NODES, "%d nodes", info.n_nodes);
+        // The index's bytes while it is read, then its nodes: tens of MB, not the images' GiB
+        CHECK(use.peak < ((size_t)64 << 20), "opening took %zu bytes at most", use.peak);
+        CHECK(use.live < ((size_t)16 << 20), "an open bank holds %zu bytes", use.live);
+        printf("test_bank: %d nodes opened in %.1f MB at most, %.1f MB held (their images: %.0f MB)\n",
+               info.n_nodes, (double)(use.peak - before) / 1e6, (double)(use.live - before) / 1e6,
+               (double)LENSRT_MAX_BANK_NODES * PIX * PIX * sizeof(float) / 1e6);
+        lensrt_bank_close(bank);
+    }
+    CHECK(use.live == before, "%zu bytes left after closing", use.live - before);
+    lensrt_context_destroy(ctx);
+}
+
 int main(int argc, char **argv)
 {
     lensrt_context_init init = LENSRT_CONTEXT_INIT;
@@ -771,6 +865,7 @@ int main(int argc, char **argv)
         return 1;
     }
     test_reproducible_exr(ctx, argv[1]);
+    test_largest_bank();
     if (LENSRT_TEST_EXR) test_bank(ctx);
     else test_bank_without_exr(ctx);
     lensrt_context_destroy(ctx);

@@ -58,7 +58,8 @@ typedef struct bank_node {
     int line;           /* its node line, for messages */
     double center_x, center_y, error_estimate;
     uint32_t crc;
-    char path[BANK_PATH_SIZE]; /* relative to the index's folder */
+    char *path;         /* relative to the index's folder (its own allocation: a bank of
+                           LENSRT_MAX_BANK_NODES nodes holds 65,536 of them) */
     long tuple[5];      /* its indices (i_f, i_z, i_d, i_y, i_x) */
     double *chief;      /* x, y per wavelength (mm) */
     float *image;       /* n_wavelengths planes of width x height, row 0 at the top; NULL
@@ -426,7 +427,11 @@ static lensrt_result read_nodes(bank_reader *r, lensrt_bank b)
         node->center_y = cy;
         node->error_estimate = err;
         node->crc = crc;
-        snprintf(node->path, sizeof node->path, "%s", t);
+        if (!(node->path = lensrt_alloc(b->ctx, strlen(t) + 1))) {
+            res = lensrt_fail(b->ctx, LENSRT_ERROR_OUT_OF_MEMORY, "bank index %s: out of memory", r->file);
+            break;
+        }
+        memcpy(node->path, t, strlen(t) + 1);
         // The worst estimate: unknown (-1) once a node has none
         if (err < 0.0) b->worst_error = -1.0;
         else if (b->worst_error >= 0.0 && err > b->worst_error) b->worst_error = err;
@@ -872,6 +877,7 @@ void lensrt_bank_close(lensrt_bank b)
     if (!b) return;
     for (i = 0; b->nodes && i < b->n_nodes; i++) {
         lensrt_free(b->ctx, b->nodes[i].chief);
+        lensrt_free(b->ctx, b->nodes[i].path);
         lensrt_free(b->ctx, b->nodes[i].image);
     }
     lensrt_free(b->ctx, b->nodes);
