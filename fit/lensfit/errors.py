@@ -12,6 +12,18 @@ class InputError(ValueError):
     status 2; other exceptions are bugs and keep their traceback."""
 
 
+def parse_problem(e: ValueError) -> str:
+    """What a TOML or JSON parser's ValueError says, for a person. Python refuses to turn
+    an integer literal of more than 4300 digits into an int (sys.get_int_max_str_digits:
+    a guard against quadratic-time conversion), and its message advises raising that
+    limit; no value lensfit reads has such a literal, so it is named as what it is."""
+    text = str(e)
+    if "integer string conversion" in text:
+        return ("an integer literal of more than 4300 digits (no value lensfit reads has "
+                "one)")
+    return text
+
+
 def regular_file_problem(path: str | object) -> str | None:
     """Why ``path`` cannot be read as an input file (a folder, a FIFO, a device: a FIFO
     would block the read), or None for a regular file or a missing one (whose read
@@ -59,8 +71,10 @@ def read_toml(path: str | object, what: str, error: type[Exception]) -> dict:
         raise error(f"{p}: cannot read {what}: {problem}")
     try:
         return tomllib.loads(p.read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError) as e:
+    except (OSError, UnicodeDecodeError) as e:
         raise error(f"{p}: cannot read {what}: {e}") from None
+    except ValueError as e:  # TOMLDecodeError, or an integer of over 4300 digits
+        raise error(f"{p}: cannot read {what}: {parse_problem(e)}") from None
     except RecursionError:
         raise error(f"{p}: cannot read {what}: nested too deeply") from None
 

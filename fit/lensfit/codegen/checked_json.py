@@ -16,7 +16,7 @@ from pathlib import Path
 from typing import Any
 
 from lensfit.codegen.table import REGENERATE
-from lensfit.errors import InputError
+from lensfit.errors import InputError, parse_problem
 
 KEY = "checksum"
 REGENERATE_FOLDER = f"regenerate the folder with {REGENERATE}"  # for a record without a checksum
@@ -40,8 +40,10 @@ def load_checked_json(path: Path, regenerate: str, *, legacy: bool = False) -> d
     try:
         raw = path.read_bytes()
         doc = json.loads(raw.decode("utf-8"))
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError, RecursionError) as e:
+    except (OSError, RecursionError) as e:
         raise InputError(f"{path}: cannot read: {e or 'nested too deeply'}") from None
+    except ValueError as e:  # bad UTF-8 or JSON, or an integer of over 4300 digits
+        raise InputError(f"{path}: cannot read: {parse_problem(e)}") from None
     if not isinstance(doc, dict):
         raise InputError(f"{path}: expected a JSON object, found {type(doc).__name__}")
     if KEY not in doc:

@@ -19,6 +19,8 @@ from typing import Protocol, runtime_checkable
 import numpy as np
 import numpy.typing as npt
 
+from lensfit.errors import InputError, parse_problem
+
 __all__ = [
     "AIR",
     "AbbeGlass",
@@ -272,7 +274,11 @@ def _triple(entry: dict[str, object], key: str) -> tuple[float, float, float]:
 def _load_catalog(path: pathlib.Path) -> dict[str, SellmeierGlass]:
     """Parse the catalog once per path; keys are normalised names."""
     with path.open("rb") as fh:
-        data = tomllib.load(fh)
+        try:
+            data = tomllib.load(fh)
+        except ValueError as e:  # TOMLDecodeError, or an integer of over 4300 digits
+            raise InputError(f"{path}: cannot read the glass catalog: {parse_problem(e)}"
+                             ) from None
     glasses: dict[str, SellmeierGlass] = {}
     for entry in data.get("glass", []):
         lo, hi = (_number(entry, "range_nm", v) for v in entry["range_nm"])

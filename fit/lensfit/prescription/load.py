@@ -25,7 +25,13 @@ import jsonschema
 import numpy as np
 
 from lensfit import data_folder, missing_data_folder
-from lensfit.errors import InputError, LensError, regular_file_problem, toml_overflow
+from lensfit.errors import (
+    InputError,
+    LensError,
+    parse_problem,
+    regular_file_problem,
+    toml_overflow,
+)
 from lensfit.glass import (
     AIR,
     MODEL_DPGF_MAX,
@@ -99,8 +105,8 @@ def load_lens(name: str | os.PathLike[str]) -> Lens:
         raise LensError(f"cannot read: {e}", file=label) from None
     try:
         data = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as e:
-        raise LensError(f"malformed TOML: {e}", file=label) from None
+    except ValueError as e:  # TOMLDecodeError, or an integer of over 4300 digits
+        raise LensError(f"malformed TOML: {parse_problem(e)}", file=label) from None
     except RecursionError:
         raise LensError("malformed TOML: nested too deeply", file=label) from None
     return lens_from_dict(data, file=label)
