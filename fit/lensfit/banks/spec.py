@@ -53,6 +53,12 @@ NAME = re.compile(r"[A-Za-z0-9_-]{1,64}")
 GHOST = re.compile(r"[0-9]{1,3}-[0-9]{1,3}")  # a ghost's label: the file's surfaces i-j
 MAX_NODES = 65_536  # what lensrt_bank_open reads (LENSRT_MAX_BANK_NODES)
 MAX_PIXELS = 4096
+# The f-numbers and pixels a bank may ask for. f/1000 is a 0.05 mm stop on a 100 mm lens
+# (a PSF of 1000 lambda N, half a metre, past any window); beyond it, and with pixels far
+# below a wavelength, renders ran into non-finite fields and every node failed blaming the
+# table (f/1e308, a 1e-300 mm window: issue 39)
+MAX_F_NUMBER = 1000.0
+MIN_PITCH_MM = 1e-5
 
 
 class SpecError(InputError):
@@ -234,8 +240,9 @@ def _parse(d: Any, source: str) -> BankSpec:
                              want=angle, increasing=True),
         field_y_deg=_numbers(g, "grid.field_y_deg", source, check=lambda v: abs(v) < 90,
                              want=angle, increasing=True),
-        f_numbers=_numbers(g, "grid.f_numbers", source, check=lambda v: v > 0,
-                           want="positive f-numbers"),
+        f_numbers=_numbers(g, "grid.f_numbers", source,
+                           check=lambda v: 0 < v <= MAX_F_NUMBER,
+                           want=f"f-numbers in (0, {MAX_F_NUMBER:g}]"),
         wavelengths_nm=_numbers(g, "grid.wavelengths_nm", source,
                                 check=lambda v: 100 < v < 10000,
                                 want="wavelengths in nm (100 to 10000)", increasing=True),
@@ -261,6 +268,12 @@ def _parse(d: Any, source: str) -> BankSpec:
     if not isinstance(size, list) or len(size) != 2 or not all(
             _number(v) and 0 < v <= 100 for v in size):
         raise _fail(source, "window.size_mm", size, "expected [width, height] in mm, in (0, 100]")
+    for axis, (n, mm) in enumerate(zip(px, size, strict=True)):
+        if mm / n < MIN_PITCH_MM:
+            raise _fail(source, "window.size_mm", size,
+                        f"expected pixels of at least {MIN_PITCH_MM:g} mm (a hundredth of the "
+                        f"shortest wavelength); {mm!r} mm over {n} pixels in "
+                        f"{'xy'[axis]} is {mm / n:.3g} mm")
     centre = w.get("center_mm")
     if centre is not None and (not isinstance(centre, list) or len(centre) != 2 or not all(
             _number(v) and abs(v) <= 1000 for v in centre)):

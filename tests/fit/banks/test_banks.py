@@ -251,8 +251,14 @@ def test_damaged_node_is_rendered_again(tmp_path: Path) -> None:
                                                              r"expected angles"),
     ({"field_x_deg = [0, 5, 10]": "field_x_deg = [5, 0]"},
      r"key 'grid.field_x_deg': expected increasing"),
-    ({"f_numbers = [8]": "f_numbers = [true]"}, r"key 'grid.f_numbers\[0\]': expected positive "
-                                               r"f-numbers, found true"),
+    ({"f_numbers = [8]": "f_numbers = [true]"}, r"key 'grid.f_numbers\[0\]': expected "
+                                               r"f-numbers in \(0, 1000\], found true"),
+    # Absurd values that rendered non-finite fields in every node, blaming the table
+    ({"f_numbers = [8]": "f_numbers = [1e308]"}, r"key 'grid.f_numbers\[0\]': expected "
+                                                r"f-numbers in \(0, 1000\], found 1e\+308"),
+    ({"size_mm = [0.06, 0.06]": "size_mm = [1e-300, 0.06]"},
+     r"key 'window.size_mm': expected pixels of at least 1e-05 mm .* 1e-300 mm over 24 "
+     r"pixels in x"),
     ({"pixels = [24, 24]": "pixels = [24]"}, r"key 'window.pixels': expected \[width, height\]"),
     ({"[grid]": "[grid]\nfocus_offsets_mm = [0, 0]"},
      r"key 'grid.focus_offsets_mm': expected distinct"),
