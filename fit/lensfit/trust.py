@@ -65,7 +65,7 @@ def corner_field(lens: Lens, domain: Domain, share: float = CORNER_SHARE
                  ) -> tuple[float, float]:
     """(θx, θy) in degrees of a light imaged at ``share`` of the 36 x 24 mm frame's
     (-x, -y) corner (paraxially, per meridian), pulled inside the fitted field if it lies
-    beyond it. Both angles are negative (README, "Conventions"): the light is up and to
+    beyond it. Both angles are negative (docs/conventions.md): the light is up and to
     the right of the axis, the light of every committed fit's corner cell."""
     corner = np.array([18.0, 12.0]) * share * min(1.0, domain.sensor_radius_mm
                                                   / FULL_FRAME_HALF_DIAGONAL_MM)

@@ -472,7 +472,7 @@ typedef struct lensrt_sensor {
 } lensrt_sensor;
 
 /* A point light. Field angles follow the lens designers' convention (Zemax, Code V;
- * README.md, "Conventions"): the light's chief ray enters along (tan field_x,
+ * docs/conventions.md): the light's chief ray enters along (tan field_x,
  * tan field_y, 1), z towards the sensor, so field_y_deg > 0 is a ray rising towards the
  * lens (dy/dz > 0) from a light below the axis, imaged at sensor y > 0 (about
  * f tan field_y). lensrt_light_direction_cosines gives P_o's (x_O, y_O). */

@@ -10,7 +10,7 @@ Then the result is checked against physics, not against itself:
 * the fit states its trust (the PSF of the polynomials against exactly traced rays) and
   it is within the fit's target;
 * the light at (+2, +1) degrees is imaged at +f tan(theta) (the designers' sign
-  convention, README "Conventions"), where lensrt-psf centred its window;
+  convention, docs/conventions.md), where lensrt-psf centred its window;
 * on axis at f/8 and 550 nm this achromat is diffraction limited: the rendered PSF is the
   Airy pattern of f/8.
 """

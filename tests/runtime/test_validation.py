@@ -371,7 +371,7 @@ def test_perfect_lens_strehl(rt, f_number, field_deg):
     radius = f / (2 * f_number)
     lens = rt.analytic(sensor_distance_mm=f, focal_length_mm=f)
     cx, cy = rt.image_point(lens, (field_deg, 0.0), WL_NM, 0.0)
-    # Designers' convention: +field is imaged at +x (README "Conventions")
+    # Designers' convention: +field is imaged at +x (docs/conventions.md)
     assert cx == pytest.approx(f * np.tan(np.radians(field_deg)), abs=1e-12)
     n_px, pitch = 9, LAM * f_number / 8
     img = rt.render(lens, width=n_px, height=n_px, width_mm=n_px * pitch, center=(cx, cy),
