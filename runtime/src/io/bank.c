@@ -1047,7 +1047,7 @@ static double tan_deg(double deg)
  * grid values around the cell i0 (the cell's two and one on each side, or at an end of
  * the grid the four nearest: a cubic wherever the axis has 4 values; else the polynomial
  * through the 3, 2 or 1 there are). Exactly 1 and 0s on a grid value. */
-static void chief_weights(const double *v, int n, int i0, double q, int *first, int *count, double w[4])
+static void field_weights(const double *v, int n, int i0, double q, int *first, int *count, double w[4])
 {
     const int lo = n <= 4 ? 0 : i0 - 1 < 0 ? 0 : i0 - 1 > n - 4 ? n - 4 : i0 - 1;
     const int hi = n <= 4 ? n - 1 : lo + 3;
@@ -1069,7 +1069,7 @@ lensrt_result lensrt_bank_psf(lensrt_bank b, const lensrt_bank_query *query, flo
     lensrt_bank_query q;
     psf_term terms[32];
     const size_t plane = b ? (size_t)b->width * (size_t)b->height : 0;
-    double tx, ty, tl, wx[4], wy[4], centre[2] = {0.0, 0.0};
+    double t_unused, tl, wx[4], wy[4], centre[2] = {0.0, 0.0};
     int i_f = 0, i_z = 0, i_d = 0, ix = 0, iy = 0, il = 0, a, c, n_terms = 0, i, j;
     int x0, nx, y0, ny;
     size_t slice;
@@ -1092,16 +1092,14 @@ lensrt_result lensrt_bank_psf(lensrt_bank b, const lensrt_bank_query *query, flo
     if ((res = exact_index(b, AXIS_DISTANCE, "distance_mm", q.distance_mm, &i_d)) != LENSRT_SUCCESS) return res;
     slice = (((size_t)i_f * (size_t)b->n[AXIS_FOCUS] + (size_t)i_z) * (size_t)b->n[AXIS_DISTANCE] + (size_t)i_d) *
             (size_t)b->n[AXIS_FIELD_Y];
-    // The field cell and the wavelength's two channels
-    if ((res = cell_of(b, AXIS_FIELD_X, "field_x_deg", q.field_x_deg, &ix, &tx)) != LENSRT_SUCCESS) return res;
-    if ((res = cell_of(b, AXIS_FIELD_Y, "field_y_deg", q.field_y_deg, &iy, &ty)) != LENSRT_SUCCESS) return res;
+    // The field cell (its weights are field_weights', below) and the wavelength's two channels
+    if ((res = cell_of(b, AXIS_FIELD_X, "field_x_deg", q.field_x_deg, &ix, &t_unused)) != LENSRT_SUCCESS) return res;
+    if ((res = cell_of(b, AXIS_FIELD_Y, "field_y_deg", q.field_y_deg, &iy, &t_unused)) != LENSRT_SUCCESS) return res;
     if ((res = cell_of(b, AXIS_WAVELENGTH, "wavelength_nm", q.wavelength_nm, &il, &tl)) != LENSRT_SUCCESS) return res;
     // The weights: a cubic in tan(field) over up to 4 x 4 nodes (images and chief points
     // alike), linear in wavelength
-    (void)tx;
-    (void)ty;
-    chief_weights(b->values[AXIS_FIELD_X], b->n[AXIS_FIELD_X], ix, q.field_x_deg, &x0, &nx, wx);
-    chief_weights(b->values[AXIS_FIELD_Y], b->n[AXIS_FIELD_Y], iy, q.field_y_deg, &y0, &ny, wy);
+    field_weights(b->values[AXIS_FIELD_X], b->n[AXIS_FIELD_X], ix, q.field_x_deg, &x0, &nx, wx);
+    field_weights(b->values[AXIS_FIELD_Y], b->n[AXIS_FIELD_Y], iy, q.field_y_deg, &y0, &ny, wy);
     for (j = 0; j < ny; j++)
         for (i = 0; i < nx; i++) {
             const bank_node *node = &b->nodes[(slice + (size_t)(y0 + j)) * (size_t)b->n[AXIS_FIELD_X] + (size_t)(x0 + i)];
