@@ -23,6 +23,13 @@ carries the full key and a CRC-32 of its canonical text (:mod:`lensfit.codegen
 .checked_json`); one that does not read back exactly, or names another key, is ignored
 with a one-line note on stderr and the step is redone. The stage removes the folder once
 the generated folder and the report are written.
+
+A checksum only says the file is as some writer left it, so what it holds is checked as
+well before it is used (issue 39): a system's held-out errors are computed again from
+its polynomials and the held-out rays and must be the ones recorded (an edited
+coefficient or ray changes them), every figure has its type and a finite value, and the
+PSF check names the SHA-256 of the polynomials it judged (:func:`systems_digest`), so a
+table's trust line always comes from a check of the polynomials written beside it.
 """
 
 from __future__ import annotations
@@ -31,6 +38,7 @@ import base64
 import dataclasses
 import hashlib
 import json
+import math
 import os
 import shutil
 import sys
@@ -42,7 +50,7 @@ import numpy as np
 from lensfit.atomic import write_files
 from lensfit.codegen.checked_json import checked_json_text, load_checked_json
 from lensfit.errors import InputError
-from lensfit.fitting.results import OutputFit, SystemFit
+from lensfit.fitting.results import OutputFit, SystemFit, error_metric
 from lensfit.poly.polynomial import System
 from lensfit.sample.rays import Samples
 
@@ -185,7 +193,9 @@ class FitCache:
             if doc is not None:
                 try:
                     fit = _system_fit(doc)
-                except (KeyError, TypeError, ValueError) as e:
+                    if fit.system.name != name:
+                        raise ValueError(f"it holds system {fit.system.name!r}")
+                except (KeyError, TypeError, ValueError, AttributeError) as e:
                     self._note(f"{self._path(name)}: unreadable checkpoint ({e}): ignored; "
                                "the step is done again")
             self._loaded[name] = fit
@@ -207,22 +217,28 @@ class FitCache:
         self._write(fit.system.name, doc)
         self._loaded[fit.system.name] = fit
 
-    def load_psf(self) -> dict[str, Any] | None:
-        """The checkpointed PSF table (lensfit.trust.psf_vs_exact), or None."""
-        if "psf" not in self._loaded:
+    def load_psf(self, systems: list[System]) -> dict[str, Any] | None:
+        """The checkpointed PSF table (lensfit.trust.psf_vs_exact) of exactly these
+        ``systems``, or None (absent, refused, or the check of other polynomials)."""
+        digest = systems_digest(systems)
+        if self._loaded.get("psf_of") != digest:
             doc = self._read("psf")
-            table = doc.get("table") if doc is not None else None
-            if doc is not None and not (isinstance(table, dict) and "cells" in table
-                                        and "worst" in table):
-                self._note(f"{self._path('psf')}: unreadable checkpoint: ignored; the PSF "
-                           "check is done again")
-                table = None
-            self._loaded["psf"] = table
+            table = None
+            if doc is not None:
+                try:
+                    if doc.get("systems_sha256") != digest:
+                        raise ValueError("it checked other polynomials than these")
+                    table = check_psf_table(doc.get("table"))
+                except (KeyError, TypeError, ValueError) as e:
+                    self._note(f"{self._path('psf')}: unreadable checkpoint ({e}): ignored; "
+                               "the PSF check is done again")
+            self._loaded["psf"], self._loaded["psf_of"] = table, digest
         return self._loaded["psf"]
 
-    def save_psf(self, table: dict[str, Any]) -> None:
-        self._write("psf", {"table": table})
-        self._loaded["psf"] = table
+    def save_psf(self, table: dict[str, Any], systems: list[System]) -> None:
+        digest = systems_digest(systems)
+        self._write("psf", {"table": table, "systems_sha256": digest})
+        self._loaded["psf"], self._loaded["psf_of"] = table, digest
 
     def _write(self, step: str, doc: dict[str, Any]) -> None:
         """Write a checkpoint atomically; one that cannot be written (a full disc, a
@@ -242,19 +258,142 @@ class FitCache:
             pass
 
 
+def systems_digest(systems: list[System]) -> str:
+    """The SHA-256 (hex) of the polynomials of ``systems`` (every input, exponent and
+    coefficient, exactly): what a PSF check checkpoint names as what it judged."""
+    doc = [s.to_dict() for s in systems]
+    return hashlib.sha256(json.dumps(doc, sort_keys=True).encode()).hexdigest()
+
+
+def _is(value: Any, kind: str, where: str) -> Any:
+    """``value`` when it is a ``kind`` ("text", "count": an int >= 0, "real": a finite
+    float or int, "flag": a bool), else ValueError naming ``where`` and the value."""
+    ok = {"text": lambda v: isinstance(v, str),
+          "count": lambda v: isinstance(v, int) and not isinstance(v, bool) and v >= 0,
+          "real": lambda v: (isinstance(v, (int, float)) and not isinstance(v, bool)
+                             and math.isfinite(v)),
+          "flag": lambda v: isinstance(v, bool)}[kind](value)
+    if not ok:
+        raise ValueError(f"{where}: expected a {kind}, found {str(value)[:40]!r}")
+    return value
+
+
+def _dropped(d: Any, where: str) -> dict[str, int]:
+    if not isinstance(d, dict):
+        raise ValueError(f"{where}: expected an object of counts")
+    return {_is(k, "text", where): _is(v, "count", f"{where}.{k}") for k, v in d.items()}
+
+
+# OutputFit's fields by kind (the optional ones may also be null)
+_OUTPUT_KINDS = {"system": "text", "name": "text", "unit": "text", "terms": "count",
+                 "max_degree": "count", "rms": "real", "max": "real", "target": "real",
+                 "reached": "flag", "piston_terms": "count"}
+_OUTPUT_OPTIONAL = {"absolute_rms_um": "real", "limit": "text", "ns_per_eval_double": "real",
+                    "ns_per_eval_float": "real"}
+
+
+def _output(d: Any, i: int) -> OutputFit:
+    """An OutputFit from its checkpointed dict, every field of its type."""
+    where = f"outputs[{i}]"
+    if not isinstance(d, dict) or set(d) != {f.name for f in dataclasses.fields(OutputFit)}:
+        raise ValueError(f"{where}: expected the fields of an output's fit")
+    for k, kind in _OUTPUT_KINDS.items():
+        _is(d[k], kind, f"{where}.{k}")
+    for k, kind in _OUTPUT_OPTIONAL.items():
+        if d[k] is not None:
+            _is(d[k], kind, f"{where}.{k}")
+    for k, kind in (("path_terms", "count"), ("path_rms", "real")):
+        if not isinstance(d[k], list):
+            raise ValueError(f"{where}.{k}: expected a list")
+        for v in d[k]:
+            _is(v, kind, f"{where}.{k}")
+    return OutputFit(**d)
+
+
+# A held-out error computed again may differ from the recorded one by the rounding of
+# another evaluation order (the fit sums the tensor form, this the monomials): ~1e-13
+# relative, measured, and 1e-6 of the output's target where the error is itself at
+# rounding level. A changed coefficient or ray moves it far more
+_RECHECK_RELATIVE = 1e-6
+
+
+def _recheck(system: System, outputs: list[OutputFit], test: Samples) -> None:
+    """ValueError unless the held-out errors of ``system`` on ``test``'s rays that pass
+    are the ones ``outputs`` record."""
+    te = test.subset(test.passes)
+    if len(te) == 0:
+        raise ValueError("no held-out ray passes")
+    with np.errstate(all="ignore"):
+        pred = system.evaluate(te.inputs)
+    for j, o in enumerate(outputs):
+        err = error_metric(o.name, pred[:, j], te.outputs[:, j], te.group)
+        rms = float(np.sqrt(np.mean(err * err)))
+        if not abs(rms - o.rms) <= _RECHECK_RELATIVE * (abs(o.rms) + abs(o.target)):
+            raise ValueError(f"{system.name} {o.name}: the polynomial's held-out error is "
+                             f"{rms:.6g} {o.unit}, the record says {o.rms:.6g}")
+
+
 def _system_fit(doc: dict[str, Any]) -> SystemFit:
     system = System.from_dict(doc["system"])
-    outputs = [OutputFit(**o) for o in doc["outputs"]]
+    if not isinstance(doc["outputs"], list):
+        raise ValueError("outputs: expected a list")
+    outputs = [_output(o, i) for i, o in enumerate(doc["outputs"])]
     if [o.name for o in outputs] != system.output_names:
         raise ValueError("outputs do not match the system")
     t = doc["test"]
-    test = Samples(str(t["system"]), _unarray(t["inputs"]), _unarray(t["outputs"]),
-                   _unarray(t["group"]), _unarray(t["vignetting"]), int(t["requested"]),
-                   {str(k): int(v) for k, v in t["dropped"].items()})
-    if test.system != system.name or test.inputs.shape != (len(test), len(system.inputs)):
+    test = Samples(_is(t["system"], "text", "test.system"), _unarray(t["inputs"]),
+                   _unarray(t["outputs"]), _unarray(t["group"]), _unarray(t["vignetting"]),
+                   _is(t["requested"], "count", "test.requested"),
+                   _dropped(t["dropped"], "test.dropped"))
+    n = len(test)
+    if (test.system != system.name or test.inputs.shape != (n, len(system.inputs))
+            or test.outputs.shape != (n, len(system.outputs)) or test.group.shape != (n,)
+            or test.vignetting.shape != (n,)):
         raise ValueError("held-out rays do not match the system")
+    _recheck(system, outputs, test)
     tr = doc["train"]
-    train = TrainSummary(int(tr["n"]), int(tr["requested"]),
-                         {str(k): int(v) for k, v in tr["dropped"].items()})
+    train = TrainSummary(_is(tr["n"], "count", "train.n"),
+                         _is(tr["requested"], "count", "train.requested"),
+                         _dropped(tr["dropped"], "train.dropped"))
     return SystemFit(system, outputs, train, test,  # type: ignore[arg-type]
-                     float(doc["seconds_sampling"]), float(doc["seconds_fitting"]))
+                     float(_is(doc["seconds_sampling"], "real", "seconds_sampling")),
+                     float(_is(doc["seconds_fitting"], "real", "seconds_fitting")))
+
+
+# A PSF check cell's keys by kind (lensfit.trust.psf_vs_exact); "field_share" optional
+_CELL_KINDS = {"stop": "text", "f_number": "real", "stop_radius_mm": "real", "field": "text",
+               "wavelength_nm": "real", "focus_offset_mm": "real", "window_um": "real",
+               "pixels": "count", "points": "count", "relative_l2": "real"}
+
+
+def check_psf_table(table: Any) -> dict[str, Any]:
+    """``table`` when it is a PSF check table of the kind lensfit.trust.psf_vs_exact
+    makes (cells of the right types, positive where physical, ``worst`` the worst of
+    them), else ValueError saying what is wrong."""
+    if not isinstance(table, dict) or not isinstance(table.get("cells"), list) \
+            or not table["cells"]:
+        raise ValueError("table: expected an object with a list of cells")
+    for i, c in enumerate(table["cells"]):
+        where = f"cells[{i}]"
+        if not isinstance(c, dict):
+            raise ValueError(f"{where}: expected an object")
+        for k, kind in _CELL_KINDS.items():
+            _is(c.get(k), kind, f"{where}.{k}")
+        for k in ("f_number", "stop_radius_mm", "wavelength_nm", "window_um"):
+            if not c[k] > 0:
+                raise ValueError(f"{where}.{k}: expected a positive value, found {c[k]!r}")
+        if c["relative_l2"] < 0 or c["pixels"] < 1 or c["points"] < 1:
+            raise ValueError(f"{where}: a negative error, or no pixel or stop point")
+        field = c.get("field_deg")
+        if not (isinstance(field, list) and len(field) == 2):
+            raise ValueError(f"{where}.field_deg: expected two angles")
+        for v in field:
+            _is(v, "real", f"{where}.field_deg")
+        if c.get("distance_mm") != "inf":
+            _is(c.get("distance_mm"), "real", f"{where}.distance_mm")
+        if "field_share" in c:
+            _is(c["field_share"], "real", f"{where}.field_share")
+    worst = max(table["cells"], key=lambda c: c["relative_l2"])
+    if table.get("worst") != worst:
+        raise ValueError("worst: not the worst of the cells")
+    return table

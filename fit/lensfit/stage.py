@@ -112,7 +112,8 @@ def run(lens: Lens, *, domain: Domain | None = None, options: FitOptions | None 
         for name, outs in SYSTEMS:
             if name in kept:
                 done += [f"{name} sampled"] + [f"{name} {o}" for o, _ in outs]
-        if cache.load_psf() is not None:
+        fitted = [cache.load_system(name) for name, _ in SYSTEMS]
+        if all(fitted) and cache.load_psf([f.system for f in fitted]) is not None:
             done.append("psf")
             kept.append("the PSF check")
         if kept:
@@ -169,11 +170,11 @@ def _run(lens, domain, options, generated_dir, report_dir, timing, flat, scene, 
         fits = fit_lens(lens, domain, options, progress=bar, checkpoints=cache)
         fit_seconds = time.perf_counter() - t0
         systems = [f.system for f in fits]
-        table = cache.load_psf() if cache is not None else None
+        table = cache.load_psf(systems) if cache is not None else None
         if table is None:
             table = psf_vs_exact(lens, systems, domain, **psf_args)
             if cache is not None:
-                cache.save_psf(table)
+                cache.save_psf(table, systems)
         retry = _tighter(options, table)
         if retry is not None:
             # The held-out RMS met its goal but a cell of the PSF table did not (the
@@ -190,7 +191,9 @@ def _run(lens, domain, options, generated_dir, report_dir, timing, flat, scene, 
                        "kept": "second" if table2["worst"]["relative_l2"]
                        < table["worst"]["relative_l2"] else "first"}
             if retried["kept"] == "second":
+                # The polynomials written are the ones the kept table judged
                 fits, table, options = again, table2, retry
+                systems = [f.system for f in fits]
         else:
             retried = None
     bar("psf")

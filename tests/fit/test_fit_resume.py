@@ -350,3 +350,128 @@ def test_a_killed_replacement_is_cleaned_up_next_time(tmp_path):
     os.rename(folder, tmp_path / f"out.old-{dead.pid}-1-0")
     assert atomic.remove_stale_folders(folder) == []
     assert files_of(tmp_path) == {"out/a": b"2\n"}
+
+
+# ---- what a checkpoint holds is checked behind its checksum (issue 39, item 2) --------
+
+
+def _rewrite(path: Path, change) -> None:
+    """Change the checkpoint's document with ``change`` and recompute its checksum: a
+    file any checksum check alone would accept."""
+    import json
+
+    from lensfit.codegen.checked_json import checked_json_text
+
+    doc = {k: v for k, v in json.loads(path.read_text()).items() if k != "checksum"}
+    change(doc)
+    path.write_text(checked_json_text(doc))
+
+
+def _swap_coefficients(doc) -> None:
+    c = doc["system"]["outputs"][3]["coefficients"]  # phi_o: two of its terms swapped
+    c[1], c[2] = c[2], c[1]
+
+
+def _scale_coefficient(doc) -> None:
+    doc["system"]["outputs"][0]["coefficients"][0] *= 1.001
+
+
+def _wrong_type(doc) -> None:
+    doc["outputs"][0]["rms"] = "small"
+
+
+def _shifted_ray(doc) -> None:
+    import base64
+
+    t = doc["test"]["outputs"]
+    a = np.frombuffer(base64.b64decode(t["base64"]), dtype=t["dtype"]).copy()
+    a[0] += 0.01  # one held-out ray's x_o 10 um off
+    t["base64"] = base64.b64encode(a.tobytes()).decode("ascii")
+
+
+@pytest.mark.parametrize("change", [_swap_coefficients, _scale_coefficient, _wrong_type,
+                                    _shifted_ray])
+def test_a_checkpoint_edited_behind_its_checksum_is_refit(tmp_path, tiny, monkeypatch,
+                                                          change):
+    lens, domain, fits = tiny
+    cache = FitCache(fit_key(lens, domain, TINY), "t", tmp_path)
+    cache.save_system(fits[0])
+    _rewrite(cache.folder / "P_o.json", change)
+    notes: list[str] = []
+    count = Sampler()
+    monkeypatch.setattr(fitting_lens, "sample_grid", count)
+    resumed = fit_lens(lens, domain, TINY,
+                       checkpoints=FitCache(cache.key, "t", tmp_path, note=notes.append))
+    assert count.calls == ["P_o", "P_s"]  # P_o fitted again, not taken from the file
+    _same_fits(resumed, fits)
+    assert len(notes) == 1 and "unreadable checkpoint" in notes[0], notes
+
+
+def _psf_table(worst: float) -> dict:
+    cell = {"stop": "widest", "f_number": 8.0, "stop_radius_mm": 6.0, "field": "axis",
+            "field_deg": [0.0, 0.0], "distance_mm": "inf", "wavelength_nm": 550.0,
+            "focus_offset_mm": 0.0, "window_um": 40.0, "pixels": 64, "points": 512,
+            "relative_l2": worst}
+    other = {**cell, "wavelength_nm": 450.0, "relative_l2": worst / 2}
+    return {"cells": [other, cell], "worst": cell, "seconds": 1.0}
+
+
+@pytest.mark.parametrize("change", [
+    lambda d: d["table"].update(worst=5),
+    lambda d: d["table"].update(cells="x"),
+    lambda d: d["table"]["cells"][0].update(relative_l2="0.1"),
+    lambda d: d["table"]["cells"][0].update(pixels=-3),
+    lambda d: d["table"]["cells"][0].update(relative_l2=0.5),  # worst no longer the worst
+    lambda d: d.update(systems_sha256="0" * 64),  # the check of other polynomials
+])
+def test_a_psf_checkpoint_of_another_kind_or_other_polynomials_is_redone(tmp_path, tiny,
+                                                                          change):
+    lens, domain, fits = tiny
+    systems = [f.system for f in fits]
+    cache = FitCache(fit_key(lens, domain, TINY), "t", tmp_path)
+    cache.save_psf(_psf_table(0.004), systems)
+    assert FitCache(cache.key, "t", tmp_path).load_psf(systems) == _psf_table(0.004)
+    _rewrite(cache.folder / "psf.json", change)
+    notes: list[str] = []
+    assert FitCache(cache.key, "t", tmp_path, note=notes.append).load_psf(systems) is None
+    assert len(notes) == 1 and "the PSF check is done again" in notes[0], notes
+
+
+def test_a_psf_checkpoint_is_only_used_for_the_polynomials_it_checked(tmp_path, tiny):
+    lens, domain, fits = tiny
+    systems = [f.system for f in fits]
+    cache = FitCache(fit_key(lens, domain, TINY), "t", tmp_path)
+    cache.save_psf(_psf_table(0.004), systems)
+    other = [fits[1].system, fits[0].system]  # the same polynomials, another order
+    notes: list[str] = []
+    assert FitCache(cache.key, "t", tmp_path, note=notes.append).load_psf(other) is None
+    assert "other polynomials" in notes[0]
+
+
+def test_after_a_retry_the_table_holds_the_polynomials_its_trust_line_judged(
+        tmp_path, tiny, monkeypatch):
+    """A first PSF check missing the target by under 3x makes a second fit; when the
+    second is kept, the table written holds its polynomials (it held the first fit's,
+    under the second's trust line)."""
+    from lensfit import stage
+    from lensfit.codegen.table import read_table
+
+    lens, domain, first = tiny
+    # The second fit's polynomials differ from the first's (here: another seed)
+    second = fit_lens(lens, domain, FitOptions(**{**TINY.to_dict(), "seed": 2}))
+    made = iter([first, second])
+    judged: list[list] = []
+
+    def check(lens, systems, domain, **kwargs):
+        judged.append(list(systems))
+        return _psf_table(0.02 if len(judged) == 1 else 0.005)
+
+    monkeypatch.setattr(stage, "fit_lens", lambda *a, **k: next(made))
+    monkeypatch.setattr(stage, "psf_vs_exact", check)
+    stage.run(lens, domain=domain, options=TINY, generated_dir=tmp_path, timing=False)
+    assert len(judged) == 2
+    folder = next(p for p in tmp_path.iterdir() if p.is_dir())
+    table = read_table(next(folder.glob("*.table")).read_text())
+    assert "trust psf_vs_exact 0.0050000000000000001\n" in next(folder.glob("*.table")).read_text()
+    assert write_table(list(table)) == write_table(judged[1])
+    assert write_table(judged[0]) != write_table(judged[1])
