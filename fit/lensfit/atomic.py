@@ -242,6 +242,14 @@ def remove_folders(created: list[Path]) -> None:
             break
 
 
+def plain_name(name: str) -> bool:
+    """``name`` names a file inside its folder: not empty, '.' or '..', and without a
+    path separator, a NUL or another control character (names read from records are
+    checked with this before anything is written)."""
+    return (isinstance(name, str) and name not in ("", ".", "..") and "/" not in name
+            and "\\" not in name and all(ord(ch) >= 32 and ch != "\x7f" for ch in name))
+
+
 def write_files(folder: str | os.PathLike[str], files: Mapping[str, str | bytes], *,
                 option: str = "", mode: int | None = None) -> list[Path]:
     """Write each of ``files`` (name -> text) into ``folder`` with :func:`write_atomic`,
@@ -250,6 +258,9 @@ def write_files(folder: str | os.PathLike[str], files: Mapping[str, str | bytes]
     out = Path(folder)
     what = f"{option} {out}" if option else str(out)
     for name in files:
+        if not plain_name(name):
+            raise OutputError(f"{out}: {str(name)[:80]!r} is not a plain file name (no "
+                              "'/', no '..', no control character): nothing written")
         refusal = target_refusal(out / name)
         if refusal:
             raise OutputError(f"{out / name}: {refusal}")

@@ -50,8 +50,9 @@ import numpy as np
 from lensfit.atomic import write_files
 from lensfit.codegen.checked_json import checked_json_text, load_checked_json
 from lensfit.errors import InputError
+from lensfit.fitting.lens import SYSTEMS
 from lensfit.fitting.results import OutputFit, SystemFit, error_metric
-from lensfit.poly.polynomial import System
+from lensfit.poly.polynomial import Input, System
 from lensfit.sample.rays import Samples
 
 FORMAT = "lensfit-fit-checkpoint 1"
@@ -185,8 +186,10 @@ class FitCache:
             return None
         return doc
 
-    def load_system(self, name: str) -> SystemFit | None:
-        """The checkpointed fit of system ``name``, or None (absent or refused)."""
+    def load_system(self, name: str, inputs: tuple[Input, ...] | None = None
+                    ) -> SystemFit | None:
+        """The checkpointed fit of system ``name`` (over exactly ``inputs`` when given:
+        names, units and domains), or None (absent or refused)."""
         if name not in self._loaded:
             doc = self._read(name)
             fit = None
@@ -195,11 +198,17 @@ class FitCache:
                     fit = _system_fit(doc)
                     if fit.system.name != name:
                         raise ValueError(f"it holds system {fit.system.name!r}")
-                except (KeyError, TypeError, ValueError, AttributeError) as e:
+                except (KeyError, TypeError, ValueError, AttributeError, IndexError,
+                        OverflowError) as e:
                     self._note(f"{self._path(name)}: unreadable checkpoint ({e}): ignored; "
                                "the step is done again")
             self._loaded[name] = fit
-        return self._loaded[name]
+        fit = self._loaded[name]
+        if fit is not None and inputs is not None and fit.system.inputs != tuple(inputs):
+            self._note(f"{self._path(name)}: a checkpoint over other inputs (names, units or "
+                       "domains) than this fit's: ignored; the step is done again")
+            self._loaded[name] = fit = None
+        return fit
 
     def save_system(self, fit: SystemFit) -> None:
         doc = {
@@ -333,8 +342,21 @@ def _recheck(system: System, outputs: list[OutputFit], test: Samples) -> None:
                              f"{rms:.6g} {o.unit}, the record says {o.rms:.6g}")
 
 
+# Each system's input names and (output, unit) pairs, as lensfit.fitting.lens fits them
+_INPUTS = {"P_o": ["x_O", "y_O", "u_O", "x_a", "y_a", "lambda"],
+           "P_s": ["x_S", "y_S", "z_S", "x_a", "y_a", "lambda"]}
+_OUTPUTS = {name: [list(o) for o in outs] for name, outs in SYSTEMS}
+
+
 def _system_fit(doc: dict[str, Any]) -> SystemFit:
     system = System.from_dict(doc["system"])
+    if system.input_names != _INPUTS.get(system.name) \
+            or [[p.output, p.unit] for p in system.outputs] != _OUTPUTS.get(system.name):
+        raise ValueError(f"system {system.name[:20]!r}: not the inputs and outputs of a "
+                         "lens system")
+    if not all(math.isfinite(i.lo) and math.isfinite(i.hi) and i.lo < i.hi
+               for i in system.inputs):
+        raise ValueError("an input's domain is not finite lo < hi")
     if not isinstance(doc["outputs"], list):
         raise ValueError("outputs: expected a list")
     outputs = [_output(o, i) for i, o in enumerate(doc["outputs"])]

@@ -184,3 +184,13 @@ def test_unwritable_outputs(capsys, tmp_path, cmd):
             if cmd[0] == "scene" else
             f"lensfit: error: -o {cmd[-1]}: cannot write: No such file or directory")
     assert line == want
+
+
+@pytest.mark.parametrize("name", ["../evil", "a/b", "..", ".", "", "a\\b", "a\x00b",
+                                  "line\nbreak"])
+def test_write_files_takes_plain_names_only(tmp_path, name):
+    """Names come from records too (ghost tasks): one that is not a plain name inside
+    the folder is refused before anything is written (issue 39)."""
+    with pytest.raises(OutputError, match="not a plain file name"):
+        write_files(tmp_path / "out", {"fine.txt": "a", name: "b"})
+    assert list(tmp_path.iterdir()) == []

@@ -10,6 +10,7 @@ from lensfit.fitting.options import FitOptions
 from lensfit.fitting.pursuit import fit_system
 from lensfit.fitting.results import SystemFit
 from lensfit.fitting.tensor import fit_system_growing
+from lensfit.poly.polynomial import Input
 from lensfit.prescription.model import Lens
 from lensfit.sample.domain import Domain, default_domain
 from lensfit.sample.rays import (
@@ -24,7 +25,8 @@ from lensfit.sample.rays import (
 class Checkpoints(Protocol):
     """Where finished systems are kept and found again (lensfit.fit_cache.FitCache)."""
 
-    def load_system(self, name: str) -> SystemFit | None: ...
+    def load_system(self, name: str, inputs: tuple[Input, ...] | None = None
+                    ) -> SystemFit | None: ...
 
     def save_system(self, fit: SystemFit) -> None: ...
 
@@ -49,7 +51,7 @@ def fit_lens(lens: Lens, domain: Domain | None = None,
         ("P_o", sample_object_side, domain.inputs_o(), OUTPUTS_O, 0),
         ("P_s", sample_sensor_side, domain.inputs_s(), OUTPUTS_S, 1),
     ):
-        done = checkpoints.load_system(name) if checkpoints is not None else None
+        done = checkpoints.load_system(name, inputs) if checkpoints is not None else None
         if done is not None:
             results.append(done)
             continue

@@ -82,6 +82,7 @@ from __future__ import annotations
 import math
 import re
 from dataclasses import asdict, dataclass, field
+from pathlib import Path
 
 import numpy as np
 
@@ -163,6 +164,9 @@ class GhostEstimate:
         d = asdict(self)
         d.pop("info")
         d["name"] = self.name
+        # The lens file's name, not the path it was given by (records and ghosts.json
+        # travel: an absolute path would name one machine's folders)
+        d["file"] = Path(self.file).name if self.file else self.file
         d["centre_mm"] = [None if c is None else list(c) for c in self.centre_mm]
         d["wavelengths_nm"] = list(self.wavelengths_nm)
         return d

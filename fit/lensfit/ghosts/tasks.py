@@ -23,13 +23,15 @@ from __future__ import annotations
 
 import hashlib
 import json
+import sys
 import zlib
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from lensfit.atomic import make_folder, write_atomic
+from lensfit.atomic import make_folder, plain_name, write_atomic
 from lensfit.codegen.checked_json import REGENERATE_FOLDER, checked_json_text, load_checked_json
+from lensfit.codegen.table import read_table
 from lensfit.errors import InputError
 
 TASKS_FOLDER = ".ghost-tasks"
@@ -110,16 +112,90 @@ def _asked(files: dict[str, str], stem: str, c: bool, glsl: bool) -> dict[str, s
     return out if have == {ext for ext, want in kinds.items() if want} else None
 
 
-def _record(path: Path, digest: str, g, c: bool, glsl: bool) -> dict[str, Any] | None:
+def _names(g, prefix: str) -> set[str]:
+    """Every file name a task may write for ghost ``g`` (its table, C and GLSL)."""
+    stem = stem_of(g)
+    return {f"{stem}.table", *(f"{prefix}{stem}{ext}" for ext in (".c", ".h", ".glsl"))}
+
+
+def _check_entry(entry: Any, g, where: str, *, complete: bool = True) -> None:
+    """ValueError unless ``entry`` is a ghosts.json entry (of ghost ``g`` when given: its
+    label and surfaces), with the keys readers use of their types (all of them when
+    ``complete``, as a task's record has them; else those present)."""
+    if not isinstance(entry, dict):
+        raise ValueError(f"{where}: expected an object")
+    first, second, label = entry.get("first"), entry.get("second"), entry.get("label")
+    if not (type(first) is int and type(second) is int and 0 <= first < second
+            and isinstance(label, str) and plain_name(label)):
+        raise ValueError(f"{where}: label {str(label)[:20]!r}, first {str(first)[:20]}, "
+                         f"second {str(second)[:20]}: expected a label and surfaces 0 <= "
+                         "first < second")
+    if g is not None and (label, first, second) != (g.name, g.first, g.second):
+        raise ValueError(f"{where}: ghost {label} ({first}, {second}): expected ghost "
+                         f"{g.name} ({g.first}, {g.second})")
+    kinds = {"within_target": (bool,), "miss_reason": (str, type(None)),
+             "table_crc32": (str,), "task_digest": (str,)}
+    for k, types in kinds.items():
+        if (complete or k in entry) and not isinstance(entry.get(k), types):
+            raise ValueError(f"{where}: {k} {str(entry.get(k))[:20]!r} of the wrong type")
+    v = entry.get("psf_vs_exact")
+    if (complete or "psf_vs_exact" in entry) and (
+            isinstance(v, bool) or not isinstance(v, (int, float)) or not 0 <= v < 1e3):
+        raise ValueError(f"{where}: psf_vs_exact {str(v)[:20]!r}: expected a relative "
+                         "error in [0, 1000)")
+
+
+def _check_record(doc: dict[str, Any], digest: str, g, prefix: str) -> None:
+    """ValueError unless a record (its checksum already verified) is what a task writes
+    for ghost ``g``: files of the ghost's own plain names, a table that reads back as
+    this ghost's, its entry and its printed line (issue 39: a record is read for its
+    names before anything is written)."""
+    files, line = doc.get("files"), doc.get("line")
+    if doc.get("digest") != digest:
+        raise ValueError("another digest")
+    if not isinstance(files, dict) or not all(isinstance(t, str) for t in files.values()):
+        raise ValueError("files: expected an object of texts")
+    names = _names(g, prefix)
+    for name in files:
+        if not plain_name(name) or name not in names:
+            raise ValueError(f"files: {str(name)[:80]!r} is not a file of ghost {g.name} "
+                             f"(one of {', '.join(sorted(names))})")
+    text = files.get(f"{stem_of(g)}.table")
+    if text is None:
+        raise ValueError(f"files: no {stem_of(g)}.table")
+    try:
+        table = read_table(text)
+    except ValueError as e:
+        raise ValueError(f"{stem_of(g)}.table: {e}") from None
+    if table.ghost is None or (table.ghost.first, table.ghost.second) != (g.first, g.second):
+        raise ValueError(f"{stem_of(g)}.table: not the table of ghost {g.name}")
+    entry = doc.get("entry")
+    _check_entry(entry, g, "entry")
+    if entry["table_crc32"] != f"{zlib.crc32(text.encode()) & 0xFFFFFFFF:08x}" \
+            or entry["task_digest"] != digest:
+        raise ValueError("entry: table_crc32 or task_digest is not the record's")
+    if not isinstance(line, str) or any(ord(ch) < 32 and ch != "\n" for ch in line):
+        raise ValueError("line: expected text without control characters")
+
+
+def _record(path: Path, digest: str, g, c: bool, glsl: bool,
+            prefix: str) -> dict[str, Any] | None:
     """A task's record of the ghost for the same inputs, with the files this run asks
-    for; None when there is none (or it is damaged or lacks a file asked for)."""
+    for; None when there is none (or it is damaged, not what a task writes for this
+    ghost, or lacks a file asked for: the ghost is then fitted again)."""
     if not path.is_file():
         return None
     try:
         doc = load_checked_json(path, "it is fitted again")
     except InputError:
         return None  # damaged: fitted again, then replaced
-    if doc.get("digest") != digest or not isinstance(doc.get("files"), dict):
+    if doc.get("digest") != digest:
+        return None
+    try:
+        _check_record(doc, digest, g, prefix)
+    except ValueError as e:
+        print(f"lensfit: note: {path}: record refused ({e}); ghost {g.name} is fitted "
+              "again", file=sys.stderr)
         return None
     files = _asked(doc["files"], stem_of(g), c, glsl)
     return None if files is None else {**doc, "files": files}
@@ -152,9 +228,15 @@ def _before(out: Path) -> list[dict[str, Any]]:
     if not index.is_file():
         return []
     try:
-        return list(load_checked_json(index, REGENERATE_FOLDER)["ghosts"])
+        entries = list(load_checked_json(index, REGENERATE_FOLDER)["ghosts"])
     except (KeyError, TypeError) as e:
         raise InputError(f"{index}: cannot read the ghosts fitted before: {e}") from None
+    for i, e in enumerate(entries):  # the keys used here, of their types
+        try:
+            _check_entry(e, None, f"ghosts[{i}]", complete=False)
+        except ValueError as err:
+            raise InputError(f"{index}: key {err}; {REGENERATE_FOLDER}") from None
+    return entries
 
 
 def plan_jobs(plan: LensPlan, *, c: bool, glsl: bool) -> list[dict[str, Any]]:
@@ -168,8 +250,8 @@ def plan_jobs(plan: LensPlan, *, c: bool, glsl: bool) -> list[dict[str, Any]]:
     for g in plan.ghosts:
         digest = _digest(plan, g)
         record = work / f"{stem_of(g)}-{digest}.json"
-        if _record(record, digest, g, c, glsl) or _from_folder(out, before, g, digest, c,
-                                                                glsl):
+        if (_record(record, digest, g, c, glsl, lens_prefix(plan.lens))
+                or _from_folder(out, before, g, digest, c, glsl)):
             continue
         comment = header_comment(plan.lens, f"Ghost {g.name} (reflect at surface "
                                             f"{g.second_file}, then {g.first_file}): "
@@ -188,7 +270,7 @@ def plan_jobs(plan: LensPlan, *, c: bool, glsl: bool) -> list[dict[str, Any]]:
 def write_lens(plan: LensPlan, *, c: bool, glsl: bool, add: bool) -> list[str]:
     """Write a lens's ghosts folder from its records (and what the folder held for the
     same digests), then remove the records; the lines to print."""
-    from lensfit.generate import write_folder
+    from lensfit.generate import lens_prefix, write_folder
 
     out, work = plan.folder / "ghosts", plan.folder / TASKS_FOLDER
     before = _before(out)
@@ -197,7 +279,7 @@ def write_lens(plan: LensPlan, *, c: bool, glsl: bool, add: bool) -> list[str]:
     for g in plan.ghosts:
         digest = _digest(plan, g)
         record_path = work / f"{stem_of(g)}-{digest}.json"
-        done = (_record(record_path, digest, g, c, glsl)
+        done = (_record(record_path, digest, g, c, glsl, lens_prefix(plan.lens))
                 or _from_folder(out, before, g, digest, c, glsl))
         if done is None:
             raise InputError(f"{record_path}: ghost {g.name} of {plan.folder.name} has no "

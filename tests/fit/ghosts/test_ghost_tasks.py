@@ -62,6 +62,8 @@ def test_ghost_fitted_on_a_local_cluster(fitted) -> None:
     # does: test_ghosts_cli), and records what it was fitted for
     assert entry["label"] == "0-1" and entry["psf_vs_exact"] <= 0.03
     assert len(entry["task_digest"]) == 16
+    # The lens file by its name, not by the (absolute) path it was given as
+    assert entry["estimate"]["file"] == "singleta.toml"
     assert not (gen / "singleta" / TASKS_FOLDER).exists()  # records removed once written
 
 
@@ -113,3 +115,61 @@ def test_failed_ghost_keeps_its_lens_for_the_next_run(fitted, monkeypatch, capsy
     assert written["task_digest"] == digest
     assert not record.parent.exists()
     assert folder_bytes(out_a) == before_a
+
+
+def _craft(entry, table):
+    """What a task writes, then one part changed by ``change`` (each keeps a valid
+    checksum: the record is rewritten by checked_json_text)."""
+    return {"entry": entry, "line": "ghost 0-1: from its record",
+            "files": {"ghost_1_2.table": table}}
+
+
+CRAFTED = {
+    # a table named to be written outside the ghosts folder
+    "path": lambda r: r.update(files={"../../evil_ghost_1_2.table":
+                                      r["files"]["ghost_1_2.table"]}),
+    "other name": lambda r: r["files"].update({"evil.sh": "echo"}),
+    "entry text": lambda r: r.update(entry="x"),
+    "line number": lambda r: r.update(line=5),
+    "junk table": lambda r: r["files"].update({"ghost_1_2.table": "junk"}),
+    "other ghost's label": lambda r: r["entry"].update(label="4-8-9"),
+    "entry crc": lambda r: r["entry"].update(table_crc32="00000000"),
+}
+
+
+@pytest.mark.parametrize("kind", sorted(CRAFTED))
+def test_a_crafted_record_is_refused_before_anything_is_written(fitted, tmp_path,
+                                                                monkeypatch, capsys, kind):
+    """A record with a valid checksum but not what a task writes for its ghost is
+    refused with a note and the ghost fitted again (here the fit fails on purpose, so
+    nothing is written); no file lands outside the lens's ghosts folder (issue 39)."""
+    gen0, args, lenses = fitted
+    gen = tmp_path / "gen"
+    shutil.copytree(gen0, gen)
+    shutil.rmtree(gen / "singletb" / "ghosts", ignore_errors=True)
+    args = [a if a != str(gen0) else str(gen) for a in args]
+
+    def fail(*a, **k):
+        raise RuntimeError("fit failed on purpose")
+
+    monkeypatch.setattr(ghost_tables, "fit_with_trust", fail)
+    assert main([*args, lenses[1], "--workers", "0"]) == 1
+    digest = re.search(r"ghost-singletb-ghost_1_2-([0-9a-f]{16})",
+                       capsys.readouterr().err).group(1)
+    out_a = gen / "singleta" / "ghosts"
+    (entry,) = json.loads((out_a / "ghosts.json").read_text())["ghosts"]
+    entry = {k: v for k, v in entry.items() if k != "checksum"}
+    entry["task_digest"] = digest
+    record = _craft(entry, (out_a / "ghost_1_2.table").read_text())
+    CRAFTED[kind](record)
+    path = gen / "singletb" / TASKS_FOLDER / f"ghost_1_2-{digest}.json"
+    path.parent.mkdir(exist_ok=True)
+    path.write_text(checked_json_text({"digest": digest, **record}))
+    before = sorted(str(p.relative_to(tmp_path)) for p in tmp_path.rglob("*")
+                    if p != path)
+    assert main([*args, lenses[1], "--workers", "0"]) == 1
+    err = capsys.readouterr().err
+    assert f"{path}: record refused (" in err and "fit failed on purpose" in err, err
+    assert not (gen / "singletb" / "ghosts").exists()
+    after = sorted(str(p.relative_to(tmp_path)) for p in tmp_path.rglob("*") if p != path)
+    assert after == before

@@ -191,8 +191,8 @@ def test_fit_writes_ghost_tables_and_merges_named_ones(singlet, tmp_path, capsys
     out = gen / "singlet" / "ghosts"
     out.mkdir()
     (out / "ghosts.json").write_text(checked_json_text(
-        {"format": "lensfit-ghosts 1", "ghosts": [{"label": "9-9", "first": 9, "second": 9}]}))
-    (out / "ghost_9_9.table").write_text("stand-in")
+        {"format": "lensfit-ghosts 1", "ghosts": [{"label": "9-10", "first": 9, "second": 10}]}))
+    (out / "ghost_9_10.table").write_text("stand-in")
     args = ["ghosts", singlet, "--f-number", "8", "--rays", "2000", "--count", "1", "--fit",
             "--generated", str(gen), "--workers", "0"]  # here: test_ghost_tasks runs Dask
     assert main([*args, "--ghost", "0-1", "--add", "--c", "--glsl"]) == 0
@@ -200,8 +200,8 @@ def test_fit_writes_ghost_tables_and_merges_named_ones(singlet, tmp_path, capsys
             "lenssinglet_ghost_1_2.glsl"} <= {p.name for p in out.iterdir()}  # when asked
     assert "ghost 0-1 (B, side P_s)" in capsys.readouterr().out
     doc = json.loads((out / "ghosts.json").read_text())
-    assert [e["label"] for e in doc["ghosts"]] == ["9-9", "0-1"]
-    assert (out / "ghost_9_9.table").read_text() == "stand-in"
+    assert [e["label"] for e in doc["ghosts"]] == ["9-10", "0-1"]
+    assert (out / "ghost_9_10.table").read_text() == "stand-in"
     g = doc["ghosts"][1]
     assert (g["case"], g["side"], g["f_number"]) == ("B", "P_s", pytest.approx(8.0))
     assert g["psf_vs_exact"] <= 0.03 and g["converged_test"] > 0.99
