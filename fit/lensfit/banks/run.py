@@ -139,9 +139,9 @@ def ghost_tables(spec: BankSpec, table: Path, src: str) -> list[dict[str, Any]]:
     if not index.is_file():
         raise SpecError(f"{src}: key 'flare.ghosts': the lens has no fitted ghosts ({index} "
                         "not found: `lensfit ghosts LENS --fit` writes them)")
-    from lensfit.codegen.checked_json import REGENERATE_FOLDER
+    from lensfit.ghosts.tasks import read_ghost_index
 
-    entries = {e["label"]: e for e in load_checked_json(index, REGENERATE_FOLDER)["ghosts"]}
+    entries = {e["label"]: e for e in read_ghost_index(index)}
     wanted = sorted(entries) if spec.flare.ghosts == "kept" else list(spec.flare.ghosts)
     out = []
     for i, label in enumerate(wanted):

@@ -21,7 +21,6 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from lensfit.codegen.checked_json import REGENERATE_FOLDER, load_checked_json
 from lensfit.codegen.table import Table, read_table
 from lensfit.errors import InputError
 from lensfit.ghosts.enumerate import (
@@ -30,6 +29,7 @@ from lensfit.ghosts.enumerate import (
     enumerate_ghosts,
     parse_ghost,
 )
+from lensfit.ghosts.tasks import read_ghost_index
 from lensfit.prescription.model import Lens
 from lensfit.scene import Scene, SceneError
 
@@ -41,11 +41,7 @@ def fitted_ghosts(folder: Path, lens_arg: str) -> dict[str, Table]:
     if not index.is_file():
         raise InputError(f"{index}: not found: the lens has no fitted ghosts; run "
                          f"`lensfit ghosts {lens_arg} --fit` (with --count or --ghost)")
-    doc = load_checked_json(index, REGENERATE_FOLDER)
-    try:
-        entries = [(g["label"], g["first"], g["second"]) for g in doc["ghosts"]]
-    except (KeyError, TypeError) as e:
-        raise InputError(f"{index}: cannot read the fitted ghosts: {e}") from None
+    entries = [(g["label"], g["first"], g["second"]) for g in read_ghost_index(index)]
     out = {}
     for label, i, j in entries:
         path = index.parent / f"ghost_{i}_{j}.table"

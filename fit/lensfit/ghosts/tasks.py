@@ -225,10 +225,17 @@ def _from_folder(out: Path, before: list[dict[str, Any]], g, digest: str, c: boo
 
 def _before(out: Path) -> list[dict[str, Any]]:
     index = out / "ghosts.json"
-    if not index.is_file():
-        return []
+    return read_ghost_index(index) if index.is_file() else []
+
+
+def read_ghost_index(index: Path) -> list[dict[str, Any]]:
+    """The entries of a ghosts.json, its checksum verified and each entry's label and
+    surfaces (and the other keys readers use, where present) of their types: the one
+    reader of ghosts.json (ghost fits, scenes, banks)."""
     try:
-        entries = list(load_checked_json(index, REGENERATE_FOLDER)["ghosts"])
+        entries = load_checked_json(index, REGENERATE_FOLDER)["ghosts"]
+        if not isinstance(entries, list):
+            raise TypeError("key 'ghosts' is not a list")
     except (KeyError, TypeError) as e:
         raise InputError(f"{index}: cannot read the ghosts fitted before: {e}") from None
     for i, e in enumerate(entries):  # the keys used here, of their types

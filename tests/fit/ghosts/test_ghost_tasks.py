@@ -173,3 +173,26 @@ def test_a_crafted_record_is_refused_before_anything_is_written(fitted, tmp_path
     assert not (gen / "singletb" / "ghosts").exists()
     after = sorted(str(p.relative_to(tmp_path)) for p in tmp_path.rglob("*") if p != path)
     assert after == before
+
+
+@pytest.mark.parametrize("entry", [{"label": "0-2", "first": "../../x", "second": 2},
+                                   {"label": "0-2", "first": 2, "second": 0},
+                                   {"label": "../0-2", "first": 0, "second": 2},
+                                   {"label": "0-2", "first": 0, "second": 2,
+                                    "table_crc32": 5},
+                                   "x"])
+def test_ghosts_json_entries_are_typed_for_every_reader(tmp_path, entry):
+    """ghosts.json behind a valid checksum: an entry whose surfaces are not integers
+    (they name the table file: ghost_<first>_<second>.table) or whose keys are of the
+    wrong type is refused by its one reader, for the scenes and banks that read it too,
+    naming the file and the key (issue 39)."""
+    from lensfit.errors import InputError
+    from lensfit.ghosts.scene import fitted_ghosts
+    from lensfit.ghosts.tasks import read_ghost_index
+
+    index = tmp_path / "ghosts" / "ghosts.json"
+    index.parent.mkdir()
+    index.write_text(checked_json_text({"format": "lensfit-ghosts 1", "ghosts": [entry]}))
+    for read in (lambda: read_ghost_index(index), lambda: fitted_ghosts(tmp_path, "x")):
+        with pytest.raises(InputError, match=r"ghosts\.json: key ghosts\[0\]"):
+            read()
