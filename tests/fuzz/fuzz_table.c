@@ -2,11 +2,14 @@
  * a tiny render of every table that loads. Any result code is fine; a crash, leak,
  * sanitizer report or a NaN in an image is a defect.
  *
- * Each input is parsed twice: as given (the checksum check of version 4 and what comes
- * before it), and stamped, its last line replaced by the checksum of the rest as lensfit
- * would write it (issue 25), so that mutations reach the parser and the renderers rather
- * than stopping at the checksum. The library is linked statically, so its own CRC-32
- * (core/crc32.h) stamps. */
+ * Each input is parsed three times: as given (the checksum check of version 5 and what
+ * comes before it); stamped, its last line replaced by the checksum of the rest as
+ * lensfit would write it (issue 25), so that mutations reach the parser rather than
+ * stopping at the checksum: crafted tables behind a valid checksum, which the probe
+ * lines must refuse when they change a coefficient (issue 39); and with each system's
+ * probe lines made again too (tests/runtime/check.h, stamp_table), so that mutations
+ * of the coefficients reach the renderers. The library is linked statically, so its
+ * own CRC-32 (core/crc32.h) stamps. */
 #include <math.h>
 #include <stddef.h>
 #include <stdint.h>
@@ -16,6 +19,7 @@
 
 #include "lensrt.h"
 #include "../../runtime/src/core/crc32.h"
+#include "../runtime/check.h"
 
 int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size);
 
@@ -73,6 +77,12 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
     if (stamped) {
         memcpy(stamped, data, body);
         n = body + (size_t)sprintf(stamped + body, "checksum crc32 %08x\n", (unsigned)lensrt_crc32(data, body));
+        load_and_render(ctx, stamped, n);
+        free(stamped);
+    }
+    /* Probes made again (and the checksum) */
+    stamped = stamp_table((const char *)data, size, &n);
+    if (stamped) {
         load_and_render(ctx, stamped, n);
         free(stamped);
     }
