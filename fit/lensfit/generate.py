@@ -9,7 +9,7 @@ fit` replaces the folder as a whole (:func:`lensfit.atomic.replace_folder` with
     <stem>.glsl                   GLSL 4.30 functions (float and double), with --glsl only
     <stem>.table                  coefficient table for generic evaluators, with the lens's
                                   first-order facts and the PSF trust figures
-                                  (lensfit-poly-table 3)
+                                  (lensfit-poly-table 5)
     fit.json                      domain, options, held-out errors and the PSF table
                                   against exactly traced rays; the systems are the table's
 

@@ -1,6 +1,6 @@
 """Coefficient tables: polynomial systems as plain text a small C evaluator can parse.
 
-Format ``lensfit-poly-table``, version 4 (the reader also reads versions 1 and 2). UTF-8 text,
+Format ``lensfit-poly-table``, version 5 (the reader also reads versions 1 and 2). UTF-8 text,
 lines end with '\\n'; fields are separated by one or more spaces or tabs (only those:
 other Unicode blanks belong to a field), and a '\r' before the '\n' is ignored. Lines that
 are empty or start with '#' (after optional blanks) are comments and are skipped anywhere.
@@ -50,9 +50,9 @@ first ``system`` line:
     squeeze                  anamorphic squeeze EFL_y / EFL_x (1 for a rotationally
                              symmetric lens)
 
-Every value but the name is a finite real number written like the others (``%.17g``);
-radii and squeeze are positive, the focal length is not zero. Version 1 has no lens
-lines; the writer emits version 1 when it is given no lens facts.
+Every value but the name is a finite real number written like the others (``%.17g``),
+inside its range (below, "Ranges"). Version 1 has no lens lines; the writer emits version
+1 when it is given no lens facts.
 
 Version 3 adds the trust lines after the lens lines: how far the PSF of these polynomials
 is from the exactly traced one (:mod:`lensfit.trust`), so that a runtime can say so when it
@@ -63,17 +63,22 @@ loads the table. Exactly these keys, in this order, one line each:
     trust psf_vs_exact_cell  which cell was worst, e.g. f/2%20axis%20450%20nm (a text field)
     trust psf_target         the PSF error the fit was made for (relative L2)
 
-The two numbers are finite and non-negative. The writer emits version 4 (below) when it
-is given trust figures, version 2 with lens facts only, version 1 with neither.
+The two numbers are finite and inside their ranges (below). The writer emits version 5
+(below) when it is given trust figures, version 2 with lens facts only, version 1 with
+neither.
 
 A ghost table (issue 13: one two-reflection path of the lens, rendered as its own lens)
-is a version-4 table with ghost lines after the trust lines, exactly these keys in this
+is a version-5 table with ghost lines after the trust lines, exactly these keys in this
 order, and a third system ``P_clip``:
 
     ghost first <i>          model surface index of the first reflection (in path order,
                              the surface reflected at last; integer >= 0)
     ghost second <j>         the surface reflected at first (integer > i)
-    ghost label <text>       the lens file's numbering, e.g. 4-8 (a text field)
+    ghost label <text>       the lens file's numbering, e.g. 4-8 (a text field): "a-b",
+                             decimal without leading zeros, with a = first or first - 1,
+                             b = second or second - 1, 0 <= first - a <= second - b <= 1
+                             (the loader inserts at most one surface, the stop, which
+                             shifts the model's indices behind it by one)
     ghost side <P_o|P_s>     which system is the ghost half (the other is the direct one)
 
 ``P_clip`` has exactly the inputs of the ghost side's system and outputs in pairs, each
@@ -90,10 +95,53 @@ with (issue 25: integrity):
 
 the CRC-32 (zlib's and PNG's polynomial) of every byte before that line, so that a
 table changed after lensfit wrote it (a bit flip, an edit, a table cut short: the line
-is then missing) is refused by both readers, naming the file. lensrt reads version 4
+is then missing) is refused by both readers, naming the file. lensrt reads version 5
 only; a version-3 table (no checksum) is refused by both with the command that rewrites
 it, `lensfit regenerate <lens id>` (which alone reads version 3: ``legacy=True``; the
 coefficients are carried over bit for bit, no refit). Comments are inside the checksum.
+
+Version 5 (issue 39: semantic integrity) is version 4 with probe lines: each system
+ends, after its outputs' terms and before its ``end``, with PROBES (6) lines
+
+    probe <v_1> ... <v_n_inputs> <y_1> ... <y_n_outputs>
+
+the system evaluated by the writer at fixed points (PROBE_XHAT: normalised coordinates
+mapped back through each input's transform, inside the declared domain), inputs in their
+units then outputs in theirs, each ``%.17g``. Both readers evaluate the polynomials as
+read at each probe's inputs and refuse the table when an output differs from the line's
+by more than PROBE_RTOL * sum |c_t| + PROBE_ATOL (1e-9 of the output's scale: evaluation
+order rounding only, see PROBE_RTOL), naming the file, the probe line, the system, the
+output and both values: a table whose coefficients were edited, or whose lines were
+swapped, and whose checksum was then made again is refused. This is the last check.
+
+Version 4 (no probe lines) is refused by both readers with the commands that upgrade it:
+`lensfit regenerate <lens>` rewrites a generated folder's tables (the lens's, its
+ghosts', its scenes') and ghosts.json's CRCs of them; `lensfit upgrade-table FILE ...`
+one file. Both evaluate the table's own polynomials (:func:`upgrade_text`): every other
+byte is kept, no refit. ``read_table(text, legacy=True)`` reads versions 3 and 4.
+
+Ranges (both readers refuse a value outside, naming the key and the value; the writer
+refuses to write one; the bounds are inclusive):
+
+    focal_length_mm                        |f| in [1e-3, 1e6] mm (1 um to 1 km)
+    stop_radius_max_mm, stop_radius_f1_mm,
+    housing_first_mm, housing_last_mm      [1e-3, 1e6] mm
+    sensor_defocus_mm,
+    front_focal_distance_mm                [-1e6, 1e6] mm
+    squeeze                                [0.1, 10] (cinema anamorphics: 1.3 to 2)
+    trust psf_vs_exact                     [1e-12, 10]: a measured distance between two
+                                           PSFs made by different means is never below
+                                           rounding, and at 1000% the fit is another lens
+    trust psf_target                       [1e-6, 1]: no fit is made for less than a
+                                           millionth, and 100% asks for nothing
+    input lo, hi                           finite, lo < hi (inverse_square: lo > 0)
+    coefficients, probe values             finite
+
+(:mod:`lensfit.facts` holds the lens ranges, TRUST_RANGES the trust ones; lensrt's
+runtime/src/lens/table.c the same numbers.) Numbers are the decimal syntax above only:
+hex floats (0x1p3), inf, nan and infinity, which C's strtod would read, are refused by
+both readers. A table is text: a control byte (below 0x20 but tab, or DEL; a CR only
+right before a newline) anywhere, comments included, is refused naming the line.
 
 A system's ``info`` (provenance) is not stored. ``read_table(write_table(s))`` gives back
 the names, units, domains, transforms, exponents and coefficients bit for bit, terms in
