@@ -2,13 +2,13 @@
  * a tiny render of every table that loads. Any result code is fine; a crash, leak,
  * sanitizer report or a NaN in an image is a defect.
  *
- * Each input is parsed three times: as given (the checksum check of version 5 and what
+ * Each input is parsed up to three times: as given (the checksum check of version 5 and what
  * comes before it); stamped, its last line replaced by the checksum of the rest as
  * lensfit would write it (issue 25), so that mutations reach the parser rather than
  * stopping at the checksum: crafted tables behind a valid checksum, which the probe
- * lines must refuse when they change a coefficient (issue 39); and with each system's
- * probe lines made again too (tests/runtime/check.h, stamp_table), so that mutations
- * of the coefficients reach the renderers. The library is linked statically, so its
+ * lines must refuse when they change a coefficient (issue 39); and, when that does not
+ * load, with each system's probe lines made again too (tests/runtime/check.h,
+ * stamp_table), so that mutations of the coefficients reach the renderers. The library is linked statically, so its
  * own CRC-32 (core/crc32.h) stamps. */
 #include <math.h>
 #include <stddef.h>
