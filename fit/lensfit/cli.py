@@ -11,6 +11,8 @@
     lensfit check [LENS ...]             validate prescriptions and their EFL
     lensfit fit LENS                     fit P_o and P_s, write generated/<lens>/ and a report
     lensfit regenerate LENS              rewrite generated/<lens>/ from its fit.json (no fit)
+    lensfit upgrade-table FILE ...       rewrite version-3/4 tables as version 5 (probe lines
+                                         added from their own polynomials, no fit)
     lensfit report LENS [--json]         fit and write the fit-error report only
     lensfit scene LENS SCENE.toml        specialise generated/<lens>/ for one scene
 
@@ -957,6 +959,18 @@ def cmd_regenerate(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_upgrade_table(args: argparse.Namespace) -> int:
+    from lensfit.generate import upgrade_table
+
+    for name in args.files:
+        path = Path(name)
+        if not path.is_file():
+            raise InputError(f"{path}: no such table file")
+        done = upgrade_table(path)
+        print(f"{path}: {'upgraded to version 5' if done else 'not version 3 or 4: unchanged'}")
+    return 0
+
+
 def cmd_bank(args: argparse.Namespace) -> int:
     from lensfit.banks.engine import TaskError
     from lensfit.banks.run import run_bank
@@ -1160,6 +1174,14 @@ def build_parser() -> argparse.ArgumentParser:
                    "(e.g. 0001-angenieux-double-gauss-uncoated)")
     _generated_arg(p, "of the lens folder")
     p.set_defaults(func=cmd_regenerate)
+
+    p = sub.add_parser("upgrade-table",
+                       help="rewrite version-3 or -4 lensfit-poly-table files as version 5 "
+                            "in place: probe lines from their own polynomials, no fit (a "
+                            "ghost table's ghosts.json keeps its old CRC: use regenerate "
+                            "for a generated folder)")
+    p.add_argument("files", nargs="+", help="table files")
+    p.set_defaults(func=cmd_upgrade_table)
 
     p = sub.add_parser("bank", help="render a bank of PSFs (field points x focus x stops x "
                        "wavelengths) on Dask; a rerun resumes")

@@ -45,18 +45,35 @@ class LensFacts:
         return self
 
 
-_POSITIVE = ("stop_radius_max_mm", "stop_radius_f1_mm", "housing_first_mm", "housing_last_mm",
-             "squeeze")
+# The ranges of the numeric facts (lensfit.codegen.table's module doc, "Ranges"; lensrt's
+# reader, runtime/src/lens/table.c, holds the same numbers). Lengths in mm: a length
+# (radius, |focal length|) in [LENGTH_MIN_MM, LENGTH_MAX_MM], from 1 um to 1 km, wider
+# than any camera lens or telescope; a signed distance (sensor defocus, front focal
+# distance) at most LENGTH_MAX_MM either way; an anamorphic squeeze in [SQUEEZE_MIN,
+# SQUEEZE_MAX] (cinema anamorphics squeeze 1.3 to 2).
+LENGTH_MIN_MM = 1e-3
+LENGTH_MAX_MM = 1e6
+SQUEEZE_MIN, SQUEEZE_MAX = 0.1, 10.0
+_LENGTHS = ("focal_length_mm", "stop_radius_max_mm", "stop_radius_f1_mm", "housing_first_mm",
+            "housing_last_mm")
+_DISTANCES = ("sensor_defocus_mm", "front_focal_distance_mm")
 
 
 def fact_problem(key: str, value: object) -> str | None:
-    """What is wrong with a numeric fact (None when nothing is)."""
+    """What is wrong with a numeric fact (None when nothing is): not finite, or outside
+    its range (above)."""
     if not (isinstance(value, int | float) and math.isfinite(value)):
         return "expected a finite number"
-    if key in _POSITIVE and not value > 0:
-        return "expected a positive number"
-    if key == "focal_length_mm" and value == 0:
-        return "expected a non-zero focal length"
+    if key == "focal_length_mm" and not LENGTH_MIN_MM <= abs(value) <= LENGTH_MAX_MM:
+        return (f"expected a focal length of {LENGTH_MIN_MM:g} to {LENGTH_MAX_MM:g} mm "
+                "either sign")
+    if key in _LENGTHS and key != "focal_length_mm" and not (
+            LENGTH_MIN_MM <= value <= LENGTH_MAX_MM):
+        return f"expected a length in [{LENGTH_MIN_MM:g}, {LENGTH_MAX_MM:g}] mm"
+    if key in _DISTANCES and not abs(value) <= LENGTH_MAX_MM:
+        return f"expected a distance in [{-LENGTH_MAX_MM:g}, {LENGTH_MAX_MM:g}] mm"
+    if key == "squeeze" and not SQUEEZE_MIN <= value <= SQUEEZE_MAX:
+        return f"expected a squeeze in [{SQUEEZE_MIN:g}, {SQUEEZE_MAX:g}]"
     return None
 
 

@@ -9,7 +9,7 @@ fit` replaces the folder as a whole (:func:`lensfit.atomic.replace_folder` with
     <stem>.glsl                   GLSL 4.30 functions (float and double), with --glsl only
     <stem>.table                  coefficient table for generic evaluators, with the lens's
                                   first-order facts and the PSF trust figures
-                                  (lensfit-poly-table 3)
+                                  (lensfit-poly-table 5)
     fit.json                      domain, options, held-out errors and the PSF table
                                   against exactly traced rays; the systems are the table's
 
@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import os
 import re
+import zlib
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
@@ -39,7 +40,7 @@ from lensfit.codegen.table import (
     GhostLines,
     Table,
     read_table,
-    with_checksum,
+    upgrade_text,
 )
 from lensfit.codegen.table import VERSION as TABLE_VERSION
 from lensfit.errors import InputError
@@ -161,12 +162,15 @@ def regenerate(folder: Path) -> tuple[Lens, list[str]]:
     fit_file = folder / "fit.json"
     if not fit_file.is_file():
         raise InputError(f"{fit_file}: no fit.json to regenerate from; run `lensfit fit`")
-    # Tables of an earlier version (no checksum) first: the lens's, its ghosts' and its
-    # scenes' (their coefficients carried over bit for bit)
+    # Tables of an earlier version (no checksum, or no probe lines) first: the lens's, its
+    # ghosts' and its scenes' (their coefficients carried over bit for bit), then the
+    # records of them
     upgraded = [str(p.relative_to(folder)) for p in sorted(folder.rglob("*.table"))
                 if upgrade_table(p)]
     upgraded += [str(p.relative_to(folder)) for p in sorted(folder.rglob("*.json"))
                  if p.name in ("fit.json", "ghosts.json") and upgrade_json(p)]
+    upgraded += [str(p.relative_to(folder)) for p in sorted(folder.rglob("ghosts.json"))
+                 if upgrade_ghosts_json(p)]
     systems, meta = read_fit_json(fit_file, legacy=True)
     trust = getattr(systems, "trust", None)
     if trust is None:
@@ -272,18 +276,35 @@ def upgrade_json(path: Path) -> bool:
 
 
 def upgrade_table(path: Path) -> bool:
-    """Rewrite a version-3 table (no checksum) as version 4 in place: the same bytes
-    after the header, and the checksum line. The coefficients are proven unchanged (the
-    systems of both texts written again compare equal). Returns whether it changed."""
+    """Rewrite a version-3 (no checksum) or version-4 (no probe lines) table as version 5
+    in place (:func:`lensfit.codegen.table.upgrade_text`): the same bytes but for the
+    header, the probe lines (the table's own polynomials evaluated) and the checksum
+    line; the coefficients are proven unchanged. Returns whether it changed."""
     text = path.read_text(encoding="utf-8")
-    head, sep, rest = text.partition("\n")
-    if head.split() != ["lensfit-poly-table", str(LEGACY)]:
+    head = text.partition("\n")[0]
+    if head.split() not in (["lensfit-poly-table", str(v)] for v in LEGACY):
         return False
-    new = with_checksum(f"lensfit-poly-table {TABLE_VERSION}{sep}{rest}")
     try:
-        if write_table(read_table(text, legacy=True)) != write_table(read_table(new)):
-            raise ValueError("the systems differ after the upgrade")
+        new = upgrade_text(text)
     except ValueError as e:
         raise InputError(f"{path}: cannot upgrade to version {TABLE_VERSION}: {e}") from None
     write_folder(path.parent, {path.name: new})
+    return True
+
+
+def upgrade_ghosts_json(path: Path) -> bool:
+    """Record the CRC-32 of each ghost table as it is now in ghosts.json (``table_crc32``,
+    which `lensfit ghosts` compares to reuse a fit: lensfit.ghosts.tasks), after
+    :func:`upgrade_table` rewrote the tables. Returns whether it changed."""
+    doc = load_checked_json(path, "", legacy=True)
+    for e in doc.get("ghosts", []):
+        if not isinstance(e, dict) or "table_crc32" not in e:
+            continue
+        table = path.parent / f"ghost_{e.get('first')}_{e.get('second')}.table"
+        if table.is_file():
+            e["table_crc32"] = f"{zlib.crc32(table.read_bytes()) & 0xFFFFFFFF:08x}"
+    text = checked_json_text(doc)
+    if path.read_text(encoding="utf-8") == text:
+        return False
+    write_folder(path.parent, {path.name: text})
     return True

@@ -226,8 +226,9 @@ LENSRT_API lensrt_result lensrt_context_gl_info(lensrt_context ctx, lensrt_gl_in
 
 typedef struct lensrt_lens_s *lensrt_lens;
 
-/* Load a fitted lens from its coefficient table (format `lensfit-poly-table` version 3:
- * fit/lensfit/codegen/table.py; older versions are refused with a message saying how to
+/* Load a fitted lens from its coefficient table (format `lensfit-poly-table` version 5:
+ * fit/lensfit/codegen/table.py; its checksum, the ranges of its values and its probe
+ * lines are checked; older versions are refused with a message saying how to upgrade or
  * regenerate the table). */
 LENSRT_API lensrt_result lensrt_lens_load(lensrt_context ctx, const char *table_path, lensrt_lens *out);
 /* The same from memory; `name` is used in messages. */
@@ -400,7 +401,7 @@ typedef void (*lensrt_horner_f)(const float *in, float *out);
 typedef struct lensrt_compiled_lens {
     size_t struct_size;         /* sizeof(lensrt_compiled_lens) */
     const char *name;           /* "0001-angenieux-double-gauss" */
-    const char *table_text;     /* the lens's coefficient table (format version 3) */
+    const char *table_text;     /* the lens's coefficient table (format version 5) */
     size_t table_size;          /* bytes of table_text */
     lensrt_horner_d object_d, sensor_d; /* P_o and P_s, double */
     lensrt_horner_f object_f, sensor_f; /* the same in float */

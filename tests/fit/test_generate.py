@@ -132,7 +132,7 @@ def test_regenerating_from_fit_json_is_byte_identical(folder):
     assert folder.name == lens_folder_name(lens)
     assert meta["format"] == "lensfit-fit 2" and "systems" not in meta
     assert meta["table"] == f"{file_stem(lens_prefix(lens))}.table"
-    assert systems.version == 4 and systems.trust is not None
+    assert systems.version == 5 and systems.trust is not None
     files = sources_for(list(systems), lens_prefix(lens), header_comment(lens),
                         facts=lens_facts(lens), trust=systems.trust,
                         c=not lens.variant,  # a coating variant: no C (test_coating_variant)
@@ -232,7 +232,7 @@ def test_compiled_c_agrees_with_system_evaluate(c_folder):
 def test_table_carries_the_lens_facts(folder):
     _, meta = read_fit_json(folder / "fit.json")
     table = read_table((folder / meta["table"]).read_text(encoding="utf-8"))
-    assert (table.version, table.lens) == (4, lens_facts(lens_of(meta)))
+    assert (table.version, table.lens) == (5, lens_facts(lens_of(meta)))
 
 
 def test_table_reads_back_as_the_fitted_systems(quick_run):
@@ -283,7 +283,7 @@ def test_committed_scene_folders_are_what_lensfit_scene_writes(scene_dir):
     for name, text in files.items():
         assert (scene_dir / name).read_bytes() == text.encode("utf-8"), name
     table = read_table(files[f"{lens_prefix(lens)}{scene_dir.name}.table"])
-    assert (table.version, table.lens, table.trust) == (4, lens_facts(lens), systems.trust)
+    assert (table.version, table.lens, table.trust) == (5, lens_facts(lens), systems.trust)
 
 
 def test_cli_regenerate_rewrites_a_folder_from_fit_json(quick_dir, tmp_path, capsys):

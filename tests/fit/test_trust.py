@@ -167,10 +167,10 @@ def test_cell_labels_and_markdown():
 
 
 def committed(lens_id: str):
-    """(lens, table, fit.json) of generated/<lens>/ (lensfit-fit 2, table version 3)."""
+    """(lens, table, fit.json) of generated/<lens>/ (lensfit-fit 2, table version 5)."""
     lens = load_lens(lens_id)
     systems, meta = read_fit_json(GENERATED_DIR / lens_folder_name(lens) / "fit.json")
-    assert systems.version == 4 and systems.trust is not None
+    assert systems.version == 5 and systems.trust is not None
     return lens, systems, meta
 
 

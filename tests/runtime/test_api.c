@@ -699,7 +699,7 @@ static void test_lens_tables(void)
         {"lensfit-poly-table 3\n# a comment\nbogus line here\n", "bad.table:3:"},
         {"lensfit-poly-table 3\nlens focal_length_mm twelve\n", "bad.table:2:"},
         {"not a table\n", "bad.table:1:"},
-        {"lensfit-poly-table 3\nlens name x\ntrust psf_vs_exact 0\ntrust psf_vs_exact_cell -\n"
+        {"lensfit-poly-table 3\nlens name x\ntrust psf_vs_exact 0.001\ntrust psf_vs_exact_cell -\n"
          "trust psf_target 0.01\nsystem P_o 6 4\ninput x_O 1 -1 1 affine 0 1\ninput y_O 1 -1 1 "
          "cubic 0 1\n", "bad.table:8:"},
     };
@@ -826,9 +826,9 @@ static void test_table_trust(void)
         {"trust psf_vs_exact 0.0041\ntrust psf_target 0.01\ntrust psf_vs_exact_cell x\n", 2,
          "found trust psf_target '0.01'"},
         {"trust psf_vs_exact lots\ntrust psf_vs_exact_cell x\ntrust psf_target 0.01\n", 1,
-         "trust psf_vs_exact 'lots' is not a finite number >= 0"},
+         "trust psf_vs_exact 'lots' is not a finite number"},
         {"trust psf_vs_exact 0.0041\ntrust psf_vs_exact_cell x\ntrust psf_target -0.01\n", 3,
-         "trust psf_target '-0.01' is not a finite number >= 0"},
+         "trust psf_target -0.01 is out of range: expected a number in [1e-06, 1]"},
         {"trust psf_vs_exact inf\ntrust psf_vs_exact_cell x\ntrust psf_target 0.01\n", 1, "'inf'"},
         {"trust psf_vs_exact nan\ntrust psf_vs_exact_cell x\ntrust psf_target 0.01\n", 1, "'nan'"},
         {"trust psf_vs_exact 0.0041 0.005\ntrust psf_vs_exact_cell x\ntrust psf_target 0.01\n", 1, "found 4 fields"},
@@ -860,8 +860,8 @@ static void test_table_trust(void)
     CHECK_MSG(ctx, "regenerate it with `lensfit fit 0042`");
     EXPECT_TABLE_ERROR(text, "v2.table", 0, "regenerate it with `lensfit fit LENS`");
     free(text);
-    text = table_without_trust(real, 5);
-    EXPECT_TABLE_ERROR(text, "v5.table", 0, "table version 5 is newer than this lensrt reads (4)");
+    text = table_without_trust(real, 6);
+    EXPECT_TABLE_ERROR(text, "v6.table", 0, "table version 6 is newer than this lensrt reads (5)");
     free(text);
 
     // Version 4's checksum (issue 25), unstamped here: a version-3 table is refused with
@@ -879,7 +879,14 @@ static void test_table_trust(void)
                       lensrt_lens_load_text(ctx, copy, n, "generated/0042-x/ghosts/ghost_1_2.table", &lens3));
             CHECK_MSG(ctx, "table version 3 carries no checksum");
             CHECK_MSG(ctx, "`lensfit regenerate 0042-x`");
+            // Version 4 (no probe lines, issue 39): refused with the commands that add them
             copy[19] = '4';
+            CHECK_RES(ctx, LENSRT_ERROR_PARSE,
+                      lensrt_lens_load_text(ctx, copy, n, "generated/0042-x/lens0042.table", &lens3));
+            CHECK_MSG(ctx, "generated/0042-x/lens0042.table: table version 4 carries no probe lines");
+            CHECK_MSG(ctx, "`lensfit regenerate 0042-x` (adds them from the table's own polynomials, no refit)");
+            CHECK_MSG(ctx, "`lensfit upgrade-table generated/0042-x/lens0042.table`");
+            copy[19] = '5';
             for (k = n - 2; k > 0 && copy[k - 1] != '\n'; k--) continue; /* the checksum line */
             copy[k / 2] ^= 0x01;
             CHECK_RES(ctx, LENSRT_ERROR_PARSE, lensrt_lens_load_text(ctx, copy, n, "flip.table", &lens3));

@@ -35,7 +35,7 @@ sys.path.insert(0, str(ROOT / "runtime" / "python"))
 
 from lensrt_exr import exr_layers, read_spectral_exr  # noqa: E402
 
-from lensfit.codegen.table import with_checksum  # noqa: E402
+from lensfit.codegen.table import restamp_probes  # noqa: E402
 
 PSF = Path(os.environ.get("LENSRT_PSF", ROOT / "build" / "runtime" / "runtime" / "lensrt-psf"))
 LENS0001 = ROOT / "generated" / "0001-angenieux-double-gauss" / "lens0001.table"
@@ -56,8 +56,8 @@ def lens_value(text: str, key: str) -> float:
 
 def ghost_table(text: str, side: str, clip: list[tuple[str, str, list[str]]],
                 first: int = 4, second: int = 8) -> str:
-    """lens0001's table with ghost lines and a P_clip taking `side`'s inputs, ending with
-    its checksum line as lensfit writes it (the source's own is dropped first)."""
+    """lens0001's table with ghost lines and a P_clip taking `side`'s inputs, with the
+    probe lines and checksum line lensfit writes (the source's own are dropped first)."""
     text = "".join(t for t in text.splitlines(keepends=True) if not t.startswith("checksum crc32 "))
     head, rest = text.split("\nsystem P_o ", 1)
     ghost = (f"ghost first {first}\nghost second {second}\nghost label {first}-{second}\n"
@@ -71,7 +71,7 @@ def ghost_table(text: str, side: str, clip: list[tuple[str, str, list[str]]],
     out += f"system P_clip 6 {len(clip)}\n" + "\n".join(inputs) + "\n"
     for name, unit, terms in clip:
         out += f"output {name} {unit} {len(terms)}\n" + "".join(t + "\n" for t in terms)
-    return with_checksum(out + "end\n")
+    return restamp_probes(out + "end\n")
 
 
 @pytest.fixture(scope="module")

@@ -170,6 +170,195 @@ static void test_table(lensrt_context ctx, const char *text, size_t size)
                    "differs", (const char *)NULL);
 }
 
+/* A copy of text with lines a and b (1-based, a < b) exchanged (malloc'd; NULL if out of
+ * range). */
+static char *swap_lines(const char *text, size_t size, int a, int b)
+{
+    const char *start[2] = {NULL, NULL}, *stop[2] = {NULL, NULL}, *p = text, *end = text + size;
+    char *out, *o;
+    int line = 1;
+    while (p < end) {
+        const char *eol = memchr(p, '\n', (size_t)(end - p));
+        if (!eol) break;
+        if (line == a || line == b) {
+            start[line == b] = p;
+            stop[line == b] = eol;
+        }
+        p = eol + 1;
+        line++;
+    }
+    if (!start[0] || !start[1] || !(out = malloc(size + 1))) return NULL;
+    o = out;
+    memcpy(o, text, (size_t)(start[0] - text));
+    o += start[0] - text;
+    memcpy(o, start[1], (size_t)(stop[1] - start[1]));
+    o += stop[1] - start[1];
+    memcpy(o, stop[0], (size_t)(start[1] - stop[0]));
+    o += start[1] - stop[0];
+    memcpy(o, start[0], (size_t)(stop[0] - start[0]));
+    o += stop[0] - start[0];
+    memcpy(o, stop[1], (size_t)(end - stop[1]));
+    o += end - stop[1];
+    *o = '\0';
+    return out;
+}
+
+/* An edited text loaded with its checksum made again but its probe lines as they were
+ * (what a hand edit behind a valid checksum looks like): refused with each needle; and
+ * with the probes made again too (stamp_table): loaded, so the probes are what refuse it
+ * (issue 39). */
+static void expect_probes_refuse(lensrt_context ctx, const char *t, const char *what, ...)
+{
+    size_t n;
+    char *c = stamp_crc(t, strlen(t), &n);
+    lensrt_lens lens = NULL;
+    va_list args;
+    const char *needle;
+    CHECK(c != NULL, "%s: out of memory", what);
+    if (!c) return;
+    CHECK_RES(ctx, LENSRT_ERROR_PARSE, lensrt_lens_load_text(ctx, c, n, "lens0001.table", &lens));
+    lensrt_lens_destroy(ctx, lens);
+    lens = NULL;
+    va_start(args, what);
+    while ((needle = va_arg(args, const char *)) != NULL)
+        CHECK(strstr(lensrt_context_last_error(ctx), needle) != NULL, "%s: message '%s' lacks '%s'", what,
+              lensrt_context_last_error(ctx), needle);
+    va_end(args);
+    free(c);
+    CHECK_OK(ctx, load_stamped(ctx, t, strlen(t), "lens0001.table", &lens));
+    lensrt_lens_destroy(ctx, lens);
+}
+
+/* Semantic corruption behind a valid checksum (issue 39, item 3): swapped or edited
+ * coefficients refused by the probe lines; lens and trust values out of their ranges,
+ * hex floats, inf and nan, control bytes and a ghost label that does not number its
+ * surfaces refused naming key and value. */
+static void test_semantic(lensrt_context ctx, const char *text, size_t size)
+{
+    static const struct {
+        const char *key, *value, *needle;
+    } ranges[] = {
+        {"lens focal_length_mm ", "1e308", "lens focal_length_mm 1e308 is out of range"},
+        {"lens focal_length_mm ", "0", "lens focal_length_mm 0 is out of range"},
+        {"lens stop_radius_max_mm ", "1e-300", "lens stop_radius_max_mm 1e-300 is out of range"},
+        {"lens stop_radius_f1_mm ", "2e6", "lens stop_radius_f1_mm 2e6 is out of range"},
+        {"lens housing_first_mm ", "-54", "lens housing_first_mm -54 is out of range"},
+        {"lens housing_last_mm ", "0", "lens housing_last_mm 0 is out of range"},
+        {"lens sensor_defocus_mm ", "1e30", "lens sensor_defocus_mm 1e30 is out of range"},
+        {"lens front_focal_distance_mm ", "-2e6", "lens front_focal_distance_mm -2e6 is out of range"},
+        {"lens squeeze ", "1e6", "lens squeeze 1e6 is out of range"},
+        {"lens squeeze ", "0.01", "lens squeeze 0.01 is out of range"},
+        {"trust psf_vs_exact ", "1e308", "trust psf_vs_exact 1e308 is out of range"},
+        {"trust psf_vs_exact ", "1e-300", "trust psf_vs_exact 1e-300 is out of range"},
+        {"trust psf_target ", "0", "trust psf_target 0 is out of range"},
+        {"trust psf_target ", "2", "trust psf_target 2 is out of range"},
+        {"lens focal_length_mm ", "0x1p3", "lens focal_length_mm '0x1p3' is not a finite number"},
+        {"lens squeeze ", "inf", "lens squeeze 'inf' is not a finite number"},
+        {"trust psf_target ", "nan", "trust psf_target 'nan' is not a finite number"},
+    };
+    const int xo = line_starting(text, size, "output x_o ", 1);
+    const int yo = line_starting(text, size, "output y_o ", 1);
+    const int probe = line_starting(text, size, "probe ", 1);
+    char a[64], b[64], *t, *u;
+    size_t n, m;
+    int i;
+    CHECK(xo && yo && probe, "the committed table's keys: x_o %d, y_o %d, probe %d", xo, yo, probe);
+    // Two term lines swapped between outputs x_o and y_o (each output then has a term
+    // of the other): the probes of P_o refuse it, naming system, output and values
+    t = swap_lines(text, size, xo + 1, yo + 1);
+    CHECK(t != NULL, "swap x_o's and y_o's first terms");
+    if (t) expect_probes_refuse(ctx, t, "x_o's and y_o's first terms swapped", "system P_o: output x_o: probe 1 of 6",
+                                "the polynomials give", "the probe line says", "behind a valid checksum",
+                                (const char *)NULL);
+    free(t);
+    // Two coefficients of x_o exchanged (the exponents stay)
+    last_token(text, size, xo + 1, a, sizeof a);
+    last_token(text, size, xo + 2, b, sizeof b);
+    t = edit_line(text, size, xo + 1, a, b, &n);
+    u = t ? edit_line(t, n, xo + 2, b, a, &m) : NULL;
+    CHECK(u != NULL, "exchange x_o's first two coefficients");
+    if (u) expect_probes_refuse(ctx, u, "x_o's first two coefficients exchanged", "system P_o: output x_o",
+                                (const char *)NULL);
+    free(t);
+    free(u);
+    // A probe output edited (the polynomials kept): refused the same way
+    last_token(text, size, probe, a, sizeof a);
+    t = edit_line(text, size, probe, a, "1", &n);
+    if (t) {
+        u = stamp_crc(t, n, &m);
+        if (u) {
+            lensrt_lens lens = NULL;
+            CHECK_RES(ctx, LENSRT_ERROR_PARSE, lensrt_lens_load_text(ctx, u, m, "lens0001.table", &lens));
+            CHECK_MSG(ctx, "output phi_o: probe 1 of 6");
+            lensrt_lens_destroy(ctx, lens);
+        }
+        free(u);
+    }
+    free(t);
+    // Each key out of its range, hex floats, inf and nan: key and value named
+    for (i = 0; i < (int)(sizeof ranges / sizeof ranges[0]); i++) {
+        const int line = line_starting(text, size, ranges[i].key, 1);
+        last_token(text, size, line, a, sizeof a);
+        expect_refused(ctx, text, size, line, a, ranges[i].value, ranges[i].needle, ranges[i].needle,
+                       (const char *)NULL);
+    }
+    // A coefficient as a hex float or inf (strtod reads both)
+    last_token(text, size, xo + 1, a, sizeof a);
+    expect_refused(ctx, text, size, xo + 1, a, "0x1p3", "a hex float coefficient", "coefficient '0x1p3' is not a finite number",
+                   (const char *)NULL);
+    expect_refused(ctx, text, size, xo + 1, a, "infinity", "an infinite coefficient", "coefficient 'infinity'",
+                   (const char *)NULL);
+    // A line of NUL bytes inside x_o's terms, and a NUL inside a term line
+    {
+        char nul[] = "0 0 0 1 0 0 1\n";
+        size_t k;
+        t = malloc(size + sizeof nul);
+        if (t) {
+            const int at = xo + 2;
+            char where[64];
+            const char *p = text;
+            for (i = 1; i < at; i++) p = (const char *)memchr(p, '\n', (size_t)(text + size - p)) + 1;
+            for (k = 0; k < sizeof nul - 2; k++) nul[k] = '\0';
+            memcpy(t, text, (size_t)(p - text));
+            memcpy(t + (p - text), nul, sizeof nul - 1);
+            memcpy(t + (p - text) + sizeof nul - 1, p, size - (size_t)(p - text));
+            u = stamp_table(t, size + sizeof nul - 1, &m);
+            snprintf(where, sizeof where, "lens0001.table:%d: control byte 0x00 at column 1", at);
+            if (u) {
+                lensrt_lens lens = NULL;
+                CHECK_RES(ctx, LENSRT_ERROR_PARSE, lensrt_lens_load_text(ctx, u, m, "lens0001.table", &lens));
+                CHECK_MSG(ctx, where);
+                lensrt_lens_destroy(ctx, lens);
+            }
+            free(u);
+            free(t);
+        }
+    }
+    // Ghost lines whose label does not number ghost first and second: refused; the
+    // label of a ghost behind an inserted stop surface (one less) loads
+    {
+        const int trust_end = line_starting(text, size, "trust psf_target ", 1);
+        static const char *const labels[][2] = {
+            {"4-8-9", "ghost label '4-8-9' does not number ghost first 4 and ghost second 8"},
+            {"4-9", "ghost label '4-9'"},
+            {"3-8", "ghost label '3-8'"},
+            {"04-8", "ghost label '04-8'"},
+            {"4-7", NULL},
+            {"3-7", NULL},
+        };
+        last_token(text, size, trust_end, a, sizeof a);
+        for (i = 0; i < (int)(sizeof labels / sizeof labels[0]); i++) {
+            char block[160];
+            snprintf(block, sizeof block, "%s\nghost first 4\nghost second 8\nghost label %s\nghost side P_s", a,
+                     labels[i][0]);
+            if (labels[i][1])
+                expect_refused(ctx, text, size, trust_end, a, block, labels[i][1], labels[i][1], (const char *)NULL);
+            else
+                expect_loaded(ctx, text, size, trust_end, a, block, "a label one less than first and second");
+        }
+    }
+}
+
 static lensrt_render fitted_render(lensrt_context ctx, lensrt_lens lens, double intensity, int estimator)
 {
     static const double wl[1] = {550.0};
@@ -404,6 +593,7 @@ int main(int argc, char **argv)
     CHECK_OK(NULL, lensrt_context_create(&cd, &ctx));
     if (!text || !ctx) return 1;
     test_table(ctx, text, size);
+    test_semantic(ctx, text, size);
     CHECK_OK(ctx, load_stamped(ctx, text, size, "lens0001.table", &lens));
     if (lens) {
         test_intensity(ctx, lens);

@@ -803,7 +803,7 @@ def test_bad_input_raises_with_parameter_named(rt, tmp_path):
     def stamped(text: str) -> str:
         return text + f"checksum crc32 {zlib.crc32(text.encode()) & 0xFFFFFFFF:08x}\n"
 
-    bad.write_text(stamped("lensfit-poly-table 4\nlens focal_length_mm fifty\n"))
+    bad.write_text(stamped("lensfit-poly-table 5\nlens focal_length_mm fifty\n"))
     with pytest.raises(LensrtError, match=r"bad\.table:2:.*fifty") as info:
         rt.load(bad)
     assert info.value.code == PARSE
@@ -814,7 +814,7 @@ def test_bad_input_raises_with_parameter_named(rt, tmp_path):
                                           r"with `lensfit fit 0042`") as info:
         rt.load(old)
     assert info.value.code == PARSE
-    bad.write_text(stamped("lensfit-poly-table 4\nlens focal_length_mm 50\n"
+    bad.write_text(stamped("lensfit-poly-table 5\nlens focal_length_mm 50\n"
                            "trust psf_vs_exact 0.01\ntrust psf_target 0.01\n"))
     with pytest.raises(LensrtError, match=r"bad\.table:4:.*trust psf_vs_exact_cell") as info:
         rt.load(bad)

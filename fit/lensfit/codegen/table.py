@@ -1,6 +1,6 @@
 """Coefficient tables: polynomial systems as plain text a small C evaluator can parse.
 
-Format ``lensfit-poly-table``, version 4 (the reader also reads versions 1 and 2). UTF-8 text,
+Format ``lensfit-poly-table``, version 5 (the reader also reads versions 1 and 2). UTF-8 text,
 lines end with '\\n'; fields are separated by one or more spaces or tabs (only those:
 other Unicode blanks belong to a field), and a '\r' before the '\n' is ignored. Lines that
 are empty or start with '#' (after optional blanks) are comments and are skipped anywhere.
@@ -50,9 +50,9 @@ first ``system`` line:
     squeeze                  anamorphic squeeze EFL_y / EFL_x (1 for a rotationally
                              symmetric lens)
 
-Every value but the name is a finite real number written like the others (``%.17g``);
-radii and squeeze are positive, the focal length is not zero. Version 1 has no lens
-lines; the writer emits version 1 when it is given no lens facts.
+Every value but the name is a finite real number written like the others (``%.17g``),
+inside its range (below, "Ranges"). Version 1 has no lens lines; the writer emits version
+1 when it is given no lens facts.
 
 Version 3 adds the trust lines after the lens lines: how far the PSF of these polynomials
 is from the exactly traced one (:mod:`lensfit.trust`), so that a runtime can say so when it
@@ -63,17 +63,22 @@ loads the table. Exactly these keys, in this order, one line each:
     trust psf_vs_exact_cell  which cell was worst, e.g. f/2%20axis%20450%20nm (a text field)
     trust psf_target         the PSF error the fit was made for (relative L2)
 
-The two numbers are finite and non-negative. The writer emits version 4 (below) when it
-is given trust figures, version 2 with lens facts only, version 1 with neither.
+The two numbers are finite and inside their ranges (below). The writer emits version 5
+(below) when it is given trust figures, version 2 with lens facts only, version 1 with
+neither.
 
 A ghost table (issue 13: one two-reflection path of the lens, rendered as its own lens)
-is a version-4 table with ghost lines after the trust lines, exactly these keys in this
+is a version-5 table with ghost lines after the trust lines, exactly these keys in this
 order, and a third system ``P_clip``:
 
     ghost first <i>          model surface index of the first reflection (in path order,
                              the surface reflected at last; integer >= 0)
     ghost second <j>         the surface reflected at first (integer > i)
-    ghost label <text>       the lens file's numbering, e.g. 4-8 (a text field)
+    ghost label <text>       the lens file's numbering, e.g. 4-8 (a text field): "a-b",
+                             decimal without leading zeros, with a = first or first - 1,
+                             b = second or second - 1, 0 <= first - a <= second - b <= 1
+                             (the loader inserts at most one surface, the stop, which
+                             shifts the model's indices behind it by one)
     ghost side <P_o|P_s>     which system is the ghost half (the other is the direct one)
 
 ``P_clip`` has exactly the inputs of the ghost side's system and outputs in pairs, each
@@ -90,10 +95,53 @@ with (issue 25: integrity):
 
 the CRC-32 (zlib's and PNG's polynomial) of every byte before that line, so that a
 table changed after lensfit wrote it (a bit flip, an edit, a table cut short: the line
-is then missing) is refused by both readers, naming the file. lensrt reads version 4
+is then missing) is refused by both readers, naming the file. lensrt reads version 5
 only; a version-3 table (no checksum) is refused by both with the command that rewrites
 it, `lensfit regenerate <lens id>` (which alone reads version 3: ``legacy=True``; the
 coefficients are carried over bit for bit, no refit). Comments are inside the checksum.
+
+Version 5 (issue 39: semantic integrity) is version 4 with probe lines: each system
+ends, after its outputs' terms and before its ``end``, with PROBES (6) lines
+
+    probe <v_1> ... <v_n_inputs> <y_1> ... <y_n_outputs>
+
+the system evaluated by the writer at fixed points (PROBE_XHAT: normalised coordinates
+mapped back through each input's transform, inside the declared domain), inputs in their
+units then outputs in theirs, each ``%.17g``. Both readers evaluate the polynomials as
+read at each probe's inputs and refuse the table when an output differs from the line's
+by more than PROBE_RTOL * sum |c_t| + PROBE_ATOL (1e-9 of the output's scale: evaluation
+order rounding only, see PROBE_RTOL), naming the file, the probe line, the system, the
+output and both values: a table whose coefficients were edited, or whose lines were
+swapped, and whose checksum was then made again is refused. This is the last check.
+
+Version 4 (no probe lines) is refused by both readers with the commands that upgrade it:
+`lensfit regenerate <lens>` rewrites a generated folder's tables (the lens's, its
+ghosts', its scenes') and ghosts.json's CRCs of them; `lensfit upgrade-table FILE ...`
+one file. Both evaluate the table's own polynomials (:func:`upgrade_text`): every other
+byte is kept, no refit. ``read_table(text, legacy=True)`` reads versions 3 and 4.
+
+Ranges (both readers refuse a value outside, naming the key and the value; the writer
+refuses to write one; the bounds are inclusive):
+
+    focal_length_mm                        |f| in [1e-3, 1e6] mm (1 um to 1 km)
+    stop_radius_max_mm, stop_radius_f1_mm,
+    housing_first_mm, housing_last_mm      [1e-3, 1e6] mm
+    sensor_defocus_mm,
+    front_focal_distance_mm                [-1e6, 1e6] mm
+    squeeze                                [0.1, 10] (cinema anamorphics: 1.3 to 2)
+    trust psf_vs_exact                     [1e-12, 10]: a measured distance between two
+                                           PSFs made by different means is never below
+                                           rounding, and at 1000% the fit is another lens
+    trust psf_target                       [1e-6, 1]: no fit is made for less than a
+                                           millionth, and 100% asks for nothing
+    input lo, hi                           finite, lo < hi (inverse_square: lo > 0)
+    coefficients, probe values             finite
+
+(:mod:`lensfit.facts` holds the lens ranges, TRUST_RANGES the trust ones; lensrt's
+runtime/src/lens/table.c the same numbers.) Numbers are the decimal syntax above only:
+hex floats (0x1p3), inf, nan and infinity, which C's strtod would read, are refused by
+both readers. A table is text: a control byte (below 0x20 but tab, or DEL; a CR only
+right before a newline) anywhere, comments included, is refused naming the line.
 
 A system's ``info`` (provenance) is not stored. ``read_table(write_table(s))`` gives back
 the names, units, domains, transforms, exponents and coefficients bit for bit, terms in
@@ -117,13 +165,14 @@ from lensfit.poly import Input, Polynomial, System
 from lensfit.poly.polynomial import TRANSFORMS
 
 FORMAT = "lensfit-poly-table"
-VERSION = 4  # what the writer emits when given lens facts and trust figures
-READS = (1, 2, 4)  # versions the reader accepts (3: only to regenerate, ``legacy=True``)
-LEGACY = 3  # trust figures but no checksum line: `lensfit regenerate` rewrites it as 4
+VERSION = 5  # what the writer emits when given lens facts and trust figures
+READS = (1, 2, 5)  # versions the reader accepts (3, 4: only to upgrade, ``legacy=True``)
+LEGACY = (3, 4)  # no checksum (3) or no probe lines (4): `lensfit regenerate` rewrites them
 CHECKSUM = "checksum crc32"  # the last line: ``checksum crc32 <8 lowercase hex digits>``
 _CHECKSUM_LINE = re.compile(rb"checksum crc32 ([0-9a-f]{8})\n\Z")
 REGENERATE = ("`lensfit regenerate <lens id or generated folder name>` (rewrites "
-              "generated/<lens>/ with checksums, no refit)")
+              "generated/<lens>/ with checksums and probe lines, no refit), or `lensfit "
+              "upgrade-table FILE` for a table file of its own")
 
 
 def table_checksum(body: bytes) -> str:
@@ -145,11 +194,47 @@ def split_checksum(data: bytes) -> tuple[bytes, str | None]:
     m = _CHECKSUM_LINE.fullmatch(data, at)
     return (data[:at], m.group(1).decode()) if m else (data, None)
 TRUST_KEYS = ("psf_vs_exact", "psf_vs_exact_cell", "psf_target")
+# The ranges of the trust figures (module doc, "Ranges"), inclusive; a value outside is
+# refused by both readers and by the writer, naming the key and the value.
+TRUST_RANGES = {"psf_vs_exact": (1e-12, 10.0), "psf_target": (1e-6, 1.0)}
+
+# Probe lines (version 5, module doc): PROBES per system, at these normalised points
+# (row p: probe p; column j: input j, for systems of up to 8 inputs). Irrational-looking
+# fractions of the domain, every |xhat| distinct within a row and none 0 or +-1, so that
+# distinct monomials take distinct values at each point (at a symmetric point, x_a = y_a,
+# x_a^3 and x_a y_a^2 would be equal and a swap of their coefficients unseen). Four
+# points spread over 0.28..0.96 weigh the low orders, two near opposite corners
+# (0.90..0.99) the high ones, which are ~1e-6 in the middle. Measured on every table in
+# generated/ (8.8e8 pairs of terms): swapping the coefficients of any two terms of an
+# output that differ by more than 6.1e-7 of its scale (sum |c_t|) changes a probe
+# beyond the tolerance below (tests/fit/codegen/test_table_probes.py checks a sample).
+PROBES = 6
+PROBE_XHAT = (
+    (0.5692, -0.7758, 0.4534, -0.9197, 0.3358, -0.6936, 0.8800, -0.5333),
+    (-0.8173, 0.5504, -0.6690, 0.3538, -0.9620, 0.4623, -0.7562, 0.2821),
+    (0.9427, -0.3267, 0.7205, -0.5770, 0.6536, -0.8773, 0.3718, -0.4821),
+    (-0.4518, 0.9324, -0.3968, 0.7237, -0.5862, 0.8096, -0.6751, 0.5896),
+    (0.9912, -0.9637, 0.9345, -0.9786, 0.9123, -0.9478, 0.9871, -0.9254),
+    (-0.9561, 0.9058, -0.9893, 0.9402, -0.9734, 0.9217, -0.9049, 0.9688),
+)
+# A probe output read back may differ from the polynomials evaluated again by
+# PROBE_RTOL * sum |c_t| + PROBE_ATOL. Only rounding may separate them: the writer
+# (numpy) and a reader (C, any summation order, FMA or not) each evaluate the same
+# polynomial at the same doubles (the probe inputs round-trip through %.17g), so each
+# errs by at most (n_terms + 15) * 2^-53 * sum |c_t m_t| <= 1.2e-10 * sum |c_t| for the
+# largest table lensrt reads (LENSRT_MAX_TERMS = 1e6 terms; ~1e-13 for the 10^3 terms of
+# a real table); 1e-9 is above both errors together. sum |c_t| is the output's scale
+# (its bound over the whole domain: every monomial is at most 1 there), so a coefficient
+# edited, or two swapped, by more than ~1e-9 of that scale changes a probe beyond the
+# tolerance. PROBE_ATOL only keeps an all-zero output's tolerance from being 0.
+PROBE_RTOL = 1e-9
+PROBE_ATOL = 1e-300
 GHOST_KEYS = ("first", "second", "label", "side")
 CLIP_SYSTEM = "P_clip"
 _INT = re.compile(r"[0-9]+")
 _REAL = re.compile(r"[-+]?([0-9]+\.?[0-9]*|\.[0-9]+)([eE][-+]?[0-9]+)?")
 _BLANKS = re.compile(r"[ \t]+")
+_CONTROL = re.compile(r"[\x00-\x08\x0a-\x1f\x7f]")
 
 
 def encode_field(text: str) -> str:
@@ -205,6 +290,27 @@ class GhostLines:
                              f"0 <= first < second")
         if self.side not in ("P_o", "P_s"):
             raise ValueError(f"ghost side {self.side!r}: expected P_o or P_s")
+        problem = ghost_label_problem(self.first, self.second, self.label)
+        if problem:
+            raise ValueError(problem)
+
+
+def ghost_label_problem(first: int, second: int, label: str) -> str | None:
+    """What is wrong with a ghost label for model surfaces ``first`` < ``second`` (None
+    when nothing is). The label is the lens file's numbering of the two surfaces, "a-b"
+    (decimal, no leading zeros: lensfit.ghosts, GhostEstimate.name): the model's index
+    less the surfaces the loader inserted before it, and it inserts at most one (the
+    stop, lensfit.prescription.load._stop_plane), which reflects nothing. So a is first
+    or first - 1, b is second or second - 1, and a surface behind the inserted one in
+    the model is behind it in the file: 0 <= first - a <= second - b <= 1."""
+    m = re.fullmatch(r"(0|[1-9][0-9]{0,8})-(0|[1-9][0-9]{0,8})", label)
+    ok = m is not None and 0 <= first - int(m[1]) <= second - int(m[2]) <= 1
+    if ok:
+        return None
+    return (f"ghost label {label!r} does not number ghost first {first} and ghost second "
+            f"{second}: expected '{first}-{second}' (or one less for a surface behind the "
+            f"stop surface the loader inserts: '{first}-{second - 1}', "
+            f"'{max(first - 1, 0)}-{second - 1}')")
 
 
 class Table(list[System]):
@@ -223,6 +329,14 @@ class Table(list[System]):
         self.ghost = ghost
 
 
+def trust_problem(key: str, value: float) -> str | None:
+    """What is wrong with a (finite) trust figure: None when it is inside TRUST_RANGES."""
+    lo, hi = TRUST_RANGES[key]
+    if lo <= value <= hi:
+        return None
+    return f"expected a number in [{lo:g}, {hi:g}] (module doc, Ranges)"
+
+
 def check_trust(trust: dict[str, Any]) -> dict[str, Any]:
     """The trust figures as the table stores them, or ValueError naming the key."""
     if set(trust) != set(TRUST_KEYS):
@@ -230,8 +344,11 @@ def check_trust(trust: dict[str, Any]) -> dict[str, Any]:
                          f"{sorted(trust)}")
     for key in ("psf_vs_exact", "psf_target"):
         v = trust[key]
-        if not (isinstance(v, int | float) and math.isfinite(v) and v >= 0):
-            raise ValueError(f"trust: {key} = {v!r}: expected a finite number >= 0")
+        if not (isinstance(v, int | float) and math.isfinite(v)):
+            raise ValueError(f"trust: {key} = {v!r}: expected a finite number")
+        problem = trust_problem(key, v)
+        if problem:
+            raise ValueError(f"trust: {key} = {v!r}: {problem}")
     if not isinstance(trust["psf_vs_exact_cell"], str):
         raise ValueError("trust: psf_vs_exact_cell: expected text")
     return {k: trust[k] for k in TRUST_KEYS}
@@ -287,8 +404,102 @@ def write_table(systems: Sequence[System], comment: str = "",
             lines.append(f"output {encode_field(p.output)} {encode_field(p.unit)} {p.terms}")
             for e, coef in zip(p.exponents.tolist(), p.coefficients.tolist(), strict=True):
                 lines.append(" ".join([*map(str, e), fmt_real(coef)]))
+        if version == VERSION:
+            lines += probe_lines(s)
         lines.append("end")
     return with_checksum("\n".join(lines) + "\n")
+
+
+def probe_inputs(system: System) -> np.ndarray:
+    """The PROBES points a table's probe lines evaluate ``system`` at, (PROBES, n_inputs)
+    in the inputs' units: PROBE_XHAT mapped back through each input's transform, inside
+    its domain."""
+    n = len(system.inputs)
+    if n > len(PROBE_XHAT[0]):
+        raise ValueError(f"system {system.name}: {n} inputs; a table's probes cover at most "
+                         f"{len(PROBE_XHAT[0])}")
+    out = np.empty((PROBES, n))
+    for j, inp in enumerate(system.inputs):
+        c, sc = inp.offset_scale
+        w = c + sc * np.array([row[j] for row in PROBE_XHAT])
+        v = w if inp.transform == "affine" else 1.0 / np.sqrt(w)
+        out[:, j] = np.clip(v, inp.lo, inp.hi)
+    return out
+
+
+def probe_lines(system: System) -> list[str]:
+    """The probe lines of ``system`` (module doc): ``probe <inputs> <outputs>``, each
+    value as fmt_real writes it (so that the inputs read back are the same doubles)."""
+    x = probe_inputs(system)
+    y = system.evaluate(x)
+    return [" ".join(["probe", *map(fmt_real, xi), *map(fmt_real, yi)])
+            for xi, yi in zip(x.tolist(), y.tolist(), strict=True)]
+
+
+def upgrade_text(text: str) -> str:
+    """A version-3 or version-4 table's text as version 5, the systems unchanged: the
+    header says 5, each system gets its probe lines (its own polynomials evaluated, as
+    the writer would), the checksum line is computed again; every other byte is kept,
+    comments included. ValueError when the text is not a readable version 3 or 4."""
+    table = read_table(text, legacy=True)
+    if table.version not in LEGACY:
+        raise ValueError(f"table version {table.version}: only versions "
+                         f"{' and '.join(map(str, LEGACY))} are upgraded")
+    body = split_checksum(text.encode("utf-8"))[0].decode("utf-8")
+    if not body.endswith("\n"):
+        body += "\n"
+    out: list[str] = []
+    header, k = False, 0
+    for line in body.split("\n"):
+        bare = line.removesuffix("\r").strip(" \t")
+        if not header and bare and not bare.startswith("#"):
+            out.append(f"{FORMAT} {VERSION}")
+            header = True
+            continue
+        if bare == "end":
+            out += probe_lines(table[k])
+            k += 1
+        out.append(line)
+    new = with_checksum("\n".join(out))
+    if write_table(read_table(new)) != write_table(table):
+        raise ValueError("the systems differ after the upgrade")  # cannot happen
+    return new
+
+
+def restamp_probes(text: str) -> str:
+    """A version-5 (or 4) table text edited by hand, given the probe lines and checksum
+    lensfit would write for the systems it now holds (old probe and checksum lines
+    dropped): for tests and tools that build tables from pieces, as :func:`with_checksum`
+    is for the checksum alone. Every other byte is kept."""
+    body = split_checksum(text.encode("utf-8"))[0].decode("utf-8")
+    lines = [line for line in body.split("\n") if not line.lstrip(" \t").startswith("probe ")]
+    for i, line in enumerate(lines):
+        bare = line.strip(" \t\r")
+        if bare and not bare.startswith("#"):
+            if bare.split()[0] == FORMAT:
+                lines[i] = f"{FORMAT} 4"
+            break
+    body = "\n".join(lines)
+    return upgrade_text(with_checksum(body if body.endswith("\n") else body + "\n"))
+
+
+def probe_problem(system: System, inputs: np.ndarray, outputs: np.ndarray) -> str | None:
+    """None when ``system`` evaluated at each probe's ``inputs`` gives its ``outputs``
+    within the tolerance (PROBE_RTOL); else what differs: the system, the output, the
+    probe and both values."""
+    got = system.evaluate(inputs)
+    for k, p in enumerate(system.outputs):
+        tol = PROBE_RTOL * float(np.abs(p.coefficients).sum()) + PROBE_ATOL
+        diff = np.abs(got[:, k] - outputs[:, k])
+        if np.all(diff <= tol):
+            continue
+        i = int(np.argmax(diff > tol))
+        return (f"system {system.name}: output {p.output}: probe {i + 1} of {len(inputs)}: "
+                f"the polynomials give {fmt_real(got[i, k])}, the probe line says "
+                f"{fmt_real(outputs[i, k])} (difference {diff[i]:.3g}, tolerance {tol:.3g}): "
+                "coefficients changed after lensfit wrote the table (edited, or lines "
+                "swapped, behind a valid checksum); refused")
+    return None
 
 
 class _Lines:
@@ -297,7 +508,13 @@ class _Lines:
     def __init__(self, text: str) -> None:
         self.rows = []
         for i, line in enumerate(text.split("\n"), start=1):
-            line = line.removesuffix("\r").strip(" \t")
+            line = line.removesuffix("\r")
+            bad = _CONTROL.search(line)
+            if bad:
+                raise _fail(i, f"control byte 0x{ord(bad[0]):02x} at column {bad.start() + 1}: "
+                               "a table is text (a tab is the only control character it may "
+                               "hold, a CR only before the newline); refused")
+            line = line.strip(" \t")
             if line and not line.startswith("#"):
                 self.rows.append((i, _BLANKS.split(line)))
         self.pos = 0
@@ -428,8 +645,9 @@ def _trust(lines: _Lines) -> dict[str, Any]:
             out[key] = decode_field(token, f"table line {n}")
             continue
         value = _real(token, n, f"trust {key}")
-        if value < 0:
-            raise _fail(n, f"trust {key} = {token}: expected a number >= 0")
+        problem = trust_problem(key, value)
+        if problem:
+            raise _fail(n, f"trust {key} = {token}: {problem}")
         out[key] = value
     return out
 
@@ -447,6 +665,10 @@ def _ghost(lines: _Lines) -> GhostLines | None:
         if key == "second" and values[1] <= values[0]:
             raise _fail(n, f"ghost second {values[1]}: expected more than ghost first "
                            f"{values[0]}")
+        if key == "label":
+            problem = ghost_label_problem(values[0], values[1], values[2])
+            if problem:
+                raise _fail(n, problem)
     return GhostLines(*values)
 
 
@@ -493,14 +715,18 @@ def read_table(text: str, *, legacy: bool = False) -> Table:
     n, f = lines.next(f"the header '{FORMAT} {VERSION}'")
     if len(f) != 2 or f[0] != FORMAT:
         raise _fail(n, f"expected the header '{FORMAT} {VERSION}', found {' '.join(f)!r}")
-    if f[1] == str(LEGACY) and not legacy:
-        raise _fail(n, f"table version {LEGACY} carries no checksum; regenerate it with "
+    if f[1] == "3" and not legacy:
+        raise _fail(n, f"table version 3 carries no checksum; regenerate it with "
                        f"{REGENERATE}")
-    if f[1] not in map(str, READS) and f[1] != str(LEGACY):
+    if f[1] == "4" and not legacy:
+        raise _fail(n, "table version 4 carries no probe lines (so swapped or edited "
+                       "coefficients behind a valid checksum could not be told); upgrade it "
+                       f"with {REGENERATE}")
+    if f[1] not in map(str, READS) and f[1] not in map(str, LEGACY):
         raise _fail(n, f"format version {f[1]!r} is not supported (this reader: "
                        f"{', '.join(map(str, READS))})")
     version = int(f[1])
-    if version != LEGACY:
+    if version != 3:
         last = data.count(b"\n") + (not data.endswith(b"\n"))
         if checksum is None:
             raise _fail(last, f"expected the last line '{CHECKSUM} <8 hex digits>' (a table "
@@ -513,6 +739,7 @@ def read_table(text: str, *, legacy: bool = False) -> Table:
     trust = _trust(lines) if version >= 3 else None
     ghost = _ghost(lines) if version >= 3 else None
     systems = []
+    probes: list[tuple[int, np.ndarray, np.ndarray]] = []
     while not lines.done():
         n, f = lines.next("'system'")
         _fields(n, f, "system", 4, "system <name> <n_inputs> <n_outputs>")
@@ -521,6 +748,8 @@ def read_table(text: str, *, legacy: bool = False) -> Table:
         inputs = tuple(_input(*lines.next(f"input {j + 1} of {n_in} of system {name!r}"))
                        for j in range(n_in))
         outputs = tuple(_output(lines, n_in) for _ in range(n_out))
+        if version == VERSION:
+            probes.append(_probes(lines, name, inputs, n_out))
         m, end = lines.next(f"'end' of system {name!r}")
         if end != ["end"]:
             raise _fail(m, f"expected 'end' after the {n_out} outputs of system {name!r}, "
@@ -535,4 +764,35 @@ def read_table(text: str, *, legacy: bool = False) -> Table:
             raise _fail(lines.last, str(e)) from None
     elif CLIP_SYSTEM in (s.name for s in systems):
         raise _fail(lines.last, f"system {CLIP_SYSTEM} in a table without ghost lines")
+    # Last, the probes: the polynomials as read must give what the writer computed
+    for s, (n, x, y) in zip(systems, probes, strict=False):
+        problem = probe_problem(s, x, y)
+        if problem:
+            raise _fail(n, problem)
     return Table(systems, lens, version, trust, ghost)
+
+
+def _probes(lines: _Lines, name: str, inputs: tuple[Input, ...],
+            n_out: int) -> tuple[int, np.ndarray, np.ndarray]:
+    """A system's PROBES probe lines: (the first one's line number, inputs, outputs)."""
+    n_in = len(inputs)
+    x, y = np.empty((PROBES, n_in)), np.empty((PROBES, n_out))
+    first = 0
+    form = "probe <input values> <output values>"
+    for i in range(PROBES):
+        n, f = lines.next(f"probe line {i + 1} of {PROBES} of system {name!r}")
+        first = first or n
+        if not f or f[0] != "probe":
+            raise _fail(n, f"expected '{form}' (probe line {i + 1} of {PROBES} of system "
+                           f"{name!r}, after its outputs), found {' '.join(f)!r}")
+        if len(f) != 1 + n_in + n_out:
+            raise _fail(n, f"probe of system {name!r}: expected {n_in} input values and "
+                           f"{n_out} output values, found {len(f) - 1} values")
+        for j, inp in enumerate(inputs):
+            v = _real(f[1 + j], n, f"probe input {inp.name}")
+            if not inp.lo <= v <= inp.hi:
+                raise _fail(n, f"probe input {inp.name} = {f[1 + j]} is outside its domain "
+                               f"[{fmt_real(inp.lo)}, {fmt_real(inp.hi)}]")
+            x[i, j] = v
+        y[i] = [_real(tok, n, f"probe output {k + 1}") for k, tok in enumerate(f[1 + n_in:])]
+    return first, x, y

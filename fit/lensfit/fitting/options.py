@@ -60,9 +60,11 @@ class FitOptions:
         if self.method not in METHODS:
             raise ValueError(f"fit options: method = {self.method!r}: expected one of "
                              f"{', '.join(METHODS)}")
-        if not (math.isfinite(self.psf_target) and 0.0 < self.psf_target < 1.0):
+        # From 1e-6: a table refuses a trust psf_target below (lensfit.codegen.table,
+        # TRUST_RANGES), and a fit should not run for hours to write one it cannot
+        if not (math.isfinite(self.psf_target) and 1e-6 <= self.psf_target < 1.0):
             raise ValueError(f"fit options: psf_target = {self.psf_target!r}: expected a "
-                             "relative error in (0, 1), e.g. 0.01 for 1%")
+                             "relative error in [1e-6, 1), e.g. 0.01 for 1%")
         if self.target_waves is not None and not (self.target_waves > 0):
             raise ValueError(f"fit options: target_waves = {self.target_waves!r}: expected a "
                              "positive RMS in waves")

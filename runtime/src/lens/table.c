@@ -1,5 +1,7 @@
-/* Fitted lenses: the `lensfit-poly-table` reader (version 4: version 3's lines, then a
- * last line with the CRC-32 of everything before it, fit/lensfit/codegen/table.py).
+/* Fitted lenses: the `lensfit-poly-table` reader (version 5: version 3's lines, each
+ * system ending with PROBES probe lines, its own polynomials evaluated at fixed points
+ * and checked here, and a last line with the CRC-32 of everything before it;
+ * fit/lensfit/codegen/table.py has the format, its ranges and the probe tolerance).
  *
  * Reentrant and independent of the host's locale: lines are split by split_fields (not
  * strtok, whose hidden state a host's own strtok loop or another thread would share),
@@ -17,6 +19,36 @@
 #include <stdlib.h>
 #include <string.h>
 #include <sys/stat.h>
+
+/* Probe lines (version 5): PROBES per system, after its outputs. A probe output read
+ * back may differ from the polynomials evaluated here by PROBE_RTOL * sum |c_t| +
+ * PROBE_ATOL: only rounding separates them (the writer's numpy sums and these sums of
+ * the same terms at the same doubles each err by at most (n_terms + 15) 2^-53 sum |c_t|,
+ * 1.2e-10 sum |c_t| at LENSRT_MAX_TERMS), while a coefficient edited, or two swapped, by
+ * more than ~1e-9 of sum |c_t| (the output's bound over its domain) moves a probe further
+ * (table.py, PROBE_XHAT, for the points' choice). */
+#define PROBES 6
+#define PROBE_RTOL 1e-9
+#define PROBE_ATOL 1e-300
+#define MAX_IO 16 /* inputs and outputs of one system, at most 8 each */
+
+/* The ranges of the lens and trust values (table.py's module doc, "Ranges"; lensfit's
+ * facts.py and table.py hold the same numbers): lengths (radii, |focal length|) in
+ * [LENGTH_MIN_MM, LENGTH_MAX_MM], signed distances at most LENGTH_MAX_MM either way. */
+#define LENGTH_MIN_MM 1e-3
+#define LENGTH_MAX_MM 1e6
+#define SQUEEZE_MIN 0.1
+#define SQUEEZE_MAX 10.0
+#define PSF_VS_EXACT_MIN 1e-12
+#define PSF_VS_EXACT_MAX 10.0
+#define PSF_TARGET_MIN 1e-6
+#define PSF_TARGET_MAX 1.0
+
+/* A system's probe lines as read: inputs then outputs of each, and their line numbers. */
+typedef struct probes {
+    double value[PROBES][MAX_IO];
+    int line[PROBES];
+} probes;
 
 /* A cursor over the table text that knows the current line for messages. */
 typedef struct reader {
@@ -93,7 +125,7 @@ static int next_line(reader *r)
         if (len && r->buf[len - 1] == '\r') r->buf[len - 1] = '\0';
         if (r->buf[0] == '#' || r->buf[0] == '\0') continue;
         r->n_tok = split_fields(r->buf, r->tok, 24);
-        if (r->n_tok) return 1;
+        if (r->n_tok && r->tok[0][0] != '#') return 1; /* '#' after blanks: a comment too */
     }
     return 0;
 }
@@ -113,9 +145,31 @@ static void decode_field(char *s)
     *o = '\0';
 }
 
+/* The table's number syntax, nothing else: [-+] digits [. digits] or [-+] . digits, then
+ * an optional exponent [eE][-+]digits. strtod alone would also take hex floats (0x1p3),
+ * "inf", "nan" and "infinity"; the writer never emits them and Python's reader refuses
+ * them (issue 39). */
+static int real_syntax(const char *s)
+{
+    int digits = 0;
+    if (*s == '-' || *s == '+') s++;
+    for (; *s >= '0' && *s <= '9'; s++) digits++;
+    if (*s == '.')
+        for (s++; *s >= '0' && *s <= '9'; s++) digits++;
+    if (!digits) return 0;
+    if (*s == 'e' || *s == 'E') {
+        s++;
+        if (*s == '-' || *s == '+') s++;
+        if (!(*s >= '0' && *s <= '9')) return 0;
+        while (*s >= '0' && *s <= '9') s++;
+    }
+    return *s == '\0';
+}
+
 static int parse_real(const char *s, double *v)
 {
     char *end;
+    if (!real_syntax(s)) return 0;
     errno = 0;
     *v = lensrt_strtod_c(s, &end);
     return end != s && *end == '\0' && errno == 0 && isfinite(*v);
@@ -183,7 +237,71 @@ static lensrt_result check_output(reader *r, const char *sys, const lensrt_poly 
     return LENSRT_SUCCESS;
 }
 
-static lensrt_result read_system(reader *r, lensrt_system *sys)
+/* A system's PROBES probe lines (after its outputs): each 'probe', the input values (in
+ * their units, inside the declared domain) and the output values; kept in *pr. */
+static lensrt_result read_probes(reader *r, const lensrt_system *sys, probes *pr)
+{
+    int p, j;
+    for (p = 0; p < PROBES; p++) {
+        if (!next_line(r) || strcmp(r->tok[0], "probe") != 0)
+            return parse_failf(r, "expected 'probe <input values> <output values>' (probe line %d of %d of system "
+                                  "%s, after its outputs), found '%s'", p + 1, PROBES, sys->name,
+                               r->n_tok ? r->tok[0] : "");
+        if (r->n_tok != 1 + sys->n_inputs + sys->n_outputs)
+            return parse_failf(r, "probe of system %s: expected %d input values and %d output values, found %d "
+                                  "values", sys->name, sys->n_inputs, sys->n_outputs, r->n_tok - 1);
+        pr->line[p] = r->line;
+        for (j = 0; j < sys->n_inputs + sys->n_outputs; j++) {
+            const char *tok = r->tok[1 + j];
+            double *v = &pr->value[p][j];
+            if (!parse_real(tok, v))
+                return parse_failf(r, "probe of system %s: %s %s: '%s' is not a finite number", sys->name,
+                                   j < sys->n_inputs ? "input" : "output",
+                                   j < sys->n_inputs ? sys->inputs[j].name : sys->outputs[j - sys->n_inputs].name, tok);
+            if (j < sys->n_inputs && !(*v >= sys->inputs[j].lo && *v <= sys->inputs[j].hi))
+                return parse_failf(r, "probe of system %s: input %s = %s is outside its domain [%.17g, %.17g]",
+                                   sys->name, sys->inputs[j].name, tok, sys->inputs[j].lo, sys->inputs[j].hi);
+        }
+    }
+    return LENSRT_SUCCESS;
+}
+
+/* The probes of a system against its polynomials as read (the last check of a table):
+ * every output within PROBE_RTOL * sum |c_t| + PROBE_ATOL of the probe line's value. */
+static lensrt_result check_probes(lensrt_context ctx, const char *file, const lensrt_system *sys, const probes *pr)
+{
+    int p, j, k, t, d;
+    for (p = 0; p < PROBES; p++) {
+        double pw[8][LENSRT_MAX_DEGREE + 1] = {{0.0}};
+        for (j = 0; j < sys->n_inputs; j++) {
+            double x = lensrt_normalise(&sys->inputs[j], pr->value[p][j]);
+            pw[j][0] = 1.0;
+            for (d = 1; d <= LENSRT_MAX_DEGREE; d++) pw[j][d] = pw[j][d - 1] * x;
+        }
+        for (k = 0; k < sys->n_outputs; k++) {
+            const lensrt_poly *poly = &sys->outputs[k];
+            double got = 0.0, scale = 0.0, want = pr->value[p][sys->n_inputs + k], tol;
+            for (t = 0; t < poly->n_terms; t++) {
+                const unsigned char *e = poly->exponents + (size_t)t * (size_t)sys->n_inputs;
+                double m = poly->coefficients[t];
+                for (j = 0; j < sys->n_inputs; j++) m *= pw[j][e[j]];
+                got += m;
+                scale += fabs(poly->coefficients[t]);
+            }
+            tol = PROBE_RTOL * scale + PROBE_ATOL;
+            if (!(fabs(got - want) <= tol))
+                return lensrt_fail(ctx, LENSRT_ERROR_PARSE,
+                                   "%s:%d: system %s: output %s: probe %d of %d: the polynomials give %.17g, the probe "
+                                   "line says %.17g (difference %.3g, tolerance %.3g): coefficients changed after "
+                                   "lensfit wrote the table (edited, or lines swapped, behind a valid checksum); "
+                                   "refused", file, pr->line[p], sys->name, poly->name, p + 1, PROBES, got, want,
+                                   fabs(got - want), tol);
+        }
+    }
+    return LENSRT_SUCCESS;
+}
+
+static lensrt_result read_system(reader *r, lensrt_system *sys, probes *pr)
 {
     lensrt_result res;
     int i, t, k, line;
@@ -239,6 +357,7 @@ static lensrt_result read_system(reader *r, lensrt_system *sys)
         }
         if ((res = check_output(r, sys->name, p, k, line)) != LENSRT_SUCCESS) return res;
     }
+    if ((res = read_probes(r, sys, pr)) != LENSRT_SUCCESS) return res;
     if (!next_line(r) || strcmp(r->tok[0], "end") != 0)
         return parse_fail(r, "expected 'end' after the outputs of system %s", sys->name);
     return LENSRT_SUCCESS;
@@ -316,7 +435,22 @@ static lensrt_result read_lens_line(reader *r, lensrt_lens lens, unsigned *seen)
     }
     for (i = 0; i < 8; i++) {
         if (strcmp(r->tok[1], keys[i]) != 0) continue;
-        if (!parse_real(r->tok[2], &v)) return parse_fail(r, "lens value '%s' is not a finite number", r->tok[2]);
+        if (!parse_real(r->tok[2], &v))
+            return parse_failf(r, "lens %s '%s' is not a finite number", keys[i], r->tok[2]);
+        // The ranges (defines above): lengths 0..4 (the focal length either sign), the
+        // signed distances 5 and 6, the squeeze 7
+        if (i == 0 && !(fabs(v) >= LENGTH_MIN_MM && fabs(v) <= LENGTH_MAX_MM))
+            return parse_failf(r, "lens focal_length_mm %s is out of range: expected %g to %g mm either sign", r->tok[2],
+                               LENGTH_MIN_MM, LENGTH_MAX_MM);
+        if (i >= 1 && i <= 4 && !(v >= LENGTH_MIN_MM && v <= LENGTH_MAX_MM))
+            return parse_failf(r, "lens %s %s is out of range: expected a length in [%g, %g] mm", keys[i], r->tok[2],
+                               LENGTH_MIN_MM, LENGTH_MAX_MM);
+        if ((i == 5 || i == 6) && !(fabs(v) <= LENGTH_MAX_MM))
+            return parse_failf(r, "lens %s %s is out of range: expected a distance in [%g, %g] mm", keys[i], r->tok[2],
+                               -LENGTH_MAX_MM, LENGTH_MAX_MM);
+        if (i == 7 && !(v >= SQUEEZE_MIN && v <= SQUEEZE_MAX))
+            return parse_failf(r, "lens squeeze %s is out of range: expected a squeeze in [%g, %g]", r->tok[2],
+                               SQUEEZE_MIN, SQUEEZE_MAX);
         *slots[i] = v;
         *seen |= 1u << i;
         return LENSRT_SUCCESS;
@@ -362,8 +496,12 @@ static lensrt_result read_trust_line(reader *r, lensrt_lens lens, int n_lens, in
         decode_field(r->tok[2]);
         snprintf(lens->psf_vs_exact_cell, sizeof lens->psf_vs_exact_cell, "%s", r->tok[2]);
     } else {
-        if (!parse_real(value, &v) || v < 0)
-            return parse_failf(r, "trust %s '%s' is not a finite number >= 0", key, value);
+        const double lo = *n_trust == 0 ? PSF_VS_EXACT_MIN : PSF_TARGET_MIN;
+        const double hi = *n_trust == 0 ? PSF_VS_EXACT_MAX : PSF_TARGET_MAX;
+        if (!parse_real(value, &v))
+            return parse_failf(r, "trust %s '%s' is not a finite number", key, value);
+        if (!(v >= lo && v <= hi))
+            return parse_failf(r, "trust %s %s is out of range: expected a number in [%g, %g]", key, value, lo, hi);
         if (*n_trust == 0) lens->psf_vs_exact = v;
         else lens->psf_target = v;
     }
@@ -379,6 +517,29 @@ static const char *const GHOST_FORMS[GHOST_LINES] = {"ghost first <i>", "ghost s
                                                      "ghost side <P_o|P_s>"};
 #define GHOST_ORDER "keys come in the order first, second, label, side, after the trust lines and " \
                     "before the first system"
+
+/* A decimal integer without sign or leading zeros, at most 9 digits, ending at *end. */
+static int label_number(const char *s, const char **end, int *v)
+{
+    int n = 0;
+    *v = 0;
+    if (s[0] == '0' && s[1] >= '0' && s[1] <= '9') return 0;
+    for (; *s >= '0' && *s <= '9' && n < 10; s++, n++) *v = 10 * *v + (*s - '0');
+    *end = s;
+    return n >= 1 && n <= 9;
+}
+
+/* Whether a ghost label "a-b" numbers model surfaces (first, second) as the lens file
+ * does (lensfit's ghost_label_problem): the loader inserts at most one surface (the
+ * stop, which reflects nothing), so a is first or first - 1, b is second or second - 1,
+ * and 0 <= first - a <= second - b <= 1. */
+static int label_matches(const char *label, int first, int second)
+{
+    const char *p;
+    int a, b;
+    if (!label_number(label, &p, &a) || *p != '-' || !label_number(p + 1, &p, &b) || *p != '\0') return 0;
+    return 0 <= first - a && first - a <= second - b && second - b <= 1;
+}
 
 static lensrt_result read_ghost_line(reader *r, lensrt_lens lens, int n_trust, int n_systems, int *n_ghost)
 {
@@ -416,6 +577,12 @@ static lensrt_result read_ghost_line(reader *r, lensrt_lens lens, int n_trust, i
     case 2:
         if (strcmp(r->tok[2], "-") == 0) r->tok[2][0] = '\0';
         decode_field(r->tok[2]);
+        if (!label_matches(r->tok[2], lens->ghost_first, lens->ghost_second))
+            return parse_failf(r, "ghost label '%s' does not number ghost first %d and ghost second %d: expected '%d-%d' "
+                                  "(or one less for a surface behind the stop surface the loader inserts: '%d-%d', "
+                                  "'%d-%d')", r->tok[2], lens->ghost_first, lens->ghost_second, lens->ghost_first,
+                               lens->ghost_second, lens->ghost_first, lens->ghost_second - 1,
+                               lens->ghost_first > 0 ? lens->ghost_first - 1 : 0, lens->ghost_second - 1);
         snprintf(lens->ghost_label, sizeof lens->ghost_label, "%s", r->tok[2]);
         break;
     default:
@@ -602,6 +769,34 @@ static lensrt_result check_checksum(lensrt_context ctx, const char *name, const 
     return LENSRT_SUCCESS;
 }
 
+/* Every byte of the body is text: no control byte but tab (and a CR right before a
+ * newline), no DEL; and no line longer than the reader's line buffer unless a comment.
+ * A NUL would otherwise end the line early here (a line of NULs read as a blank line,
+ * skipped), where lensfit's reader sees other fields (issue 39). */
+static lensrt_result check_text(lensrt_context ctx, const char *name, const char *text, const char *end)
+{
+    const char *p = text, *start = text;
+    int line = 1;
+    for (; p < end; p++) {
+        unsigned char c = (unsigned char)*p;
+        if (c == '\n') {
+            const char *q = start;
+            while (q < p && (*q == ' ' || *q == '\t')) q++;
+            if ((size_t)(p - start) >= sizeof ((reader *)0)->buf && (q == p || *q != '#'))
+                return lensrt_fail(ctx, LENSRT_ERROR_PARSE, "%s:%d: a line of %zu bytes, longer than %zu: refused",
+                                   name, line, (size_t)(p - start), sizeof ((reader *)0)->buf - 1);
+            line++;
+            start = p + 1;
+        } else if ((c < 0x20 && c != '\t' && !(c == '\r' && p + 1 < end && p[1] == '\n')) || c == 0x7f) {
+            return lensrt_fail(ctx, LENSRT_ERROR_PARSE,
+                               "%s:%d: control byte 0x%02x at column %d: a table is text (a tab is the only control "
+                               "character it may hold, a CR only before the newline); refused",
+                               name, line, (unsigned)c, (int)(p - start) + 1);
+        }
+    }
+    return LENSRT_SUCCESS;
+}
+
 lensrt_result lensrt_lens_load_text(lensrt_context ctx, const char *text, size_t size,
                                     const char *name, lensrt_lens *out)
 {
@@ -611,6 +806,7 @@ lensrt_result lensrt_lens_load_text(lensrt_context ctx, const char *text, size_t
     unsigned seen = 0;
     int version, n_lens = 0, n_trust = 0, n_ghost = 0, n_systems = 0;
     char id[64], folder[256];
+    probes *pr; /* P_o's, P_s's and P_clip's probe lines */
     if (!ctx || !text || !out) return lensrt_fail(ctx, LENSRT_ERROR_INVALID_ARGUMENT, "lensrt_lens_load_text: NULL argument");
     *out = NULL;
     memset(&r, 0, sizeof r);
@@ -622,7 +818,7 @@ lensrt_result lensrt_lens_load_text(lensrt_context ctx, const char *text, size_t
     if (!next_line(&r) || r.n_tok != 2 || strcmp(r.tok[0], "lensfit-poly-table") != 0 ||
         !parse_int(r.tok[1], 1, 1000, &version))
         return lensrt_fail(ctx, LENSRT_ERROR_PARSE,
-                           "%s:%d: not a lens table: expected 'lensfit-poly-table 4'", r.name, r.line);
+                           "%s:%d: not a lens table: expected 'lensfit-poly-table 5'", r.name, r.line);
     lens_id_of(r.name, id, sizeof id);
     lens_folder_of(r.name, folder, sizeof folder);
     if (version < 3)
@@ -635,13 +831,23 @@ lensrt_result lensrt_lens_load_text(lensrt_context ctx, const char *text, size_t
                            "%s: table version 3 carries no checksum (a table changed or cut short could not be "
                            "told); regenerate it with `lensfit regenerate %s` (rewrites generated/<lens>/ with "
                            "checksums, no refit)", r.name, folder);
-    if (version > 4)
+    if (version == 4)
         return lensrt_fail(ctx, LENSRT_ERROR_PARSE,
-                           "%s: table version %d is newer than this lensrt reads (4)", r.name, version);
+                           "%s: table version 4 carries no probe lines (swapped or edited coefficients behind a valid "
+                           "checksum could not be told); upgrade it with `lensfit regenerate %s` (adds them from the "
+                           "table's own polynomials, no refit) or `lensfit upgrade-table %s`", r.name, folder, r.name);
+    if (version > 5)
+        return lensrt_fail(ctx, LENSRT_ERROR_PARSE,
+                           "%s: table version %d is newer than this lensrt reads (5)", r.name, version);
     // The last line is the checksum of every byte before it: verify, then parse the rest
     if ((res = check_checksum(ctx, r.name, text, size, &r.end)) != LENSRT_SUCCESS) return res;
-    lens = lensrt_calloc(ctx, 1, sizeof *lens);
-    if (!lens) return lensrt_fail(ctx, LENSRT_ERROR_OUT_OF_MEMORY, "%s: out of memory", r.name);
+    if ((res = check_text(ctx, r.name, text, r.end)) != LENSRT_SUCCESS) return res;
+    pr = lensrt_calloc(ctx, 3, sizeof *pr);
+    lens = pr ? lensrt_calloc(ctx, 1, sizeof *lens) : NULL;
+    if (!lens) {
+        lensrt_free(ctx, pr);
+        return lensrt_fail(ctx, LENSRT_ERROR_OUT_OF_MEMORY, "%s: out of memory", r.name);
+    }
     lens->ctx = ctx;
     lens->squeeze = 1.0;
     snprintf(lens->file, sizeof lens->file, "%s", r.name);
@@ -707,7 +913,7 @@ lensrt_result lensrt_lens_load_text(lensrt_context ctx, const char *text, size_t
                     break;
                 }
             }
-            res = read_system(&r, sys);
+            res = read_system(&r, sys, &pr[sys == &lens->p_o ? 0 : sys == &lens->p_s ? 1 : 2]);
         } else {
             res = parse_fail(&r, "unexpected line starting with '%s'", r.tok[0]);
         }
@@ -731,6 +937,11 @@ lensrt_result lensrt_lens_load_text(lensrt_context ctx, const char *text, size_t
         res = lensrt_fail(ctx, LENSRT_ERROR_PARSE,
                           "%s: lens radii must be positive (stop_radius_f1_mm %g, housing_first_mm %g, housing_last_mm %g)",
                           r.name, lens->stop_radius_f1_mm, lens->housing_first_mm, lens->housing_last_mm);
+    // Last, the probes: the polynomials as read must give what lensfit computed
+    if (res == LENSRT_SUCCESS) res = check_probes(ctx, r.name, &lens->p_o, &pr[0]);
+    if (res == LENSRT_SUCCESS) res = check_probes(ctx, r.name, &lens->p_s, &pr[1]);
+    if (res == LENSRT_SUCCESS && lens->p_clip.n_inputs) res = check_probes(ctx, r.name, &lens->p_clip, &pr[2]);
+    lensrt_free(ctx, pr);
     if (res != LENSRT_SUCCESS) {
         lensrt_lens_destroy(ctx, lens);
         return res;

@@ -8,7 +8,13 @@ import numpy as np
 import pytest
 
 from lensfit.codegen import write_table
-from lensfit.codegen.table import decode_field, encode_field, split_checksum, with_checksum
+from lensfit.codegen.table import (
+    decode_field,
+    encode_field,
+    split_checksum,
+    upgrade_text,
+    with_checksum,
+)
 from lensfit.codegen.table import read_table as read_checked
 from lensfit.facts import LensFacts
 from lensfit.poly import Input, Polynomial, System
@@ -98,7 +104,7 @@ GOOD = ("lensfit-poly-table 1\n"          # 1
 
 
 @pytest.mark.parametrize(("old", "new", "line", "message"), [
-    ("lensfit-poly-table 1", "lensfit-poly-table 5", 1, "version '5' is not supported"),
+    ("lensfit-poly-table 1", "lensfit-poly-table 6", 1, "version '6' is not supported"),
     ("lensfit-poly-table 1", "poly 1", 1, "expected the header"),
     ("system S 2 1", "system S two 1", 2, "n_inputs: expected a non-negative integer"),
     ("system S 2 1", "sys S 2 1", 2, "expected 'system"),
@@ -176,7 +182,8 @@ def test_writer_refuses_facts_it_cannot_write(systems):
     from dataclasses import replace
     with pytest.raises(ValueError, match=r"lens focal_length_mm = inf: expected a finite"):
         write_table(systems, lens=replace(FACTS, focal_length_mm=float("inf")))
-    with pytest.raises(ValueError, match=r"lens housing_last_mm = 0.0: expected a positive"):
+    with pytest.raises(ValueError, match=r"lens housing_last_mm = 0.0: expected a length in "
+                                         r"\[0.001, 1e\+06\] mm"):
         write_table(systems, lens=replace(FACTS, housing_last_mm=0.0))
 
 
@@ -204,9 +211,11 @@ GOOD2 = ("lensfit-poly-table 2\n"               # 1
      "lens housing_last_mm 12\nlens housing_first_mm 15", 7,
      "expected lens key 'housing_first_mm'"),
     ("lens housing_last_mm 12", "lens housing_last_mm -12", 8,
-     "lens housing_last_mm = -12: expected a positive number"),
-    ("lens squeeze 1", "lens squeeze 0", 11, "lens squeeze = 0: expected a positive"),
-    ("lens focal_length_mm 50", "lens focal_length_mm 0", 4, "non-zero focal length"),
+     r"lens housing_last_mm = -12: expected a length in \[0.001, 1e\+06\] mm"),
+    ("lens squeeze 1", "lens squeeze 0", 11,
+     r"lens squeeze = 0: expected a squeeze in \[0.1, 10\]"),
+    ("lens focal_length_mm 50", "lens focal_length_mm 0", 4,
+     "lens focal_length_mm = 0: expected a focal length of 0.001 to 1e\\+06 mm either sign"),
     ("lens focal_length_mm 50", "lens focal_length_mm nan", 4, "expected a real number"),
     ("lens name My%20lens", "lens name My%2lens", 3, "bad escape"),
     ("lens name My%20lens\n", "", 3, "expected lens key 'name' .*found 'focal_length_mm'"),
@@ -241,7 +250,7 @@ TRUST = {"psf_vs_exact": 0.0017753640198416778, "psf_vs_exact_cell": "f/2 80% co
 def test_trust_lines_round_trip(systems):
     text = write_table(systems, comment="lens 0001", lens=FACTS, trust=TRUST)
     table = read_table(text)
-    assert (table.version, table.lens, table.trust) == (4, FACTS, TRUST)  # exactly
+    assert (table.version, table.lens, table.trust) == (5, FACTS, TRUST)  # exactly
     assert_same(table, systems)
     assert write_table(table, comment="lens 0001") == text  # a Table keeps its trust
     # Without trust figures the same systems and facts are version 2, without both 1
@@ -254,7 +263,7 @@ def test_trust_lines_layout():
     s = System("S", (Input("x", "mm", -2.0, 2.0),), (Polynomial("y", "mm", [[1]], [0.5]),))
     text = write_table([s], comment="c", lens=FACTS, trust=TRUST)
     lines = text.split("\n")
-    assert lines[0] == "lensfit-poly-table 4"
+    assert lines[0] == "lensfit-poly-table 5"
     assert lines[2].startswith("lens name ") and lines[10].startswith("lens squeeze ")
     assert lines[11:15] == ["trust psf_vs_exact 0.0017753640198416778",
                             "trust psf_vs_exact_cell f/2%2080%25%20corner%20450%20nm",
@@ -281,17 +290,18 @@ def test_writer_refuses_trust_without_lens_facts(systems):
         write_table(systems, trust=TRUST)
 
 
-GOOD3 = (GOOD2.replace("lensfit-poly-table 2", "lensfit-poly-table 4")
-         .replace("lens squeeze 1\n",
-                  "lens squeeze 1\n"                              # 11
-                  "trust psf_vs_exact 0.002\n"                    # 12
-                  "trust psf_vs_exact_cell f/8%20axis%20550%20nm\n"  # 13
-                  "trust psf_target 0.01\n"))                     # 14, then system S 2 1
+GOOD3 = split_checksum(upgrade_text(stamp(  # version 5: the probe lines added
+    GOOD2.replace("lensfit-poly-table 2", "lensfit-poly-table 4")
+    .replace("lens squeeze 1\n",
+             "lens squeeze 1\n"                              # 11
+             "trust psf_vs_exact 0.002\n"                    # 12
+             "trust psf_vs_exact_cell f/8%20axis%20550%20nm\n"  # 13
+             "trust psf_target 0.01\n"))).encode())[0].decode()  # 14, then system S 2 1
 
 
 @pytest.mark.parametrize(("old", "new", "line", "message"), [
     ("trust psf_vs_exact 0.002", "trust psf_vs_exact -0.002", 12,
-     "trust psf_vs_exact = -0.002: expected a number >= 0"),
+     r"trust psf_vs_exact = -0.002: expected a number in \[1e-12, 10\]"),
     ("trust psf_vs_exact 0.002", "trust psf_vs_exact 0,2%", 12,
      "trust psf_vs_exact: expected a real number"),
     ("trust psf_target 0.01", "trust psf_target inf", 14, "expected a real number"),
