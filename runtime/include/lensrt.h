@@ -534,9 +534,17 @@ typedef int (*lensrt_progress_fn)(double fraction, double eta_seconds, void *use
 
 /* Add `samples_per_wavelength` aperture samples for every wavelength, continuing the
  * sample sequence where the sums left off: two runs draw the same samples as one longer
- * run, and give the same sums up to rounding (bit for bit, on either device, when the
- * first run's count is a multiple of 256: samples are summed in blocks of 256, and each
- * block is added to the phasor sums on its own; tests/runtime/test_robust.c). */
+ * run and give the same sums bit for bit, for any counts, on either device, and so do
+ * tile sessions (since 0.9.0; before, only when the first count was a multiple of 256).
+ * Samples are summed in blocks of 256 and each block is added to the phasor sums on its
+ * own; a run that ends inside a block keeps a copy of the sums from before that block
+ * (memory as large as the sums, allocated then and kept with the render) and the next
+ * run or tile session puts them back and draws the whole block again (at most 255
+ * samples repeated). Reading the results in between (image, rgb, the writers, save)
+ * changes nothing. What else changes the sums (load, merge, splat_points, an integral)
+ * forgets that copy: a run after a load or merge that ended inside a block starts its
+ * blocks there, equal to one run up to rounding (tests/runtime/test_robust.c,
+ * test_tiles.c, test_gl.py). */
 LENSRT_API lensrt_result lensrt_render_run(lensrt_render render, uint64_t samples_per_wavelength,
                                 lensrt_progress_fn progress, void *user_data);
 
@@ -629,7 +637,8 @@ LENSRT_API lensrt_result lensrt_render_fourier_nodes(lensrt_render render, doubl
 /* Host-scheduled tiles: the same samples as lensrt_render_run(render, samples_per_wavelength,
  * NULL, NULL), rendered one rectangle of the window at a time on threads the caller
  * schedules (TBB, its own pool). The sums after tiles_end equal those of that run() bit
- * for bit, whatever the rectangles, their order and the threads. CPU device only.
+ * for bit, whatever the rectangles, their order and the threads, and a session continues
+ * a run that ended inside a block as run() does. CPU device only.
  *
  *   lensrt_render_tiles_begin(render, N);             caller's thread
  *   lensrt_render_tile(render, x0, y0, w, h);  ...    any threads, disjoint rectangles
