@@ -634,6 +634,22 @@ LENSRT_API lensrt_result lensrt_render_integrate_fourier(lensrt_render render, i
  * the sums are untouched, the pilot's seconds count in the stats. */
 LENSRT_API lensrt_result lensrt_render_fourier_nodes(lensrt_render render, double target, int32_t *nodes);
 
+/* Since 0.9.0: the geometric footprint of the render's lights on the sensor, for deciding
+ * whether an image (a ghost's) can reach the window at all before integrating it:
+ * box_mm = (x_min, x_max, y_min, y_max) in mm on the sensor (the window's coordinates) of
+ * the points where rays through the aperture land, over every light and wavelength. A
+ * ray's landing point is the sensor point where the total phase (P_o + P_s) is
+ * stationary at its stop point, found by Newton's method, for the stop centre, 64 points
+ * on the aperture's rim and the points of a 9 x 9 grid inside it; rays that a clip stops
+ * (the outer or inner pupil, a ghost's P_clip) are left out. No ray passes: x_min > x_max
+ * (+inf, -inf, +inf, -inf). The image is no larger than this box plus diffraction: a
+ * defocused edge's diffraction falls to about 1e-4 of the image's level within 30
+ * wavelengths x the f-number (lensrt-psf skips a ghost whose box, widened by that much,
+ * misses the window). The sums are untouched. LENSRT_ERROR_OUT_OF_DOMAIN when a ray's
+ * landing point is not found (the polynomials do not say: decide by integrating);
+ * LENSRT_ERROR_UNSUPPORTED for analytic and one-dimensional lenses. */
+LENSRT_API lensrt_result lensrt_render_footprint(lensrt_render render, double box_mm[4]);
+
 /* Host-scheduled tiles: the same samples as lensrt_render_run(render, samples_per_wavelength,
  * NULL, NULL), rendered one rectangle of the window at a time on threads the caller
  * schedules (TBB, its own pool). The sums after tiles_end equal those of that run() bit
