@@ -277,20 +277,28 @@ static lensrt_result run_passes(lensrt_render r, uint64_t count, run_state *rs)
     return end_passes(r, xy, res);
 }
 
-/* The sums into (save) or from (!save) the tail's copy; 0 when out of memory. */
-static int tail_copy(lensrt_render r, int save)
+/* The sums into the tail's copy (allocated when first needed); 0 when out of memory. */
+static int tail_copy(lensrt_render r)
 {
     const size_t nsum = lensrt_sums_count(r);
-    if (save) {
-        if (!r->tail_sum && !(r->tail_sum = lensrt_alloc(r->ctx, nsum * sizeof(double)))) return 0;
-        if (r->sumsq && !r->tail_sumsq && !(r->tail_sumsq = lensrt_alloc(r->ctx, nsum / 2 * sizeof(double)))) return 0;
-        memcpy(r->tail_sum, r->sum, nsum * sizeof(double));
-        if (r->sumsq) memcpy(r->tail_sumsq, r->sumsq, nsum / 2 * sizeof(double));
-    } else {
-        memcpy(r->sum, r->tail_sum, nsum * sizeof(double));
-        if (r->sumsq) memcpy(r->sumsq, r->tail_sumsq, nsum / 2 * sizeof(double));
-    }
+    if (!r->tail_sum && !(r->tail_sum = lensrt_alloc(r->ctx, nsum * sizeof(double)))) return 0;
+    if (r->sumsq && !r->tail_sumsq && !(r->tail_sumsq = lensrt_alloc(r->ctx, nsum / 2 * sizeof(double)))) return 0;
+    memcpy(r->tail_sum, r->sum, nsum * sizeof(double));
+    if (r->sumsq) memcpy(r->tail_sumsq, r->sumsq, nsum / 2 * sizeof(double));
     return 1;
+}
+
+/* The sums and the tail's copy exchanged (buffers of the same sizes). */
+static void swap_sums(lensrt_render r)
+{
+    double *t = r->sum;
+    r->sum = r->tail_sum;
+    r->tail_sum = t;
+    if (r->sumsq) {
+        t = r->sumsq;
+        r->sumsq = r->tail_sumsq;
+        r->tail_sumsq = t;
+    }
 }
 
 uint64_t lensrt_tail_rewind(lensrt_render r)
@@ -300,8 +308,10 @@ uint64_t lensrt_tail_rewind(lensrt_render r)
         lensrt_tail_forget(r);
         return 0;
     }
-    // The sums before the partial block, and its samples to draw again
-    tail_copy(r, 0);
+    // The sums before the partial block (swapped in: the sums as they were are kept in
+    // the tail's buffers, for a run that fails before its first pass), and its samples
+    // to draw again
+    swap_sums(r);
     redo = r->samples - r->tail_first;
     r->samples = r->tail_first;
     r->splats -= redo * (uint64_t)r->n_wl * (uint64_t)r->width * (uint64_t)r->height;
@@ -336,7 +346,7 @@ lensrt_result lensrt_render_run(lensrt_render r, uint64_t samples_per_wavelength
     if (whole) res = run_passes(r, whole, &rs);
     if (res == LENSRT_SUCCESS && part) {
         const uint64_t first = r->samples;
-        if (!tail_copy(r, 1))
+        if (!tail_copy(r))
             res = lensrt_fail(r->ctx, LENSRT_ERROR_OUT_OF_MEMORY,
                               "run: out of memory for a copy of the sums (a run that ends inside a block of %d samples)",
                               LENSRT_BLOCK);
@@ -344,6 +354,20 @@ lensrt_result lensrt_render_run(lensrt_render r, uint64_t samples_per_wavelength
             r->tail_first = first;
             r->tail_samples = r->samples;
         }
+    }
+    if (res != LENSRT_SUCCESS && rs.redo && rs.done == 0) {
+        // Failed before its first pass (memory, a device): the sums, samples and tail as
+        // they were
+        const uint64_t redo = rs.redo;
+        swap_sums(r);
+        r->samples += redo;
+        r->splats += redo * (uint64_t)r->n_wl * (uint64_t)r->width * (uint64_t)r->height;
+        r->tail_samples = r->samples;
+    } else if (res != LENSRT_SUCCESS) {
+        // No tail to keep (the copy, if made, is not the sums' past)
+        lensrt_free(r->ctx, r->tail_sum);
+        lensrt_free(r->ctx, r->tail_sumsq);
+        r->tail_sum = r->tail_sumsq = NULL;
     }
     r->seconds += lensrt_seconds() - rs.t0;
     return res;
