@@ -118,9 +118,9 @@ demo: setup runtime
 		--panel generated/0001-angenieux-double-gauss 16 "0001 coated" \
 		--note "2004's fitted sensor box (+-15.4 mm) cannot hold the 36 x 24 mm frame: the full frame is the default lens 0001"
 	@# lensrt-psf with the default lens's ghosts around its first: one EXR, the total with
-	@# layers direct. and flare.; the direct image by the Fourier integrator, the ghosts
-	@# whose stop crossings cut their aperture by cells at 64 rings (the estimates printed:
-	@# the large ghosts' faint edges in this small window are at 2-5%; 1% takes 256 rings)
+	@# layers direct. and flare.; the direct image and ghost 0-2 by the Fourier integrator,
+	@# each within auto's 1% (else cells, else exit 5); the ghosts whose footprints miss
+	@# this small window (0-4, 2-4, 2-6) or that reach no sensor point (4-8) skipped, said
 	$(PSF) --lens $(DEMO_LENS) --light -6,-4 --f-number 16 --center -10.1,-6.7 --size 1.2x0.8 \
 		--resolution 96x64 --wavelengths 4 --integrator auto --rings 64 --quiet \
 		--flares generated/0001-angenieux-double-gauss/ghosts \

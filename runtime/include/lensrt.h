@@ -535,9 +535,17 @@ typedef int (*lensrt_progress_fn)(double fraction, double eta_seconds, void *use
 
 /* Add `samples_per_wavelength` aperture samples for every wavelength, continuing the
  * sample sequence where the sums left off: two runs draw the same samples as one longer
- * run, and give the same sums up to rounding (bit for bit, on either device, when the
- * first run's count is a multiple of 256: samples are summed in blocks of 256, and each
- * block is added to the phasor sums on its own; tests/runtime/test_robust.c). */
+ * run and give the same sums bit for bit, for any counts, on either device, and so do
+ * tile sessions (since 0.9.0; before, only when the first count was a multiple of 256).
+ * Samples are summed in blocks of 256 and each block is added to the phasor sums on its
+ * own; a run that ends inside a block keeps a copy of the sums from before that block
+ * (memory as large as the sums, allocated then and kept with the render) and the next
+ * run or tile session puts them back and draws the whole block again (at most 255
+ * samples repeated). Reading the results in between (image, rgb, the writers, save)
+ * changes nothing. What else changes the sums (load, merge, splat_points, an integral)
+ * forgets that copy: a run after a load or merge that ended inside a block starts its
+ * blocks there, equal to one run up to rounding (tests/runtime/test_robust.c,
+ * test_tiles.c, test_gl.py). */
 LENSRT_API lensrt_result lensrt_render_run(lensrt_render render, uint64_t samples_per_wavelength,
                                 lensrt_progress_fn progress, void *user_data);
 
@@ -627,10 +635,27 @@ LENSRT_API lensrt_result lensrt_render_integrate_fourier(lensrt_render render, i
  * the sums are untouched, the pilot's seconds count in the stats. */
 LENSRT_API lensrt_result lensrt_render_fourier_nodes(lensrt_render render, double target, int32_t *nodes);
 
+/* Since 0.9.0: the geometric footprint of the render's lights on the sensor, for deciding
+ * whether an image (a ghost's) can reach the window at all before integrating it:
+ * box_mm = (x_min, x_max, y_min, y_max) in mm on the sensor (the window's coordinates) of
+ * the points where rays through the aperture land, over every light and wavelength. A
+ * ray's landing point is the sensor point where the total phase (P_o + P_s) is
+ * stationary at its stop point, found by Newton's method, for the stop centre, 64 points
+ * on the aperture's rim and the points of a 9 x 9 grid inside it; rays that a clip stops
+ * (the outer or inner pupil, a ghost's P_clip) are left out. No ray passes: x_min > x_max
+ * (+inf, -inf, +inf, -inf). The image is no larger than this box plus diffraction: a
+ * defocused edge's diffraction falls to about 1e-4 of the image's level within 30
+ * wavelengths x the f-number (lensrt-psf skips a ghost whose box, widened by that much,
+ * misses the window). The sums are untouched. LENSRT_ERROR_OUT_OF_DOMAIN when a ray's
+ * landing point is not found (the polynomials do not say: decide by integrating);
+ * LENSRT_ERROR_UNSUPPORTED for analytic and one-dimensional lenses. */
+LENSRT_API lensrt_result lensrt_render_footprint(lensrt_render render, double box_mm[4]);
+
 /* Host-scheduled tiles: the same samples as lensrt_render_run(render, samples_per_wavelength,
  * NULL, NULL), rendered one rectangle of the window at a time on threads the caller
  * schedules (TBB, its own pool). The sums after tiles_end equal those of that run() bit
- * for bit, whatever the rectangles, their order and the threads. CPU device only.
+ * for bit, whatever the rectangles, their order and the threads, and a session continues
+ * a run that ended inside a block as run() does. CPU device only.
  *
  *   lensrt_render_tiles_begin(render, N);             caller's thread
  *   lensrt_render_tile(render, x0, y0, w, h);  ...    any threads, disjoint rectangles

@@ -129,6 +129,11 @@ class LensrtError(RuntimeError):
         self.code = code
 
 
+class TargetNotReached(RuntimeError):
+    """Render.integrate_auto_to: no integrator reached the target error within its limits
+    (the render's sums hold the last attempt; do not use them as the result)."""
+
+
 class Versioned(C.Structure):
     """A struct of lensrt.h's ABI rules: struct_size first, set here to this layout's size
     (what the LENSRT_*_INIT macros do in C)."""
@@ -279,6 +284,15 @@ class Render:
         self.rt._check(fn(self.handle, C.c_double(target), C.byref(n)))
         return int(n.value)
 
+    def footprint(self) -> tuple[float, float, float, float]:
+        """(x_min, x_max, y_min, y_max) in mm of where the render's rays land on the sensor
+        (lensrt_render_footprint, 0.9.0); x_min > x_max when no ray passes the clips."""
+        fn = _need(self.rt.lib, "lensrt_render_footprint")
+        fn.argtypes = [C.c_void_p, C.POINTER(C.c_double)]
+        box = (C.c_double * 4)()
+        self.rt._check(fn(self.handle, box))
+        return (box[0], box[1], box[2], box[3])
+
     def integrate_fourier_to(self, target: float, first_nodes: int = FOURIER_FIRST_NODES,
                              max_nodes: int = FOURIER_MAX_NODES) -> tuple[int, float]:
         """Refine the Fourier rule (nodes x 1.25 a step, each reusing the last step's finer
@@ -297,18 +311,27 @@ class Render:
             assert est is not None
         return nodes, float(est)
 
-    def integrate_auto_to(self, target: float) -> tuple[str, int, float]:
+    def integrate_auto_to(self, target: float, max_nodes: int = FOURIER_MAX_NODES,
+                          max_rings: int = CELLS_MAX_RINGS) -> tuple[str, int, float]:
         """The Fourier integrator to ``target`` (integrate_fourier_to), or where a clip cuts
-        the aperture (it refuses: Result.UNSUPPORTED) the cells integrator
-        (integrate_to): ("fourier", nodes, estimate) or ("cells", rings, estimate)."""
+        the aperture (it refuses: Result.UNSUPPORTED) or its estimate stays above the
+        target, the cells integrator (integrate_to): ("fourier", nodes, estimate) or
+        ("cells", rings, estimate). Never keeps an image whose estimate misses the target
+        (issue 39): raises TargetNotReached, saying what each integrator gave."""
+        said = ""
         try:
-            nodes, est = self.integrate_fourier_to(target)
-            return "fourier", nodes, est
+            nodes, est = self.integrate_fourier_to(target, max_nodes=max_nodes)
+            if est <= target:
+                return "fourier", nodes, est
+            said = f"Fourier {est:.3g} at {nodes} nodes, "
         except LensrtError as e:
             if e.code != Result.UNSUPPORTED:
                 raise
-        rings, est = self.integrate_to(target)
-        return "cells", rings, est
+        rings, est = self.integrate_to(target, max_rings=max_rings)
+        if est <= target:
+            return "cells", rings, est
+        raise TargetNotReached(f"the auto integrator did not reach the target error {target:.3g} "
+                               f"({said}cells {est:.3g} at {rings} rings, max_rings {max_rings})")
 
     def splat_points(self, xy_mm: np.ndarray, wavelength: int = 0) -> None:
         xy = np.ascontiguousarray(xy_mm, dtype=np.float64)

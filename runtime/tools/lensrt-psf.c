@@ -80,6 +80,9 @@ static void usage(FILE *f)
         "  --merge FILE           add phasor sums of the same scene rendered with another seed\n"
         "  --ghost TABLE          also render this ghost table of the same lens (repeatable; each ghost once)\n"
         "  --flares DIR           also render every ghost_*.table in DIR (sorted by name; one folder)\n"
+        "                         a ghost whose footprint (where its rays land, plus 30 wavelengths\n"
+        "                         x f-number of diffraction) misses the window is skipped, said on\n"
+        "                         stdout (and left out of the flare layer; none left: no such layer)\n"
         "                         with ghosts: -o OUT.exr holds the total (direct + ghosts) in its\n"
         "                         unprefixed channels and layers direct. and flare. (the ghosts'\n"
         "                         sum); --png shows the total\n"
@@ -92,7 +95,10 @@ static void usage(FILE *f)
         "                         aperture), its error estimated from a mesh half as fine;\n"
         "                         fourier: a Gauss rule over the aperture and one non-uniform FFT\n"
         "                         per tile of pixels, its error estimated against 1.25 x the nodes\n"
-        "                         (refuses apertures a clip cuts); auto: fourier, else cells\n"
+        "                         (refuses apertures a clip cuts); auto: fourier, refined while that\n"
+        "                         helps, else cells, refined to --max-rings: every image it keeps\n"
+        "                         has an estimate within --target-error (default 1%% for auto),\n"
+        "                         else it fails (exit 5, nothing written)\n"
         "  --nodes N              fourier: Gauss nodes per side of each aperture sector (default 0:\n"
         "                         chosen from the phase's slope over the aperture, 1.4 per wave,\n"
         "                         or with --target-error E the rule for E: 1.33 per wave at 1%%);\n"
@@ -111,7 +117,8 @@ static void usage(FILE *f)
         "  --quiet                no progress (the error estimate is still printed on stdout)\n"
         "  --allow-empty          write an image that is zero everywhere (else refused: exit 4)\n"
         "exit status: 0 done, 1 failed, 2 bad input, 3 no GL device (--device gl) or unsupported,\n"
-        "             4 the image is zero everywhere (no light passes: nothing written)\n");
+        "             4 the image is zero everywhere (no light passes: nothing written),\n"
+        "             5 --integrator auto did not reach the target error (nothing written)\n");
 }
 
 static int bad(const char *option, const char *value, const char *expected)
@@ -356,14 +363,23 @@ static int on_progress(double fraction, double eta, void *user)
     return 0;
 }
 
+/* The auto integrator's target when --target-error is not given: every image it keeps
+ * has an error estimate within it (the project's 1%). */
+#define AUTO_TARGET 0.01
+/* A Fourier estimate at or above this says the rule does not resolve the phase at all
+ * (lensrt.h): auto goes to the cells integrator rather than refine it. */
+#define FOURIER_UNRESOLVED 0.3
+
 /* The cells integrator (lensrt_render_integrate) from `rings` on, refining while a target
  * error is set, not reached and max_rings allows; *used and *err: the last mesh and its
- * estimate. */
-static lensrt_result integrate_cells(lensrt_render r, int rings, int max_rings, double target, progress_state *ps,
-                                     const char *what, int *used, double *err)
+ * estimate, *reached whether it is within the target (or none is set). Strict (auto):
+ * a target missed at max_rings is left to the caller (it fails); else a warning. */
+static lensrt_result integrate_cells(lensrt_render r, int rings, int max_rings, double target, int strict,
+                                     progress_state *ps, const char *what, int *used, double *err, int *reached)
 {
     char label[128];
     lensrt_result res;
+    *reached = 0;
     for (;;) {
         snprintf(label, sizeof label, "%s, %d rings", what, rings);
         ps->label = label;
@@ -375,7 +391,10 @@ static lensrt_result integrate_cells(lensrt_render r, int rings, int max_rings, 
         if (res != LENSRT_SUCCESS) return res;
         *used = rings;
         if (!ps->quiet) fprintf(stderr, "lensrt-psf: %s: cells error estimate %.3g%%\n", label, 100.0 * *err);
-        if (target <= 0 || *err <= target) return LENSRT_SUCCESS;
+        if (target <= 0 || *err <= target) {
+            *reached = 1;
+            return LENSRT_SUCCESS;
+        }
         // The mesh that should reach the target (the error falls as 1 / rings^2), with
         // 10% to spare, 1.25 to 2 times the rings; from 1.6 on, doubling (it reuses the
         // last two meshes for the estimate, so costs no more)
@@ -383,8 +402,9 @@ static lensrt_result integrate_cells(lensrt_render r, int rings, int max_rings, 
             double f = 1.1 * sqrt(*err / target);
             int next = f > 1.6 ? 2 * rings : (int)ceil(rings * (f < 1.25 ? 1.25 : f));
             if (next > max_rings) {
-                fprintf(stderr, "lensrt-psf: warning: --target-error %g not reached within --max-rings %d (%s): "
-                        "the estimate is %.3g%%\n", target, max_rings, what, 100.0 * *err);
+                if (!strict)
+                    fprintf(stderr, "lensrt-psf: warning: --target-error %g not reached within --max-rings %d (%s): "
+                            "the estimate is %.3g%%\n", target, max_rings, what, 100.0 * *err);
                 return LENSRT_SUCCESS;
             }
             rings = next;
@@ -393,15 +413,22 @@ static lensrt_result integrate_cells(lensrt_render r, int rings, int max_rings, 
 }
 
 /* The Fourier integrator (lensrt_render_integrate_fourier) from `nodes` on (0: the
- * library's choice for the target, lensrt_render_fourier_nodes), refining by
- * LENSRT_FOURIER_FINER (each step reuses the last one's finer rule) while a target error is set, not
- * reached and max_nodes allows; *used and *err: the last rule and its estimate. */
-static lensrt_result integrate_fourier(lensrt_render r, int nodes, int max_nodes, double target, progress_state *ps,
-                                       const char *what, int *used, double *err)
+ * library's choice: for the target when `choose`, else its default rule,
+ * lensrt_render_fourier_nodes), refining by LENSRT_FOURIER_FINER (each step reuses the
+ * last one's finer rule) while a target error is set, not reached and max_nodes allows;
+ * *used and *err: the last rule and its estimate, *reached whether it is within the
+ * target. Strict (auto) stops refining, target missed, as soon as refining cannot help
+ * much: an estimate of FOURIER_UNRESOLVED or more (the rule does not resolve the phase),
+ * one that a refinement did not halve, or max_nodes; else a warning at max_nodes. */
+static lensrt_result integrate_fourier(lensrt_render r, int nodes, int max_nodes, double target, int choose,
+                                       int strict, progress_state *ps, const char *what, int *used, double *err,
+                                       int *reached)
 {
     char label[128];
     lensrt_result res;
-    if (nodes == 0 && target > 0) {
+    double last = -1.0;
+    *reached = 0;
+    if (nodes == 0 && target > 0 && choose) {
         int32_t chosen = 0;
         if ((res = lensrt_render_fourier_nodes(r, target, &chosen)) != LENSRT_SUCCESS) return res;
         nodes = chosen;
@@ -424,32 +451,50 @@ static lensrt_result integrate_fourier(lensrt_render r, int nodes, int max_nodes
         }
         snprintf(label, sizeof label, "%s, %d nodes", what, nodes);
         if (!ps->quiet) fprintf(stderr, "lensrt-psf: %s: Fourier error estimate %.3g%%\n", label, 100.0 * *err);
-        if (target <= 0 || *err <= target) return LENSRT_SUCCESS;
-        if ((int)ceil(LENSRT_FOURIER_FINER * ceil(LENSRT_FOURIER_FINER * nodes)) > max_nodes) {
-            fprintf(stderr, "lensrt-psf: warning: --target-error %g not reached within --max-nodes %d (%s): "
-                    "the estimate is %.3g%%\n", target, max_nodes, what, 100.0 * *err);
+        if (target <= 0 || *err <= target) {
+            *reached = 1;
             return LENSRT_SUCCESS;
         }
+        if ((int)ceil(LENSRT_FOURIER_FINER * ceil(LENSRT_FOURIER_FINER * nodes)) > max_nodes) {
+            if (!strict)
+                fprintf(stderr, "lensrt-psf: warning: --target-error %g not reached within --max-nodes %d (%s): "
+                        "the estimate is %.3g%%\n", target, max_nodes, what, 100.0 * *err);
+            return LENSRT_SUCCESS;
+        }
+        if (strict && (*err >= FOURIER_UNRESOLVED || (last >= 0 && *err > 0.5 * last))) return LENSRT_SUCCESS;
+        last = *err;
         nodes = (int)ceil(LENSRT_FOURIER_FINER * nodes);
     }
 }
 
-/* A deterministic integral of one render: cells (kind 1), Fourier (2), or Fourier unless
- * a clip cuts the aperture, then cells (3, auto). *used_kind says which ran (1 or 2),
- * *used its rings or nodes, *err its estimate. */
+/* A deterministic integral of one render: cells (kind 1), Fourier (2), or auto (3):
+ * Fourier, refined while that helps, then cells where a clip cuts the aperture or the
+ * Fourier estimate stays above the target, refined up to max_rings. *used_kind says
+ * which ran last (1 or 2), *used its rings or nodes, *err its estimate. *reached: the
+ * estimate is within the target (always, without one); auto never keeps an image whose
+ * estimate misses it: the caller fails, *why saying what was tried. */
 static lensrt_result integrate_det(lensrt_context ctx, lensrt_render r, int kind, const long long *steps,
-                                   double target, progress_state *ps, const char *what, int *used_kind, int *used,
-                                   double *err)
+                                   double target, int choose, progress_state *ps, const char *what, int *used_kind,
+                                   int *used, double *err, int *reached, char *why, size_t n_why)
 {
     lensrt_result res;
+    const int strict = kind == 3;
+    why[0] = '\0';
     if (kind != 1) {
         *used_kind = 2;
-        res = integrate_fourier(r, (int)steps[2], (int)steps[3], target, ps, what, used, err);
-        if (!(kind == 3 && res == LENSRT_ERROR_UNSUPPORTED)) return res;
-        if (!ps->quiet) fprintf(stderr, "lensrt-psf: %s: %s: the cells integrator instead\n", what, lensrt_context_last_error(ctx));
+        res = integrate_fourier(r, (int)steps[2], (int)steps[3], target, choose, strict, ps, what, used, err, reached);
+        if (res == LENSRT_SUCCESS && (*reached || !strict)) return res;
+        if (kind != 3 || (res != LENSRT_SUCCESS && res != LENSRT_ERROR_UNSUPPORTED)) return res;
+        if (res == LENSRT_SUCCESS) {
+            snprintf(why, n_why, "Fourier %.3g%% at %d nodes, ", 100.0 * *err, *used);
+            if (!ps->quiet)
+                fprintf(stderr, "lensrt-psf: %s: the Fourier estimate %.3g%% at %d nodes is above the target %.3g%%: "
+                        "the cells integrator instead\n", what, 100.0 * *err, *used, 100.0 * target);
+        } else if (!ps->quiet)
+            fprintf(stderr, "lensrt-psf: %s: %s: the cells integrator instead\n", what, lensrt_context_last_error(ctx));
     }
     *used_kind = 1;
-    return integrate_cells(r, (int)steps[0], (int)steps[1], target, ps, what, used, err);
+    return integrate_cells(r, (int)steps[0], (int)steps[1], target, strict, ps, what, used, err, reached);
 }
 
 /* The relative L2 Monte Carlo error of an image rendered as two independent halves.
@@ -564,6 +609,48 @@ static void on_log(lensrt_log_level level, const char *message, void *user)
             message);
 }
 
+/* Auto's failure, one line: the image whose estimate missed the target after Fourier
+ * (why: what it gave, or empty) and cells up to max_rings; nothing is written. */
+static void target_missed(const char *what, double err, double target, int asked, int rings, long long max_rings,
+                          const char *why)
+{
+    fprintf(stderr, "lensrt-psf: %s: --integrator auto did not reach the target error %.3g%%%s (%scells %.3g%% at %d "
+            "rings, --max-rings %lld); nothing written\n", what, 100.0 * target, asked ? "" : " (its default)", why,
+            100.0 * err, rings, max_rings);
+}
+
+/* Whether a ghost's render can be skipped: its footprint (lensrt_render_footprint),
+ * widened by FOOTPRINT_MARGIN wavelengths x f-number of diffraction at the longest
+ * wavelength, misses the window, or no ray of it passes its clips; said on stdout. A
+ * footprint the library cannot find keeps the ghost (said unless quiet). */
+#define FOOTPRINT_MARGIN 30.0
+static int ghost_misses(lensrt_context ctx, lensrt_render r, const char *label, const double win[4], int quiet)
+{
+    lensrt_render_stats st = LENSRT_RENDER_STATS_INIT;
+    const double *wl = lensrt_render_wavelengths(r);
+    double box[4], lambda = 0.0, margin;
+    int w;
+    lensrt_render_get_stats(r, &st);
+    if (lensrt_render_footprint(r, box) != LENSRT_SUCCESS) {
+        if (!quiet) fprintf(stderr, "lensrt-psf: ghost %s: %s: rendered\n", label, lensrt_context_last_error(ctx));
+        return 0;
+    }
+    if (box[0] > box[1]) {
+        printf("Ghost %s skipped: no ray of it passes its clips to the sensor\n", label);
+        return 1;
+    }
+    for (w = 0; w < st.n_wavelengths; w++)
+        if (wl[w] > lambda) lambda = wl[w];
+    margin = FOOTPRINT_MARGIN * lambda * 1e-6 * st.f_number;
+    if (box[1] + margin < win[0] || box[0] - margin > win[1] || box[3] + margin < win[2] || box[2] - margin > win[3]) {
+        printf("Ghost %s skipped: its footprint (x %.4g..%.4g mm, y %.4g..%.4g mm) and %.3g mm of diffraction "
+               "around it miss the window (x %.4g..%.4g mm, y %.4g..%.4g mm)\n", label, box[0], box[1], box[2], box[3],
+               margin, win[0], win[1], win[2], win[3]);
+        return 1;
+    }
+    return 0;
+}
+
 int main(int argc, char **argv)
 {
     const char *lens_arg = NULL, *out = NULL, *png = NULL, *gen = getenv("LENSRT_GENERATED");
@@ -573,7 +660,7 @@ int main(int argc, char **argv)
     lensrt_light lights[MAX_LIGHTS];
     int n_lights = 0, n_wl = 0, have_center = 0, width = 256, height = 256, quiet = 0, i, rc = 1, allow_empty = 0;
     long long samples = 65536, seed = 1, threads = 0, blades = 0, max_samples = 0;
-    double target = 0.0;
+    double target = 0.0, det_target = 0.0;
     int estimate = 1, cells = -1, mc_option = 0; /* cells -1: the default (after the options) */
     int pixel_filter = LENSRT_PIXEL_FILTER_BOX, pixel_samples[2] = {0, 0};
     long long rings = 32, max_rings = 0, nodes = 0, max_nodes = 0;
@@ -604,6 +691,9 @@ int main(int argc, char **argv)
     const char *flares_dir = NULL;
     lensrt_lens ghost_lens[MAX_GHOSTS];
     lensrt_render renders[MAX_GHOSTS + 1];
+    /* the renders whose images are kept: the direct one, then the ghosts not skipped */
+    lensrt_render kept[MAX_GHOSTS + 1];
+    int n_kept = 1;
     int n_ghosts = 0, n_ghost_args = 0;
     if (!gen) gen = LENSRT_GENERATED_DIR;
     memset(ghost_lens, 0, sizeof ghost_lens);
@@ -763,6 +853,8 @@ int main(int argc, char **argv)
         return 2;
     }
     if (!max_rings) max_rings = rings > 1024 ? rings : 1024;
+    // What the deterministic integrators aim at: --target-error, or for auto its default
+    det_target = target > 0 ? target : cells == 3 ? AUTO_TARGET : 0.0;
     if (max_rings < rings) {
         fprintf(stderr, "lensrt-psf: --max-rings %lld is below --rings %lld\n", max_rings, rings);
         return 2;
@@ -969,7 +1061,7 @@ int main(int argc, char **argv)
     }
     // The ghosts' renders: the same scene through each ghost table (made now, so that a
     // scene a ghost cannot render is refused before any work)
-    renders[0] = render;
+    renders[0] = kept[0] = render;
     for (i = 0; i < n_ghosts; i++) {
         lensrt_render_desc gd = desc;
         gd.lens = ghost_lens[i];
@@ -991,18 +1083,25 @@ int main(int argc, char **argv)
     else if (!quiet && cells)
         fprintf(stderr, "lensrt-psf: %s, window %g mm at (%g, %g) mm, Fourier integrator%s%s\n", table, size[0],
                 center[0], center[1], nodes ? "" : " (nodes from the phase)",
-                cells == 3 ? " (cells where a clip cuts)" : "");
+                cells == 3 ? " (cells where a clip cuts or its estimate stays above the target)" : "");
     else if (!quiet)
         fprintf(stderr, "lensrt-psf: %s, window %g mm at (%g, %g) mm, %lld samples per wavelength%s\n",
                 table, size[0], center[0], center[1], samples, estimate ? " in two halves" : "");
     ps.round_start = now_seconds();
     if (cells) {
         const long long steps[4] = {rings, max_rings, nodes, max_nodes};
-        if ((res = integrate_det(ctx, render, cells, steps, target, &ps, "direct", &used_kind, &cells_rings,
-                                 &mc_error)) != LENSRT_SUCCESS) {
+        int reached = 0;
+        char why[128];
+        if ((res = integrate_det(ctx, render, cells, steps, det_target, target > 0, &ps, "direct", &used_kind,
+                                 &cells_rings, &mc_error, &reached, why, sizeof why)) != LENSRT_SUCCESS) {
             // A device or lens the integrator does not take (GL, one-dimensional): exit 3
             if (res == LENSRT_ERROR_UNSUPPORTED) goto fail_input;
             goto fail;
+        }
+        if (!reached && cells == 3) {
+            target_missed("the direct image", mc_error, det_target, target > 0, cells_rings, max_rings, why);
+            rc = 5;
+            goto done;
         }
     } else if (!estimate) {
         ps.base = 0.0;
@@ -1087,6 +1186,11 @@ int main(int argc, char **argv)
         const uint64_t ghost_samples = st.samples_per_wavelength;
         float *direct_img = malloc(n * sizeof *direct_img), *ghost_img = malloc(n * sizeof *ghost_img);
         double direct_power = 0.0;
+        // The window on the sensor (x0, x1, y0, y1 mm): its height by the pixels' aspect
+        // when --size gives one number
+        const double win_h = size[1] > 0 ? size[1] : size[0] * height / width;
+        const double window[4] = {center[0] - 0.5 * size[0], center[0] + 0.5 * size[0], center[1] - 0.5 * win_h,
+                                  center[1] + 0.5 * win_h};
         size_t k;
         char label[600];
         if (!direct_img || !ghost_img || lensrt_render_image(render, direct_img, n) != LENSRT_SUCCESS) {
@@ -1106,11 +1210,25 @@ int main(int argc, char **argv)
             ps.round_start = now_seconds();
             ps.base = 0.0;
             ps.span = 1.0;
+            // A ghost whose footprint, widened by its diffraction, misses the window: skipped
+            // (said on stdout with the estimates), its image left out of the outputs
+            if (ghost_misses(ctx, renders[1 + i], gi.ghost_label, window, quiet)) continue;
+            kept[n_kept++] = renders[1 + i];
             if (cells) {
                 const long long steps[4] = {rings, max_rings, nodes, max_nodes};
-                int gr = 0, gk = 0;
+                int gr = 0, gk = 0, reached = 0;
                 double ge = -1.0;
-                res = integrate_det(ctx, renders[1 + i], cells, steps, target, &ps, gi.ghost_label, &gk, &gr, &ge);
+                char why[128], what[80];
+                res = integrate_det(ctx, renders[1 + i], cells, steps, det_target, target > 0, &ps, gi.ghost_label,
+                                    &gk, &gr, &ge, &reached, why, sizeof why);
+                if (res == LENSRT_SUCCESS && !reached && cells == 3) {
+                    snprintf(what, sizeof what, "ghost %s", gi.ghost_label);
+                    target_missed(what, ge, det_target, target > 0, gr, max_rings, why);
+                    free(direct_img);
+                    free(ghost_img);
+                    rc = 5;
+                    goto done;
+                }
                 if (res == LENSRT_SUCCESS)
                     printf("%s error estimate, ghost %s: %.3g%% relative L2 (%d %s)\n", gk == 2 ? "Fourier" : "Cells",
                            gi.ghost_label, 100.0 * ge, gr, gk == 2 ? "nodes" : "rings");
@@ -1150,7 +1268,7 @@ int main(int argc, char **argv)
             fprintf(stderr, "lensrt-psf: out of memory for the image (%zu floats)\n", n);
             goto done;
         }
-        if ((res = lensrt_renders_image(renders, n_ghosts + 1, sum, n)) != LENSRT_SUCCESS) {
+        if ((res = lensrt_renders_image(kept, n_kept, sum, n)) != LENSRT_SUCCESS) {
             free(sum);
             goto fail;
         }
@@ -1175,16 +1293,17 @@ int main(int argc, char **argv)
     if (save && (res = lensrt_render_save(render, stage[0])) != LENSRT_SUCCESS) goto fail;
     if (out && !n_ghosts && (res = lensrt_render_write_exr(render, stage[1])) != LENSRT_SUCCESS) goto fail;
     if (out && n_ghosts) {
+        // Layers direct and flare (the ghosts kept); every ghost skipped: direct alone
         lensrt_exr_layer layers[2] = {LENSRT_EXR_LAYER_INIT, LENSRT_EXR_LAYER_INIT};
         layers[0].name = "direct";
-        layers[0].renders = renders;
+        layers[0].renders = kept;
         layers[0].n_renders = 1;
         layers[1].name = "flare";
-        layers[1].renders = renders + 1;
-        layers[1].n_renders = n_ghosts;
-        if ((res = lensrt_layers_write_exr(layers, 2, stage[1])) != LENSRT_SUCCESS) goto fail;
+        layers[1].renders = kept + 1;
+        layers[1].n_renders = n_kept - 1;
+        if ((res = lensrt_layers_write_exr(layers, n_kept > 1 ? 2 : 1, stage[1])) != LENSRT_SUCCESS) goto fail;
     }
-    if (png && (res = lensrt_renders_write_png(renders, n_ghosts + 1, stage[2], decades)) != LENSRT_SUCCESS) goto fail;
+    if (png && (res = lensrt_renders_write_png(kept, n_kept, stage[2], decades)) != LENSRT_SUCCESS) goto fail;
     for (i = 0; i < 3; i++) {
         struct stat tst;
         if (!targets[i]) continue;

@@ -1089,7 +1089,33 @@ static lensrt_result step_run(lensrt_context ctx, void *arg, void **made)
     oom_args *a = arg;
     (void)ctx;
     *made = NULL;
-    return lensrt_render_run(a->render, 16, NULL, NULL);
+    return lensrt_render_run(a->render, 256, NULL, NULL);
+}
+
+/* A run that ends inside a block keeps a copy of the sums (lensrt_render_run) with the
+ * render: a fresh render each step, destroyed by undo_render. */
+static lensrt_result step_run_partial(lensrt_context ctx, void *arg, void **made)
+{
+    oom_args *a = arg;
+    lensrt_render r = NULL;
+    lensrt_result res;
+    *made = NULL;
+    if ((res = lensrt_render_create(ctx, &a->desc, &r)) != LENSRT_SUCCESS) return res;
+    if ((res = lensrt_render_run(r, 100, NULL, NULL)) == LENSRT_SUCCESS) {
+        // A second run that fails leaves the first one's samples (and sums) as they were
+        lensrt_render_stats st = LENSRT_RENDER_STATS_INIT;
+        res = lensrt_render_run(r, 100, NULL, NULL);
+        lensrt_render_get_stats(r, &st);
+        CHECK(st.samples_per_wavelength == (res == LENSRT_SUCCESS ? 200u : 100u),
+              "run(100); run(100) (%s): %llu samples", lensrt_result_string(res),
+              (unsigned long long)st.samples_per_wavelength);
+    }
+    if (res != LENSRT_SUCCESS) {
+        lensrt_render_destroy(r);
+        return res;
+    }
+    *made = r;
+    return res;
 }
 
 static lensrt_result step_rgb(lensrt_context ctx, void *arg, void **made)
@@ -1156,8 +1182,9 @@ static void test_failing_allocator(void)
     if (a.render) {
         lensrt_render_stats s = LENSRT_RENDER_STATS_INIT;
         oom_sweep("render_run", &h, ctx, step_run, NULL, &a);
+        oom_sweep("render_run twice inside a block", &h, ctx, step_run_partial, undo_render, &a);
         CHECK_RES(ctx, LENSRT_SUCCESS, lensrt_render_get_stats(a.render, &s));
-        CHECK(s.samples_per_wavelength == 16, "runs that failed for memory added samples: %llu, expected 16",
+        CHECK(s.samples_per_wavelength == 256, "runs that failed for memory added samples: %llu, expected 256",
               (unsigned long long)s.samples_per_wavelength);
         oom_sweep("render_rgb", &h, ctx, step_rgb, NULL, &a);
         scratch_path(a.path, sizeof a.path, "oom.png");

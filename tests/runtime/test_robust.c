@@ -14,8 +14,10 @@
  *      (a thin lens with a huge stop at full intensity), naming pixel and wavelength.
  *   5. lensrt_lens_image_point refuses NaN and negative distances, NaN fields and
  *      wavelengths outside the fitted range.
- *   6. run(N1); run(N2) gives the sums of run(N1 + N2) bit for bit when N1 is a multiple
- *      of 256 (lensrt.h), also across a pass boundary (16384).
+ *   6. run(N1); run(N2) gives the sums of run(N1 + N2) bit for bit for any N1 (lensrt.h),
+ *      also across a pass boundary (16384): N1 = 1 and N2 = 2047 (issue 39, item 4), a
+ *      split inside a block after a whole pass, random splits into up to 6 runs, with the
+ *      image read and the sums saved between runs (reading changes nothing).
  * Usage: test_robust LENS_TABLE SCRATCH_DIR */
 #include "lensrt.h"
 
@@ -544,8 +546,20 @@ static unsigned char *file_tail(const char *path, size_t tail, size_t *size)
  * and the files' last bytes compared, which hold the phasor sums (and the sums of
  * squares) as raw doubles, 64 pixels x 16 (+ 8) bytes. The header before them holds the
  * wall time, which differs; images would hide a 1-ulp difference in float. */
+static void split_list(lensrt_context ctx, lensrt_lens lens, const char *scratch, int estimator, const uint64_t *parts,
+                       int n_parts, int peek);
+
 static void split_runs(lensrt_context ctx, lensrt_lens lens, const char *scratch, int estimator, uint64_t n1,
                        uint64_t n2)
+{
+    const uint64_t parts[2] = {n1, n2};
+    split_list(ctx, lens, scratch, estimator, parts, 2, 0);
+}
+
+/* run(parts[0]); run(parts[1]); ... against one run of their sum, bit for bit; with peek
+ * the image is read and the sums saved after every run but the last. */
+static void split_list(lensrt_context ctx, lensrt_lens lens, const char *scratch, int estimator, const uint64_t *parts,
+                       int n_parts, int peek)
 {
     const size_t payload = 64 * (estimator == LENSRT_ESTIMATOR_UNBIASED ? 24 : 16);
     lensrt_render ra = fitted_render(ctx, lens, 1.0, estimator), rb = fitted_render(ctx, lens, 1.0, estimator);
@@ -557,17 +571,41 @@ static void split_runs(lensrt_context ctx, lensrt_lens lens, const char *scratch
     snprintf(pa, sizeof pa, "%s/split-a.phasors", scratch);
     snprintf(pb, sizeof pb, "%s/split-b.phasors", scratch);
     if (ra && rb) {
-        CHECK_OK(ctx, lensrt_render_run(ra, n1, NULL, NULL));
-        CHECK_OK(ctx, lensrt_render_run(ra, n2, NULL, NULL));
-        CHECK_OK(ctx, lensrt_render_run(rb, n1 + n2, NULL, NULL));
+        char said[256];
+        size_t at = 0;
+        uint64_t total = 0;
+        float img[64];
+        int k;
+        for (k = 0; k < n_parts; k++) {
+            CHECK_OK(ctx, lensrt_render_run(ra, parts[k], NULL, NULL));
+            if (peek && k + 1 < n_parts) {
+                CHECK_OK(ctx, lensrt_render_image(ra, img, 64));
+                CHECK_OK(ctx, lensrt_render_save(ra, pa));
+            }
+            total += parts[k];
+            at += (size_t)snprintf(said + at, sizeof said - at, "%srun(%llu)", k ? "; " : "",
+                                   (unsigned long long)parts[k]);
+            if (at >= sizeof said) at = sizeof said - 1;
+        }
+        CHECK_OK(ctx, lensrt_render_run(rb, total, NULL, NULL));
         CHECK_OK(ctx, lensrt_render_save(ra, pa));
         CHECK_OK(ctx, lensrt_render_save(rb, pb));
         da = file_tail(pa, payload, &na);
         db = file_tail(pb, payload, &nb);
         CHECK(da && db && na == nb, "phasor files of %zu and %zu bytes", na, nb);
         for (i = 0; da && db && i < payload; i += 8) differ += memcmp(da + i, db + i, 8) != 0;
-        CHECK(differ == 0, "estimator %d: run(%llu); run(%llu) differs from run(%llu) in %d of %zu sums", estimator,
-              (unsigned long long)n1, (unsigned long long)n2, (unsigned long long)(n1 + n2), differ, payload / 8);
+        CHECK(differ == 0, "estimator %d: %s differs from run(%llu) in %d of %zu sums", estimator, said,
+              (unsigned long long)total, differ, payload / 8);
+        {
+            // The sample counts agree too (the image's normalisation)
+            lensrt_render_stats sa = LENSRT_RENDER_STATS_INIT, sb = LENSRT_RENDER_STATS_INIT;
+            lensrt_render_get_stats(ra, &sa);
+            lensrt_render_get_stats(rb, &sb);
+            CHECK(sa.samples_per_wavelength == sb.samples_per_wavelength && sa.splats == sb.splats,
+                  "%s: %llu samples and %llu splats against %llu and %llu", said,
+                  (unsigned long long)sa.samples_per_wavelength, (unsigned long long)sa.splats,
+                  (unsigned long long)sb.samples_per_wavelength, (unsigned long long)sb.splats);
+        }
     }
     free(da);
     free(db);
@@ -603,6 +641,26 @@ int main(int argc, char **argv)
         split_runs(ctx, lens, argv[2], LENSRT_ESTIMATOR_PAPER, 256, 16384);  /* the second run crosses a pass */
         split_runs(ctx, lens, argv[2], LENSRT_ESTIMATOR_UNBIASED, 768, 512);
         split_runs(ctx, lens, argv[2], LENSRT_ESTIMATOR_PAPER, 16384, 300);
+        // Any N (issue 39, item 4): inside a block, after a partial block, across a pass
+        split_runs(ctx, lens, argv[2], LENSRT_ESTIMATOR_PAPER, 1, 2047);
+        split_runs(ctx, lens, argv[2], LENSRT_ESTIMATOR_UNBIASED, 1, 2047);
+        split_runs(ctx, lens, argv[2], LENSRT_ESTIMATOR_PAPER, 100, 100);
+        split_runs(ctx, lens, argv[2], LENSRT_ESTIMATOR_PAPER, 16500, 300);
+        {
+            // Random splits (a fixed LCG: the same cases every time), the image read and
+            // the sums saved between runs
+            uint64_t parts[6], state = 39;
+            int c, k;
+            for (c = 0; c < 6; c++) {
+                const int n = 2 + c % 5;
+                for (k = 0; k < n; k++) {
+                    state = state * 6364136223846793005ull + 1442695040888963407ull;
+                    parts[k] = 1 + (state >> 33) % (c < 3 ? 700 : 17000);
+                }
+                split_list(ctx, lens, argv[2], c % 2 ? LENSRT_ESTIMATOR_UNBIASED : LENSRT_ESTIMATOR_PAPER, parts, n,
+                           1);
+            }
+        }
     }
     test_result_check(ctx, argv[2]);
     lensrt_lens_destroy(ctx, lens);

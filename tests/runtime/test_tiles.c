@@ -523,6 +523,25 @@ static void test_sequences(lensrt_context ctx, const scene *s)
     same_sums(ctx, ref, r, "run(N) then tiles(M) against run(N) then run(M)");
     lensrt_render_destroy(r);
     lensrt_render_destroy(ref);
+    // Splits inside a block (issue 39, item 4): run(1) then tiles(2047), and tiles(300),
+    // tiles(500), run(77), against one run of the sum
+    CHECK_RES(ctx, lensrt_render_create(ctx, &s->desc, &ref), LENSRT_SUCCESS);
+    CHECK_RES(ctx, lensrt_render_run(ref, 2048, NULL, NULL), LENSRT_SUCCESS);
+    CHECK_RES(ctx, lensrt_render_create(ctx, &s->desc, &r), LENSRT_SUCCESS);
+    CHECK_RES(ctx, lensrt_render_run(r, 1, NULL, NULL), LENSRT_SUCCESS);
+    CHECK_RES(ctx, render_tiles(r, 2047, &t, 4), LENSRT_SUCCESS);
+    same_sums(ctx, ref, r, "run(1) then tiles(2047) against run(2048)");
+    lensrt_render_destroy(r);
+    lensrt_render_destroy(ref);
+    CHECK_RES(ctx, lensrt_render_create(ctx, &s->desc, &ref), LENSRT_SUCCESS);
+    CHECK_RES(ctx, lensrt_render_run(ref, 877, NULL, NULL), LENSRT_SUCCESS);
+    CHECK_RES(ctx, lensrt_render_create(ctx, &s->desc, &r), LENSRT_SUCCESS);
+    CHECK_RES(ctx, render_tiles(r, 300, &t, 4), LENSRT_SUCCESS);
+    CHECK_RES(ctx, render_tiles(r, 500, &t, 2), LENSRT_SUCCESS);
+    CHECK_RES(ctx, lensrt_render_run(r, 77, NULL, NULL), LENSRT_SUCCESS);
+    same_sums(ctx, ref, r, "tiles(300), tiles(500), run(77) against run(877)");
+    lensrt_render_destroy(r);
+    lensrt_render_destroy(ref);
     free(t.r);
 }
 

@@ -75,6 +75,8 @@ static void free_render(lensrt_render r)
     lensrt_free(ctx, r->light_d);
     lensrt_free(ctx, r->sum);
     lensrt_free(ctx, r->sumsq);
+    lensrt_free(ctx, r->tail_sum);
+    lensrt_free(ctx, r->tail_sumsq);
     lensrt_free(ctx, r->cells_field);
     lensrt_free(ctx, r->cells_coarse);
     lensrt_free(ctx, r->fourier_fine);
@@ -228,21 +230,24 @@ static lensrt_result end_passes(lensrt_render r, double *xy, lensrt_result statu
     return status;
 }
 
-lensrt_result lensrt_render_run(lensrt_render r, uint64_t samples_per_wavelength, lensrt_progress_fn progress, void *user_data)
+/* Progress of one run() call over its segments (below). */
+typedef struct run_state {
+    uint64_t done, total, redo; /* samples drawn by this call, to draw in all, drawn again */
+    double t0;
+    lensrt_progress_fn progress;
+    void *user_data;
+} run_state;
+
+/* `count` more samples from r->samples on, in passes between the device's begin and end
+ * (which bring the sums to the device and back). */
+static lensrt_result run_passes(lensrt_render r, uint64_t count, run_state *rs)
 {
     uint64_t done = 0;
-    double t0 = lensrt_seconds();
     double *xy;
     lensrt_result res;
-    if (!r) return LENSRT_ERROR_INVALID_ARGUMENT;
-    if (samples_per_wavelength == 0 || samples_per_wavelength > ((uint64_t)1 << 40))
-        return lensrt_fail(r->ctx, LENSRT_ERROR_INVALID_ARGUMENT,
-                           "run: samples per wavelength must be 1..2^40, got %llu", (unsigned long long)samples_per_wavelength);
-    if ((res = lensrt_tiles_idle(r, "run")) != LENSRT_SUCCESS || (res = lensrt_cells_idle(r, "run")) != LENSRT_SUCCESS ||
-        (res = begin_passes(r, &xy)) != LENSRT_SUCCESS)
-        return res;
-    while (done < samples_per_wavelength && res == LENSRT_SUCCESS) {
-        uint64_t n = samples_per_wavelength - done < PASS ? samples_per_wavelength - done : PASS;
+    if ((res = begin_passes(r, &xy)) != LENSRT_SUCCESS) return res;
+    while (done < count && res == LENSRT_SUCCESS) {
+        uint64_t n = count - done < PASS ? count - done : PASS;
         int w, cancelled = 0;
         double elapsed, frac;
         // One pass: the same sample indices for every wavelength (each its own sequence)
@@ -250,26 +255,121 @@ lensrt_result lensrt_render_run(lensrt_render r, uint64_t samples_per_wavelength
             memset(xy, 0, sizeof(double) * PASS * 2);
             lensrt_sample_aperture(r->desc.sampler, r->desc.seed, w, r->samples, n, &r->region, xy);
             res = r->device->pass(r, w, xy, (int)n);
-            elapsed = lensrt_seconds() - t0;
-            frac = ((double)done + (double)n * (w + 1) / r->n_wl) / (double)samples_per_wavelength;
+            elapsed = lensrt_seconds() - rs->t0;
+            frac = ((double)rs->done + (double)n * (w + 1) / r->n_wl) / (double)rs->total;
             // A request to stop takes effect when the pass is complete (every wavelength
             // must hold the same samples)
-            if (progress && w + 1 < r->n_wl && progress(frac, elapsed * (1.0 - frac) / frac, user_data))
+            if (rs->progress && w + 1 < r->n_wl && rs->progress(frac, elapsed * (1.0 - frac) / frac, rs->user_data))
                 cancelled = 1;
         }
         if (res != LENSRT_SUCCESS) break;
         r->samples += n;
         done += n;
+        rs->done += n;
         r->splats += n * (uint64_t)r->n_wl * (uint64_t)r->width * (uint64_t)r->height;
-        elapsed = lensrt_seconds() - t0;
-        if (progress && (progress((double)done / (double)samples_per_wavelength,
-                                  elapsed * (double)(samples_per_wavelength - done) / (double)done, user_data) ||
-                         cancelled))
+        elapsed = lensrt_seconds() - rs->t0;
+        if (rs->progress && (rs->progress((double)rs->done / (double)rs->total,
+                                          elapsed * (double)(rs->total - rs->done) / (double)rs->done, rs->user_data) ||
+                             cancelled))
             res = lensrt_fail(r->ctx, LENSRT_ERROR_CANCELLED, "run: cancelled after %llu samples per wavelength",
-                              (unsigned long long)done);
+                              (unsigned long long)(rs->done > rs->redo ? rs->done - rs->redo : 0));
     }
-    res = end_passes(r, xy, res);
-    r->seconds += lensrt_seconds() - t0;
+    return end_passes(r, xy, res);
+}
+
+/* The sums into the tail's copy (allocated when first needed); 0 when out of memory. */
+static int tail_copy(lensrt_render r)
+{
+    const size_t nsum = lensrt_sums_count(r);
+    if (!r->tail_sum && !(r->tail_sum = lensrt_alloc(r->ctx, nsum * sizeof(double)))) return 0;
+    if (r->sumsq && !r->tail_sumsq && !(r->tail_sumsq = lensrt_alloc(r->ctx, nsum / 2 * sizeof(double)))) return 0;
+    memcpy(r->tail_sum, r->sum, nsum * sizeof(double));
+    if (r->sumsq) memcpy(r->tail_sumsq, r->sumsq, nsum / 2 * sizeof(double));
+    return 1;
+}
+
+/* The sums and the tail's copy exchanged (buffers of the same sizes). */
+static void swap_sums(lensrt_render r)
+{
+    double *t = r->sum;
+    r->sum = r->tail_sum;
+    r->tail_sum = t;
+    if (r->sumsq) {
+        t = r->sumsq;
+        r->sumsq = r->tail_sumsq;
+        r->tail_sumsq = t;
+    }
+}
+
+uint64_t lensrt_tail_rewind(lensrt_render r)
+{
+    uint64_t redo;
+    if (!r->tail_samples || r->tail_samples != r->samples || !r->tail_sum) {
+        lensrt_tail_forget(r);
+        return 0;
+    }
+    // The sums before the partial block (swapped in: the sums as they were are kept in
+    // the tail's buffers, for a run that fails before its first pass), and its samples
+    // to draw again
+    swap_sums(r);
+    redo = r->samples - r->tail_first;
+    r->samples = r->tail_first;
+    r->splats -= redo * (uint64_t)r->n_wl * (uint64_t)r->width * (uint64_t)r->height;
+    lensrt_tail_forget(r);
+    return redo;
+}
+
+/* Blocks are counted from the first sample of a run (after the rewind above: from a
+ * block's start); the samples of a run's last block are added together, whatever the
+ * calls. Two segments: the whole blocks, then (when the run ends inside a block) the
+ * sums are kept as they are and the partial block added; the next run puts them back
+ * and draws that block again, whole or with more of it (lensrt.h's promise). */
+lensrt_result lensrt_render_run(lensrt_render r, uint64_t samples_per_wavelength, lensrt_progress_fn progress, void *user_data)
+{
+    run_state rs;
+    uint64_t whole, part;
+    lensrt_result res = LENSRT_SUCCESS;
+    if (!r) return LENSRT_ERROR_INVALID_ARGUMENT;
+    if (samples_per_wavelength == 0 || samples_per_wavelength > ((uint64_t)1 << 40))
+        return lensrt_fail(r->ctx, LENSRT_ERROR_INVALID_ARGUMENT,
+                           "run: samples per wavelength must be 1..2^40, got %llu", (unsigned long long)samples_per_wavelength);
+    if ((res = lensrt_tiles_idle(r, "run")) != LENSRT_SUCCESS || (res = lensrt_cells_idle(r, "run")) != LENSRT_SUCCESS)
+        return res;
+    rs.t0 = lensrt_seconds();
+    rs.progress = progress;
+    rs.user_data = user_data;
+    rs.done = 0;
+    rs.redo = lensrt_tail_rewind(r);
+    rs.total = samples_per_wavelength + rs.redo;
+    part = rs.total % LENSRT_BLOCK;
+    whole = rs.total - part;
+    if (whole) res = run_passes(r, whole, &rs);
+    if (res == LENSRT_SUCCESS && part) {
+        const uint64_t first = r->samples;
+        if (!tail_copy(r))
+            res = lensrt_fail(r->ctx, LENSRT_ERROR_OUT_OF_MEMORY,
+                              "run: out of memory for a copy of the sums (a run that ends inside a block of %d samples)",
+                              LENSRT_BLOCK);
+        else if ((res = run_passes(r, part, &rs)) == LENSRT_SUCCESS) {
+            r->tail_first = first;
+            r->tail_samples = r->samples;
+        }
+    }
+    if (res != LENSRT_SUCCESS && rs.redo && rs.done == 0) {
+        // Failed before its first pass (memory, a device): the sums, samples and tail as
+        // they were
+        const uint64_t redo = rs.redo;
+        swap_sums(r);
+        r->samples += redo;
+        r->splats += redo * (uint64_t)r->n_wl * (uint64_t)r->width * (uint64_t)r->height;
+        r->tail_samples = r->samples;
+    } else if (res != LENSRT_SUCCESS) {
+        // No tail to keep (the copy, if made, is not the sums' past)
+        lensrt_free(r->ctx, r->tail_sum);
+        lensrt_free(r->ctx, r->tail_sumsq);
+        r->tail_sum = r->tail_sumsq = NULL;
+    }
+    r->seconds += lensrt_seconds() - rs.t0;
     return res;
 }
 
@@ -310,6 +410,7 @@ lensrt_result lensrt_render_splat_points(lensrt_render r, int wavelength, const 
     if ((res = lensrt_tiles_idle(r, "splat_points")) != LENSRT_SUCCESS ||
         (res = lensrt_cells_idle(r, "splat_points")) != LENSRT_SUCCESS || (res = begin_passes(r, &xy)) != LENSRT_SUCCESS)
         return res;
+    lensrt_tail_forget(r);
     while (done < n_points && res == LENSRT_SUCCESS) {
         size_t n = n_points - done < PASS ? n_points - done : PASS;
         memset(xy, 0, sizeof(double) * PASS * 2);
@@ -502,6 +603,7 @@ lensrt_result lensrt_cells_finish(lensrt_render r, int rings, double *Uf, double
     // The sums hold the field divided by the measure, as one sample would
     for (i = 0; i < nsum; i++) r->sum[i] = Uf[i] / r->measure;
     r->samples = 1;
+    lensrt_tail_forget(r);
     r->cells_rings = rings;
     r->fourier_nodes = r->fourier_fine_nodes = 0;
     lensrt_free(r->ctx, r->fourier_fine);
@@ -539,6 +641,7 @@ lensrt_result lensrt_fourier_finish(lensrt_render r, int nodes, const double *U,
     if (error_estimate) *error_estimate = r->cells_error;
     for (i = 0; i < nsum; i++) r->sum[i] = U[i] / r->measure;
     r->samples = 1;
+    lensrt_tail_forget(r);
     r->cells_rings = 0;
     lensrt_free(r->ctx, r->cells_field);
     lensrt_free(r->ctx, r->cells_coarse);

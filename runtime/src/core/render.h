@@ -11,7 +11,8 @@
 #define LENSRT_PASS 16384 /* samples per wavelength and pass (a multiple of LENSRT_BLOCK) */
 /* Samples summed together before they reach the double sums, on every device (the CPU
  * kernel's block, the GL path's float partial sums): runs split at multiples of it give
- * the same sums bit for bit (lensrt_render_run). */
+ * the same sums bit for bit, and runs split inside a block too, since the next run
+ * draws that block again whole (lensrt_render_run, lensrt_tail_rewind). */
 #define LENSRT_BLOCK 256
 #define LENSRT_NM_PER_MM 1e6
 
@@ -145,6 +146,15 @@ struct lensrt_render_s {
     double *sum, *sumsq;
     uint64_t samples;             /* N per wavelength */
     uint64_t splats;
+    /* A run that ends inside a block of LENSRT_BLOCK samples (run() or a tile session,
+     * core/render.c): the sums before that last, partial block (tail_sum, tail_sumsq),
+     * the block's first sample index tail_first and the samples after it, tail_samples.
+     * Valid while samples == tail_samples (0: none); the next run then puts those sums
+     * back and draws the block again from tail_first, so that the block's samples are
+     * added together, as one run adds them (run(N); run(M) equals run(N + M) bit for
+     * bit). Everything else that changes the sums forgets it (lensrt_tail_forget). */
+    double *tail_sum, *tail_sumsq;
+    uint64_t tail_first, tail_samples;
     /* phasor_file.c's record of the samples the sums hold: runs[i] = {seed, first, end}
      * of sample indices; samples past runs_samples came from run() with desc.seed at
      * indices [runs_samples, samples) and are recorded on the next save or merge */
@@ -169,6 +179,20 @@ struct lensrt_render_s {
     /* pruning statistics of the last pass: sums over (pixel, wavelength) */
     double stat_terms, stat_clip, stat_tau, stat_dark, stat_count;
 };
+
+/* The partial block's sums of the last run are no longer the sums' past (load, merge,
+ * splat_points, an integral): the next run starts its blocks where the sums end. */
+static inline void lensrt_tail_forget(lensrt_render r) { r->tail_samples = 0; }
+/* When the last run ended inside a block and the sums are still its: the sums put back
+ * as they were before that block, samples set back to its first index, and the block's
+ * samples returned (to be drawn again); else 0, nothing changed. The tail is forgotten. */
+uint64_t lensrt_tail_rewind(lensrt_render r);
+
+/* The sums' length in doubles: re and im per light, wavelength and grid point. */
+static inline size_t lensrt_sums_count(const lensrt_render r)
+{
+    return 2 * (size_t)r->n_lights * (size_t)r->n_wl * (size_t)r->width * (size_t)r->height;
+}
 
 /* LENSRT_SUCCESS unless the sums hold a cells integral (lensrt_render_integrate), which
  * samples cannot be added to, saved or merged with: then the refusal naming `what`. */

@@ -101,6 +101,8 @@ void lensrt_tiles_free(lensrt_render r)
     lensrt_free(r->ctx, t->cover);
     lensrt_free(r->ctx, t->sum0);
     lensrt_free(r->ctx, t->sumsq0);
+    lensrt_free(r->ctx, t->tail_sum);
+    lensrt_free(r->ctx, t->tail_sumsq);
     if (t->job) {
         int j;
         for (j = 0; j < t->job->n_mesh; j++) {
@@ -150,21 +152,37 @@ lensrt_result lensrt_render_tiles_begin(lensrt_render r, uint64_t samples_per_wa
     t->first = r->samples;
     t->count = samples_per_wavelength;
     t->t0 = lensrt_seconds();
+    // After a run that ended inside a block, that block is drawn again from its start, as
+    // run() does (lensrt_tail_rewind; here the render changes only at tiles_end)
+    if (r->tail_samples && r->tail_samples == r->samples && r->tail_sum) {
+        t->redo = r->samples - r->tail_first;
+        t->first = r->tail_first;
+        t->count += t->redo;
+    }
     // The shared samples' slots (empty: the tiles fill them), coverage counts, and the
     // sums as they are (put back if the session fails)
-    n_slots = (samples_per_wavelength + LENSRT_PASS - 1) / LENSRT_PASS * (uint64_t)r->n_wl;
+    n_slots = (t->count + LENSRT_PASS - 1) / LENSRT_PASS * (uint64_t)r->n_wl;
     t->n_slots = n_slots < LENSRT_TILES_SLOTS ? (size_t)n_slots : LENSRT_TILES_SLOTS;
     t->slots = lensrt_calloc(r->ctx, t->n_slots, sizeof *t->slots);
     t->cover = lensrt_calloc(r->ctx, npix, sizeof *t->cover);
     t->sum0 = lensrt_alloc(r->ctx, ns * 2 * sizeof(double));
     if (r->sumsq) t->sumsq0 = lensrt_alloc(r->ctx, ns * sizeof(double));
-    if (!t->slots || !t->cover || !t->sum0 || (r->sumsq && !t->sumsq0)) {
+    if (t->count % LENSRT_BLOCK) {
+        t->tail_sum = lensrt_alloc(r->ctx, ns * 2 * sizeof(double));
+        if (r->sumsq) t->tail_sumsq = lensrt_alloc(r->ctx, ns * sizeof(double));
+    }
+    if (!t->slots || !t->cover || !t->sum0 || (r->sumsq && !t->sumsq0) ||
+        (t->count % LENSRT_BLOCK && (!t->tail_sum || (r->sumsq && !t->tail_sumsq)))) {
         lensrt_tiles_free(r);
         return lensrt_fail(r->ctx, LENSRT_ERROR_OUT_OF_MEMORY,
                            "tiles_begin: out of memory for a copy of %zu phasor sums and %zu pixels' coverage", ns, npix);
     }
     memcpy(t->sum0, r->sum, ns * 2 * sizeof(double));
     if (r->sumsq) memcpy(t->sumsq0, r->sumsq, ns * sizeof(double));
+    if (t->redo) {
+        memcpy(r->sum, r->tail_sum, ns * 2 * sizeof(double));
+        if (r->sumsq) memcpy(r->sumsq, r->tail_sumsq, ns * sizeof(double));
+    }
     return LENSRT_SUCCESS;
 }
 
@@ -373,9 +391,20 @@ lensrt_result lensrt_render_tiles_end(lensrt_render r)
         lensrt_tiles_free(r);
         return res;
     }
-    // Commit as run() would: samples, splats, the statistics of a pass, the wall time
-    r->samples += t->count;
-    r->splats += t->count * (uint64_t)r->n_wl * (uint64_t)npix;
+    // Commit as run() would: samples, splats, the partial block's tail, the statistics of
+    // a pass, the wall time
+    r->samples = t->first + t->count;
+    r->splats += (t->count - t->redo) * (uint64_t)r->n_wl * (uint64_t)npix;
+    lensrt_tail_forget(r);
+    if (t->count % LENSRT_BLOCK) {
+        lensrt_free(r->ctx, r->tail_sum);
+        lensrt_free(r->ctx, r->tail_sumsq);
+        r->tail_sum = t->tail_sum;
+        r->tail_sumsq = t->tail_sumsq;
+        t->tail_sum = t->tail_sumsq = NULL;
+        r->tail_first = r->samples - t->count % LENSRT_BLOCK;
+        r->tail_samples = r->samples;
+    }
     r->stat_terms = (double)t->terms;
     r->stat_clip = (double)t->clip;
     r->stat_tau = (double)t->tau;

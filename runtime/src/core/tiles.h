@@ -27,6 +27,11 @@ typedef struct lensrt_tiles_slot {
 
 typedef struct lensrt_tiles {
     uint64_t first, count;     /* the sample range [first, first + count) per wavelength */
+    /* the samples of the last run's partial block drawn again (first is that block's
+     * start: lensrt_tail_rewind), and when the range ends inside a block, the sums
+     * before that block, written by each tile for its pixels (the render's tail at end) */
+    uint64_t redo;
+    double *tail_sum, *tail_sumsq;
     lensrt_tiles_slot *slots;  /* the shared samples (n_slots), allocated at begin */
     size_t n_slots;
     uint64_t shared_bytes;     /* data the slots have taken (atomic) */

@@ -4,8 +4,8 @@
  *
  * Each block's sums are added to the pixel's phasor sums as soon as the block is done
  * (not a pass's worth at once): the sums then see the same additions in the same order
- * however the samples are split into run() calls, as long as every call but the last
- * draws a multiple of LENSRT_BLOCK (256) samples (lensrt.h's promise). */
+ * however the samples are split into run() calls (a call that ends inside a block has
+ * that block drawn again whole by the next: core/render.c, lensrt.h's promise). */
 #include "pass.h"
 
 #include "../lens/lens.h"

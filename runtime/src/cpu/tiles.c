@@ -30,6 +30,34 @@ static void prepare_chunk(lensrt_render r, lensrt_cpu_pass *pd, const tile_job *
     lensrt_cpu_prepare_blocks(r, job->w, xy, m, pd, b0, b1);
 }
 
+/* Blocks b0 .. b1 - 1 of a pass, as a pass of their own (the same buffers). */
+static lensrt_cpu_pass blocks_of(const lensrt_render r, const lensrt_cpu_pass *pd, int b0, int b1)
+{
+    const size_t rows = (size_t)b0 * (size_t)r->n_rows * LENSRT_BLOCK, lanes = (size_t)b0 * (size_t)r->n_lights * LENSRT_BLOCK;
+    lensrt_cpu_pass v = *pd;
+    if (v.mono_f) v.mono_f += rows;
+    if (v.mono_d) v.mono_d += rows;
+    if (v.phase_f) v.phase_f += lanes;
+    if (v.amp_f) v.amp_f += lanes;
+    if (v.phase_d) v.phase_d += lanes;
+    if (v.amp_d) v.amp_d += lanes;
+    v.n_blocks = b1 - b0;
+    v.n = (b1 - b0) * LENSRT_BLOCK < pd->n - b0 * LENSRT_BLOCK ? (b1 - b0) * LENSRT_BLOCK : pd->n - b0 * LENSRT_BLOCK;
+    return v;
+}
+
+/* The sums of pixels p0 .. p1 - 1, wavelength w, into the session's tail (every light). */
+static void keep_tail(lensrt_render r, const lensrt_tiles *t, int w, long p0, long p1)
+{
+    const size_t npix = (size_t)r->width * (size_t)r->height;
+    int l;
+    for (l = 0; l < r->n_lights; l++) {
+        const size_t at = ((size_t)l * (size_t)r->n_wl + (size_t)w) * npix + (size_t)p0, n = (size_t)(p1 - p0);
+        memcpy(t->tail_sum + 2 * at, r->sum + 2 * at, 2 * n * sizeof(double));
+        if (r->sumsq) memcpy(t->tail_sumsq + at, r->sumsq + at, n * sizeof(double));
+    }
+}
+
 /* lensrt_tiles_prepare_fn: a chunk into a slot's shared data. */
 static void prepare_shared(lensrt_render r, void *data, int chunk, const void *job)
 {
@@ -77,7 +105,17 @@ lensrt_result lensrt_cpu_tile(lensrt_render r, int x0, int y0, int width, int he
             for (y = y0; y < y0 + height; y++) {
                 long p0 = (long)y * r->width + x0;
                 lensrt_cpu_stats row = {0, 0, 0, 0};
-                lensrt_cpu_splat_pixels(r, w, pd, p0, p0 + width, &row);
+                if (last && t->count % LENSRT_BLOCK) {
+                    // The session ends inside a block: its whole blocks, the sums kept
+                    // (the render's tail at tiles_end, as run() keeps them), the last block
+                    const lensrt_cpu_pass whole = blocks_of(r, pd, 0, pd->n_blocks - 1);
+                    const lensrt_cpu_pass part = blocks_of(r, pd, pd->n_blocks - 1, pd->n_blocks);
+                    if (whole.n_blocks) lensrt_cpu_splat_pixels(r, w, &whole, p0, p0 + width, &row);
+                    keep_tail(r, t, w, p0, p0 + width);
+                    row.terms = row.clip = row.tau = row.dark = 0; /* the set-up's, once */
+                    lensrt_cpu_splat_pixels(r, w, &part, p0, p0 + width, &row);
+                } else
+                    lensrt_cpu_splat_pixels(r, w, pd, p0, p0 + width, &row);
                 if (last) {
                     st.terms += row.terms;
                     st.clip += row.clip;

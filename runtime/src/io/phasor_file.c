@@ -362,6 +362,7 @@ lensrt_result lensrt_render_load(lensrt_render r, const char *path)
     r->sum = sum;
     r->sumsq = sumsq;
     r->samples = hd.samples;
+    lensrt_tail_forget(r);
     r->splats = hd.splats;
     r->seconds = hd.seconds;
     memcpy(r->runs, runs, sizeof(uint64_t) * 3 * (size_t)hd.n_runs);
@@ -413,6 +414,7 @@ lensrt_result lensrt_render_merge(lensrt_render r, const char *path)
     r->n_runs += hd.n_runs;
     r->samples += hd.samples;
     r->runs_samples = r->samples;
+    lensrt_tail_forget(r);
     r->splats += hd.splats;
     r->seconds += hd.seconds;
     lensrt_free(r->ctx, sum);
