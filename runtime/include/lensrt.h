@@ -52,7 +52,7 @@ extern "C" {
  * when a program built against one header runs with a newer shared library, which the
  * versioned structs below allow within one major version. */
 #define LENSRT_VERSION_MAJOR 0
-#define LENSRT_VERSION_MINOR 9
+#define LENSRT_VERSION_MINOR 10
 #define LENSRT_VERSION_PATCH 0
 #define LENSRT_VERSION \
     ((uint32_t)LENSRT_VERSION_MAJOR * 1000000u + (uint32_t)LENSRT_VERSION_MINOR * 1000u + \
@@ -536,7 +536,7 @@ typedef int (*lensrt_progress_fn)(double fraction, double eta_seconds, void *use
 /* Add `samples_per_wavelength` aperture samples for every wavelength, continuing the
  * sample sequence where the sums left off: two runs draw the same samples as one longer
  * run and give the same sums bit for bit, for any counts, on either device, and so do
- * tile sessions (since 0.9.0; before, only when the first count was a multiple of 256).
+ * tile sessions (since 0.10.0; before, only when the first count was a multiple of 256).
  * Samples are summed in blocks of 256 and each block is added to the phasor sums on its
  * own; a run that ends inside a block keeps a copy of the sums from before that block
  * (memory as large as the sums, allocated then and kept with the render) and the next
@@ -635,7 +635,7 @@ LENSRT_API lensrt_result lensrt_render_integrate_fourier(lensrt_render render, i
  * the sums are untouched, the pilot's seconds count in the stats. */
 LENSRT_API lensrt_result lensrt_render_fourier_nodes(lensrt_render render, double target, int32_t *nodes);
 
-/* Since 0.9.0: the geometric footprint of the render's lights on the sensor, for deciding
+/* Since 0.10.0: the geometric footprint of the render's lights on the sensor, for deciding
  * whether an image (a ghost's) can reach the window at all before integrating it:
  * box_mm = (x_min, x_max, y_min, y_max) in mm on the sensor (the window's coordinates) of
  * the points where rays through the aperture land, over every light and wavelength. A

@@ -286,8 +286,8 @@ class Render:
 
     def footprint(self) -> tuple[float, float, float, float]:
         """(x_min, x_max, y_min, y_max) in mm of where the render's rays land on the sensor
-        (lensrt_render_footprint, 0.9.0); x_min > x_max when no ray passes the clips."""
-        fn = _need(self.rt.lib, "lensrt_render_footprint")
+        (lensrt_render_footprint, 0.10.0); x_min > x_max when no ray passes the clips."""
+        fn = _need(self.rt.lib, "lensrt_render_footprint", "0.10.0")
         fn.argtypes = [C.c_void_p, C.POINTER(C.c_double)]
         box = (C.c_double * 4)()
         self.rt._check(fn(self.handle, box))
