@@ -108,9 +108,12 @@ def test_small_figure_powers_match_the_exact_estimate(tmp_path, integrator):
     if not (FOLDER / "ghosts" / "ghosts.json").is_file():
         pytest.skip("no fitted ghosts")
     out = tmp_path / "fig.png"
+    # 2 x 2 points per pixel for the ghosts (the default until issue 39): lensrt's rule
+    # takes 16 x 16 on these 50 um pixels, and what is checked here is bookkeeping
     assert ff.main(["-o", str(out), "--panel", str(FOLDER), "8", "coated",
                     "--resolution", "720x480", "--wavelengths", "3", "--splats", "2e8",
-                    "--integrator", integrator, "--target-error", "0.02"]) == 0
+                    "--integrator", integrator, "--target-error", "0.02",
+                    "--pixel-samples", "2"]) == 0
     data = json.loads(out.with_suffix(".json").read_text())
     images = {r["image"]: r for r in data["panels"][0]["images"]}
     direct = images.pop("direct")["power"]
