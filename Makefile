@@ -18,7 +18,8 @@
 #                (and tile-scheduled against run()), per-ray evaluation against exact tracing,
 #                compiled-in Horner code against lensrt's set-up,
 #                per-ray evaluation against the exact tracer, error against run time (the
-#                cells integrator against Monte Carlo too: cells_bench.py; the Fourier
+#                cells integrator against Monte Carlo too, and flare_figure.py's default
+#                full frame against its point-filter flare row: cells_bench.py; the Fourier
 #                integrator against both on the demo's PSFs: fourier_bench.py), banks on Dask
 #                (scaling 1 -> 2 workers, the scheduler's overhead: banks.md), and per generated
 #                lens the adaptive fit against the full one of the same degrees (fit time, worst

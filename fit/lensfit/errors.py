@@ -79,6 +79,29 @@ def read_toml(path: str | object, what: str, error: type[Exception]) -> dict:
         raise error(f"{p}: cannot read {what}: nested too deeply") from None
 
 
+def int_digits(n: int) -> int:
+    """The decimal digits of an integer, counted without converting it to a string
+    (str() of an int of more than 4300 digits raises ValueError; a TOML hexadecimal,
+    octal or binary literal of any length parses, since those bases are not limited)."""
+    n = abs(n)
+    d = max(1, int((n.bit_length() - 1) * 0.30102999566398120))
+    while 10**d <= n:
+        d += 1
+    while d > 1 and 10 ** (d - 1) > n:
+        d -= 1
+    return d
+
+
+def int_shown(n: int) -> str:
+    """An integer as a message shows it: itself, or beyond a float's range its sign and
+    digit count (safe for any length: :func:`int_digits`)."""
+    import sys
+
+    if abs(n) <= sys.float_info.max:
+        return repr(n)
+    return f"{'-' if n < 0 else ''}an integer of {int_digits(n)} digits"
+
+
 def toml_overflow(obj: object, path: tuple = ()) -> tuple[tuple, int] | None:
     """The first integer in parsed TOML too large for a float (TOML integers are
     unbounded in Python; float() of one raises OverflowError), with its key path."""

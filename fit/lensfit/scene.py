@@ -40,7 +40,7 @@ from typing import Any
 
 import numpy as np
 
-from lensfit.errors import read_toml, toml_overflow
+from lensfit.errors import int_shown, read_toml, toml_overflow
 from lensfit.poly import Polynomial, System
 
 APERTURE_INPUTS = ("x_a", "y_a")
@@ -109,7 +109,8 @@ class Scene:
     @classmethod
     def from_dict(cls, d: dict[str, Any], source: str = "<memory>") -> Scene:
         def fail(key: str, value: Any, want: str) -> SceneError:
-            shown = str(value).lower() if isinstance(value, bool) else repr(value)  # TOML's
+            shown = (str(value).lower() if isinstance(value, bool)  # TOML's spelling
+                     else int_shown(value) if isinstance(value, int) else repr(value))
             return SceneError(f"{source}: key '{key}': {want}, found {shown}")
 
         known = {"name", "wavelengths_nm", "light", "focus_offset_mm", "clip",

@@ -28,6 +28,13 @@ Then the box pixel filter's cost (issue 26): box with its automatic sub-pixel po
 the point filter, same scenes, interleaved (`--pixel-area-only` runs this part alone and
 writes pixel_area.json).
 
+Then the figure tool's full frame at its defaults (issue 39): `flare_figure.py --panel
+generated/0001-angenieux-double-gauss 8 ...` and nothing else (1440 x 960, 16 wavelengths,
+integrator auto to 1%, the box filter at lensrt's automatic counts for every image),
+seconds and CPU-seconds (this process's, every thread's) against the flare row above
+(the same frame, lens, light and stop at pixel centres by cells) measured in the same run;
+the target is 2x. `--figure-only` runs the flare row and this alone (figure.json).
+
 Writes cells.json and cells.md (and cells.png, error against time) into --out.
 """
 
@@ -181,9 +188,38 @@ def flare_frame(rt: Lensrt, args: argparse.Namespace) -> dict[str, Any]:
                             wavelengths=8 if args.quick else 16, floor=0.03, splats=1e10)
     # 36 x 24 mm at 25 um (flare_figure takes square pixels: 1440 x 960, not 1440 x 1080)
     frame = flare_figure.Frame((36.0, 24.0), (1440, 960))
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
     _, _, record = flare_figure.render_panel(rt, folder, 8.0, LIGHT[:2], frame, ns)
-    return {"seconds": time.perf_counter() - t0, "wavelengths": ns.wavelengths, "images": record}
+    return {"seconds": time.perf_counter() - t0, "cpu_seconds": time.process_time() - c0,
+            "wavelengths": ns.wavelengths, "images": record}
+
+
+def figure_frame(out: Path, flare: dict[str, Any]) -> dict[str, Any]:
+    """The figure tool's full frame at its defaults (one panel of 0001 at f/8, as the
+    flare row), timed whole (set-up, enumeration, every image, the PNG), against the
+    flare row of the same run."""
+    folder = ROOT / "generated" / "0001-angenieux-double-gauss"
+    png = out / "figure-default.png"
+    t0, c0 = time.perf_counter(), time.process_time()
+    flare_figure.main(["-o", str(png), "--panel", str(folder), "8", "0001 coated"])
+    seconds, cpu = time.perf_counter() - t0, time.process_time() - c0
+    images = json.loads(png.with_suffix(".json").read_text())["panels"][0]["images"]
+    row = {"seconds": seconds, "cpu_seconds": cpu, "images": images,
+           "flare_row_seconds": flare["seconds"],
+           "flare_row_cpu_seconds": flare.get("cpu_seconds"),
+           "ratio": seconds / flare["seconds"],
+           "cpu_ratio": None if not flare.get("cpu_seconds") else cpu / flare["cpu_seconds"],
+           "target_ratio": 2.0}
+    print(f"  figure at defaults: {seconds:.1f} s ({cpu:.1f} CPU-s) against the flare row's "
+          f"{flare['seconds']:.1f} s ({flare.get('cpu_seconds', float('nan')):.1f} CPU-s): "
+          f"{row['ratio']:.2f}x wall, {row['cpu_ratio'] or float('nan'):.2f}x CPU (target "
+          "2x)", flush=True)
+    for r in images:
+        if r.get("window"):
+            print(f"    {r['image']}: {r.get('integrator')} "
+                  f"{r.get('nodes', r.get('rings'))}, box {r['pixel_samples'][0]}x"
+                  f"{r['pixel_samples'][1]}, {r['seconds']:.1f} s", flush=True)
+    return row
 
 
 def pixel_area_cost(rt: Lensrt, args: argparse.Namespace) -> list[dict[str, Any]]:
@@ -264,8 +300,14 @@ def markdown(data: dict[str, Any]) -> str:
         worst = max((i.get("error_estimate", 0.0) for i in fl["images"] if i.get("window")),
                     default=0.0)
         lines += ["", "Every kept ghost of 0001 and the direct image, full frame 36 x 24 mm at "
-                      f"1440 x 960, {fl['wavelengths']} wavelengths, f/8: {fl['seconds']:.1f} s, "
-                      f"worst estimate {worst:.2%}."]
+                      f"1440 x 960, {fl['wavelengths']} wavelengths, f/8: {fl['seconds']:.1f} s "
+                      f"({fl.get('cpu_seconds', float('nan')):.1f} CPU-s), worst estimate "
+                      f"{worst:.2%}."]
+    fg = data.get("figure")
+    if fg:
+        lines += ["", "The figure tool's full frame at its defaults (flare_figure.py, one "
+                      f"panel of 0001 at f/8): {fg['seconds']:.1f} s ({fg['cpu_seconds']:.1f} "
+                      f"CPU-s), {fg['ratio']:.2f}x the row above (target 2x)."]
     return "\n".join(lines) + "\n"
 
 
@@ -278,6 +320,9 @@ def main() -> int:
     p.add_argument("--pixel-area-only", action="store_true",
                    help="only the box pixel filter's cost against the point filter "
                    "(pixel_area.json)")
+    p.add_argument("--figure-only", action="store_true",
+                   help="only the flare row and the figure tool's default frame against it "
+                   "(figure.json)")
     p.add_argument("--summary-only", action="store_true",
                    help="rewrite cells.md and cells.png from the cells.json already in --out")
     args = p.parse_args()
@@ -297,6 +342,14 @@ def main() -> int:
         rows = pixel_area_cost(rt, args)
         (out / "pixel_area.json").write_text(json.dumps(rows, indent=1))
         return 0
+    if args.figure_only:
+        flare = flare_frame(rt, args)
+        print(f"  flare row (point filter, cells): {flare['seconds']:.1f} s "
+              f"({flare['cpu_seconds']:.1f} CPU-s)", flush=True)
+        (out / "figure.json").write_text(json.dumps({"flare": flare}, indent=1))
+        row = figure_frame(out, flare)
+        (out / "figure.json").write_text(json.dumps({"flare": flare, "figure": row}, indent=1))
+        return 0
     todo = scenes(rt)
     if args.quick:
         todo = todo[1:2]
@@ -308,6 +361,8 @@ def main() -> int:
     data["pixel_area"] = pixel_area_cost(rt, args)
     (out / "cells.json").write_text(json.dumps(data, indent=1))
     data["flare"] = None if args.quick else flare_frame(rt, args)
+    (out / "cells.json").write_text(json.dumps(data, indent=1))
+    data["figure"] = None if args.quick else figure_frame(out, data["flare"])
     (out / "cells.json").write_text(json.dumps(data, indent=1))
     (out / "cells.md").write_text(markdown(data))
     plot(data["compare"], out / "cells.png")

@@ -18,11 +18,19 @@ pixel). All close-ups share one exposure: white is their brightest pixel, over
 brighter as it is. The full-frame panels below are as before, with the stop's --blades
 (the direct image's diffraction star) in a window of --direct-half mm around its image
 point (cut to that circle when wider than the default), the direct image at the box
-filter's automatic counts and the ghosts at --pixel-samples (default 2 x 2: their
-footprints span many pixels and vary slowly over one; the automatic rule takes 4 x 4 for
-the direct image at f/16 on 25 um pixels, 4 times the splats). --pixel-filter point
-renders every image at the pixel centres (as before lensrt 0.8). The JSON records each
-image's filter, the counts asked and taken, and seconds.
+filter's automatic counts and the ghosts at --pixel-samples: by default lensrt's
+automatic counts too (lensrt's pixel rule, lensrt.h: points h = pitch / n apart with
+1 / h above the intensity's bandwidth D / lambda, so that a feature's power does not
+depend on where it falls against the pixels: a thin streak's power moved 0.88-1.18 with
+its sub-pixel position at the 2 x 2 points that were the default here (2004's ghost 0-2
+at f/16), within 1.4e-4 at the rule's: tests/runtime/test_flare_figure.py). A defocused
+ghost's rays spread over about 1 / N, so at f/8 on 25 um pixels the rule takes 8-9
+points per axis, tens of times the point filter's splats (`make bench` times the default
+frame against the point-filter row: runtime/bench/cells_bench.py); --pixel-samples 2 is
+the cheaper choice for footprints that span many pixels and vary slowly over one (`make
+demo` takes it), and --pixel-filter point renders every image at the pixel centres (as
+before lensrt 0.8). The JSON records each image's filter, the counts asked and taken,
+and seconds.
 
 The full-frame mode alone (no --closeup) lays the panels out two by two:
 
@@ -123,9 +131,10 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p.add_argument("--pixel-filter", choices=("box", "point"), default="box",
                    help="box (default): each pixel the mean over its area (lensrt 0.8); "
                         "point: the pixel centre's value")
-    p.add_argument("--pixel-samples", default="2", metavar="N|NxM|auto",
+    p.add_argument("--pixel-samples", default="auto", metavar="N|NxM|auto",
                    help="box filter: sub-pixel points per axis of the full frame's ghost "
-                        "images (default 2: their footprints span many pixels); the direct "
+                        "images (default auto: lensrt's rule, exact for any feature's power; "
+                        "2 is cheaper for footprints that span many pixels); the direct "
                         "image and the close-ups always take lensrt's automatic counts")
     p.add_argument("--light", default="-6,-4", metavar="X,Y",
                    help="field angles in degrees, designers' sign (default -6,-4)")
@@ -352,7 +361,7 @@ def render_panel(rt, folder: Path, f_number: float, light, frame: Frame, args):
         if name == "direct":  # a few pixels: its halo's floor is what shows around it
             n = max(n, DIRECT_SAMPLES)
         # The direct image (a few pixels' core) takes lensrt's automatic counts; the
-        # ghosts' wide footprints --pixel-samples (module doc)
+        # ghosts --pixel-samples (default the same rule; module doc)
         ps = 0 if name == "direct" else getattr(args, "ghost_samples", 0)
         rgb, power, how = render_window(rt, path, frame, w, f_number, light, args, n, ps)
         if name == "direct":

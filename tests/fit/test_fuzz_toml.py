@@ -23,11 +23,13 @@ from __future__ import annotations
 import json
 import math
 import os
+import re
 import tomllib
 from pathlib import Path
 from typing import Any
 
 import pytest
+from bank_specs import bank_spec
 from hypothesis import HealthCheck, event, example, given, settings
 from hypothesis import strategies as st
 
@@ -252,6 +254,100 @@ def test_scene_loader_random_documents(tmp_path: Path, doc: dict[str, Any]) -> N
 @example(text=BANK_TEXTS[0].replace("f_numbers = [8]", "f_numbers = [" + "9" * 400 + "]"))
 def test_bank_spec_loader_mutations(tmp_path: Path, text: str) -> None:
     _check(load_spec, tmp_path / "fuzz.toml", text)
+
+
+# Bank specs with huge integer literals and absurd values (issue 39): a literal of more
+# than 4300 digits in any base (Python's int() refuses a decimal one, but a hexadecimal,
+# octal or binary one parses to an int that str() and repr() then refuse: the refusal's
+# own message raised ValueError, a traceback), a float at or past its range, a value of
+# another type, put where the committed and the tests' specs have a number
+HUGE_LITERALS = ["9" * 4301, "-" + "9" * 5000, "+" + "1" * 4400, "1" + "_0" * 4400,
+                 "0x" + "f" * 4000, "0xF" + "0" * 5000, "0o" + "7" * 5000,
+                 "0b1" + "0" * 15000]
+ABSURD_LITERALS = ["1e308", "-1e308", "1.7976931348623157e308", "5e-324", "-0.0", "0",
+                   "-1", "inf", "-inf", "nan", "2147483648", "-9223372036854775809",
+                   "18446744073709551616", "1e-300", "[]", "[[]]", '"8"', "{}", "true",
+                   "[1e308, -1e308]", "[" + ", ".join(["1"] * 5000) + "]"]
+NUMBER = re.compile(r"(?<![\w.\"])[-+]?[0-9][0-9_.eE+-]*")
+
+
+def _bank_texts() -> list[str]:
+    """The committed specs, the tests' spec (lens 0001) and its variants with a fixed
+    window, a flare and blades, so that every key of a spec holds a number somewhere."""
+    base = bank_spec("fuzz")
+    return [*BANK_TEXTS, base,
+            base.replace("size_mm = [0.06, 0.06]",
+                         "size_mm = [0.06, 0.06]\ncenter_mm = [-10.1, -6.7]")
+            + '[flare]\nghosts = ["0-2"]\n[aperture]\nshape = "blades"\nblades = 7\n'
+              "blade_curvature = 0.5\nrotation_deg = 10\n",
+            base.replace("[grid]", "[grid]\nfocus_offsets_mm = [0, 0.1]\n"
+                                   "distances_mm = [1000, 5000]")
+            + "max_rings = 64\nsamples = 4096\ncheckpoints = 2\nseed = 3\nthreads = 1\n"]
+
+
+BANK_LITERAL_TEXTS = _bank_texts()
+
+
+@st.composite
+def bank_literals(draw: st.DrawFn) -> str:
+    """A spec with one to three of its numbers replaced by a huge or absurd literal."""
+    text = draw(st.sampled_from(BANK_LITERAL_TEXTS))
+    for _ in range(draw(st.integers(1, 3))):
+        spots = list(NUMBER.finditer(text))
+        m = spots[draw(st.integers(0, len(spots) - 1))]
+        new = draw(st.sampled_from(HUGE_LITERALS) if draw(st.booleans())
+                   else st.sampled_from(ABSURD_LITERALS))
+        text = text[:m.start()] + new + text[m.end():]
+    return text
+
+
+def _one_line_refusal(loader: Any, path: Path, text: str) -> None:
+    """Loads, or is refused as the CLI reports it: one line naming the file (no
+    traceback, whatever the literal's size)."""
+    path.write_text(text, encoding="utf-8")
+    try:
+        loader(path)
+    except PROJECT_ERRORS as e:
+        message = str(e)
+        assert "\n" not in message and message.startswith(str(path)), message[:300]
+        assert len(message) < 1000, message[:300]
+        event(type(e).__name__ + ": " + message.split(": ", 2)[-1][:40])
+    else:
+        event("loaded")
+
+
+HEX_F_NUMBER = BANK_LITERAL_TEXTS[-1].replace("f_numbers = [8]", "f_numbers = [0x" + "f" * 4000
+                                               + "]")
+
+
+@FUZZ
+@given(text=bank_literals())
+@example(text=HEX_F_NUMBER)
+@example(text=BANK_LITERAL_TEXTS[-1].replace("pixels = [16, 16]", "pixels = [0o" + "7" * 5000
+                                             + ", 16]"))
+@example(text=BANK_LITERAL_TEXTS[-1].replace("seed = 3", "seed = 0b1" + "0" * 15000))
+def test_bank_spec_huge_and_absurd_literals(tmp_path: Path, text: str) -> None:
+    _one_line_refusal(load_spec, tmp_path / "fuzz.toml", text)
+
+
+@pytest.mark.parametrize("kind", ["lens", "scene"])
+@pytest.mark.parametrize("literal", ["0x" + "f" * 4000, "0o" + "7" * 5000,
+                                     "0b1" + "0" * 15000, "-" + "9" * 4301])
+def test_huge_literal_in_lens_and_scene_is_one_line(tmp_path: Path, kind: str,
+                                                     literal: str) -> None:
+    """The same literals in a lens and a scene: refused in one line naming the file (a
+    hexadecimal or octal one raised ValueError from the refusal's own message)."""
+    texts, loader = (LENS_TEXTS, load_lens) if kind == "lens" else (SCENE_TEXTS, load_scene)
+    text = texts[0]
+    m = NUMBER.search(text[text.index("="):])
+    assert m is not None
+    at = text.index("=") + m.start()
+    path = tmp_path / "fuzz.toml"
+    path.write_text(text[:at] + literal + text[at + len(m.group()):], encoding="utf-8")
+    with pytest.raises(PROJECT_ERRORS) as e:
+        loader(path)
+    assert "\n" not in str(e.value) and str(e.value).startswith(str(path))
+    assert "digits" in str(e.value)
 
 
 @FUZZ

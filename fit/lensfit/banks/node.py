@@ -35,6 +35,28 @@ from lensfit.errors import InputError
 
 RECORD_VERSION = 2  # 2: each channel on its own chief point (lensrt 0.9.0)
 
+# A fixed window (window.center_mm) that holds essentially none of a node's PSF is
+# refused (issue 39): lensrt-psf exits 4 for an image that is zero everywhere, but the
+# cells integrator resolves a PSF's far tail, so a window millimetres from the light's
+# image renders values ten orders below the peak and nothing says so. Measured on lens
+# 0001 (a 0.06 mm window of 24 x 24 pixels, 500 and 600 nm): the window centred on the
+# image point holds 222 (f/8) and 2493 (f/2) in lensrt's power unit; moved 0.2 mm away, 7e-5
+# and 2.4e-5 of that (the Airy halo: kept); 1 mm away, 1.6e-7 and 1.4e-8; 5 mm away,
+# 2.4e-10 (8 rings; 4e-9 at 128). A window 0.5 mm from the centre of a blur of radius
+# 0.25 mm (f/2, the sensor 1 mm behind focus) holds 4.5e-5 of the centred one's. Below
+# MISS_FRACTION of the centred window's power a node is refused: a thousand times below
+# the faintest window kept above and 2.5 orders above the far tails.
+MISS_FRACTION = 1e-6
+# A flare bank's window is meant for the ghosts (0001's visible ghosts hold 1e-6 to 1e-3
+# of the direct image's power; 0-2 at f/8 1.1e-4): its node is refused when the direct
+# image holds below MISS_FRACTION and the ghosts together below this share of the direct
+# image's centred power (a thousandth of the faintest ghost worth fitting)
+MISS_FRACTION_GHOSTS = 1e-9
+# The centred window (and the run's up-front pilot) by the cells integrator at this many
+# rings, no refinement: 0.3% on the centred window at f/8 (its estimate), and what
+# decides is a ratio of six orders
+PILOT_RINGS = 8
+
 # Each worker thread keeps one lensrt context per (library, threads) and the tables it
 # loaded into that context per (table, CRC-32): a task reuses what the previous task of
 # the same bank loaded in its thread. Per thread, not per process: a Dask worker runs
@@ -187,6 +209,47 @@ def create_render(rt, lens, spec: dict[str, Any], c: dict[str, float],
                      wavelengths=wavelengths, seed=spec["render"]["seed"])
 
 
+def window_holds(window: dict[str, Any], chief: list[tuple[float, float]]) -> bool:
+    """Whether the window (size_mm around center_mm) holds any of the chief points."""
+    (cx, cy), (w, h) = window["center_mm"], window["size_mm"]
+    return any(abs(x - cx) <= w / 2 and abs(y - cy) <= h / 2 for x, y in chief)
+
+
+def centred_power(rt, lens, spec: dict[str, Any], c: dict[str, float],
+                  wavelengths: list[float], chief: list[tuple[float, float]]) -> float:
+    """The power (summed over wavelengths) of the node's direct image in a window of the
+    spec's size centred on its middle chief point, at PILOT_RINGS: a lower bound on what
+    a window on the PSF holds."""
+    import numpy as np
+
+    r = create_render(rt, lens, spec, c, wavelengths, tuple(chief[len(chief) // 2]))
+    r.integrate(PILOT_RINGS, estimate=False)
+    return float(r.image().astype(np.float64).sum())
+
+
+def window_miss(spec: dict[str, Any], c: dict[str, float], chief: list[tuple[float, float]],
+                direct: float, ghosts: float | None, centred: float, node: str) -> str | None:
+    """Why a fixed window holds essentially none of a node's PSF (``direct`` and
+    ``ghosts``, the summed images in the window; ghosts None: no flare), or None."""
+    if centred <= 0 or direct >= MISS_FRACTION * centred or (
+            ghosts is not None and ghosts >= MISS_FRACTION_GHOSTS * centred):
+        return None
+    w = spec["window"]
+    (cx, cy), (ww, wh) = w["center_mm"], w["size_mm"]
+    px, py = chief[len(chief) // 2]
+    gap = math.hypot(max(0.0, abs(px - cx) - ww / 2), max(0.0, abs(py - cy) - wh / 2))
+    dist = "" if math.isinf(c["distance_mm"]) else f", distance {c['distance_mm']:g} mm"
+    what = (f"{direct / centred:.1e} of the direct image's power and the ghosts "
+            f"{(ghosts or 0.0) / centred:.1e} of it" if ghosts is not None
+            else f"{direct / centred:.1e} of the PSF's power")
+    return (f"node {node} (field ({c['field_x_deg']:g}, {c['field_y_deg']:g}) deg, "
+            f"f/{c['f_number']:g}, focus offset {c['focus_offset_mm']:g} mm{dist}): the "
+            f"window of {ww:g} x {wh:g} mm centred on ({cx:g}, {cy:g}) mm holds {what} (the "
+            f"light's image is at ({px:.4g}, {py:.4g}) mm, {gap:.3g} mm from the window); "
+            "nothing written: move window.center_mm onto the image, widen window.size_mm, "
+            "or drop center_mm so that each node's window is centred on its chief ray")
+
+
 def _integrate(r, r_spec: dict[str, Any], phasors: Path) -> dict[str, Any]:
     """One render by the spec's integrator: how, and its error estimate (-1: none)."""
     if r_spec["integrator"] == "cells":
@@ -253,6 +316,19 @@ def render_node(job: dict[str, Any]) -> dict[str, Any]:
                 rg, r_spec, stem_path.with_suffix(f"{suffix}.ghost-{g['label']}.phasors")))
             renders.append(rg)
         parts.append(renders)
+    if not per_channel and not window_holds(w, chief):
+        # A fixed window off the light's image: refused when it holds essentially none
+        # of the PSF (MISS_FRACTION), before anything of the node is written
+        direct = float(parts[0][0].image().astype(np.float64).sum())
+        flare = (float(sum(x.image().astype(np.float64).sum() for x in parts[0][1:]))
+                 if ghost_lenses else None)
+        why = window_miss(spec, c, chief, direct, flare,
+                          centred_power(rt, lens, spec, c, wavelengths, chief),
+                          job["stem"].split("/")[-1])
+        if why is not None:
+            for p in out.glob(f"{job['stem']}.*phasors"):
+                p.unlink()
+            raise InputError(why)
     seconds, cpu_seconds = time.perf_counter() - t0, cpu_clock() - cpu0
 
     # How each was integrated. Per channel, a channel's estimate is its own relative L2

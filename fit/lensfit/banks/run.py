@@ -130,6 +130,77 @@ def _check_domain(spec: BankSpec, rt, lens, src: str) -> None:
                     f"{abs(cy):.4g}); every node of the grid must lie inside it")
 
 
+MAX_PILOT_SLICES = 16  # (f-number, focus, distance) slices the up-front window check tries
+
+
+def _check_window(spec: BankSpec, rt, lens, ghost_lenses: list[Any], src: str) -> None:
+    """A fixed window (window.center_mm) that misses the light's image at every node is
+    refused before anything is written. Per (f-number, focus offset, distance) slice, the
+    node whose chief point (middle wavelength) is nearest to the window is rendered there
+    at PILOT_RINGS (its ghosts too) and measured as a node is (node.window_miss); when
+    every slice's nearest node misses, so does the bank. More slices than
+    MAX_PILOT_SLICES, or a node whose image point lensrt cannot find, leave it to the
+    nodes (each refused on its own)."""
+    from lensrt_ctypes import LensrtError
+
+    from lensfit.banks.node import (
+        PILOT_RINGS,
+        centred_power,
+        create_render,
+        node_coordinates,
+        node_light,
+        stem,
+        window_holds,
+        window_miss,
+    )
+
+    if spec.window.center_mm is None:
+        return
+    shape = spec.grid.shape
+    if math.prod(shape[:3]) > MAX_PILOT_SLICES:
+        return
+    d = spec.to_dict()
+    lams = list(spec.grid.wavelengths_nm)
+    cx, cy = spec.window.center_mm
+    misses = []
+    for head in _indices(shape[:3]):
+        best = None
+        for tail in _indices(shape[3:]):
+            c = node_coordinates(d, head + tail)
+            try:
+                x, y = rt.image_point(lens, node_light(c), lams[len(lams) // 2],
+                                      c["focus_offset_mm"])
+            except LensrtError:
+                return
+            if best is None or math.hypot(x - cx, y - cy) < best[0]:
+                best = (math.hypot(x - cx, y - cy), head + tail, c)
+        assert best is not None
+        _, idx, c = best
+        try:
+            chief = [rt.image_point(lens, node_light(c), lam, c["focus_offset_mm"])
+                     for lam in lams]
+        except LensrtError:
+            return
+        if window_holds(d["window"], chief):
+            return
+
+        def power(table_lens, c: dict[str, float] = c) -> float:
+            r = create_render(rt, table_lens, d, c, lams, (cx, cy))
+            r.integrate(PILOT_RINGS, estimate=False)
+            return float(r.image().astype("float64").sum())
+
+        why = window_miss(d, c, chief, power(lens),
+                          sum(power(g) for g in ghost_lenses) if ghost_lenses else None,
+                          centred_power(rt, lens, d, c, lams, chief), stem(idx).split("/")[-1])
+        if why is None:
+            return
+        misses.append(why)
+    raise SpecError(f"{src}: key 'window.center_mm': the window misses the light's image at "
+                    f"every node (at {PILOT_RINGS} rings, the node nearest to it of each "
+                    f"f-number, focus offset and distance: {len(misses)} checked); first, "
+                    + misses[0])
+
+
 def ghost_tables(spec: BankSpec, table: Path, src: str) -> list[dict[str, Any]]:
     """A flare bank's ghosts: label, table and CRC-32 of each, from the lens folder's
     ghosts/ghosts.json (what `lensfit ghosts --fit` wrote)."""
@@ -251,11 +322,13 @@ def run_bank(spec_path: str | Path, out: str | Path, *, scheduler: str | None = 
         raise InputError(f"{src}: lens {spec.lens!r}: {e}") from None
     _check_domain(spec, rt, lens, src)
     ghosts = ghost_tables(spec, table, src)
+    ghost_lenses = []
     for g in ghosts:  # every ghost table loads (its checksum, its format) before any task
         try:
-            rt.load(g["table"])
+            ghost_lenses.append(rt.load(g["table"]))
         except LensrtError as e:
             raise InputError(f"{src}: key 'flare.ghosts': ghost {g['label']}: {e}") from None
+    _check_window(spec, rt, lens, ghost_lenses, src)
     # The lens's name in the index: its generated folder's (a symbol: no spaces)
     lens_name = table.parent.name if table.stem.startswith("lens") else table.stem
     if not re.fullmatch(r"[A-Za-z0-9._+-]{1,128}", lens_name):

@@ -47,7 +47,7 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
-from lensfit.errors import InputError, read_toml, toml_overflow
+from lensfit.errors import InputError, int_shown, read_toml, toml_overflow
 
 NAME = re.compile(r"[A-Za-z0-9_-]{1,64}")
 GHOST = re.compile(r"[0-9]{1,3}-[0-9]{1,3}")  # a ghost's label: the file's surfaces i-j
@@ -161,7 +161,8 @@ def load_spec(path: str | Path) -> BankSpec:
 # ------------------------------------------------------------------ checks -----
 
 def _fail(source: str, key: str, value: Any, want: str) -> SpecError:
-    shown = str(value).lower() if isinstance(value, bool) else repr(value)  # TOML's spelling
+    shown = (str(value).lower() if isinstance(value, bool)  # TOML's spelling
+             else int_shown(value) if isinstance(value, int) else repr(value))
     if len(shown) > 120:
         shown = shown[:100] + f"... ({len(shown)} characters)"
     return SpecError(f"{source}: key '{key}': {want}, found {shown}")

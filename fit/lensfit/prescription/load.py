@@ -28,6 +28,7 @@ from lensfit import data_folder, missing_data_folder
 from lensfit.errors import (
     InputError,
     LensError,
+    int_digits,
     parse_problem,
     regular_file_problem,
     toml_overflow,
@@ -217,7 +218,7 @@ def lens_from_dict(data: dict[str, Any], *, file: str = "<memory>") -> Lens:
         surface = path[1] if len(path) > 1 and path[0] == "surface" else None
         rest = path[2:] if surface is not None else path
         raise LensError("expected a number within a float's range, found an integer of "
-                        f"{len(str(abs(big[1])))} digits", file=file, surface=surface,
+                        f"{int_digits(big[1])} digits", file=file, surface=surface,
                         key=".".join(str(p) for p in rest))
 
     # Step 2: structure against the schema; report the error deepest in the tree first

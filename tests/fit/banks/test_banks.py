@@ -362,3 +362,74 @@ def test_unreachable_scheduler_is_one_line(tmp_path: Path) -> None:
     assert r.returncode == 2
     assert r.stderr.count("\n") == 1 and "--scheduler tcp://127.0.0.1:9: cannot reach" in \
         r.stderr, r.stderr
+
+
+def test_window_off_every_image_is_refused_before_anything_is_written(tmp_path: Path) -> None:
+    """A fixed window 5 mm from the light's image at every node (fields 0 and 5 deg: image
+    points at 0 and 8.7 mm) held 4e-9 of the PSF's power and was written as a bank, pixels
+    ten orders below the peak, exit 0 (issue 39). Refused from the spec and the lens: one
+    line naming the key, the node, the window and what to change; no folder."""
+    spec = spec_file(tmp_path, CELLS, "t", **{
+        "size_mm = [0.06, 0.06]": "size_mm = [0.06, 0.06]\ncenter_mm = [4.0, 4.0]"})
+    with pytest.raises(SpecError) as e:
+        run_bank(spec, tmp_path / "bank", workers=0, progress=False)
+    msg = str(e.value)
+    assert "\n" not in msg
+    assert msg.startswith(f"{spec}: key 'window.center_mm': the window misses the light's "
+                          "image at every node"), msg
+    assert "node f0-z0-d0-y0-x0 (field (0, 0) deg, f/8" in msg, msg
+    assert "window of 0.06 x 0.06 mm centred on (4, 4) mm" in msg, msg
+    assert "move window.center_mm onto the image" in msg, msg
+    assert not (tmp_path / "bank").exists()
+    r = subprocess.run([sys.executable, "-m", "lensfit.cli", "bank", str(spec), "-o",
+                        str(tmp_path / "b"), "--no-progress"], capture_output=True, text=True,
+                       timeout=300)
+    assert r.returncode == 2 and r.stderr.count("\n") == 1, r.stderr
+    assert not (tmp_path / "b").exists()
+
+
+def test_node_whose_window_misses_its_image_fails_alone(tmp_path: Path) -> None:
+    """A fixed window on the axis's image point: the node at 0 deg holds its PSF, the one
+    at 12 deg (image at 21.1 mm: 5.8e-11 of its PSF in the window) essentially none of
+    it. That node fails in one line naming it, the window and what to change, nothing of
+    it written; the other is finished."""
+    from lensfit.banks.engine import TaskError
+
+    spec = spec_file(tmp_path, CELLS, "t", **{
+        "field_x_deg = [0, 5, 10]": "field_x_deg = [0, 12]",
+        "size_mm = [0.06, 0.06]": "size_mm = [0.06, 0.06]\ncenter_mm = [0, 0]"})
+    out = tmp_path / "bank"
+    with pytest.raises(TaskError) as e:
+        run_bank(spec, out, workers=0, progress=False, sheet=False)
+    msg = str(e.value)
+    assert "\n" not in msg and msg.startswith("1 of 2 bank t failed: "), msg
+    assert ("-f0-z0-d0-y0-x1: node f0-z0-d0-y0-x1 (field (12, 0) deg, f/8, focus offset 0 "
+            "mm): the window of 0.06 x 0.06 mm centred on (0, 0) mm holds ") in msg, msg
+    assert ("of the PSF's power (the light's image is at (21.1, 0) mm, 21.1 mm from the "
+            "window)") in msg, msg
+    assert "nothing written: move window.center_mm onto the image" in msg, msg
+    names = sorted(p.name for p in (out / "nodes").iterdir())
+    assert names == ["f0-z0-d0-y0-x0.exr", "f0-z0-d0-y0-x0.json"], names
+    assert not (out / "bank.index").exists()
+
+
+def test_window_miss_thresholds() -> None:
+    """node.window_miss: below MISS_FRACTION of the centred window's power the direct
+    image misses; a flare bank's window is kept while its ghosts hold
+    MISS_FRACTION_GHOSTS of it, whatever the direct image's share."""
+    import math
+
+    from lensfit.banks.node import MISS_FRACTION, MISS_FRACTION_GHOSTS, window_miss
+
+    spec = {"window": {"center_mm": [4.0, 0.0], "size_mm": [0.06, 0.06]}}
+    c = {"field_x_deg": 0.0, "field_y_deg": 0.0, "f_number": 8.0, "focus_offset_mm": 0.0,
+         "distance_mm": math.inf}
+    chief = [(0.0, 0.0)]
+    ref = 222.0
+    assert window_miss(spec, c, chief, 2 * MISS_FRACTION * ref, None, ref, "n") is None
+    why = window_miss(spec, c, chief, 0.5 * MISS_FRACTION * ref, None, ref, "n")
+    assert why is not None and "holds 5.0e-07 of the PSF's power" in why
+    assert "3.97 mm from the window" in why
+    assert window_miss(spec, c, chief, 0.0, 2 * MISS_FRACTION_GHOSTS * ref, ref, "n") is None
+    why = window_miss(spec, c, chief, 0.0, 0.5 * MISS_FRACTION_GHOSTS * ref, ref, "n")
+    assert why is not None and "the ghosts 5.0e-10 of it" in why
