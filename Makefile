@@ -150,7 +150,8 @@ test: setup lint runtime
 	cmake --build build/minimal -j 2
 	ctest --test-dir build/minimal --output-on-failure -j 2
 	bash tests/fuzz/run.sh $(FUZZ_TEST_SECONDS)
-	$(PY) -m pytest tests --durations=15
+	@# Two workers, each taking whole test files (module fixtures are computed once)
+	$(PY) -m pytest tests -n 2 --dist loadfile --durations=15
 
 # The parsers under fuzzing for longer: the lens table and phasor readers (libFuzzer with
 # ASan/UBSan, build/fuzz/), the TOML loaders and the .zmx/Optiland importers (hypothesis)
