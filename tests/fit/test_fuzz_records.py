@@ -18,6 +18,7 @@ Budget as test_fuzz_toml: short and deterministic by default, LENSFIT_FUZZ_EXAMP
 
 from __future__ import annotations
 
+import contextlib
 import copy
 import json
 import os
@@ -106,6 +107,20 @@ def _doc(path: Path) -> dict[str, Any]:
     return {k: v for k, v in json.loads(path.read_text()).items() if k != "checksum"}
 
 
+@contextlib.contextmanager
+def crafted(path: Path, data):
+    """The record at ``path`` mutated (:func:`mutations`) and written with a valid
+    checksum for the body of the ``with``, which gets the path into the tree that was
+    changed (None where JSON cannot hold the change: nothing to test); the record is
+    put back afterwards."""
+    original = _doc(path)
+    doc, where = data.draw(mutations(original))
+    try:
+        yield where if _write(path, doc) else None
+    finally:
+        path.write_text(checked_json_text(original))
+
+
 # ---- fit checkpoints -------------------------------------------------------------------
 
 
@@ -131,12 +146,9 @@ def saved(tmp_path_factory):
 @given(data=st.data())
 def test_a_crafted_system_checkpoint_is_refused_or_gives_the_same_polynomials(saved, data):
     cache, fits, _ = saved
-    path = cache.folder / "P_o.json"
-    original = _doc(path)
-    doc, where = data.draw(mutations(original))
-    if not _write(path, doc):
-        return
-    try:
+    with crafted(cache.folder / "P_o.json", data) as where:
+        if where is None:
+            return
         notes: list[str] = []
         fit = FitCache(cache.key, "t", cache.folder.parent, note=notes.append
                        ).load_system("P_o", fits[0].system.inputs)
@@ -145,8 +157,6 @@ def test_a_crafted_system_checkpoint_is_refused_or_gives_the_same_polynomials(sa
         elif where[0] == "system":  # taken: then its polynomials are the ones saved ...
             if write_table([fit.system]) != write_table([fits[0].system]):
                 _indistinguishable(fit.system, fits[0], where)
-    finally:
-        path.write_text(checked_json_text(original))
 
 
 def _indistinguishable(system, saved, where) -> None:
@@ -165,18 +175,13 @@ def _indistinguishable(system, saved, where) -> None:
 @given(data=st.data())
 def test_a_crafted_psf_checkpoint_is_refused_or_gives_the_same_cells(saved, data):
     cache, fits, table = saved
-    path = cache.folder / "psf.json"
-    original = _doc(path)
-    doc, where = data.draw(mutations(original))
-    if not _write(path, doc):
-        return
-    try:
+    with crafted(cache.folder / "psf.json", data) as where:
+        if where is None:
+            return
         got = FitCache(cache.key, "t", cache.folder.parent, note=lambda m: None
                        ).load_psf([f.system for f in fits])
         if got is not None and where[0] == "table" and where[-1] != "seconds":
             assert got["worst"] == table["worst"], where
-    finally:
-        path.write_text(checked_json_text(original))
 
 
 # ---- ghost-task records ----------------------------------------------------------------

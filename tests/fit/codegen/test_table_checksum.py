@@ -42,7 +42,12 @@ def _lensrt():
         from lensrt_ctypes import LIBRARY, Lensrt
     except ImportError:
         return None
-    return Lensrt(LIBRARY) if LIBRARY.exists() else None
+    if not LIBRARY.exists():
+        return None
+    rt = Lensrt(LIBRARY)
+    rt.lib.lensrt_lens_load_text.argtypes = [C.c_void_p, C.c_char_p, C.c_size_t, C.c_char_p,
+                                             C.POINTER(C.c_void_p)]
+    return rt
 
 
 @pytest.fixture(scope="module")
@@ -58,7 +63,7 @@ def lensrt_refuses(rt, data: bytes, name: str = "x.table") -> str | None:
     if code == 0:
         rt.lib.lensrt_lens_destroy(rt.ctx, lens)
         return None
-    return rt.lib.lensrt_context_last_error(rt.ctx).decode()
+    return rt.lib.lensrt_context_last_error(rt.ctx).decode("utf-8", "replace")
 
 
 def lensfit_refuses(data: bytes) -> bool:

@@ -20,7 +20,6 @@ Python binding, where the library is built).
 
 from __future__ import annotations
 
-import ctypes as C
 import re
 import shutil
 import zlib
@@ -30,6 +29,8 @@ import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
+from test_table_checksum import _lensrt  # tests/fit/codegen is on sys.path (rootdir)
+from test_table_checksum import lensrt_refuses as lensrt_message
 
 from lensfit.cli import main
 from lensfit.codegen.table import (
@@ -53,36 +54,12 @@ LENS = ROOT / "generated" / "0001-angenieux-double-gauss"
 LENS0001 = LENS / "lens0001.table"
 
 
-def _lensrt():
-    import sys
-
-    sys.path.insert(0, str(ROOT / "runtime" / "python"))
-    try:
-        from lensrt_ctypes import LIBRARY, Lensrt
-    except ImportError:
-        return None
-    if not LIBRARY.exists():
-        return None
-    rt = Lensrt(LIBRARY)
-    rt.lib.lensrt_lens_load_text.argtypes = [C.c_void_p, C.c_char_p, C.c_size_t, C.c_char_p,
-                                             C.POINTER(C.c_void_p)]
-    return rt
 
 
 @pytest.fixture(scope="module")
 def rt():
+    """lensrt through its binding, or None where it is not built (test_table_checksum)."""
     return _lensrt()
-
-
-def lensrt_message(rt, data: bytes, name: str = "x.table") -> str | None:
-    """lensrt_lens_load_text's message for ``data``, or None when it loads."""
-    lens = C.c_void_p()
-    code = rt.lib.lensrt_lens_load_text(rt.ctx, data, C.c_size_t(len(data)), name.encode(),
-                                        C.byref(lens))
-    if code == 0:
-        rt.lib.lensrt_lens_destroy(rt.ctx, lens)
-        return None
-    return rt.lib.lensrt_context_last_error(rt.ctx).decode("utf-8", "replace")
 
 
 def lensfit_message(text: str) -> str | None:
