@@ -120,9 +120,9 @@ lensrt_result lensrt_lens_image_point(lensrt_context ctx, lensrt_lens lens, cons
 #define FOOT_RIM 64   /* directions on the aperture's rim */
 #define FOOT_GRID 9   /* stop points per side of the grid inside it */
 
-/* The stop monomials u^m v^n of slot k at (x, y) mm (mono) and their derivatives by x and
- * y, per mm (dx, dy). */
-static void stop_monomials(const lensrt_render r, double x, double y, double *mono, double *dx, double *dy)
+/* The stop monomials u^m v^n of slot k at (x, y) mm (mono) and, where dx and dy are not
+ * NULL, their derivatives by x and y, per mm (render.h). */
+void lensrt_stop_monomials(const lensrt_render r, double x, double y, double *mono, double *dx, double *dy)
 {
     const double u = x / r->mono_radius, v = y / r->mono_radius;
     double pu[17], pv[17];
@@ -135,6 +135,7 @@ static void stop_monomials(const lensrt_render r, double x, double y, double *mo
     for (k = 0; k < r->n_slots; k++) {
         const int m = r->slot_m[k], n = r->slot_n[k];
         mono[k] = pu[m] * pv[n];
+        if (!dx) continue;
         dx[k] = m ? m * pu[m - 1] * pv[n] / r->mono_radius : 0.0;
         dy[k] = n ? n * pu[m] * pv[n - 1] / r->mono_radius : 0.0;
     }
@@ -245,7 +246,7 @@ lensrt_result lensrt_render_footprint(lensrt_render r, double box_mm[4])
             for (j = 0; j < n; j++) {
                 double mono[136], dx[136], dy[136], g0[2] = {0.0, 0.0}, amp = 1.0, opl = 0.0, sx = x, sy = y;
                 int k, it, found = 0;
-                stop_monomials(r, ax[j], ay[j], mono, dx, dy);
+                lensrt_stop_monomials(r, ax[j], ay[j], mono, dx, dy);
                 // Side P_o: the outer pupil and a ghost's P_clip there (amplitude 0)
                 r->lens_ops->sample_wave(r, w, l, ax[j], ay[j], mono, &amp, &opl);
                 if (!(amp > 0.0)) continue;

@@ -224,6 +224,10 @@ lensrt_result lensrt_fourier_check(lensrt_render r, const char *what, int nodes,
  * measure of the phase, or the refusal (cells is the cheaper) with its message. */
 lensrt_result lensrt_fourier_auto_nodes(lensrt_render r, double target, int *nodes);
 
+/* The stop monomials of the render's slots at stop point (x, y) mm (mono, n_slots of them)
+ * and, where dx and dy are not NULL, their derivatives by x and y per mm (image_point.c). */
+void lensrt_stop_monomials(const lensrt_render r, double x, double y, double *mono, double *dx, double *dy);
+
 /* The sub-pixel points per pixel and axis of the box filter (core/pixel_area.c): the
  * description's counts, or where 0 the automatic rule from the render's prepared lens
  * (README "The model"); 1 x 1 for the point filter. */

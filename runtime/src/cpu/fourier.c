@@ -173,20 +173,6 @@ static void cis(double t, double *c, double *s)
 
 /* ------------------------------------------------------------- the nodes ----- */
 
-/* The stop monomials of node (x, y) as the lens kind's P_s and P_o read them. */
-static void node_monomials(const lensrt_render r, double x, double y, double *mono)
-{
-    const double u = x / r->mono_radius, v = y / r->mono_radius;
-    double pu[16], pv[16];
-    int k;
-    pu[0] = pv[0] = 1.0;
-    for (k = 1; k <= r->degree; k++) {
-        pu[k] = pu[k - 1] * u;
-        pv[k] = pv[k - 1] * v;
-    }
-    for (k = 0; k < r->n_slots; k++) mono[k] = pu[r->slot_m[k]] * pv[r->slot_n[k]];
-}
-
 /* A refusal of this wavelength (the first kept), told after the threads end. */
 static int wave_fail(fourier_wave *fw, const char *what, double x, double y)
 {
@@ -228,7 +214,7 @@ static int prepare_nodes(fourier_wave *fw)
     for (j = 0; j < nq; j++) {
         const int pad = j >= fw->q->n;
         const double x = pad ? 0.0 : fw->q->xy[2 * j], y = pad ? 0.0 : fw->q->xy[2 * j + 1];
-        if (fw->poly) node_monomials(r, x, y, mono);
+        if (fw->poly) lensrt_stop_monomials(r, x, y, mono, NULL, NULL);
         else ops->sample_rows(r, fw->w, x, y, mono, &rows);
         for (l = 0; l < r->n_lights; l++) {
             double amp = sqrt(r->lights[l].intensity), opl = 0.0;
