@@ -74,16 +74,29 @@ def field_exponents(n_vars: int, degree: int, caps: tuple[int, ...] | None = Non
     return e
 
 
-def symmetric_disc_points(rng: np.random.Generator, n: int) -> np.ndarray:
-    """n points (a multiple of 4) on the unit disc, uniform in area, as n/4 random points
-    of the first quadrant with their mirror images in x, in y and in both: (n, 2)."""
+def symmetric_disc_points(rng: np.random.Generator, n: int, edge_share: float = 0.0
+                          ) -> np.ndarray:
+    """n points (a multiple of 4) on the unit disc as n/4 random points of the first
+    quadrant with their mirror images in x, in y and in both: (n, 2). Uniform in area,
+    or with ``edge_share`` of the quadrant's points drawn with radial density
+    r / sqrt(1 - r^2) (:func:`edge_radii`: denser towards the rim, where least-squares
+    polynomials on uniform points are least constrained). With ``edge_share`` 0 the
+    random draws are those of uniform points alone (the same points for a seed)."""
     if n % 4 or n <= 0:
         raise ValueError(f"symmetric_disc_points: n = {n} must be a positive multiple of 4")
     q = n // 4
-    r = np.sqrt(rng.random(q))
+    r = edge_radii(rng, q, edge_share) if edge_share > 0.0 else np.sqrt(rng.random(q))
     t = 0.5 * np.pi * rng.random(q)
     x, y = r * np.cos(t), r * np.sin(t)
     return np.concatenate([np.stack(p, axis=1) for p in ((x, y), (-x, y), (x, -y), (-x, -y))])
+
+
+def edge_radii(rng: np.random.Generator, n: int, edge_share: float) -> np.ndarray:
+    """n radii on [0, 1]: ``edge_share`` of them with the density of uniform points of the
+    hemisphere seen from above (r = sqrt(1 - u^2): the disc's analogue of Chebyshev
+    points), the rest uniform in area (r = sqrt(u))."""
+    u = rng.random(n)
+    return np.where(rng.random(n) < edge_share, np.sqrt(1.0 - u**2), np.sqrt(u))
 
 
 @dataclass

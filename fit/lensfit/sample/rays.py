@@ -608,7 +608,7 @@ def sample_grid(lens: Lens, domain: Domain, system: str, groups: int, points: in
         raise ValueError(f"sample_grid: system = {system!r}: expected P_o or P_s")
     rng = np.random.default_rng(seed)
     field = _grid_field(domain, system, groups, rng)
-    ap = symmetric_disc_points(rng, points) * domain.stop_radius_mm
+    ap = symmetric_disc_points(rng, points, STOP_EDGE_SHARE) * domain.stop_radius_mm
     return _trace_grid(lens, domain, system, field, ap)
 
 
@@ -621,7 +621,7 @@ def extend_grid(lens: Lens, domain: Domain, grid: GridSamples, *, points: int = 
 
     rng = np.random.default_rng(seed)
     if points:
-        ap = symmetric_disc_points(rng, points) * domain.stop_radius_mm
+        ap = symmetric_disc_points(rng, points, STOP_EDGE_SHARE) * domain.stop_radius_mm
         more = _trace_grid(lens, domain, grid.system, grid.field, ap)
         return GridSamples(grid.system, grid.field, np.concatenate([grid.aperture, ap]),
                            np.concatenate([grid.outputs, more.outputs], axis=1),
@@ -662,13 +662,25 @@ def _grid_field(domain: Domain, system: str, groups: int,
 EDGE_SHARE = 0.5
 
 
+# Share of the grid's stop points drawn denser towards the stop's rim (the law of
+# _edge_disc), the rest uniform. Measured on 128 points, held-out phase RMS of the
+# tensor fit (waves): lens 0007's P_o at f/2 over 35 degrees, field degree 10, 2.2
+# uniform against 0.21 (uniform points left the rim so thin that the fit was right on
+# the grid, 0.05, and wrong between: 12 waves within 5% of the rim); lens 0008's P_o
+# at field degrees 10/12/14 1.2e-2/2.7e-3/9.6e-4 uniform, 3.8e-3/6.9e-4/1.7e-4 half
+# and half, 4.4e-3/8.4e-4/2.4e-4 all edge-weighted; its P_s reached 5.6e-4 at field
+# degree 12 (30828 terms) uniform, 10 (17031 terms) half and half
+STOP_EDGE_SHARE = 0.5
+
+
 def _edge_disc(rng: np.random.Generator, n: int) -> np.ndarray:
     """n points on the unit disc, EDGE_SHARE of them with density 1 / sqrt(1 - r^2)
     (uniform points of the hemisphere seen from above: the disc's analogue of Chebyshev
     points, the measure under which least-squares polynomials are as good at the rim as
     inside), the rest uniform."""
-    u = rng.random(n)
-    r = np.where(rng.random(n) < EDGE_SHARE, np.sqrt(1.0 - u**2), np.sqrt(u))
+    from lensfit.poly.tensor import edge_radii
+
+    r = edge_radii(rng, n, EDGE_SHARE)
     a = 2.0 * math.pi * rng.random(n)
     return np.stack([r * np.cos(a), r * np.sin(a)], axis=1)
 
