@@ -601,10 +601,12 @@ def _node_slopes(lens: Lens, ap: np.ndarray, slopes: np.ndarray, gx: np.ndarray,
     hit, ok = _shoot(lens, np.repeat(ap, k * k, axis=0), model.reshape(-1, 2), lam, end_z)
     fine &= ok.reshape(n, -1).all(axis=1)
     # Slopes as a polynomial of the landing (scaled to the window) through the k*k rays
-    e = np.array([(a, b) for a in range(k) for b in range(k)])
-
     def basis(t: np.ndarray) -> np.ndarray:
-        return t[..., :1] ** e[:, 0] * t[..., 1:] ** e[:, 1]
+        """The monomials t_x^a t_y^b, a, b < k, (..., k*k), by products (no pow)."""
+        px, py = np.ones(t.shape[:-1] + (k,)), np.ones(t.shape[:-1] + (k,))
+        for a in range(1, k):
+            px[..., a], py[..., a] = px[..., a - 1] * t[..., 0], py[..., a - 1] * t[..., 1]
+        return (px[..., :, None] * py[..., None, :]).reshape(t.shape[:-1] + (k * k,))
 
     t = (hit.reshape(n, k * k, 2) - centre) / half
     with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
@@ -666,16 +668,35 @@ def exact_psf_nodes(lens: Lens, *, stop_radius_mm: float, aperture_xy_mm: np.nda
     used[idx] = True
     k_wave = 2.0 * math.pi / (lam * 1e-6)
     u = np.zeros((height, width), dtype=np.complex128)
-    for a in range(0, len(idx), 256):
-        sl = slice(a, a + 256)
-        # (points, rows, columns, outputs) at the pixel centres
-        full = np.einsum("hb,jbcd,wc->jhwd", wy, out[sl], wx, optimize=True)
-        x_i, y_i, tau_i, phi_i = (full[..., q] for q in range(4))
-        ok = x_i**2 + y_i**2 <= facts.housing_last_mm**2
-        amp = np.sqrt(np.maximum(tau_o[sl, None, None] * tau_i, 0.0))
-        phase = k_wave * (phi_o[sl, None, None] + phi_i)
-        u += np.where(ok, amp * np.exp(1j * phase), 0.0).sum(axis=0)
+    # Outputs first, so that each output's grid below is one contiguous array
+    out = np.ascontiguousarray(out.transpose(3, 0, 1, 2))  # (outputs, points, rows, cols)
+    for a in range(0, len(idx), SUM_POINTS):
+        sl = slice(a, a + SUM_POINTS)
+        # (outputs, points, rows, columns) at the pixel centres
+        x_i, y_i, tau_i, phi_i = np.einsum("hb,qjbc,wc->qjhw", wy, out[:, sl], wx,
+                                           optimize=True)
+        _add_phasors(u, x_i**2 + y_i**2 <= facts.housing_last_mm**2,
+                     tau_o[sl, None, None] * tau_i, k_wave * (phi_o[sl, None, None] + phi_i),
+                     axis=0)
     return u, used
+
+
+SUM_POINTS = 64  # stop points summed at once: each grid of them stays in the CPU's cache
+
+
+def _add_phasors(u: np.ndarray, ok: np.ndarray, power: np.ndarray, phase: np.ndarray,
+                 axis: int) -> None:
+    """u += the sum over the points' ``axis`` (0 or -1) of sqrt(power) exp(i phase)
+    where ``ok``, as a real sum of cosines and one of sines (a complex exp and product
+    cost twice as much). ``power`` and ``phase`` are overwritten."""
+    amp = np.sqrt(np.maximum(power, 0.0, out=power), out=power)  # a fit may dip below 0
+    amp *= ok
+    shape, spec = ((len(amp), -1), "jp,jp->p") if axis == 0 else ((-1, amp.shape[-1]),
+                                                                  "pj,pj->p")
+    amp, phase = amp.reshape(shape), phase.reshape(shape)
+    re = np.einsum(spec, amp, np.cos(phase))
+    im = np.einsum(spec, amp, np.sin(phase, out=phase))
+    u += (re + 1j * im).reshape(u.shape)
 
 
 def _system(systems: Sequence[System], name: str) -> System:
@@ -798,9 +819,7 @@ def poly_psf(systems: Sequence[System], *, facts: LensFacts | None = None,
         ok = x_i**2 + y_i**2 <= facts.housing_last_mm**2
         if clip_s is not None:
             ok &= clip_passes(clip_s, _separable(clip_s, {}, pix, ap_cols), stop_radius_mm)
-        amp = np.sqrt(np.maximum(tau_o[sl] * tau_i, 0.0))  # a fit may dip below 0
-        phase = k_wave * (phi_o[sl] + phi_i)
-        u += np.where(ok, amp * np.exp(1j * phase), 0.0).sum(axis=1)
+        _add_phasors(u, ok, tau_o[sl] * tau_i, k_wave * (phi_o[sl] + phi_i), axis=-1)
     return u.reshape(height, width)
 
 
