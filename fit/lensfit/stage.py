@@ -26,6 +26,7 @@ from typing import Any
 from lensfit.atomic import replace_folder, replacing_folder
 from lensfit.fitting import FitOptions, SystemFit, fit_lens
 from lensfit.fitting.lens import SYSTEMS
+from lensfit.fitting.tensor import OutOfReach
 from lensfit.generate import fit_folder_keep, lens_files, lens_folder_name
 from lensfit.glass.ranges import Wavelengths
 from lensfit.poly.tensor import single_blas
@@ -125,6 +126,13 @@ def run(lens: Lens, *, domain: Domain | None = None, options: FitOptions | None 
         with _sigterm_exits():
             fits, figures = _run(lens, domain, options, generated_dir, report_dir, timing,
                                  flat, scene, glsl, psf_args, cache, bar, wavelengths)
+    except OutOfReach:
+        # Refused (exit 2): a rerun of the same fit would be refused again, so no
+        # checkpoint is kept for it
+        bar.close()
+        if cache is not None:
+            cache.clear()
+        raise
     except (KeyboardInterrupt, SystemExit):
         bar.close()
         if cache is not None and cache.folder.is_dir():
@@ -183,13 +191,18 @@ def _run(lens, domain, options, generated_dir, report_dir, timing, flat, scene, 
             # output within its target): once more with the phase target cut by what
             # the worst cell missed, and the better table of the two kept
             t1 = time.perf_counter()
-            again = fit_lens(lens, domain, retry)
-            table2 = psf_vs_exact(lens, [f.system for f in again], domain, **psf_args)
-            fit_seconds += time.perf_counter() - t1
             retried = {"first_worst": table["worst"]["relative_l2"],
                        "first_cell": table["worst"], "target_waves": retry.target_waves,
-                       "kept": "second" if table2["worst"]["relative_l2"]
-                       < table["worst"]["relative_l2"] else "first"}
+                       "kept": "first"}
+            try:
+                again = fit_lens(lens, domain, retry)
+            except OutOfReach:  # the tighter target is beyond the degrees: the first stays
+                again = None
+            if again is not None:
+                table2 = psf_vs_exact(lens, [f.system for f in again], domain, **psf_args)
+                if table2["worst"]["relative_l2"] < table["worst"]["relative_l2"]:
+                    retried["kept"] = "second"
+            fit_seconds += time.perf_counter() - t1
             if retried["kept"] == "second":
                 # The polynomials written are the ones the kept table judged
                 fits, table, options = again, table2, retry

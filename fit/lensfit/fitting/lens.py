@@ -9,10 +9,10 @@ from typing import Protocol
 from lensfit.fitting.options import FitOptions
 from lensfit.fitting.pursuit import fit_system
 from lensfit.fitting.results import SystemFit
-from lensfit.fitting.tensor import fit_system_growing
+from lensfit.fitting.tensor import OutOfReach, fit_system_growing
 from lensfit.poly.polynomial import Input
 from lensfit.prescription.model import Lens
-from lensfit.sample.domain import Domain, default_domain
+from lensfit.sample.domain import Domain, default_domain, describe_domain
 from lensfit.sample.rays import (
     OUTPUTS_O,
     OUTPUTS_S,
@@ -69,9 +69,15 @@ def fit_lens(lens: Lens, domain: Domain | None = None,
         if progress is not None:
             progress(f"{name} sampled")
         if options.method == "tensor":
-            system, fits, train = fit_system_growing(lens, domain, name, inputs, outputs,
-                                                     train, test, options, seed=seed,
-                                                     progress=progress)
+            try:
+                system, fits, train = fit_system_growing(lens, domain, name, inputs, outputs,
+                                                         train, test, options, seed=seed,
+                                                         progress=progress)
+            except OutOfReach as e:
+                raise OutOfReach(f"{lens.source_file or lens.name}: cannot be fitted over "
+                                 f"{describe_domain(lens, domain)}: {e}; a narrower field "
+                                 "(--field) or a smaller stop (--f-number) needs fewer "
+                                 "terms") from None
         else:
             system, fits = fit_system(name, inputs, outputs, train, test, options, progress)
         t2 = time.perf_counter()

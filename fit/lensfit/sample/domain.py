@@ -134,6 +134,20 @@ class Domain:
         return replace(self, **changes)
 
 
+def describe_domain(lens: Lens, domain: Domain) -> str:
+    """The domain in a person's terms for messages: 'a 35.2 degree half field, f/2, from
+    infinity to 260 mm, 380-780 nm'."""
+    from lensfit.paraxial.paraxial import f_number_for_stop_radius
+
+    fx, fy = domain.field_xy_deg
+    field = f"{fx:.3g} degree half field" + ("" if fy == fx else f" ({fy:.3g} in y)")
+    near = ("infinity only" if math.isinf(domain.close_focus_mm)
+            else f"from infinity to {domain.close_focus_mm:.4g} mm")
+    f_n = abs(f_number_for_stop_radius(lens, domain.stop_radius_mm))
+    return (f"a {field}, f/{f_n:.3g}, {near}, {domain.wavelength_min_nm:g}-"
+            f"{domain.wavelength_max_nm:g} nm")
+
+
 def declared_fit(lens: Lens) -> dict[str, Any]:
     """The lens file's [fit] table: the domain it declares instead of the default, and
     its reason ({} when it declares none)."""
