@@ -150,7 +150,8 @@ def trace(
 
     _check_wavelengths(lens, out.wavelength_nm)
 
-    # The living rays, compacted: idx maps them back to the bundle
+    # The living rays, compacted, one 1-D array per component: idx maps them back to the
+    # bundle. Refractive indices are computed once per medium and kept with them
     live = _Live(out)
     for step in path:
         k = step.surface
@@ -160,60 +161,82 @@ def trace(
                 history.append(out.pos.copy())
             continue
         m_front, m_back = lens.medium_before(k), lens.medium_after(k)
-        n1 = (m_front if step.from_front else m_back).n(live.lam)
-        n2 = (m_back if step.from_front else m_front).n(live.lam)
+        n1 = live.index(m_front if step.from_front else m_back)
+        n2 = live.index(m_back if step.from_front else m_front)
 
         # Compute t at the surface, in its local frame (across a zero gap at the stop
         # plane, the sequential convention: t may be negative, see Lens.virtual_gap)
-        q = live.pos - np.array([0.0, 0.0, vz[k]])
-        t, hit = surfaces.intersect(surf, q, live.dir, lens.virtual_gap(k, step.from_front))
-        p = q + t[:, None] * live.dir
+        zk = float(vz[k])
+        dx, dy, dz = live.dx, live.dy, live.dz
+        qz = live.z - zk
+        t, hit = surfaces.intersect_xyz(surf, live.x, live.y, qz, dx, dy, dz,
+                                        lens.virtual_gap(k, step.from_front))
+        px, py, pz = live.x + t * dx, live.y + t * dy, qz + t * dz
 
         # Clip at the housing, and at the stop opening
         keep = hit
         clipped = None
         if clip:
             limit = stop_r if surf.stop else surf.semi_diameter_mm
-            clipped = hit & (p[:, 0] ** 2 + p[:, 1] ** 2 > limit * limit)
+            clipped = hit & (px * px + py * py > limit * limit)
             keep = hit & ~clipped
-        if not np.all(keep):
+        if not keep.all():
             live.fail(~hit, Status.MISSED, k)
             if clipped is not None and clipped.any():
                 # A clipped ray stays where it met the (extended) surface
-                live.pos[clipped] = p[clipped] + np.array([0.0, 0.0, vz[k]])
+                live.x[clipped], live.y[clipped] = px[clipped], py[clipped]
+                live.z[clipped] = pz[clipped] + zk
                 live.fail(clipped, Status.CLIPPED, k)
             live.compact(keep)
-            n1, n2, p, t = n1[keep], n2[keep], p[keep], t[keep]
+            n1, n2 = live.index(m_front if step.from_front else m_back), live.index(
+                m_back if step.from_front else m_front)
+            px, py, pz, t = px[keep], py[keep], pz[keep], t[keep]
+            dx, dy, dz = live.dx, live.dy, live.dz
 
         # Move the ray and add the optical path in the medium it crossed
-        d = live.dir
-        live.pos = p + np.array([0.0, 0.0, vz[k]])
+        live.x, live.y, live.z = px, py, pz + zk
         live.opl += n1 * t
 
         # Refract or reflect, with the interface's power transmittance
-        nrm = surfaces.normal(surf, p)
-        cos_i = -np.einsum("ij,ij->i", d, nrm)
-        nrm *= np.where(cos_i < 0.0, -1.0, 1.0)[:, None]  # face the incoming ray
-        cos_i = np.abs(cos_i)
+        nx, ny, nz = surfaces.normal_xyz(surf, px, py, pz)
+        cos_i = dx * nx
+        cos_i += dy * ny
+        cos_i += dz * nz
+        np.negative(cos_i, out=cos_i)
+        flip = cos_i < 0.0
+        if flip.any():  # face the incoming ray
+            nx, ny, nz = (np.where(flip, -v, v) for v in (nx, ny, nz))
+            np.abs(cos_i, out=cos_i)
         if fresnel_loss or step.reflect:
             layers = surf.coating.layers if step.from_front else surf.coating.layers[::-1]
             r = _reflectance(n1, n2, cos_i, layers, live.lam)
         if step.reflect:
-            live.dir = fresnel.reflect_direction(d, nrm)
+            live.dx, live.dy, live.dz = _reflect_xyz(dx, dy, dz, nx, ny, nz)
             live.tr *= r
         else:
             eta = n1 / n2
-            k2 = 1.0 - eta * eta * (1.0 - cos_i * cos_i)
+            # k2 = 1 - eta^2 (1 - cos_i^2): the squared cosine of the refracted ray
+            k2 = cos_i * cos_i
+            np.subtract(1.0, k2, out=k2)
+            k2 *= eta * eta
+            np.subtract(1.0, k2, out=k2)
             tir = k2 < 0.0
             if tir.any():
                 live.fail(tir, Status.TIR, k)
                 ok = ~tir
                 live.compact(ok)
-                d, nrm, cos_i, eta, k2 = d[ok], nrm[ok], cos_i[ok], eta[ok], k2[ok]
+                dx, dy, dz, nx, ny, nz = (v[ok] for v in (dx, dy, dz, nx, ny, nz))
+                cos_i, eta, k2 = cos_i[ok], eta[ok], k2[ok]
                 if fresnel_loss:
                     r = r[ok]
-            new_d = eta[:, None] * d + (eta * cos_i - np.sqrt(k2))[:, None] * nrm
-            live.dir = new_d / np.linalg.norm(new_d, axis=1, keepdims=True)
+            # new d = eta d + (eta cos_i - sqrt(k2)) n, made unit
+            g = eta * cos_i
+            g -= np.sqrt(k2)
+            ex, ey, ez = eta * dx, eta * dy, eta * dz
+            ex += g * nx
+            ey += g * ny
+            ez += g * nz
+            live.dx, live.dy, live.dz = _unit(ex, ey, ez)
             if fresnel_loss:
                 live.tr *= 1.0 - r
         if history is not None:
@@ -226,6 +249,28 @@ def trace(
         if history is not None:
             history.append(out.pos.copy())
     return out
+
+
+def _unit(x: np.ndarray, y: np.ndarray,
+          z: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The vectors (x, y, z) divided by their lengths."""
+    norm = x * x
+    norm += y * y
+    norm += z * z
+    np.sqrt(norm, out=norm)
+    x /= norm
+    y /= norm
+    z /= norm
+    return x, y, z
+
+
+def _reflect_xyz(dx: np.ndarray, dy: np.ndarray, dz: np.ndarray, nx: np.ndarray,
+                 ny: np.ndarray, nz: np.ndarray) -> tuple[np.ndarray, ...]:
+    """Mirror directions about unit normals: :func:`fresnel.reflect_direction` on
+    components."""
+    r = fresnel.reflect_direction(np.stack([dx, dy, dz], axis=1), np.stack([nx, ny, nz], axis=1))
+    return (np.ascontiguousarray(r[:, 0]), np.ascontiguousarray(r[:, 1]),
+            np.ascontiguousarray(r[:, 2]))
 
 
 def _check_wavelengths(lens: Lens, lam: np.ndarray) -> None:
@@ -252,43 +297,57 @@ def _reflectance(n1, n2, cos_i, layers, lam) -> np.ndarray:
 
 
 class _Live:
-    """The rays still travelling, as compact arrays; failures are written back at once."""
+    """The rays still travelling, as compact 1-D arrays (x, y, z, dx, dy, dz, ...);
+    failures are written back at once. ``index`` keeps each medium's refractive index at
+    the living rays' wavelengths, computed once per trace."""
 
     def __init__(self, rays: Rays) -> None:
         self.rays = rays
         self.idx = np.nonzero(rays.status == Status.OK)[0]
-        self.pos = rays.pos[self.idx]
-        self.dir = rays.dir[self.idx]
+        pos, d = rays.pos[self.idx], rays.dir[self.idx]
+        self.x, self.y, self.z = (np.ascontiguousarray(pos[:, j]) for j in range(3))
+        self.dx, self.dy, self.dz = (np.ascontiguousarray(d[:, j]) for j in range(3))
         self.lam = rays.wavelength_nm[self.idx]
         self.opl = rays.opl_mm[self.idx]
         self.tr = rays.transmittance[self.idx]
+        self._n: dict[int, tuple[object, np.ndarray]] = {}
 
     @property
     def n(self) -> int:
         return len(self.idx)
 
+    def index(self, medium) -> np.ndarray:
+        """Refractive index of ``medium`` at the living rays' wavelengths (cached: the
+        caller must not write into it)."""
+        got = self._n.get(id(medium))
+        if got is None:
+            got = (medium, np.broadcast_to(medium.n(self.lam), self.lam.shape))
+            self._n[id(medium)] = got  # the medium is kept so that its id stays unique
+        return got[1]
+
     def fail(self, mask: np.ndarray, status: Status, k: int) -> None:
         """Record the final state of the rays in ``mask`` (they stop here)."""
         i = self.idx[mask]
         r = self.rays
-        r.pos[i], r.dir[i], r.opl_mm[i], r.transmittance[i] = (
-            self.pos[mask],
-            self.dir[mask],
-            self.opl[mask],
-            self.tr[mask],
-        )
+        r.pos[i] = np.stack([self.x[mask], self.y[mask], self.z[mask]], axis=1)
+        r.dir[i] = np.stack([self.dx[mask], self.dy[mask], self.dz[mask]], axis=1)
+        r.opl_mm[i], r.transmittance[i] = self.opl[mask], self.tr[mask]
         r.status[i] = status
         r.surface[i] = k
 
     def compact(self, keep: np.ndarray) -> None:
         self.idx = self.idx[keep]
-        self.pos, self.dir = self.pos[keep], self.dir[keep]
+        self.x, self.y, self.z = self.x[keep], self.y[keep], self.z[keep]
+        self.dx, self.dy, self.dz = self.dx[keep], self.dy[keep], self.dz[keep]
         self.lam, self.opl, self.tr = self.lam[keep], self.opl[keep], self.tr[keep]
+        self._n = {key: (m, n[keep]) for key, (m, n) in self._n.items()}
 
     def store(self) -> None:
         """Write the living rays back into the bundle."""
         r, i = self.rays, self.idx
-        r.pos[i], r.dir[i], r.opl_mm[i], r.transmittance[i] = self.pos, self.dir, self.opl, self.tr
+        r.pos[i] = np.stack([self.x, self.y, self.z], axis=1)
+        r.dir[i] = np.stack([self.dx, self.dy, self.dz], axis=1)
+        r.opl_mm[i], r.transmittance[i] = self.opl, self.tr
 
 
 def propagate_to_plane(rays: Rays, z: float) -> None:
