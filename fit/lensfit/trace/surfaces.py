@@ -54,8 +54,10 @@ def quadric_intersect_xyz(
     # The quadratic A t^2 + 2 h t + C = 0; a factor that is exactly 1.0 (the meridian
     # masks of a rotationally symmetric surface, 1 + k of a sphere) is left out, which
     # leaves every result bit for bit as it was
-    a = _quadric_form(mx, my, 1.0 + k, dx, dx, dy, dy, dz, dz)
-    a *= c
+    a: float | np.ndarray = c  # a sphere: c |d|^2, and the directions are unit
+    if k != 0.0 or mx != 1.0 or my != 1.0:
+        a = _quadric_form(mx, my, 1.0 + k, dx, dx, dy, dy, dz, dz)
+        a *= c
     h = _quadric_form(mx, my, 1.0 + k, qx, dx, qy, dy, qz, dz)
     h *= c
     h -= dz
@@ -187,6 +189,10 @@ def normal_xyz(surface: Surface, px: np.ndarray, py: np.ndarray,
         nx, ny = (c * mx) * px, (c * my) * py
         nz = (c * (1.0 + k)) * pz
         nz -= 1.0
+        if k == 0.0:
+            # On a sphere or cylinder |n|^2 = 1 + c F(p), F the quadric: unit already,
+            # to rounding (c F is of the order of 1e-16)
+            return nx, ny, nz
     # Divided by its length
     norm = nx * nx
     norm += ny * ny

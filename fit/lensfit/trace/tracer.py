@@ -231,7 +231,8 @@ def _trace_rows(lens: Lens, out: Rays, path: list[Step], rows: slice, stop_r: fl
             np.abs(cos_i, out=cos_i)
         if fresnel_loss or step.reflect:
             layers = surf.coating.layers if step.from_front else surf.coating.layers[::-1]
-            r = _reflectance(n1, n2, cos_i, layers, live.lam)
+            r = _reflectance(n1, n2, cos_i, [live.index(ly.medium) for ly in layers],
+                             [ly.thickness_nm for ly in layers], live.lam)
         if step.reflect:
             live.dx, live.dy, live.dz = _reflect_xyz(dx, dy, dz, nx, ny, nz)
             live.tr *= r
@@ -298,18 +299,14 @@ def _check_wavelengths(lens: Lens, lam: np.ndarray) -> None:
     check_glass_ranges(lens, float(lam.min()), float(lam.max()))
 
 
-def _reflectance(n1, n2, cos_i, layers, lam) -> np.ndarray:
-    """Unpolarised power reflectance of a bare or coated interface."""
-    if not layers:
+def _reflectance(n1: np.ndarray, n2: np.ndarray, cos_i: np.ndarray,
+                 layer_n: list[np.ndarray], layer_nm: list[float],
+                 lam: np.ndarray) -> np.ndarray:
+    """Unpolarised power reflectance of a bare or coated interface (layers' indices
+    ``layer_n`` and thicknesses ``layer_nm`` from the incident side)."""
+    if not layer_n:
         return fresnel.fresnel_reflectance(n1, n2, cos_i)
-    r, _t = fresnel.coated_reflectance(
-        n1,
-        n2,
-        cos_i,
-        [layer.medium.n(lam) for layer in layers],
-        [layer.thickness_nm for layer in layers],
-        lam,
-    )
+    r, _t = fresnel.coated_reflectance(n1, n2, cos_i, layer_n, layer_nm, lam)
     return r
 
 
