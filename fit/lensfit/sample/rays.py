@@ -176,6 +176,17 @@ def _wavelengths(rng, domain: Domain, n: int) -> np.ndarray:
 CHORD_GAIN = 0.25
 
 
+BROYDEN = True
+
+
+def _broyden(jac: np.ndarray, rows: np.ndarray, dp: np.ndarray, dr: np.ndarray) -> None:
+    """Broyden's rank-one update of ``jac[rows]`` (n, 2, 2) in place, after steps ``dp``
+    (n, 2) that changed the residual by ``dr``: J += (dr - J dp) dp^T / |dp|^2."""
+    j = jac[rows]
+    miss = dr - np.einsum("nij,nj->ni", j, dp)
+    jac[rows] = j + miss[:, :, None] * (dp / np.einsum("ni,ni->n", dp, dp)[:, None])[:, None, :]
+
+
 def _newton(residual, p0: np.ndarray, scale: float):
     """Solve residual(p) = 0 for each row of p (N, 2), vectorised; returns (p, ok).
 
@@ -226,6 +237,12 @@ def _newton(residual, p0: np.ndarray, scale: float):
         rt, vt = residual(act, trial)
         mt = np.hypot(rt[:, 0], rt[:, 1])
         quick = vt & (mt <= CHORD_GAIN * miss)
+        # Broyden's update of the kept Jacobian from the step it gave (no trace: the
+        # secant condition J dp = dr along dp), so that it follows the ray as it
+        # converges and the steps cut the miss ever faster
+        if BROYDEN:
+            q = act[quick]
+            _broyden(jac, q, -step[quick], rt[quick] - r[q])
         p[act[quick]], r[act[quick]] = trial[quick], rt[quick]
         # A kept Jacobian whose step cut less: a fresh one next time, from where it is
         slow = ~quick & ~fresh[act]
