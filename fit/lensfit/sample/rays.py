@@ -176,6 +176,8 @@ def _wavelengths(rng, domain: Domain, n: int) -> np.ndarray:
 CHORD_GAIN = 0.25
 
 
+# Broyden's update of the kept Jacobian after each chord step. Measured on 0007 (P_s,
+# 64k rays): the rays converge in 9 Newton steps instead of 17, the same rays
 BROYDEN = True
 
 
@@ -192,8 +194,9 @@ def _newton(residual, p0: np.ndarray, scale: float):
 
     ``residual`` returns (r (N, 2), valid (N,)) for any subset of rows it is given, via
     an index array. Newton's method with finite-difference Jacobians, each kept while
-    its steps cut the miss CHORD_GAIN-fold (the chord method); a step with a fresh
-    Jacobian that increases the miss is halved (up to 8 times)."""
+    its steps cut the miss CHORD_GAIN-fold (the chord method, the kept Jacobian
+    corrected by Broyden's update after each step); a step with a fresh Jacobian that
+    increases the miss is halved (up to 8 times)."""
     p = p0.copy()
     n = len(p)
     done = np.zeros(n, dtype=bool)
@@ -223,10 +226,14 @@ def _newton(residual, p0: np.ndarray, scale: float):
             jac[need] = np.stack([(rx - r[need]) / h, (ry - r[need]) / h], axis=2)
             fresh[need], stale[need] = vx & vy, False
             failed[need[~(vx & vy)]] = True
-        det = jac[:, 0, 0] * jac[:, 1, 1] - jac[:, 0, 1] * jac[:, 1, 0]
-        failed[act[~((np.abs(det[act]) > 0) & np.isfinite(det[act]))]] = True
-        act = act[~failed[act]]
-        ra, j, d = r[act], jac[act], det[act]
+        # Determinants of the active rows' Jacobians; a singular one fails its ray
+        j = jac[act]
+        d = j[:, 0, 0] * j[:, 1, 1] - j[:, 0, 1] * j[:, 1, 0]
+        singular = ~((np.abs(d) > 0) & np.isfinite(d))
+        failed[act[singular]] = True
+        regular = ~failed[act]
+        act, j, d = act[regular], j[regular], d[regular]
+        ra = r[act]
         miss = np.hypot(ra[:, 0], ra[:, 1])
         step = np.stack([
             (j[:, 1, 1] * ra[:, 0] - j[:, 0, 1] * ra[:, 1]) / d,
@@ -375,10 +382,14 @@ def aim_object_side(lens: Lens, x_O: np.ndarray, y_O: np.ndarray, u_O: np.ndarra
 
     def launch(idx, p):
         """Ray from the scene point through (p, 0), started on the plane z = front."""
-        pz = np.concatenate([p, np.zeros((len(p), 1))], axis=1)
-        d = ug[idx, None] * pz - w[idx]
-        d /= np.linalg.norm(d, axis=1, keepdims=True)
-        start = pz + d * (front / d[:, 2])[:, None]  # back from z = 0 to z = front
+        # Direction from the scene point to (p, 0): u (p, 0) - w, made unit
+        wi = w[idx]
+        d = np.empty((len(p), 3))
+        d[:, :2] = ug[idx, None] * p - wi[:, :2]
+        d[:, 2] = -wi[:, 2]
+        d /= np.sqrt(np.einsum("ij,ij->i", d, d))[:, None]
+        start = d * (front / d[:, 2])[:, None]  # back from z = 0 to z = front
+        start[:, :2] += p
         return start, d
 
     def residual(idx, p, hist=None, fresnel=False):
