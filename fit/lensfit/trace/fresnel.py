@@ -206,9 +206,16 @@ def coated_reflectance(
     # Vacuum wavenumber in 1/nm, matching thicknesses in nm
     k0 = 2.0 * np.pi / lam
 
+    # Where the wave propagates in every layer and in the exit medium (all the rays but
+    # for frustrated or total internal reflection), the same in real arithmetic
+    cos_out_sq = _cos_sq_in_medium(n1_a, n2_a, cos_a)
+    cos_sq = [_cos_sq_in_medium(n1_a, n_k, cos_a) for n_k in ns]
+    if np.all(cos_out_sq >= 0.0) and all(np.all(c >= 0.0) for c in cos_sq):
+        return _coated_propagating(n1_a, n2_a, cos_a, k0, ns, ds, cos_out_sq, cos_sq)
+
     # Admittances of the outer media: s uses eta = n cos (fields E, H), p uses the dual
     # zeta = cos / n (fields H, E). The incident medium is lossless and propagating.
-    cos_out = _complex_cos(_cos_sq_in_medium(n1_a, n2_a, cos_a))
+    cos_out = _complex_cos(cos_out_sq)
     eta_in_s, eta_in_p = n1_a * cos_a, cos_a / n1_a
     eta_out_s, eta_out_p = n2_a * cos_out, cos_out / n2_a
 
@@ -216,8 +223,8 @@ def coated_reflectance(
     b_s = np.ones(shape, dtype=np.complex128)
     b_p = b_s
     c_s, c_p = eta_out_s, eta_out_p
-    for n_k, d_k in zip(reversed(ns), reversed(ds), strict=True):
-        cos_k = _complex_cos(_cos_sq_in_medium(n1_a, n_k, cos_a))
+    for n_k, d_k, cos_sq_k in zip(reversed(ns), reversed(ds), reversed(cos_sq), strict=True):
+        cos_k = _complex_cos(cos_sq_k)
         # Phase thickness of layer k; the matrix is even in cos_k, so its branch is irrelevant
         k0d = k0 * d_k
         delta = k0d * n_k * cos_k
@@ -236,6 +243,51 @@ def coated_reflectance(
     r_s, t_s = _power_rt(eta_in_s, eta_out_s, b_s, c_s)
     r_p, t_p = _power_rt(eta_in_p, eta_out_p, b_p, c_p)
     return 0.5 * (r_s + r_p), 0.5 * (t_s + t_p)
+
+
+def _coated_propagating(
+    n1: FloatArray, n2: FloatArray, cos_i: FloatArray, k0: FloatArray,
+    ns: list[FloatArray], ds: list[FloatArray], cos_out_sq: FloatArray,
+    cos_sq: list[FloatArray],
+) -> tuple[FloatArray, FloatArray]:
+    """:func:`coated_reflectance` where every cosine is real (no evanescent wave): the
+    same characteristic matrices, with B = br + i bi and C = cr + i ci in real arrays
+    (the matrices' diagonal is real, their off-diagonal purely imaginary)."""
+    cos_out = np.sqrt(cos_out_sq)
+    r_sum = np.zeros(np.shape(cos_i))
+    t_sum = np.zeros(np.shape(cos_i))
+    for pol in ("s", "p"):
+        # Admittances: s eta = n cos, p zeta = cos / n
+        eta_in = n1 * cos_i if pol == "s" else cos_i / n1
+        eta_out = n2 * cos_out if pol == "s" else cos_out / n2
+        br, bi = np.ones(np.shape(cos_i)), np.zeros(np.shape(cos_i))
+        cr, ci = eta_out, np.zeros(np.shape(cos_i))
+        for n_k, d_k, cos_sq_k in zip(reversed(ns), reversed(ds), reversed(cos_sq),
+                                      strict=True):
+            cos_k = np.sqrt(cos_sq_k)
+            k0d = k0 * d_k
+            delta = k0d * n_k * cos_k
+            cos_d, sin_d = np.cos(delta), np.sin(delta)
+            # Off-diagonal elements over i, as in coated_reflectance (sinc finite at 0)
+            small = np.abs(delta) < _SINC_SERIES_LIMIT
+            d2 = delta * delta
+            sinc = np.where(small, 1.0 - d2 / 6.0 + d2 * d2 / 120.0,
+                            sin_d / np.where(small, 1.0, delta))
+            m12 = k0d * sinc if pol == "s" else k0d * sinc * (n_k * n_k)
+            m21 = (n_k * cos_k) * sin_d if pol == "s" else (cos_k / n_k) * sin_d
+            # (B, C) <- [[cos, i m12], [i m21, cos]] (B, C)
+            br, bi, cr, ci = (cos_d * br - m12 * ci, cos_d * bi + m12 * cr,
+                              cos_d * cr - m21 * bi, cos_d * ci + m21 * br)
+        # R = |eta_in B - C|^2 / |eta_in B + C|^2, T = 4 eta_in eta_out / |eta_in B + C|^2
+        # (zero den: an invisible stack at grazing incidence, R = 0 and T = 1)
+        den = (eta_in * br + cr) ** 2 + (eta_in * bi + ci) ** 2
+        ok = den != 0.0
+        den1 = np.where(ok, den, 1.0)
+        num = (eta_in * br - cr) ** 2 + (eta_in * bi - ci) ** 2
+        r_sum += np.where(ok, num / den1, 0.0)
+        t_sum += np.where(ok, np.where(eta_in != 0.0, 4.0 * eta_in * eta_out / den1, 0.0),
+                          1.0)
+    return 0.5 * r_sum, 0.5 * t_sum
 
 
 def quarter_wave_thickness_nm(n_layer_at_design: float, design_wavelength_nm: float) -> float:
