@@ -24,7 +24,9 @@ one, else ``generated/`` and ``lensdb/`` in the current directory.
 Errors go to stderr as one line naming file, surface and key; the exit code is 2.
 ``lensfit fit`` and ``lensfit report`` exit 3 (EXIT_MISS) when the fit's PSF against
 exactly traced rays misses its target: the table and report are written and flagged all
-the same; ``--allow-miss`` makes that exit 0.
+the same; ``--allow-miss`` makes that exit 0. A fit whose output cannot come within ten
+times its target at the highest degree (lensfit.fitting.tensor.OutOfReach) is refused
+with exit 2 and writes nothing.
 """
 
 from __future__ import annotations
