@@ -360,3 +360,35 @@ def test_sensor_shift_in_front_of_the_last_surface_is_refused(lens0001):
     dom = default_domain(lens0001).with_(focus_min_mm=-(gap + 1.0))
     with pytest.raises(SamplingError, match="focus_min_mm"):
         sample_sensor_side(lens0001, dom, 2, 4, seed=0)
+
+
+def test_the_grid_s_stop_points_are_rim_weighted_unless_the_rim_is_dead():
+    """sample_grid's pilot (issue 41): lens 0001's rays pass near the stop's rim, so its
+    stop points are rim-weighted (STOP_EDGE_SHARE); lens 0004's sensor-side rays beyond
+    90% of its f/2.64 stop miss the rear group at every field point (a dead rim), so its
+    grid is drawn uniform: exactly the points and field points of the uniform draw of
+    the same seed. A grown grid draws its new stop points by the same law."""
+    from lensfit.poly.tensor import symmetric_disc_points
+    from lensfit.sample import default_domain
+    from lensfit.sample.rays import STOP_EDGE_SHARE, _grid_field, extend_grid, sample_grid
+
+    lens = load_lens("0001")
+    domain = default_domain(lens)
+    g = sample_grid(lens, domain, "P_s", 40, 64, seed=5)
+    assert g.stop_edge_share == STOP_EDGE_SHARE > 0.0
+    rng = np.random.default_rng(5)
+    _grid_field(domain, "P_s", 40, rng)
+    np.testing.assert_array_equal(
+        g.aperture, symmetric_disc_points(rng, 64, STOP_EDGE_SHARE) * domain.stop_radius_mm)
+    assert extend_grid(lens, domain, g, points=8, seed=9).stop_edge_share == STOP_EDGE_SHARE
+
+    lens = load_lens("0004")
+    domain = default_domain(lens)
+    g = sample_grid(lens, domain, "P_s", 40, 64, seed=5)
+    assert g.stop_edge_share == 0.0
+    rng = np.random.default_rng(5)
+    np.testing.assert_array_equal(g.field, _grid_field(domain, "P_s", 40, rng))
+    np.testing.assert_array_equal(g.aperture,
+                                  symmetric_disc_points(rng, 64) * domain.stop_radius_mm)
+    rim = np.hypot(g.aperture[:, 0], g.aperture[:, 1]) > 0.9 * domain.stop_radius_mm
+    assert np.mean(~g.ok[:, rim]) > 0.1  # what the pilot saw, on the whole grid
