@@ -66,9 +66,11 @@ from lensfit.paraxial.paraxial import image_distance, paraxial
 from lensfit.poly import System, design_matrix
 from lensfit.prescription.model import Lens
 from lensfit.sample.rays import (
+    FD_STEP,
     OUTPUTS_O,
     OUTPUTS_S,
     Aimed,
+    _front_plane,
     _stop_sag,
     aim_object_side,
     aim_sensor_side,
@@ -280,21 +282,76 @@ def _near_light(x_O: float, y_O: float, u_O: float, px: np.ndarray, py: np.ndarr
     return np.linalg.norm(v, axis=-1) / np.abs(v @ w)
 
 
-def exact_front_flux(aim: Callable[[np.ndarray, np.ndarray], Aimed], x_O: float, y_O: float,
-                     u_O: float, pts: np.ndarray) -> np.ndarray:
+def _flux_offsets() -> np.ndarray:
+    """The four neighbours' steps from a stop point (4, 2): +x, -x, +y, -y."""
+    e = FLUX_STEP_MM
+    return np.array([[e, 0.0], [-e, 0.0], [0.0, e], [0.0, -e]])
+
+
+def exact_front_flux(aim: Callable[..., Aimed], x_O: float, y_O: float,
+                     u_O: float, pts: np.ndarray, guess: np.ndarray | None = None
+                     ) -> np.ndarray:
     """The light's flux through the stop per unit area at stop points ``pts`` (N, 2)
     relative to its irradiance on the first vertex plane, from exact rays: ``aim(x_a,
     y_a)`` traces them (``Aimed.unknowns``: where each crosses z = 0); dp/da by central
-    differences of FLUX_STEP_MM. NaN where a neighbour ray fails."""
+    differences of FLUX_STEP_MM. NaN where a neighbour ray fails. ``guess`` (4, N, 2),
+    first guesses of the neighbours' p (:func:`_flux_guesses`), is passed on as
+    ``aim(x_a, y_a, guess=...)``."""
     e = FLUX_STEP_MM
-    offsets = np.array([[e, 0.0], [-e, 0.0], [0.0, e], [0.0, -e]])
-    q = (pts[None, :, :] + offsets[:, None, :]).reshape(-1, 2)
-    a = aim(q[:, 0], q[:, 1])
+    q = (pts[None, :, :] + _flux_offsets()[:, None, :]).reshape(-1, 2)
+    a = (aim(q[:, 0], q[:, 1]) if guess is None
+         else aim(q[:, 0], q[:, 1], guess=guess.reshape(-1, 2)))
     p = np.where(a.ok[:, None], a.unknowns, np.nan).reshape(4, len(pts), 2)
     dx, dy = (p[0] - p[1]) / (2 * e), (p[2] - p[3]) / (2 * e)
     det = np.abs(dx[:, 0] * dy[:, 1] - dy[:, 0] * dx[:, 1])
     mid = 0.25 * p.sum(axis=0)
     return det * _near_light(x_O, y_O, u_O, mid[:, 0], mid[:, 1])
+
+
+def _object_landing(lens: Lens, x_O: float, y_O: float, u_O: float, p: np.ndarray,
+                    lam: float) -> tuple[np.ndarray, np.ndarray]:
+    """Where the light's rays through ``p`` (N, 2) on the first vertex plane z = 0 cross
+    the stop (N, 2), and which of them get there: the trace of
+    :func:`lensfit.sample.rays.aim_object_side` (its start plane, its path) without its
+    Newton."""
+    s = lens.stop_index
+    w = np.array([x_O, y_O, -math.sqrt(1.0 - x_O * x_O - y_O * y_O)])  # towards the scene
+    d = np.empty((len(p), 3))
+    d[:, :2] = u_O * p - w[:2]  # from the scene point to (p, 0), made unit
+    d[:, 2] = -w[2]
+    d /= np.linalg.norm(d, axis=1)[:, None]
+    start = d * (_front_plane(lens) / d[:, 2])[:, None]  # back from z = 0 to the start plane
+    start[:, :2] += p
+    out = trace(lens, Rays(start, d, lam), [Step(k) for k in range(s + 1)], clip=False)
+    return out.pos[:, :2], out.status == Status.OK
+
+
+def _flux_guesses(lens: Lens, x_O: float, y_O: float, u_O: float, lam: float,
+                  pts: np.ndarray, p0: np.ndarray) -> np.ndarray:
+    """First guesses (4, N, 2) of where the neighbour rays of :func:`exact_front_flux`
+    (stop points ``pts`` moved by :func:`_flux_offsets`) cross z = 0, from the central
+    rays' crossings ``p0`` (N, 2): each central ray's Jacobian d(stop point)/dp (two
+    plain rays by forward differences) aims the neighbours linearly, and one chord step
+    with the same Jacobian corrects them, so that :func:`aim_object_side` accepts them
+    with its final trace (Newton from the paraxial guess took ~7 traces a ray). NaN
+    rows (the paraxial guess) where a ray fails."""
+    n = len(pts)
+    h = FD_STEP * max(float(np.max(np.abs(pts), initial=0.0)), 1.0)  # Newton's own step
+    # The central ray and two steps of p: where they cross the stop
+    steps = np.array([[0.0, 0.0], [h, 0.0], [0.0, h]])
+    land, ok = _object_landing(lens, x_O, y_O, u_O,
+                               (p0[:, None, :] + steps).reshape(-1, 2), lam)
+    land, ok = land.reshape(n, 3, 2), ok.reshape(n, 3).all(axis=1)
+    jac = np.stack([land[:, 1] - land[:, 0], land[:, 2] - land[:, 0]], axis=2) / h
+    with np.errstate(invalid="ignore", divide="ignore"):
+        inv = np.linalg.inv(np.where(ok[:, None, None], jac, np.eye(2)))
+    # Linear aim at each neighbour, then one chord step from where it lands
+    target = pts[None, :, :] + _flux_offsets()[:, None, :]  # (4, N, 2)
+    guess = p0 + np.einsum("nij,knj->kni", inv, target - land[:, 0])
+    hit, fine = _object_landing(lens, x_O, y_O, u_O, guess.reshape(-1, 2), lam)
+    guess -= np.einsum("nij,knj->kni", inv, hit.reshape(4, n, 2) - target)
+    guess[~(fine.reshape(4, n) & ok)] = np.nan
+    return guess
 
 
 def poly_front_flux(p_o: System, light: dict[str, float], pts: np.ndarray,
@@ -644,13 +701,15 @@ def exact_psf_nodes(lens: Lens, *, stop_radius_mm: float, aperture_xy_mm: np.nda
     facts = lens_facts(lens)
     used = np.zeros(len(ap), dtype=bool)
     idx = np.nonzero(inside)[0]
-    def aim(xa: np.ndarray, ya: np.ndarray) -> Aimed:
-        return aim_object_side(lens, x_O, y_O, u_O, xa, ya, lam)
+    def aim(xa: np.ndarray, ya: np.ndarray, guess: np.ndarray | None = None) -> Aimed:
+        return aim_object_side(lens, x_O, y_O, u_O, xa, ya, lam, guess=guess)
     obj = aim(ap[idx, 0], ap[idx, 1])
     pass_o = _passes(obj, facts.housing_first_mm, "pupils")
     idx, phi_o, tau_o = idx[pass_o], obj.outputs[pass_o, 3], obj.outputs[pass_o, 2]
     slopes = obj.dir[pass_o, :2] / obj.dir[pass_o, 2:]  # leaving the stop
-    flux = exact_front_flux(aim, x_O, y_O, u_O, ap[idx])
+    # The flux's neighbour rays, aimed from each central ray's own Jacobian
+    near = _flux_guesses(lens, x_O, y_O, u_O, lam, ap[idx], obj.unknowns[pass_o])
+    flux = exact_front_flux(aim, x_O, y_O, u_O, ap[idx], guess=near)
     good = np.isfinite(flux)
     idx, phi_o, tau_o = idx[good], phi_o[good], tau_o[good] * flux[good]
     slopes = slopes[good]
@@ -694,9 +753,49 @@ def _add_phasors(u: np.ndarray, ok: np.ndarray, power: np.ndarray, phase: np.nda
     shape, spec = ((len(amp), -1), "jp,jp->p") if axis == 0 else ((-1, amp.shape[-1]),
                                                                   "pj,pj->p")
     amp, phase = amp.reshape(shape), phase.reshape(shape)
-    re = np.einsum(spec, amp, np.cos(phase))
-    im = np.einsum(spec, amp, np.sin(phase, out=phase))
+    cos, sin = _cos_sin(phase)
+    re = np.einsum(spec, amp, cos)
+    im = np.einsum(spec, amp, sin)
     u += (re + 1j * im).reshape(u.shape)
+
+
+# cos and sin by a table of COS_SIN_TABLE angles 2 pi m / COS_SIN_TABLE and a Taylor
+# step from the nearest (_cos_sin): numpy's cos and sin of float64 are scalar libm calls
+# (~35 ns each here, the PSF check's largest cost); this is ~4 ns a pass
+COS_SIN_TABLE = 4096
+_TABLE_ANGLES = 2.0 * math.pi * np.arange(COS_SIN_TABLE) / COS_SIN_TABLE
+_TABLE_COS, _TABLE_SIN = np.cos(_TABLE_ANGLES), np.sin(_TABLE_ANGLES)
+
+
+def _cos_sin(phase: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(cos(phase), sin(phase)), each within ~1e-15 + 2e-16 |phase| of numpy's (the
+    phase's own rounding: at 1e6 rad a few 1e-10, while Newton's tolerance on the rays
+    moves an exact phase by ~1e-5 rad). ``phase`` = 2 pi (m + f) / COS_SIN_TABLE with m
+    an integer and |f| <= 1/2: the table holds cos and sin of 2 pi m / COS_SIN_TABLE
+    (m modulo the table), and those of the rest r = 2 pi f / COS_SIN_TABLE (|r| <= 7.7e-4)
+    are Taylor's 1 - r^2/2 + r^4/24 (error r^6/720 < 1e-21) and r - r^3/6 (r^5/120 <
+    3e-18); the angle sum gives the phase's. ``phase`` is overwritten."""
+    t = np.multiply(phase, COS_SIN_TABLE / (2.0 * math.pi), out=phase)
+    m = np.rint(t)
+    r = np.subtract(t, m, out=t)
+    r *= 2.0 * math.pi / COS_SIN_TABLE
+    i = m.astype(np.int64)
+    np.bitwise_and(i, COS_SIN_TABLE - 1, out=i)  # m modulo the table (two's complement)
+    tc, ts = np.take(_TABLE_COS, i), np.take(_TABLE_SIN, i)
+    r2 = np.multiply(r, r, out=m)
+    s = r2 * r  # sin r = r - r^3/6
+    s *= -1.0 / 6.0
+    s += r
+    c = r2 * (1.0 / 24.0)  # cos r = 1 - r^2/2 + r^4/24
+    c -= 0.5
+    c *= r2
+    c += 1.0
+    cos = tc * c  # the angle sum
+    cos -= ts * s
+    ts *= c
+    tc *= s
+    ts += tc
+    return cos, ts
 
 
 def _system(systems: Sequence[System], name: str) -> System:
@@ -720,13 +819,15 @@ def _check_domain(system: System, values: dict[str, np.ndarray | float]) -> None
                              f"outside the fitted domain [{inp.lo:.9g}, {inp.hi:.9g}]")
 
 
-def _separable(system: System, fixed: dict[str, float], rows: dict[str, np.ndarray],
-               cols: dict[str, np.ndarray]) -> np.ndarray:
-    """``system`` on the grid (rows x cols), (n_outputs, R, C): its inputs split into
-    fixed values, inputs that vary over rows and inputs that vary over columns. Each
-    term c prod xhat^e factors into (row part) (fixed part) (column part), so the grid is
-    one matrix product per output: the same polynomial as System.evaluate, summed in
-    another order (agreement to ~1e-15 of the sum of |terms|)."""
+def _separable_parts(system: System, fixed: dict[str, float], rows: dict[str, np.ndarray],
+                     cols: dict[str, np.ndarray]) -> list[tuple[np.ndarray, np.ndarray]]:
+    """``system`` on the grid (rows x cols) as one matrix product per output: its inputs
+    split into fixed values, inputs that vary over rows and inputs that vary over
+    columns, each output's grid is ``row @ col.T`` for its (row (R, M), col (C, M)) in
+    the list returned. Each term c prod xhat^e factors into (row part) (fixed part)
+    (column part); M is the number of distinct row monomials: the same polynomial as
+    System.evaluate, summed in another order (agreement to ~1e-15 of the sum of
+    |terms|). A caller may take the product over slices of the columns."""
     _check_domain(system, {**fixed, **rows, **cols})
     names = system.input_names
     idx = {k: [names.index(n) for n in group] for k, group in
@@ -755,9 +856,14 @@ def _separable(system: System, fixed: dict[str, float], rows: dict[str, np.ndarr
         order = np.argsort(which, kind="stable")
         starts = np.searchsorted(which[order], np.arange(len(rows_e)))
         b = design_matrix(c_hat, p.exponents[order][:, idx["c"]]) * w[order]  # (C, T)
-        grouped = np.add.reduceat(b, starts, axis=1)  # (C, distinct row monomials)
-        out.append(design_matrix(r_hat, rows_e) @ grouped.T)
-    return np.stack(out)
+        out.append((design_matrix(r_hat, rows_e), np.add.reduceat(b, starts, axis=1)))
+    return out
+
+
+def _separable(system: System, fixed: dict[str, float], rows: dict[str, np.ndarray],
+               cols: dict[str, np.ndarray]) -> np.ndarray:
+    """``system`` on the grid (rows x cols), (n_outputs, R, C) (:func:`_separable_parts`)."""
+    return np.stack([r @ c.T for r, c in _separable_parts(system, fixed, rows, cols)])
 
 
 def poly_psf(systems: Sequence[System], *, facts: LensFacts | None = None,
@@ -812,13 +918,19 @@ def poly_psf(systems: Sequence[System], *, facts: LensFacts | None = None,
     p_s = p_s.specialise({"z_S": z_s, "lambda": lam})
     clip_s = (clip.specialise({"z_S": z_s, "lambda": lam})
               if clip is not None and ghost.side == "P_s" else None)
+    # Each output's pixel and stop-point parts once per cell; per chunk of points only
+    # their matrix products
+    ap_cols = {"x_a": pts[:, 0], "y_a": pts[:, 1]}
+    parts = _separable_parts(p_s, {}, pix, ap_cols)
+    parts = [parts[c] for c in cols]
+    clip_parts = _separable_parts(clip_s, {}, pix, ap_cols) if clip_s is not None else None
     for a in range(0, len(pts), chunk):
         sl = slice(a, a + chunk)
-        ap_cols = {"x_a": pts[sl, 0], "y_a": pts[sl, 1]}
-        x_i, y_i, tau_i, phi_i = _separable(p_s, {}, pix, ap_cols)[cols]  # (pixels, points)
+        x_i, y_i, tau_i, phi_i = (r @ c[sl].T for r, c in parts)  # (pixels, points)
         ok = x_i**2 + y_i**2 <= facts.housing_last_mm**2
-        if clip_s is not None:
-            ok &= clip_passes(clip_s, _separable(clip_s, {}, pix, ap_cols), stop_radius_mm)
+        if clip_parts is not None:
+            ok &= clip_passes(clip_s, np.stack([r @ c[sl].T for r, c in clip_parts]),
+                              stop_radius_mm)
         _add_phasors(u, ok, tau_o[sl] * tau_i, k_wave * (phi_o[sl] + phi_i), axis=-1)
     return u.reshape(height, width)
 

@@ -39,6 +39,7 @@ from lensfit.paraxial.paraxial import paraxial, stop_radius_for_f_number
 from lensfit.poly import System
 from lensfit.prescription.model import Lens
 from lensfit.sample.domain import FULL_FRAME_HALF_DIAGONAL_MM, Domain
+from lensfit.sample.rays import Aimed
 from lensfit.scene import light_direction
 from lensfit.trace.tracer import Status
 
@@ -104,11 +105,15 @@ def _f_number(lens: Lens, radius: float) -> float:
 
 
 def _window(lens: Lens, radius: float, field: tuple[float, float], distance: float,
-            lam: float, focus: float, f_number: float) -> tuple[float, tuple[float, float]]:
+            lam: float, focus: float, f_number: float, *, chief: Aimed | None = None
+            ) -> tuple[float, tuple[float, float]]:
     """Window width (mm) and centre: the geometric spot (exact rays through 400 stop
-    points) with margin, at least four Airy radii each side of the chief ray's image."""
-    centre = psf.geometric_image_point(lens, field, distance, wavelength_nm=lam,
-                                       focus_offset_mm=focus)
+    points) with margin, at least four Airy radii each side of the chief ray's image.
+    ``chief``: the light's ray through the stop centre (psf._chief_ray), when the
+    caller has it (it does not depend on the stop or the focus)."""
+    if chief is None:
+        chief = psf._chief_ray(lens, field, distance, lam)
+    centre = psf._chief_image(lens, chief, field, lam, focus)
     pts = psf.sunflower_points(400, radius)
     x_O, y_O = light_direction(*field)
     u_O = 0.0 if math.isinf(distance) else 1.0 / distance
@@ -152,15 +157,19 @@ def psf_vs_exact(lens: Lens, systems: Sequence[System], domain: Domain, *,
                        domain.wavelength_max_nm) for lam in wavelengths})
     radius_of = dict(stops)
     windows: dict[tuple[str, tuple[float, float], float, float], tuple[float, Any]] = {}
+    chiefs: dict[tuple[tuple[float, float], float, float], Aimed] = {}
 
     def window(label: str, field: tuple[float, float], distance: float, lam: float
                ) -> tuple[float, tuple[float, float]]:
-        """_window of a cell, computed once (_inside and the cell itself both ask)."""
+        """_window of a cell, computed once (_inside and the cell itself both ask); the
+        chief ray once per light and wavelength (every stop shares it)."""
         key = (label, field, distance, lam)
         if key not in windows:
             r = radius_of[label]
+            if key[1:] not in chiefs:
+                chiefs[key[1:]] = psf._chief_ray(lens, field, distance, lam)
             windows[key] = _window(lens, r, field, distance, lam, focus_of[label],
-                                   _f_number(lens, r))
+                                   _f_number(lens, r), chief=chiefs[key[1:]])
         return windows[key]
 
     # (name, field, distance, stops checked, share of the angle asked for)

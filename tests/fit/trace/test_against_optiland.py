@@ -221,7 +221,7 @@ def psf_pair(lens, twin, r_stop: float, field_deg: float, monkeypatch, *, n: int
     p = (ix[0, -1] - ix[0, 0]) / (n - 1)
     # lensfit's pupil weight to one (see the module doc; checked on its own below)
     monkeypatch.setattr(psf_module, "exact_front_flux",
-                        lambda aim, x, y, u, pts: np.ones(len(pts)))
+                        lambda aim, x, y, u, pts, guess=None: np.ones(len(pts)))
     u = exact_psf(lens, stop_radius_mm=r_stop, aperture_xy_mm=sunflower_points(points, r_stop),
                   field_deg=(0.0, field_deg), wavelength_nm=LAM_NM, width=n, height=n,
                   width_mm=n * p, center_x_mm=float(ix[0].mean()),
