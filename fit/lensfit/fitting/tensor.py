@@ -36,7 +36,8 @@ from lensfit.sample.rays import GridSamples, Samples, extend_grid
 def fit_system_tensor(name: str, inputs: tuple[Input, ...], outputs, train: GridSamples,
                       test: Samples, options: FitOptions,
                       progress: Callable[[str], None] | None = None,
-                      only: set[str] | None = None) -> tuple[System, list[OutputFit]]:
+                      only: set[str] | None = None, refuse_out_of_reach: bool = False
+                      ) -> tuple[System, list[OutputFit]]:
     """Fit every output of one system on grid samples by tensor least squares (module
     doc): per output, the field degrees of ``options.field_degrees`` in turn until the
     held-out error reaches the target (GROW_SHARE of it with ``options.prune``), then,
@@ -47,7 +48,10 @@ def fit_system_tensor(name: str, inputs: tuple[Input, ...], outputs, train: Grid
     with ``options.prune``: room to cut) says why in ``OutputFit.limit``: "stop points"
     or "field points" when the held-out error is far above the error on the grid (the
     polynomial is right where it was fitted and wrong between: too few samples for its
-    degree in that dimension, the one with fewer samples per monomial), else "degree"."""
+    degree in that dimension, the one with fewer samples per monomial), else "degree".
+    ``refuse_out_of_reach`` (a lens fit, :func:`fit_system_growing`; ghost fits have
+    fallbacks of their own): raise :class:`OutOfReach` for an output no degree brings
+    near its target (:func:`_out_of_reach`)."""
     te = test.subset(test.passes)
     if len(te) == 0:
         raise InputError(f"{name}: no held-out ray passes the lens")
@@ -148,7 +152,8 @@ def fit_system_tensor(name: str, inputs: tuple[Input, ...], outputs, train: Grid
             # Out of reach only where the degree is the limit: the best fit's error on the
             # grid's own rays is as large as held out (else more samples may help: lens
             # 0004's P_s stalled at 2.8e-3 waves on 128 stop points, 7.4e-5 on 256)
-            if (_out_of_reach(rung_best, len(degrees), target,
+            if (refuse_out_of_reach
+                    and _out_of_reach(rung_best, len(degrees), target,
                               raised or da + 2 > options.max_aperture_degree)
                     and _sampling_limit(best[3], best[0], a_hat, v_hat, values, mask,
                                         scale) is None):
@@ -231,7 +236,8 @@ def fit_system_growing(lens: Lens, domain: Domain, name: str, inputs: tuple[Inpu
     ``options.max_aperture_points``, field points up to ``options.max_groups``; only the
     new rays are traced) and those outputs fitted again, kept where they improve.
     Returns the system, its fits and the grid it ended with."""
-    system, fits = fit_system_tensor(name, inputs, outputs, train, test, options, progress)
+    system, fits = fit_system_tensor(name, inputs, outputs, train, test, options, progress,
+                                     refuse_out_of_reach=True)
     polys = {p.output: p for p in system.outputs}
     by_name = {f.name: f for f in fits}
     for step in range(1, 3):
@@ -251,7 +257,8 @@ def fit_system_growing(lens: Lens, domain: Domain, name: str, inputs: tuple[Inpu
             progress(f"{name} sampled again ({len(train.field)} field points x "
                      f"{len(train.aperture)} stop points)")
         again, refits = fit_system_tensor(name, inputs, outputs, train, test, options,
-                                          progress, only={f.name for f in short})
+                                          progress, only={f.name for f in short},
+                                          refuse_out_of_reach=True)
         for p, f in zip(again.outputs, refits, strict=True):
             old = by_name[f.name]
             if ((f.reached and (not old.reached or f.terms < old.terms))

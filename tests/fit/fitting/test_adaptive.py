@@ -252,7 +252,11 @@ def test_a_phase_no_degree_can_follow_is_refused_with_its_figures():
                        r"held-out rays at field degree [246] \(stop degree \d+\), against "
                        r"its target 1e-06 waves"):
         tensor_fit.fit_system_tensor("P_o", INPUTS, OUTPUTS_O, train, test, options,
-                                     only={"phi_o"})
+                                     only={"phi_o"}, refuse_out_of_reach=True)
+    # Ghost fits (their own fallbacks) do not ask for it: the output is kept, limited
+    _, fits = tensor_fit.fit_system_tensor("P_o", INPUTS, OUTPUTS_O, train, test, options,
+                                           only={"phi_o"})
+    assert not fits[0].reached and fits[0].limit is not None
 
 
 def test_lensfit_fit_refuses_an_out_of_reach_lens_in_one_line(tmp_path, monkeypatch, capsys):

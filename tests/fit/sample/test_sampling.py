@@ -374,21 +374,23 @@ def test_the_grid_s_stop_points_are_rim_weighted_unless_the_rim_is_dead():
 
     lens = load_lens("0001")
     domain = default_domain(lens)
-    g = sample_grid(lens, domain, "P_s", 40, 64, seed=5)
+    g = sample_grid(lens, domain, "P_s", 40, 128, seed=5)
     assert g.stop_edge_share == STOP_EDGE_SHARE > 0.0
     rng = np.random.default_rng(5)
     _grid_field(domain, "P_s", 40, rng)
     np.testing.assert_array_equal(
-        g.aperture, symmetric_disc_points(rng, 64, STOP_EDGE_SHARE) * domain.stop_radius_mm)
+        g.aperture, symmetric_disc_points(rng, 128, STOP_EDGE_SHARE) * domain.stop_radius_mm)
     assert extend_grid(lens, domain, g, points=8, seed=9).stop_edge_share == STOP_EDGE_SHARE
+    # Fewer than MIN_EDGE_POINTS: uniform, no pilot
+    assert sample_grid(lens, domain, "P_s", 40, 64, seed=5).stop_edge_share == 0.0
 
     lens = load_lens("0004")
     domain = default_domain(lens)
-    g = sample_grid(lens, domain, "P_s", 40, 64, seed=5)
+    g = sample_grid(lens, domain, "P_s", 40, 128, seed=5)
     assert g.stop_edge_share == 0.0
     rng = np.random.default_rng(5)
     np.testing.assert_array_equal(g.field, _grid_field(domain, "P_s", 40, rng))
     np.testing.assert_array_equal(g.aperture,
-                                  symmetric_disc_points(rng, 64) * domain.stop_radius_mm)
+                                  symmetric_disc_points(rng, 128) * domain.stop_radius_mm)
     rim = np.hypot(g.aperture[:, 0], g.aperture[:, 1]) > 0.9 * domain.stop_radius_mm
     assert np.mean(~g.ok[:, rim]) > 0.1  # what the pilot saw, on the whole grid
