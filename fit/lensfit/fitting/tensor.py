@@ -210,7 +210,7 @@ class OutOfReach(InputError):
 # Judged only after the stop degree was raised or cannot be (that raise gained 10x on
 # 0009's P_o). Measured:
 # lens 0007 at f/2 over 35 degrees, P_o phase 0.24, 0.227 waves at field degrees 10, 12
-# (target 5.6e-4): out of reach at 12, after 50 CPU-s, where the whole ladder with the
+# (target 5.6e-4): out of reach at 12, after 132 CPU-s, where the whole ladder with the
 # grid's growth ran past 300 CPU-s; the lenses that fit improve 4-10x per field degree
 # (0008's P_o 2.3e-2, 3.8e-3, 6.9e-4 waves at 8, 10, 12) and stay far from the rule
 OUT_OF_REACH = 10.0

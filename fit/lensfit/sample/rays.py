@@ -637,26 +637,25 @@ def sample_grid(lens: Lens, domain: Domain, system: str, groups: int, points: in
     if system not in ("P_o", "P_s"):
         raise ValueError(f"sample_grid: system = {system!r}: expected P_o or P_s")
     r = domain.stop_radius_mm
+    share = STOP_EDGE_SHARE if points >= MIN_EDGE_POINTS else 0.0
     rng = np.random.default_rng(seed)
     field = _grid_field(domain, system, groups, rng)
-    ap = symmetric_disc_points(rng, points, STOP_EDGE_SHARE) * r
-    # A pilot: the field points nearest the axis through these stop points. Where rays
-    # near the stop's rim fail even there, the rim-weighted points would be spent on
-    # holes: the grid is drawn again as uniform points (the same draws as before the
-    # rim weighting, for the same seed)
-    share = STOP_EDGE_SHARE if points >= MIN_EDGE_POINTS else 0.0
-    dead = share == 0.0
-    if not dead:
+    ap = symmetric_disc_points(rng, points, share) * r
+    if share > 0.0:
+        # A pilot: the field points nearest the axis through these stop points. Where
+        # rays near the stop's rim fail even there, the rim-weighted points would be
+        # spent on holes: the grid is drawn again as uniform points (the same draws as
+        # before the rim weighting, for the same seed)
         near = np.argsort(np.hypot(field[:, 0], field[:, 1]), kind="stable")[:PILOT_GROUPS]
         try:
             dead = _dead_rim(_trace_grid(lens, domain, system, field[near], ap), ap / r)
         except SamplingError:  # no ray near the axis: the whole grid says what is wrong
             dead = False
-    if dead:
-        share = 0.0
-        rng = np.random.default_rng(seed)
-        field = _grid_field(domain, system, groups, rng)
-        ap = symmetric_disc_points(rng, points) * r
+        if dead:
+            share = 0.0
+            rng = np.random.default_rng(seed)
+            field = _grid_field(domain, system, groups, rng)
+            ap = symmetric_disc_points(rng, points) * r
     grid = _trace_grid(lens, domain, system, field, ap)
     grid.stop_edge_share = share
     return grid
