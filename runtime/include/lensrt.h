@@ -1007,6 +1007,117 @@ LENSRT_API lensrt_result lensrt_bank_get_info(lensrt_bank bank, lensrt_bank_info
 LENSRT_API lensrt_result lensrt_bank_psf(lensrt_bank bank, const lensrt_bank_query *query, float *out, size_t count,
                                          double chief_mm[2]);
 
+/* ------------------------------------------------- an image through the lens ----- */
+
+/* Since 0.11.0 (issue 38): a caller's framebuffer as the sensor behind the lens records it.
+ *
+ * The input is a linear pinhole image of the scene: n_channels planes of width x height
+ * floats (finite, >= 0; plane-major, row 0 at the top, +y), whose pixel (i, j) has its
+ * centre at the sensor point (x, y) = (center_x + (i + 0.5 - width / 2) pitch_x,
+ * center_y + (height / 2 - j - 0.5) pitch_y) mm, the bank's pitch, and holds the light
+ * that a pinhole of focal length (focal_x, focal_y) mm sees there: the scene direction of
+ * field angles (atan(x / focal_x), atan(y / focal_y)) (lensrt_light's convention).
+ * Channel c is light of the spectrum channel_weights[c][l] over the bank's wavelengths
+ * l, recorded in channel c (no crosstalk between channels: RGB input is upsampled by the
+ * caller's choice of weights, spectral input is one channel per bank wavelength).
+ *
+ * The output layers, each n_channels planes as the input:
+ *   LENSRT_IMAGE_DIRECT  every pixel's light through its own field point's PSF: the
+ *                        bank's nodes interpolated in field (weights continuous across
+ *                        the cells, so no seams), each node's PSF applied by FFT
+ *                        convolution to the light its weights give it, after the
+ *                        light is moved to where the lens images it (the chief points:
+ *                        distortion) and with the power the bank's PSFs carry relative to
+ *                        the axis's (vignetting, transmission); a pixel whose light is on
+ *                        the axis and the PSF's all on the sensor keeps its power.
+ *   LENSRT_IMAGE_FLARE   the sum of the ghost layers.
+ *   LENSRT_IMAGE_GHOST + g  ghost table g's images of the sources: the input's pixels
+ *                        above flare_threshold, grouped into connected sources (each at
+ *                        its power-weighted field point, with its summed light), the
+ *                        max_sources brightest kept; each ghost rendered per source by
+ *                        lensrt_render_integrate_fourier/cells to flare_target_error,
+ *                        in units of the direct layer's (relative to the axis PSF's power).
+ * A frame reaching outside the bank's field grid, or a source outside a ghost's fitted
+ * field, is LENSRT_ERROR_OUT_OF_DOMAIN naming the value and the range. */
+typedef struct lensrt_image_s *lensrt_image;
+
+enum lensrt_image_layer {
+    LENSRT_IMAGE_DIRECT = 0,
+    LENSRT_IMAGE_FLARE = 1,
+    LENSRT_IMAGE_GHOST = 2        /* + ghost index */
+};
+
+typedef struct lensrt_image_desc {
+    size_t struct_size;           /* sizeof(lensrt_image_desc): LENSRT_IMAGE_DESC_INIT */
+    lensrt_bank bank;             /* the direct PSFs (registration channel); borrowed: it
+                                     must outlive the image */
+    double f_number;              /* the bank's slice, as lensrt_bank_query (0: the first) */
+    double focus_offset_mm;
+    double distance_mm;           /* 0: infinity */
+    int32_t width, height;        /* framebuffer pixels, 1 .. LENSRT_MAX_RESOLUTION */
+    double center_x_mm, center_y_mm; /* the frame's centre on the sensor */
+    double focal_x_mm, focal_y_mm;   /* the pinhole's focal lengths (> 0; focal_y 0: focal_x) */
+    int32_t n_channels;           /* 1 .. LENSRT_MAX_WAVELENGTHS */
+    const double *channel_weights; /* n_channels x the bank's wavelengths, row-major, >= 0,
+                                     each row summing to > 0 (copied); NULL: one channel
+                                     per bank wavelength (n_channels must equal it) */
+    const lensrt_lens *ghosts;    /* ghost tables of the bank's lens (copied array; the
+                                     lenses are borrowed); NULL with n_ghosts 0: no flares */
+    int32_t n_ghosts;             /* 0 .. LENSRT_MAX_LAYERS - 2 */
+    lensrt_aperture aperture;     /* the ghost renders' (radius 0 and f_number 0: the bank
+                                     slice's f_number, circle) */
+    double flare_threshold;       /* sources: pixels whose channel sum exceeds this; 0: the
+                                     input's largest channel sum / 16 */
+    int32_t max_sources;          /* the brightest sources kept; 0: 16 */
+    double flare_target_error;    /* each ghost render's relative L2 estimate; 0: 0.02 */
+    int32_t flare_downsample;     /* framebuffer pixels per ghost-render pixel, per axis
+                                     (ghosts are smooth); 0: 4 */
+} lensrt_image_desc;
+#define LENSRT_IMAGE_DESC_INIT {sizeof(lensrt_image_desc), NULL, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, NULL, \
+                                NULL, 0, {0, 0, 0, 0, 0, 0, 0, 0}, 0, 0, 0, 0}
+
+/* What the last lensrt_image_run did, and what each part cost (wall seconds). */
+typedef struct lensrt_image_stats {
+    size_t struct_size;           /* sizeof(lensrt_image_stats): LENSRT_IMAGE_STATS_INIT */
+    double seconds_warp;          /* light moved to its chief points, split over the nodes */
+    double seconds_kernels;       /* node PSFs read from the bank and transformed */
+    double seconds_convolve;      /* the FFT convolutions and their sum */
+    double seconds_flares;        /* sources found and their ghosts rendered */
+    int32_t n_nodes;              /* bank nodes that received light */
+    int32_t fft_width, fft_height; /* the largest transform */
+    int32_t n_sources;            /* sources kept */
+    int32_t n_ghost_renders;      /* ghost renders made (ghosts that miss the frame skipped) */
+    double worst_flare_error;     /* the largest ghost render error estimate; -1: none */
+} lensrt_image_stats;
+#define LENSRT_IMAGE_STATS_INIT {sizeof(lensrt_image_stats), 0, 0, 0, 0, 0, 0, 0, 0, 0, 0}
+
+/* A source the last run found (brightest first). */
+typedef struct lensrt_image_source {
+    size_t struct_size;           /* sizeof(lensrt_image_source): LENSRT_IMAGE_SOURCE_INIT */
+    double field_x_deg, field_y_deg; /* its power-weighted field point */
+    double power;                 /* the sum of its pixels' channel sums */
+    int32_t pixels;               /* how many pixels it has */
+} lensrt_image_source;
+#define LENSRT_IMAGE_SOURCE_INIT {sizeof(lensrt_image_source), 0, 0, 0, 0}
+
+/* Check the description against the bank (slice, field grid covering the frame's
+ * pinhole fields, pitch) and the ghosts, and allocate. Messages name the key and value. */
+LENSRT_API lensrt_result lensrt_image_create(lensrt_context ctx, const lensrt_image_desc *desc,
+                                             lensrt_image *out);
+/* Free the image (NULL: nothing). */
+LENSRT_API void lensrt_image_destroy(lensrt_image image);
+/* Put one framebuffer through the lens: count = n_channels x width x height. A value that
+ * is not finite or is negative is LENSRT_ERROR_INVALID_ARGUMENT naming the channel and
+ * pixel. The layers are kept until the next run. */
+LENSRT_API lensrt_result lensrt_image_run(lensrt_image image, const float *input, size_t count);
+/* One output layer (enum lensrt_image_layer) of the last run into out (count as the input). */
+LENSRT_API lensrt_result lensrt_image_get_layer(lensrt_image image, int32_t layer, float *out,
+                                                size_t count);
+LENSRT_API lensrt_result lensrt_image_get_stats(lensrt_image image, lensrt_image_stats *out);
+/* Source i (0 .. stats.n_sources - 1) of the last run. */
+LENSRT_API lensrt_result lensrt_image_get_source(lensrt_image image, int32_t i,
+                                                 lensrt_image_source *out);
+
 #ifdef __cplusplus
 }
 #endif

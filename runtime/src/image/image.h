@@ -1,0 +1,47 @@
+/* An image through the lens (lensrt_image_*, issue 38): the object shared by its parts.
+ *
+ *   image.c   the public calls: checks, layers, stats, sources
+ *   direct.c  the direct layer: light moved to its chief points, split over the bank's
+ *             nodes, each node's PSF applied by FFT convolution
+ *   flare.c   the flare layers: sources found, their ghosts rendered and resampled
+ *   fft.c     the complex FFT the convolutions use */
+#ifndef LENSRT_IMAGE_IMAGE_H
+#define LENSRT_IMAGE_IMAGE_H
+
+#include "lensrt.h"
+
+struct image_direct; /* direct.c's state */
+struct image_flare;  /* flare.c's state */
+
+struct lensrt_image_s {
+    lensrt_context ctx;
+    lensrt_image_desc desc;      /* a full copy; its pointers point at the copies below */
+    double *channel_weights;     /* n_channels x n_wavelengths (owned) */
+    lensrt_lens *ghosts;         /* n_ghosts (owned array, borrowed lenses) */
+    int n_wavelengths;           /* the bank's */
+    const double *wavelengths_nm; /* the bank's (valid while it lives) */
+    double focal_y_mm;           /* desc.focal_y_mm, or focal_x_mm when 0 */
+    size_t plane;                /* width x height */
+    int n_layers;                /* 2 + n_ghosts */
+    float *layers;               /* n_layers x n_channels x plane, zero before a run */
+    int has_run;
+    lensrt_image_stats stats;
+    lensrt_image_source *sources; /* max_sources */
+    struct image_direct *direct;
+    struct image_flare *flare;
+};
+
+/* direct.c: set up after the description is checked (bank slice, field grid covering
+ * the frame); run writes the direct layer (n_channels planes) and its stats fields. */
+lensrt_result image_direct_create(struct lensrt_image_s *im);
+void image_direct_destroy(struct lensrt_image_s *im);
+lensrt_result image_direct_run(struct lensrt_image_s *im, const float *input, float *direct);
+
+/* flare.c: run finds the sources (im->sources, stats.n_sources) and writes one layer per
+ * ghost (n_ghosts x n_channels planes, zeroed first) and its stats fields; nothing
+ * when n_ghosts is 0. */
+lensrt_result image_flare_create(struct lensrt_image_s *im);
+void image_flare_destroy(struct lensrt_image_s *im);
+lensrt_result image_flare_run(struct lensrt_image_s *im, const float *input, float *ghosts);
+
+#endif
