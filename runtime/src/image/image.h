@@ -21,6 +21,9 @@ struct lensrt_image_s {
     int n_wavelengths;           /* the bank's */
     const double *wavelengths_nm; /* the bank's (valid while it lives) */
     double focal_y_mm;           /* desc.focal_y_mm, or focal_x_mm when 0 */
+    double *axis_power;          /* n_wavelengths: the sum of the bank's PSF pixels at field
+                                    (0, 0) (owned; image.c): both layers are divided by it,
+                                    so a lossless axis keeps a pixel's value */
     size_t plane;                /* width x height */
     int n_layers;                /* 2 + n_ghosts */
     float *layers;               /* n_layers x n_channels x plane, zero before a run */
