@@ -1002,6 +1002,38 @@ def cmd_bank(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_image(args: argparse.Namespace) -> int:
+    from lensfit.banks.engine import TaskError
+    from lensfit.image.through import Options, summary_lines, through_lens, write_preview
+
+    _check_dask_args(args)
+    aperture: dict[str, object] = {}
+    if args.blades:
+        aperture = {"shape": "blades", "blades": args.blades,
+                    "blade_curvature": args.blade_curvature, "rotation_deg": args.rotation}
+    o = Options(f_number=args.f_number, focus_offset_mm=args.focus_offset,
+                pixel_mm=None if args.pixel_um is None else args.pixel_um * 1e-3,
+                sensor_width_mm=args.sensor_width, focal_mm=args.focal, aperture=aperture,
+                nodes_x=args.nodes, target_error=args.target_error,
+                ghosts=None if args.ghosts == "none" else args.ghosts,
+                flare_threshold=args.threshold, max_sources=args.max_sources,
+                flare_target_error=args.flare_target_error,
+                flare_downsample=args.flare_downsample, depth_slices=args.depth_slices,
+                cache=args.cache, scheduler=args.scheduler, workers=args.workers,
+                progress=not args.no_progress)
+    try:
+        result = through_lens(args.lens, args.input, args.out, o, generated=_generated(args),
+                              say=lambda line: print(line, file=sys.stderr, flush=True))
+    except TaskError as e:
+        print(f"lensfit: error: {e}; rerun the same command to resume the bank",
+              file=sys.stderr)
+        return 1
+    if args.png:
+        write_preview(result, args.png)
+    print("\n".join(summary_lines(result)))
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(prog="lensfit", description=__doc__.split("\n\n")[0])
     sub = ap.add_subparsers(dest="cmd", required=True)
@@ -1207,6 +1239,57 @@ def build_parser() -> argparse.ArgumentParser:
                         "(check.json; a few seconds)")
     _generated_arg(p, "where the spec's lens id is looked up")
     p.set_defaults(func=cmd_bank)
+
+    p = sub.add_parser("image", help="put a linear HDR frame (EXR) through a lens: direct, "
+                       "flare and ghost layers")
+    p.add_argument("lens", help="lens id, generated folder or .table")
+    p.add_argument("input", help="linear EXR: R, G, B or spectral S0.<lambda>nm channels, "
+                   "optional Z (depth, mm from the first vertex)")
+    p.add_argument("-o", "--out", required=True, help="output EXR (layers direct, flare, "
+                   "ghost_<i>_<j>; unprefixed channels: their total)")
+    p.add_argument("--png", default=None, help="also a tone-mapped preview PNG of the total")
+    p.add_argument("--f-number", type=float, default=8.0, help="the stop (default 8)")
+    p.add_argument("--focus-offset", type=float, default=0.0,
+                   help="sensor shift z_S in mm, + away from the lens (default 0)")
+    p.add_argument("--pixel-um", type=float, default=None,
+                   help="pixel pitch in um (default: sensor width / frame width)")
+    p.add_argument("--sensor-width", type=float, default=None,
+                   help="sensor width in mm (default: the EXR's lensfit/sensorWidthMm, "
+                        "else 36)")
+    p.add_argument("--focal", type=float, default=None,
+                   help="the input's pinhole focal length in mm (default: the EXR's "
+                        "lensfit/pinholeFocalMm, else the lens's)")
+    p.add_argument("--blades", type=int, default=0, help="aperture blades (0: a circle)")
+    p.add_argument("--blade-curvature", type=float, default=0.0)
+    p.add_argument("--rotation", type=float, default=0.0, help="blade rotation, degrees")
+    p.add_argument("--nodes", type=int, default=9,
+                   help="bank field points across the frame (y's from its aspect)")
+    p.add_argument("--target-error", type=float, default=0.01,
+                   help="each bank node's relative L2 error estimate (default 0.01)")
+    p.add_argument("--ghosts", default="kept",
+                   help="ghost tables: 'kept' (the lens folder's ghosts/), a folder, or "
+                        "'none'")
+    p.add_argument("--threshold", type=float, default=0.0,
+                   help="a pixel whose channels sum above this is a light source (default: "
+                        "the frame's brightest / 16)")
+    p.add_argument("--max-sources", type=int, default=0,
+                   help="the brightest sources given flares (default 16)")
+    p.add_argument("--flare-target-error", type=float, default=0.0,
+                   help="each ghost render's error estimate (default 0.02)")
+    p.add_argument("--flare-downsample", type=int, default=0,
+                   help="frame pixels per ghost-render pixel per axis (default 4)")
+    p.add_argument("--depth-slices", type=int, default=4,
+                   help="distances the depth channel is split over (default 4)")
+    p.add_argument("--cache", default=None,
+                   help="bank cache folder (default: $LENSFIT_IMAGE_CACHE, else "
+                        "build/image-cache)")
+    p.add_argument("--scheduler", default=None,
+                   help="address of a running Dask scheduler for the bank")
+    p.add_argument("--workers", type=int, default=None,
+                   help="LocalCluster workers for the bank (0: in this process)")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    _generated_arg(p, "where the lens id is looked up")
+    p.set_defaults(func=cmd_image)
 
     p = sub.add_parser("scene", help="specialise a fitted lens for one scene")
     p.add_argument("lens")

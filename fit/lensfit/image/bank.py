@@ -1,0 +1,153 @@
+"""The bank of PSFs a frame needs: the lens's field over the frame, built once and cached.
+
+A frame's bank (:func:`frame_bank_spec`) has
+
+* field points on a grid uniform in the tangent of the field angle (the sensor's own
+  scale), from the frame's outer edges inwards, ``nodes`` per axis (the x count, with
+  y's from the frame's aspect, odd so that the axis is a node);
+* one f-number, one focus offset, the distances the frame needs (infinity, or those of
+  its depth channel);
+* the frame's pixel pitch, and a window an odd number of pixels wide (the chief point on
+  a pixel centre) that holds the geometric footprint of every corner's rays (at least
+  PSF_MIN_HALF pixels either side);
+* the aperture, wavelengths and each node's target error as asked.
+
+It is rendered by :func:`lensfit.banks.run.run_bank` (Dask, resumable) in a cache folder
+named after the spec's digest, so the same frame geometry and lens reuse it.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from lensfit.image.frame import FrameError, Geometry
+
+PSF_MIN_HALF = 8  # pixels either side of the chief point at least
+PSF_MAX_HALF = 96  # at most (a window of 193 px: a PSF wider than that is a defocus)
+FOOTPRINT_MARGIN_PX = 3  # beyond the geometric footprint: the diffraction's skirt
+RGB_WAVELENGTHS_NM = (420.0, 470.0, 510.0, 550.0, 590.0, 630.0, 670.0, 700.0)
+DEFAULT_NODES_X = 9
+CACHE_ENV = "LENSFIT_IMAGE_CACHE"
+DEFAULT_CACHE = Path("build") / "image-cache"
+
+
+def tan_grid(lo_deg: float, hi_deg: float, n: int) -> tuple[float, ...]:
+    """n field angles uniform in tan between lo and hi (degrees), rounded to 1e-9 deg
+    (the bank index writes repr floats; rounding keeps the spec's digest stable)."""
+    t = np.linspace(math.tan(math.radians(lo_deg)), math.tan(math.radians(hi_deg)), n)
+    return tuple(round(float(v), 9) + 0.0 for v in np.degrees(np.arctan(t)))
+
+
+def node_counts(geometry: Geometry, nodes_x: int) -> tuple[int, int]:
+    """Nodes along x and y: nodes_x (odd), and y's spacing about x's on the sensor."""
+    if nodes_x < 2:
+        raise FrameError(f"--nodes = {nodes_x}: expected at least 2 field points per axis")
+    w, h = geometry.size_mm
+    ny = max(2, int(round((nodes_x - 1) * h / w)) + 1)
+    if nodes_x % 2 == 1 and ny % 2 == 0:
+        ny += 1  # odd: the axis is a node of both
+    return nodes_x, ny
+
+
+def window_half_px(rt: Any, lens: Any, geometry: Geometry, fields: list[tuple[float, float]],
+                   wavelengths: tuple[float, ...], f_number: float, focus_offset_mm: float,
+                   distance_mm: float, aperture: dict[str, Any]) -> int:
+    """Half the window (pixels) that holds every given field point's rays at the shortest
+    and longest wavelengths, about each one's chief point."""
+    half = float(PSF_MIN_HALF)
+    for fx, fy in fields:
+        for lam in (wavelengths[0], wavelengths[-1]):
+            light = (fx, fy, 0.0 if math.isinf(distance_mm) else distance_mm, 1.0)
+            cx, cy = rt.image_point(lens, light, lam, focus_offset_mm)
+            r = rt.create(lens, width=1, height=1, width_mm=geometry.pitch_mm,
+                          center=(cx, cy), focus_offset_mm=focus_offset_mm,
+                          f_number=f_number, lights=[light], wavelengths=[lam], **aperture)
+            x0, x1, y0, y1 = r.footprint()
+            if x0 <= x1:
+                reach = max(cx - x0, x1 - cx, cy - y0, y1 - cy) / geometry.pitch_mm
+                half = max(half, reach + FOOTPRINT_MARGIN_PX)
+    if half > PSF_MAX_HALF:
+        raise FrameError(f"the PSF reaches {half:.0f} pixels from its chief point (more than "
+                         f"{PSF_MAX_HALF}): the sensor is far out of focus for this pitch; "
+                         "give a focus offset nearer the lens's focus or a coarser pitch")
+    return int(math.ceil(half))
+
+
+def frame_bank_spec(name: str, table: Path, geometry: Geometry, *, f_number: float,
+                    focus_offset_mm: float, distances_mm: tuple[float, ...],
+                    wavelengths_nm: tuple[float, ...], half_px: int, nodes_x: int,
+                    aperture: dict[str, Any], target_error: float) -> dict[str, Any]:
+    """The bank spec (as lensfit.banks.spec reads it) for a frame."""
+    (x0, x1), (y0, y1) = geometry.edge_fields_deg()
+    nx, ny = node_counts(geometry, nodes_x)
+    pixels = 2 * half_px + 1
+    spec: dict[str, Any] = {
+        "name": name, "lens": str(table),
+        "grid": {"field_x_deg": list(tan_grid(x0, x1, nx)),
+                 "field_y_deg": list(tan_grid(y0, y1, ny)),
+                 "f_numbers": [f_number], "focus_offsets_mm": [focus_offset_mm],
+                 "distances_mm": ["inf" if math.isinf(d) else d for d in distances_mm],
+                 "wavelengths_nm": list(wavelengths_nm)},
+        "window": {"pixels": [pixels, pixels],
+                   "size_mm": [pixels * geometry.pitch_mm, pixels * geometry.pitch_mm]},
+        "render": {"integrator": "cells", "target_error": target_error},
+    }
+    shape = aperture.get("shape", "circle")
+    if shape != "circle":
+        spec["aperture"] = {"shape": shape, "blades": int(aperture.get("blades", 0)),
+                            "blade_curvature": float(aperture.get("blade_curvature", 0.0)),
+                            "rotation_deg": float(aperture.get("rotation_deg", 0.0))}
+    return spec
+
+
+def _toml_value(v: Any) -> str:
+    if isinstance(v, str):
+        return '"' + v.replace("\\", "\\\\").replace('"', '\\"') + '"'
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, (list, tuple)):
+        return "[" + ", ".join(_toml_value(x) for x in v) + "]"
+    return repr(v)
+
+
+def spec_toml(spec: dict[str, Any]) -> str:
+    """A bank spec dict as TOML (only the shapes frame_bank_spec makes)."""
+    top = [f"{k} = {_toml_value(v)}" for k, v in spec.items() if not isinstance(v, dict)]
+    tables = [f"\n[{k}]\n" + "\n".join(f"{kk} = {_toml_value(vv)}" for kk, vv in v.items())
+              for k, v in spec.items() if isinstance(v, dict)]
+    return "\n".join(top) + "\n" + "\n".join(tables) + "\n"
+
+
+def cache_folder(cache: str | Path | None, spec: dict[str, Any]) -> Path:
+    """The spec's folder in the cache: <cache>/<the spec's digest>."""
+    from lensfit.banks.spec import BankSpec
+
+    root = Path(cache or os.environ.get(CACHE_ENV) or DEFAULT_CACHE)
+    return root / BankSpec.from_dict(spec).digest()[:20]
+
+
+def ensure_bank(spec: dict[str, Any], cache: str | Path | None, *, scheduler: str | None,
+                workers: int | None, progress: bool, say: Any = None
+                ) -> tuple[Path, dict[str, Any]]:
+    """The bank's index, rendering the nodes not yet in the cache (Dask): its path and
+    what it cost ({'rendered': nodes, 'cpu_seconds', 'wall_seconds'})."""
+    from lensfit.atomic import make_folder, write_atomic
+    from lensfit.banks.run import run_bank
+
+    folder = cache_folder(cache, spec)
+    make_folder(folder, "image bank cache folder")
+    spec_path = folder / "spec.toml"
+    text = spec_toml(spec)
+    if not spec_path.exists() or spec_path.read_text() != text:
+        write_atomic(spec_path, text)
+    summary = run_bank(spec_path, folder / "bank", scheduler=scheduler, workers=workers,
+                       progress=progress, sheet=False, check=False, say=say)
+    return summary.index, {"nodes": summary.nodes, "rendered": summary.rendered,
+                           "cpu_seconds": summary.cpu_seconds,
+                           "wall_seconds": summary.wall_seconds,
+                           "worst_error": summary.worst_error}
