@@ -118,7 +118,8 @@ def make_sheet(panels: list[Panel], out: Path, title: str | None = None,
         level = white_level([p.rgb], percentile) if p.own_exposure else common
         label = p.label
         if p.own_exposure:
-            label += f" (own exposure, x{common / level:.3g})"
+            label += (f" (own exposure, x{common / level:.3g})" if level > 1e-30
+                      else " (own exposure: black)")
         # figimage places pixels from the bottom left, unscaled
         fig.figimage(tone_map(p.rgb, level, decades), xo=x, yo=height - top - h,
                      origin="upper")
