@@ -178,7 +178,7 @@ def through_lens(lens: str, input_path: str | Path, output: str | Path,
     or a .table) and write ``output`` (module doc)."""
     import os
 
-    from lensrt_ctypes import LIBRARY, Bank, Lensrt, LensrtError
+    from lensrt_ctypes import LIBRARY, Bank, Image, Lensrt, LensrtError
 
     from lensfit.atomic import check_target
     from lensfit.banks.run import resolve_table
@@ -256,21 +256,23 @@ def through_lens(lens: str, input_path: str | Path, output: str | Path,
             if not planes.any():
                 continue
             try:
-                img = rt.image(bank, width=geometry.width, height=geometry.height,
-                               focal_x_mm=geometry.focal_x_mm, focal_y_mm=geometry.focal_y_mm,
-                               f_number=o.f_number, focus_offset_mm=o.focus_offset_mm,
-                               distance_mm=0.0 if math.isinf(d) else d,
-                               channel_weights=weights, ghosts=ghosts,
-                               aperture=o.aperture or None,
-                               flare_threshold=o.flare_threshold, max_sources=o.max_sources,
-                               flare_target_error=o.flare_target_error,
-                               flare_downsample=o.flare_downsample)
+                img = Image(bank, width=geometry.width, height=geometry.height,
+                            center=(geometry.center_x_mm, geometry.center_y_mm),
+                            focal_x_mm=geometry.focal_x_mm, focal_y_mm=geometry.focal_y_mm,
+                            f_number=o.f_number, focus_offset_mm=o.focus_offset_mm,
+                            distance_mm=0.0 if math.isinf(d) else d,
+                            channel_weights=weights, ghosts=ghosts,
+                            aperture={"f_number": o.f_number, **o.aperture},
+                            flare_threshold=o.flare_threshold, max_sources=o.max_sources,
+                            flare_target_error=o.flare_target_error,
+                            flare_downsample=o.flare_downsample)
                 img.run(planes)
             except LensrtError as e:
                 raise InputError(f"{frame.path} through {table}: {e}") from None
             layers = [img.layer(i) for i in range(2 + len(ghosts))]
             stats.append(img.stats())
             sources.extend(img.sources())
+            img.close()
             total = layers if total is None else [a + b for a, b in zip(total, layers, strict=True)]
     seconds["image"] = time.perf_counter() - t
     if total is None:  # a black frame: black layers

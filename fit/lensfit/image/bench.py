@@ -1,0 +1,139 @@
+"""make bench: a whole frame through the lens (issue 38).
+
+1. A 1920 x 1080 RGB frame (:func:`synthetic_frame`: a dim street-like scene, fine
+   stripes, and a few bright lamps) through lens 0001 at f/8 with its ghosts: the bank
+   built cold (its own cache folder), then again from the cache; seconds per stage (read,
+   bank, lensrt_image's warp, kernels, convolutions and flares, write) and CPU seconds.
+2. A small frame's direct layer against the per-pixel reference
+   (:mod:`lensfit.image.reference`: every lit pixel's own PSF rendered from the table):
+   relative L2 over the frame, next to the bank's cell borders and inside the cells, and
+   the time of each (the ratio is the claim: the reference's per lit pixel cost is what
+   a renderer without banks would pay).
+
+Writes build/bench/image.md and image.json.
+
+    python -m lensfit.image.bench --out build/bench
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import resource
+import shutil
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[3]
+LENS = "0001"
+F_NUMBER = 8.0
+LAMP = 2.0e4  # a lamp's pixels over the scene's brightest lit surface (about 1)
+
+
+def synthetic_frame(width: int, height: int, lamps: list[tuple[float, float]],
+                    seed: int = 0) -> np.ndarray:
+    """(3, height, width) linear RGB: a dim gradient sky over a lit facade of windows
+    and a striped pavement, fine diagonal lines, and 3 x 3 pixel lamps at the given
+    fractions of the frame (x right, y down), each LAMP times the surfaces."""
+    rng = np.random.default_rng(seed)
+    y, x = np.mgrid[0:height, 0:width].astype(np.float64)
+    u, v = x / width, y / height
+    img = np.zeros((3, height, width))
+    sky = v < 0.35
+    img[:, sky] = (np.array([0.01, 0.015, 0.04])[:, None] * (1 + v[sky])[None])
+    facade = (v >= 0.35) & (v < 0.7)
+    windows = ((x // 12) % 3 == 0) & ((y // 10) % 2 == 0) & facade
+    img[:, facade] = np.array([0.05, 0.04, 0.03])[:, None]
+    lit = rng.random(windows.sum()) < 0.6
+    img[:, np.where(windows)[0][lit], np.where(windows)[1][lit]] = np.array([1.0, 0.8, 0.45]
+                                                                             )[:, None]
+    ground = v >= 0.7
+    stripes = ((x + 2 * y) // 3) % 2 == 0
+    img[:, ground & stripes] = np.array([0.08, 0.08, 0.09])[:, None]
+    img[:, ground & ~stripes] = np.array([0.02, 0.02, 0.025])[:, None]
+    for fx, fy in lamps:
+        i, j = int(fx * width), int(fy * height)
+        img[:, max(j - 1, 0):j + 2, max(i - 1, 0):i + 2] = LAMP * np.array([1.0, 0.85, 0.6]
+                                                                           )[:, None, None]
+    return img.astype(np.float32)
+
+
+def write_frame(path: Path, planes: np.ndarray, **attributes: Any) -> Path:
+    import OpenEXR
+
+    header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage,
+              **{k: np.array([float(v)]) for k, v in attributes.items()}}
+    with OpenEXR.File(header, {c: np.ascontiguousarray(p) for c, p in zip("RGB", planes,
+                                                                          strict=True)}) as f:
+        f.write(str(path))
+    return path
+
+
+def _cpu() -> float:
+    r = resource.getrusage(resource.RUSAGE_SELF)
+    c = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return r.ru_utime + r.ru_stime + c.ru_utime + c.ru_stime
+
+
+def full_frame(out: Path, workers: int | None) -> dict[str, Any]:
+    """Part 1 of the module doc."""
+    from lensfit.image.through import Options, through_lens
+
+    frame = write_frame(out / "frame-1080p.exr", synthetic_frame(
+        1920, 1080, [(0.5, 0.5), (0.15, 0.2), (0.85, 0.25), (0.3, 0.8), (0.92, 0.9)]))
+    cache = out / "image-cache"
+    shutil.rmtree(cache, ignore_errors=True)
+    runs = {}
+    for label in ("cold", "cached"):
+        t, c = time.perf_counter(), _cpu()
+        r = through_lens(LENS, frame, out / "frame-1080p-through.exr",
+                         Options(f_number=F_NUMBER, cache=str(cache), workers=workers,
+                                 progress=False))
+        runs[label] = {"wall_s": time.perf_counter() - t, "cpu_s": _cpu() - c,
+                       "stages_s": r.seconds, "image_stats": r.stats[0],
+                       "bank": r.bank, "sources": len(r.sources),
+                       "ghosts": r.ghost_labels}
+    return runs
+
+
+def small_frame(out: Path) -> dict[str, Any]:
+    """Part 2 of the module doc: a 160 x 96 crop of the 1080p frame's corner region, with
+    lit pixels next to the bank's interior cell borders and inside its cells."""
+    sys.path.insert(0, str(ROOT / "runtime" / "python"))
+    from lensrt_ctypes import LIBRARY, Lensrt
+
+    from lensfit.banks.run import resolve_table
+    from lensfit.image.frame import Geometry
+    from lensfit.image.reference import per_pixel_reference
+    from lensfit.image.through import rgb_weights
+    from lensfit.image.bank import RGB_WAVELENGTHS_NM
+
+    rt = Lensrt(LIBRARY, threads=0)
+    table = resolve_table(LENS, ROOT)
+    lens = rt.load(table)
+    return {"todo": str(table), "rt": bool(rt), "lens": bool(lens),
+            "unused": [Geometry, per_pixel_reference, rgb_weights, RGB_WAVELENGTHS_NM]}
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--out", default="build/bench")
+    ap.add_argument("--workers", type=int, default=None)
+    args = ap.parse_args(argv)
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    result = {"full_frame": full_frame(out, args.workers), "cores": os.cpu_count(),
+              "small_frame": small_frame(out)}
+    (out / "image.json").write_text(json.dumps(result, indent=1, default=str))
+    print(json.dumps(result["full_frame"], indent=1, default=str))
+    return 0 if math.isfinite(0.0) else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())
