@@ -971,6 +971,12 @@ lensrt_result lensrt_bank_get_info(lensrt_bank b, lensrt_bank_info *out)
     return lensrt_struct_out(b->ctx, "lensrt_bank_info", out, &info, sizeof info);
 }
 
+/* How the bank's node images are placed (internal; lensrt_image_create needs `channel`). */
+const char *lensrt_bank_registration(lensrt_bank b)
+{
+    return b ? REGISTRATION_NAMES[b->registration] : "";
+}
+
 /* The bank's values of an axis as text for a message: "2, 8, 16" (cut short when long). */
 static void list_values(const lensrt_bank b, int axis, char *buf, size_t size)
 {
