@@ -319,8 +319,19 @@ static lensrt_result build_kernels(struct lensrt_image_s *im, struct image_direc
         size_t o;
         for (l = 0; l < nl; l++) norm += im->channel_weights[(size_t)c * (size_t)nl + (size_t)l] * im->axis_power[l];
         if (any_shift) {
+            double before = 0.0, after = 0.0;
             image_fft_2d_inverse(kx, ky, spec + 2 * (size_t)c * kn, work, 0, d->kh);
             for (o = 0; o < kn; o++) acc[(size_t)c * kn + o] += spec[2 * ((size_t)c * kn + o)] / (double)kn;
+            // A band-limited shift of a PSF that is not band-limited ripples, partly below
+            // 0 (1e-5 of the peak for a Gaussian of 1.5 pixels): irradiance is not, so the
+            // ripple's negative part is cut and the rest scaled to keep the kernel's power
+            // (the shift's own, exactly the PSFs' weighted sum)
+            for (o = 0; o < kn; o++) {
+                before += acc[(size_t)c * kn + o];
+                if (acc[(size_t)c * kn + o] < 0.0) acc[(size_t)c * kn + o] = 0.0;
+                after += acc[(size_t)c * kn + o];
+            }
+            for (o = 0; o < kn && after > 0.0; o++) acc[(size_t)c * kn + o] *= before / after;
         }
         for (o = 0; o < kn; o++) p->kernels[(size_t)c * kn + o] = (float)(acc[(size_t)c * kn + o] / norm);
     }
@@ -739,10 +750,11 @@ lensrt_result image_direct_run(struct lensrt_image_s *im, const float *input, fl
             t_convolve += wall * (1.0 - share);
         }
     }
-    // Irradiance is >= 0. The kernels are >= 0 except for the band-limited shifts' ripple
-    // and the transforms' rounding (about 1e-16 of the largest value): what falls below 0
-    // is clamped to 0, and every value is finite (finite input and kernels, sums of
-    // bounded products).
+    // Irradiance is >= 0: the input is, and so is every kernel (build_kernels), so the
+    // exact convolutions are; what the transforms' rounding leaves below 0 (about 1e-16
+    // of the largest value of a node's layer times its kernel's sum: values below -1e-6 of
+    // the largest are impossible) is clamped to 0. Every value is finite (finite input
+    // and kernels, sums of bounded products).
     for (p = 0; p < (size_t)nc * im->plane; p++)
         if (direct[p] < 0.0f) direct[p] = 0.0f;
     im->stats.seconds_warp = t_warp;
