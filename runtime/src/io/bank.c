@@ -1136,10 +1136,12 @@ lensrt_result lensrt_bank_psf(lensrt_bank b, const lensrt_bank_query *query, flo
             for (c = 0; c < 2; c++) {
                 const double w = wf * (c ? tl : 1.0 - tl);
                 const int ch = il + c;
-                const double ux = node->chief[2 * ch], uy = node->chief[2 * ch + 1];
-                double sx = 0.0, sy = 0.0, fx, fy;
+                double ux, uy, sx = 0.0, sy = 0.0, fx, fy;
                 psf_term *t;
+                // (a channel of weight 0 may be past the last: a bank of one wavelength)
                 if (w == 0.0) continue;
+                ux = node->chief[2 * ch];
+                uy = node->chief[2 * ch + 1];
                 // The shift in pixels (row 0 at +y), whole and fractional parts: a node
                 // centred on its middle chief point moves each channel onto its own; none
                 // when each channel is centred on its own, or the nodes share one window
