@@ -795,3 +795,153 @@ class Bank:
             self.handle, C.byref(query), out.ctypes.data_as(C.POINTER(C.c_float)),
             C.c_size_t(out.size), chief))
         return out, (chief[0], chief[1])
+
+
+class ImageDesc(Versioned):
+    _fields_ = [("struct_size", C.c_size_t), ("bank", C.c_void_p), ("f_number", C.c_double),
+                ("focus_offset_mm", C.c_double), ("distance_mm", C.c_double),
+                ("width", C.c_int32), ("height", C.c_int32),
+                ("center_x_mm", C.c_double), ("center_y_mm", C.c_double),
+                ("focal_x_mm", C.c_double), ("focal_y_mm", C.c_double),
+                ("n_channels", C.c_int32), ("channel_weights", C.POINTER(C.c_double)),
+                ("ghosts", C.POINTER(C.c_void_p)), ("n_ghosts", C.c_int32),
+                ("aperture", Aperture), ("flare_threshold", C.c_double),
+                ("max_sources", C.c_int32), ("flare_target_error", C.c_double),
+                ("flare_downsample", C.c_int32)]
+
+
+class ImageStats(Versioned):
+    _fields_ = [("struct_size", C.c_size_t), ("seconds_warp", C.c_double),
+                ("seconds_kernels", C.c_double), ("seconds_convolve", C.c_double),
+                ("seconds_flares", C.c_double), ("n_nodes", C.c_int32),
+                ("fft_width", C.c_int32), ("fft_height", C.c_int32),
+                ("n_sources", C.c_int32), ("n_ghost_renders", C.c_int32),
+                ("worst_flare_error", C.c_double)]
+
+
+class ImageSource(Versioned):
+    _fields_ = [("struct_size", C.c_size_t), ("field_x_deg", C.c_double),
+                ("field_y_deg", C.c_double), ("power", C.c_double), ("pixels", C.c_int32)]
+
+
+IMAGE_DIRECT, IMAGE_FLARE, IMAGE_GHOST = 0, 1, 2
+
+
+class Image:
+    """An image through the lens (lensrt_image_*, 0.11.0): a pinhole framebuffer of
+    (n_channels, height, width) float32 through a bank's PSFs (``registration channel``)
+    and its lens's ghosts. ``run(input)`` puts one frame through; ``layer(i)`` reads a
+    layer back (IMAGE_DIRECT, IMAGE_FLARE, IMAGE_GHOST + g). The bank must outlive the
+    image (the image keeps a reference to it)."""
+
+    def __init__(self, bank: Bank, *, width: int, height: int, focal_x_mm: float,
+                 focal_y_mm: float = 0.0, center: tuple[float, float] = (0.0, 0.0),
+                 f_number: float = 0.0, focus_offset_mm: float = 0.0, distance_mm: float = 0.0,
+                 channel_weights: np.ndarray | Sequence[Sequence[float]] | None = None,
+                 n_channels: int = 0, ghosts: Sequence[C.c_void_p] = (),
+                 aperture: dict[str, Any] | None = None, flare_threshold: float = 0.0,
+                 max_sources: int = 0, flare_target_error: float = 0.0,
+                 flare_downsample: int = 0) -> None:
+        """``channel_weights``: (n_channels, bank wavelengths), or None for one channel per
+        bank wavelength; ``aperture``: the ghost renders' (keys of Render's: shape,
+        radius_mm, f_number, blades, blade_curvature, rotation_deg, slit_width_mm,
+        slit_separation_mm)."""
+        rt = bank.rt
+        lib = rt.lib
+        _need(lib, "lensrt_image_create", since="0.11.0").argtypes = [
+            C.c_void_p, C.POINTER(ImageDesc), C.POINTER(C.c_void_p)]
+        lib.lensrt_image_destroy.argtypes = [C.c_void_p]
+        lib.lensrt_image_run.argtypes = [C.c_void_p, C.POINTER(C.c_float), C.c_size_t]
+        lib.lensrt_image_get_layer.argtypes = [C.c_void_p, C.c_int32, C.POINTER(C.c_float),
+                                               C.c_size_t]
+        lib.lensrt_image_get_stats.argtypes = [C.c_void_p, C.POINTER(ImageStats)]
+        lib.lensrt_image_get_source.argtypes = [C.c_void_p, C.c_int32, C.POINTER(ImageSource)]
+        self.rt = rt
+        self.bank = bank
+        self.handle: C.c_void_p | None = None
+        desc = ImageDesc()
+        desc.bank = bank.handle
+        desc.f_number = f_number
+        desc.focus_offset_mm, desc.distance_mm = focus_offset_mm, distance_mm
+        desc.width, desc.height = width, height
+        desc.center_x_mm, desc.center_y_mm = center
+        desc.focal_x_mm, desc.focal_y_mm = focal_x_mm, focal_y_mm
+        keep: list[Any] = []
+        if channel_weights is None:
+            desc.n_channels = n_channels or len(bank.info()["wavelengths_nm"])
+        else:
+            w = np.ascontiguousarray(channel_weights, dtype=np.float64)
+            if w.ndim != 2:
+                raise ValueError(f"channel_weights: shape {w.shape}; (n_channels, wavelengths)")
+            keep.append(w)
+            desc.n_channels = w.shape[0]
+            desc.channel_weights = w.ctypes.data_as(C.POINTER(C.c_double))
+        if ghosts:
+            arr = (C.c_void_p * len(ghosts))(*[g.value if isinstance(g, C.c_void_p) else g
+                                               for g in ghosts])
+            keep.append(arr)
+            desc.ghosts = arr
+            desc.n_ghosts = len(ghosts)
+        ap = dict(aperture or {})
+        desc.aperture = Aperture(SHAPES[ap.get("shape", "circle")], ap.get("radius_mm", 0.0),
+                                 ap.get("f_number", 0.0), ap.get("blades", 0),
+                                 ap.get("blade_curvature", 0.0), ap.get("rotation_deg", 0.0),
+                                 ap.get("slit_width_mm", 0.0), ap.get("slit_separation_mm", 0.0))
+        desc.flare_threshold, desc.max_sources = flare_threshold, max_sources
+        desc.flare_target_error, desc.flare_downsample = flare_target_error, flare_downsample
+        handle = C.c_void_p()
+        rt._check(lib.lensrt_image_create(rt.ctx, C.byref(desc), C.byref(handle)))
+        self.handle = handle
+        self.shape = (int(desc.n_channels), height, width)
+        self.n_layers = 2 + len(ghosts)
+
+    @classmethod
+    def create(cls, bank: Bank, **kwargs: Any) -> Image:
+        """The same as Image(bank, **kwargs)."""
+        return cls(bank, **kwargs)
+
+    def close(self) -> None:
+        if getattr(self, "handle", None) and getattr(self.rt, "ctx", None):
+            self.rt.lib.lensrt_image_destroy(self.handle)
+        self.handle = None
+
+    def __del__(self) -> None:
+        self.close()
+
+    def __enter__(self) -> Image:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def run(self, frame: np.ndarray) -> None:
+        """Put one framebuffer through: float32 (n_channels, height, width), finite, >= 0."""
+        a = np.ascontiguousarray(frame, dtype=np.float32)
+        if a.shape != self.shape:
+            raise ValueError(f"frame: shape {a.shape}; the image takes {self.shape}")
+        self.rt._check(self.rt.lib.lensrt_image_run(
+            self.handle, a.ctypes.data_as(C.POINTER(C.c_float)), C.c_size_t(a.size)))
+
+    def layer(self, i: int = IMAGE_DIRECT) -> np.ndarray:
+        """Layer i of the last run: float32 (n_channels, height, width)."""
+        out = np.zeros(self.shape, dtype=np.float32)
+        self.rt._check(self.rt.lib.lensrt_image_get_layer(
+            self.handle, i, out.ctypes.data_as(C.POINTER(C.c_float)), C.c_size_t(out.size)))
+        return out
+
+    def stats(self) -> dict[str, Any]:
+        """lensrt_image_stats of the last run as a dict."""
+        st = ImageStats()
+        self.rt._check(self.rt.lib.lensrt_image_get_stats(self.handle, C.byref(st)))
+        return {name: getattr(st, name) for name, _ in ImageStats._fields_
+                if name != "struct_size"}
+
+    def sources(self) -> list[dict[str, Any]]:
+        """The sources the last run found (brightest first), each a dict."""
+        out = []
+        for i in range(self.stats()["n_sources"]):
+            s = ImageSource()
+            self.rt._check(self.rt.lib.lensrt_image_get_source(self.handle, i, C.byref(s)))
+            out.append({name: getattr(s, name) for name, _ in ImageSource._fields_
+                        if name != "struct_size"})
+        return out
