@@ -28,6 +28,8 @@ import ctypes as C
 import enum
 import math
 import os
+import struct
+import zlib
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -945,3 +947,88 @@ class Image:
             out.append({name: getattr(s, name) for name, _ in ImageSource._fields_
                         if name != "struct_size"})
         return out
+
+
+# ------------------------------------------------------------------------------------
+# A bank from PSFs the caller already has (tests, benchmarks, measured PSFs): the node
+# EXRs of a `registration channel` bank (uncompressed scanline OpenEXR packed here, no
+# OpenEXR module needed) and its stamped index (lensrt.h, "PSF banks"). lensfit's own
+# writer (lensfit.banks) renders the PSFs; this one only writes them.
+# ------------------------------------------------------------------------------------
+
+def _exr_attr(name: str, kind: str, value: bytes) -> bytes:
+    return name.encode() + b"\0" + kind.encode() + b"\0" + struct.pack("<i", len(value)) + value
+
+
+def spectral_channel_name(wavelength_nm: float) -> str:
+    """lensrt's EXR channel name of a wavelength: "S0.<nm>,<6 decimals>nm"."""
+    micro = math.floor(wavelength_nm * 1e6 + 0.5)
+    return f"S0.{micro // 1000000},{micro % 1000000:06d}nm"
+
+
+def write_node_exr(path: str | os.PathLike[str], planes: np.ndarray,
+                   wavelengths_nm: Sequence[float], identity: str) -> None:
+    """planes (n_wavelengths, height, width) as FLOAT channels named after the
+    wavelengths, no compression, with the string attribute lensrt/bankNode `identity`."""
+    n, h, w = planes.shape
+    names = [spectral_channel_name(v) for v in wavelengths_nm]
+    order = sorted(range(n), key=lambda c: names[c])  # EXR keeps channels sorted
+    box = struct.pack("<4i", 0, 0, w - 1, h - 1)
+    chlist = b"".join(names[c].encode() + b"\0" + struct.pack("<iB3xii", 2, 0, 1, 1)
+                      for c in order) + b"\0"
+    header = (b"\x76\x2f\x31\x01\x02\x00\x00\x00" + _exr_attr("channels", "chlist", chlist)
+              + _exr_attr("compression", "compression", b"\0")
+              + _exr_attr("dataWindow", "box2i", box) + _exr_attr("displayWindow", "box2i", box)
+              + _exr_attr("lineOrder", "lineOrder", b"\0")
+              + _exr_attr("pixelAspectRatio", "float", struct.pack("<f", 1.0))
+              + _exr_attr("screenWindowCenter", "v2f", struct.pack("<2f", 0.0, 0.0))
+              + _exr_attr("screenWindowWidth", "float", struct.pack("<f", 1.0))
+              + _exr_attr("lensrt/bankNode", "string", identity.encode()) + b"\0")
+    data = np.ascontiguousarray(planes[order], dtype="<f4")
+    chunks = [struct.pack("<ii", y, 4 * n * w) + data[:, y, :].tobytes() for y in range(h)]
+    offsets, at = [], len(header) + 8 * h
+    for chunk in chunks:
+        offsets.append(at)
+        at += len(chunk)
+    Path(path).write_bytes(header + struct.pack(f"<{h}Q", *offsets) + b"".join(chunks))
+
+
+def write_bank(folder: str | os.PathLike[str], psfs: np.ndarray, chiefs: np.ndarray, *,
+               field_x_deg: Sequence[float], field_y_deg: Sequence[float],
+               wavelengths_nm: Sequence[float], pixel_mm: float, f_number: float = 8.0,
+               lens_name: str = "synthetic") -> Path:
+    """A `registration channel` bank of one slice (f_number, focus 0, distance 0) in
+    `folder`: psfs (n_field_y, n_field_x, n_wavelengths, height, width), each channel on
+    its own chief point chiefs (n_field_y, n_field_x, n_wavelengths, 2) mm, row 0 at +y.
+    Returns the index's path."""
+    folder = Path(folder)
+    (folder / "nodes").mkdir(parents=True, exist_ok=True)
+    ny, nx, nl, h, w = psfs.shape
+    r = repr
+
+    def grid(key: str, values: Sequence[float]) -> str:
+        return " ".join([key, str(len(values)), *(r(float(v)) for v in values)])
+
+    lines = ["lensrt-bank 1", f"lens {lens_name}", "table_crc32 00000000", f"width {w}",
+             f"height {h}", f"pixel_mm {r(float(pixel_mm))} {r(float(pixel_mm))}",
+             "registration channel", grid("wavelengths_nm", wavelengths_nm),
+             grid("f_numbers", [f_number]), "focus_offsets_mm 1 0.0", "distances_mm 1 0.0",
+             grid("field_x_deg", field_x_deg), grid("field_y_deg", field_y_deg),
+             f"nodes {nx * ny}"]
+    for iy in range(ny):
+        for ix in range(nx):
+            k = iy * nx + ix
+            rel = f"nodes/y{iy}-x{ix}.exr"
+            identity = (f"0 0 0 {iy} {ix} {r(float(f_number))} 0.0 0.0 "
+                        f"{r(float(field_x_deg[ix]))} {r(float(field_y_deg[iy]))}")
+            write_node_exr(folder / rel, psfs[iy, ix], wavelengths_nm, identity)
+            crc = zlib.crc32((folder / rel).read_bytes())
+            mid = chiefs[iy, ix, nl // 2]
+            lines.append(f"node {k} 0 0 0 {iy} {ix} {r(float(mid[0]))} {r(float(mid[1]))} "
+                         f"0.001 {crc:08x} {rel}")
+            lines.append(" ".join(["chief", str(k),
+                                   *(r(float(v)) for v in chiefs[iy, ix].reshape(-1))]))
+    body = "\n".join(lines) + "\n"
+    index = folder / "bank.index"
+    index.write_text(body + f"checksum crc32 {zlib.crc32(body.encode()):08x}\n")
+    return index

@@ -5,21 +5,18 @@ convolution of the input with PSF / axis power, plus the layers, stats, sources 
 refusal through the binding. The deeper checks (energy, seams, distortion, every refusal)
 are tests/runtime/test_image.c's; this one measures the library against numpy's FFT.
 
-The bank is written here: uncompressed scanline EXRs (packed by hand, as
-tests/runtime/bank_files.h does in C) with the lensrt/bankNode attribute of a
-`registration channel` bank, and its stamped index.
+The bank is written by the binding's write_bank (uncompressed scanline EXRs packed by
+hand, as tests/runtime/bank_files.h does in C, with the lensrt/bankNode attribute of a
+`registration channel` bank, and its stamped index).
 """
 
 from __future__ import annotations
 
-import math
-import struct
-import zlib
 from pathlib import Path
 
 import numpy as np
 import pytest
-from lensrt_ctypes import IMAGE_DIRECT, IMAGE_FLARE, Bank, Image, LensrtError, Result
+from lensrt_ctypes import IMAGE_DIRECT, IMAGE_FLARE, Bank, Image, LensrtError, Result, write_bank
 from scipy.signal import fftconvolve
 
 FOCAL_MM = 10.0
@@ -31,76 +28,30 @@ FIELDS_Y = [-1.0, 0.0, 1.0]
 WAVELENGTH_NM = 550.0
 
 
-def spectral_name(nm: float) -> str:
-    micro = int(math.floor(nm * 1e6 + 0.5))
-    return f"S0.{micro // 1000000},{micro % 1000000:06d}nm"
-
-
-def attr(name: str, kind: str, value: bytes) -> bytes:
-    return name.encode() + b"\0" + kind.encode() + b"\0" + struct.pack("<i", len(value)) + value
-
-
-def write_exr(path: Path, plane: np.ndarray, identity: str) -> None:
-    """One FLOAT channel, no compression, one scanline a chunk."""
-    h, w = plane.shape
-    box = struct.pack("<4i", 0, 0, w - 1, h - 1)
-    chlist = (spectral_name(WAVELENGTH_NM).encode() + b"\0"
-              + struct.pack("<iB3xii", 2, 0, 1, 1) + b"\0")
-    header = (b"\x76\x2f\x31\x01\x02\x00\x00\x00" + attr("channels", "chlist", chlist)
-              + attr("compression", "compression", b"\0") + attr("dataWindow", "box2i", box)
-              + attr("displayWindow", "box2i", box) + attr("lineOrder", "lineOrder", b"\0")
-              + attr("pixelAspectRatio", "float", struct.pack("<f", 1.0))
-              + attr("screenWindowCenter", "v2f", struct.pack("<2f", 0.0, 0.0))
-              + attr("screenWindowWidth", "float", struct.pack("<f", 1.0))
-              + attr("lensrt/bankNode", "string", identity.encode()) + b"\0")
-    start = len(header) + 8 * h
-    chunks = [struct.pack("<ii", y, 4 * w) + plane[y].astype("<f4").tobytes() for y in range(h)]
-    offsets, at = [], start
-    for c in chunks:
-        offsets.append(at)
-        at += len(c)
-    path.write_bytes(header + struct.pack(f"<{h}Q", *offsets) + b"".join(chunks))
-
-
 def gaussian() -> np.ndarray:
     x = np.arange(SIZE) + 0.5 - SIZE / 2
     g = np.exp(-(x[None, :] ** 2 + x[:, None] ** 2) / (2 * SIGMA ** 2))
     return (g / g.sum()).astype(np.float32)
 
 
-def write_bank(folder: Path) -> Path:
-    (folder / "nodes").mkdir(parents=True)
-    psf = gaussian()
-    r = repr
-    lines = ["lensrt-bank 1", "lens synthetic", "table_crc32 00000000", f"width {SIZE}",
-             f"height {SIZE}", f"pixel_mm {r(PITCH_MM)} {r(PITCH_MM)}", "registration channel",
-             f"wavelengths_nm 1 {r(WAVELENGTH_NM)}", "f_numbers 1 8.0", "focus_offsets_mm 1 0.0",
-             "distances_mm 1 0.0",
-             " ".join(["field_x_deg", str(len(FIELDS_X)), *map(r, FIELDS_X)]),
-             " ".join(["field_y_deg", str(len(FIELDS_Y)), *map(r, FIELDS_Y)]),
-             f"nodes {len(FIELDS_X) * len(FIELDS_Y)}"]
-    k = 0
-    for iy, fy in enumerate(FIELDS_Y):
-        for ix, fx in enumerate(FIELDS_X):
-            chief = (FOCAL_MM * math.tan(math.radians(fx)), FOCAL_MM * math.tan(math.radians(fy)))
-            rel = f"nodes/y{iy}-x{ix}.exr"
-            write_exr(folder / rel, psf, f"0 0 0 {iy} {ix} 8.0 0.0 0.0 {r(fx)} {r(fy)}")
-            crc = zlib.crc32((folder / rel).read_bytes())
-            lines.append(f"node {k} 0 0 0 {iy} {ix} {r(chief[0])} {r(chief[1])} 0.001 "
-                         f"{crc:08x} {rel}")
-            lines.append(f"chief {k} {r(chief[0])} {r(chief[1])}")
-            k += 1
-    body = "\n".join(lines) + "\n"
-    index = folder / "bank.index"
-    index.write_text(body + f"checksum crc32 {zlib.crc32(body.encode()):08x}\n")
-    return index
+def write_synthetic_bank(folder: Path) -> Path:
+    """Every node the same PSF, its chief point at f tan(field)."""
+    ny, nx = len(FIELDS_Y), len(FIELDS_X)
+    psfs = np.broadcast_to(gaussian(), (ny, nx, 1, SIZE, SIZE))
+    tx = FOCAL_MM * np.tan(np.radians(FIELDS_X))
+    ty = FOCAL_MM * np.tan(np.radians(FIELDS_Y))
+    chiefs = np.zeros((ny, nx, 1, 2))
+    chiefs[..., 0, 0] = tx[None, :]
+    chiefs[..., 0, 1] = ty[:, None]
+    return write_bank(folder, psfs, chiefs, field_x_deg=FIELDS_X, field_y_deg=FIELDS_Y,
+                      wavelengths_nm=[WAVELENGTH_NM], pixel_mm=PITCH_MM)
 
 
 @pytest.fixture(scope="module")
 def bank(rt, tmp_path_factory):
     if not hasattr(rt.lib, "lensrt_image_create"):
         pytest.skip("this lensrt library predates lensrt_image_* (0.11.0): rebuild it")
-    b = Bank(rt, write_bank(tmp_path_factory.mktemp("image-bank")))
+    b = Bank(rt, write_synthetic_bank(tmp_path_factory.mktemp("image-bank")))
     try:
         b.load_nodes()
     except LensrtError as e:
