@@ -14,6 +14,7 @@
  *     peak, beside the node lines (cell borders) and inside cells;
  *   distortion: a point's output has its centroid on the bank's interpolated chief point
  *     (lensrt_bank_psf's) within 0.02 px;
+ *   threads: 1 and 3 threads give the same bits (distortion, lateral colour, 12 x 12);
  *   refusals: a NaN or negative pixel, a wrong count, a frame wider than the field grid,
  *     a slice the bank lacks, bad weights, a bank of `registration chief`, struct_size 0,
  *     a layer or source out of range: the code, and a message naming the value.
@@ -344,6 +345,50 @@ done:
     free(out);
 }
 
+/* --------------------------------------------------------------- threads ----- */
+
+/* The same frame through contexts of 1 and 3 threads: the same bits (nodes in batches,
+ * added in node order). */
+static void test_threads(lensrt_context ctx)
+{
+    const kind k = {1.0, 1, 40.0, 0.3};
+    enum { NC = 3 };
+    lensrt_context_init init = LENSRT_CONTEXT_INIT;
+    lensrt_context one = NULL, three = NULL;
+    lensrt_bank bank = make_bank(ctx, "threads", &k, 12, 3, "channel");
+    lensrt_image a = NULL, b = NULL;
+    float *in = malloc(NC * W * H * sizeof(float)), *oa = malloc(NC * W * H * sizeof(float));
+    float *ob = malloc(NC * W * H * sizeof(float));
+    uint32_t seed = 99;
+    int p;
+    init.threads = 1;
+    CHECK_OK(NULL, lensrt_context_create(&init, &one));
+    init.threads = 3;
+    CHECK_OK(NULL, lensrt_context_create(&init, &three));
+    if (!bank || !one || !three || !in || !oa || !ob) goto done;
+    a = make_image(one, bank, NC, NULL);
+    b = make_image(three, bank, NC, NULL);
+    if (!a || !b) goto done;
+    for (p = 0; p < NC * W * H; p++) {
+        seed = seed * 1664525u + 1013904223u;
+        in[p] = (seed >> 28) == 0 ? (float)(seed >> 8) / 65536.0f : 0.0f;
+    }
+    CHECK_OK(one, lensrt_image_run(a, in, NC * W * H));
+    CHECK_OK(three, lensrt_image_run(b, in, NC * W * H));
+    CHECK_OK(one, lensrt_image_get_layer(a, LENSRT_IMAGE_DIRECT, oa, NC * W * H));
+    CHECK_OK(three, lensrt_image_get_layer(b, LENSRT_IMAGE_DIRECT, ob, NC * W * H));
+    CHECK(memcmp(oa, ob, NC * W * H * sizeof(float)) == 0, "threads: 1 and 3 threads give different direct layers");
+done:
+    lensrt_image_destroy(a);
+    lensrt_image_destroy(b);
+    lensrt_bank_close(bank);
+    lensrt_context_destroy(one);
+    lensrt_context_destroy(three);
+    free(in);
+    free(oa);
+    free(ob);
+}
+
 /* ------------------------------------------------------------- refusals ----- */
 
 static void test_refusals(lensrt_context ctx)
@@ -514,6 +559,7 @@ int main(int argc, char **argv)
         test_energy(ctx);
         test_seams(ctx);
         test_distortion(ctx);
+        test_threads(ctx);
         test_refusals(ctx);
     } else {
         test_without_exr(ctx);

@@ -570,39 +570,51 @@ done:
 /* ------------------------------------------------------------------- run ----- */
 
 /* Step 2 for one part: its layer (n_channels planes of sw x sh) from the input. Returns
- * whether any light reached it. */
+ * whether any light reached it. In float, as the layer is: each value is the input times
+ * the hat weight times a tap, rounded once or twice (relative 1e-7). */
 static int splat(const struct lensrt_image_s *im, const struct image_direct *d, const node_part *p,
                  const float *input, float *layer)
 {
-    const int w = im->desc.width, nc = im->desc.n_channels;
-    const size_t lp = (size_t)p->sw * (size_t)p->sh;
+    const int w = im->desc.width, nc = im->desc.n_channels, sw = p->sw, sh = p->sh;
+    const size_t lp = (size_t)sw * (size_t)sh;
     int i, j, c, lit = 0;
     memset(layer, 0, (size_t)nc * lp * sizeof(float));
     for (j = p->j0; j < p->j1; j++) {
-        const double wy = hat_weight(p->iy, d->row_cell[j], d->row_frac[j]);
-        if (wy == 0.0) continue;
+        const float wy = (float)hat_weight(p->iy, d->row_cell[j], d->row_frac[j]);
+        if (wy == 0.0f) continue;
         for (i = p->i0; i < p->i1; i++) {
             const size_t pix = (size_t)j * (size_t)w + (size_t)i;
-            const double wt = wy * hat_weight(p->ix, d->col_cell[i], d->col_frac[i]);
-            const double u = (double)d->land[2 * pix] - p->sx0, v = (double)d->land[2 * pix + 1] - p->sy0;
-            const double fu = floor(u), fv = floor(v), ax = u - fu, ay = v - fv;
-            const long x0 = (long)fu, y0 = (long)fv;
-            double tap[4];
+            const float wt = wy * (float)hat_weight(p->ix, d->col_cell[i], d->col_frac[i]);
+            const float u = d->land[2 * pix] - (float)p->sx0, v = d->land[2 * pix + 1] - (float)p->sy0;
+            const float fu = floorf(u), fv = floorf(v), ax = u - fu, ay = v - fv;
+            const int x0 = (int)fu, y0 = (int)fv;
+            const int inside = x0 >= 0 && x0 + 1 < sw && y0 >= 0 && y0 + 1 < sh;
+            float tap[4];
             int t;
-            if (wt == 0.0) continue;
+            if (wt == 0.0f) continue;
             // The bilinear taps (they sum to 1: the power and the centroid are kept)
-            tap[0] = (1.0 - ax) * (1.0 - ay);
-            tap[1] = ax * (1.0 - ay);
-            tap[2] = (1.0 - ax) * ay;
-            tap[3] = ax * ay;
+            tap[0] = (1.0f - ax) * (1.0f - ay) * wt;
+            tap[1] = ax * (1.0f - ay) * wt;
+            tap[2] = (1.0f - ax) * ay * wt;
+            tap[3] = ax * ay * wt;
             for (c = 0; c < nc; c++) {
-                const double val = wt * (double)input[(size_t)c * im->plane + pix];
-                if (val == 0.0) continue;
+                const float val = input[(size_t)c * im->plane + pix];
+                float *l = layer + (size_t)c * lp;
+                if (val == 0.0f) continue;
                 lit = 1;
+                if (inside) {
+                    // The usual case: all four taps in the layer
+                    float *q = l + (size_t)y0 * (size_t)sw + (size_t)x0;
+                    q[0] += val * tap[0];
+                    q[1] += val * tap[1];
+                    q[sw] += val * tap[2];
+                    q[sw + 1] += val * tap[3];
+                    continue;
+                }
                 for (t = 0; t < 4; t++) {
-                    const long x = x0 + t % 2, y = y0 + t / 2;
-                    if (tap[t] != 0.0 && x >= 0 && x < p->sw && y >= 0 && y < p->sh)
-                        layer[(size_t)c * lp + (size_t)y * (size_t)p->sw + (size_t)x] += (float)(val * tap[t]);
+                    const int x = x0 + t % 2, y = y0 + t / 2;
+                    if (tap[t] != 0.0f && x >= 0 && x < sw && y >= 0 && y < sh)
+                        l[(size_t)y * (size_t)sw + (size_t)x] += val * tap[t];
                 }
             }
         }
