@@ -16,7 +16,8 @@
  *     (lensrt_bank_psf's) within 0.02 px;
  *   threads: 1 and 3 threads give the same bits (distortion, lateral colour, 12 x 12);
  *   refusals: a NaN or negative pixel, a wrong count, a frame wider than the field grid,
- *     a slice the bank lacks, bad weights, a bank of `registration chief`, struct_size 0,
+ *     a slice the bank lacks, bad weights, a direct lens as a ghost, a bad aperture, a
+ *     bank of `registration chief`, struct_size 0,
  *     a layer or source out of range: the code, and a message naming the value.
  * Without OpenEXR the banks cannot be opened: the test checks that the open fails.
  *
@@ -458,6 +459,32 @@ static void test_refusals(lensrt_context ctx)
     CHECK_RES(ctx, LENSRT_ERROR_INVALID_ARGUMENT, lensrt_image_create(ctx, &d, &im));
     CHECK_MSG(ctx, "max_sources is -2");
     d.max_sources = 0;
+    // The flares' description: a direct lens as a ghost, an unknown aperture shape
+    {
+        lensrt_analytic_lens al = LENSRT_ANALYTIC_LENS_INIT;
+        lensrt_lens lens = NULL;
+        al.focal_length_mm = FOCAL;
+        al.sensor_distance_mm = FOCAL;
+        CHECK_OK(ctx, lensrt_lens_create_analytic(ctx, &al, &lens));
+        d.ghosts = &lens;
+        d.n_ghosts = 1;
+        CHECK_RES(ctx, LENSRT_ERROR_INVALID_ARGUMENT, lensrt_image_create(ctx, &d, &im));
+        CHECK_MSG(ctx, "ghosts[0] (");
+        CHECK_MSG(ctx, "is not a ghost table");
+        d.ghosts = NULL;
+        CHECK_RES(ctx, LENSRT_ERROR_INVALID_ARGUMENT, lensrt_image_create(ctx, &d, &im));
+        CHECK_MSG(ctx, "ghosts is NULL with n_ghosts 1");
+        d.n_ghosts = 0;
+        d.aperture.shape = 7;
+        CHECK_RES(ctx, LENSRT_ERROR_INVALID_ARGUMENT, lensrt_image_create(ctx, &d, &im));
+        CHECK_MSG(ctx, "aperture.shape is 7");
+        d.aperture.shape = 0;
+        d.aperture.radius_mm = -1.0;
+        CHECK_RES(ctx, LENSRT_ERROR_INVALID_ARGUMENT, lensrt_image_create(ctx, &d, &im));
+        CHECK_MSG(ctx, "aperture radius_mm -1");
+        d.aperture.radius_mm = 0.0;
+        lensrt_lens_destroy(ctx, lens);
+    }
     // A bank of `registration chief`
     d.bank = chief_bank;
     CHECK_RES(ctx, LENSRT_ERROR_INVALID_ARGUMENT, lensrt_image_create(ctx, &d, &im));

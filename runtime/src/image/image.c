@@ -64,6 +64,47 @@ static lensrt_result check_numbers(lensrt_context ctx, lensrt_image_desc *d)
     return LENSRT_SUCCESS;
 }
 
+/* The ghost renders' aperture, as a render checks it (core/scene.c), and the ghosts:
+ * each a ghost table (its own info says so). */
+static lensrt_result check_flares(lensrt_context ctx, const lensrt_image_desc *d)
+{
+    const lensrt_aperture *a = &d->aperture;
+    int g;
+    if ((unsigned)a->shape > LENSRT_APERTURE_SLIT)
+        return lensrt_fail(ctx, LENSRT_ERROR_INVALID_ARGUMENT, "lensrt_image_desc: aperture.shape is %d; it must be "
+                           "circle (0), blades (1) or slit (2)", (int)a->shape);
+    if (!(isfinite(a->radius_mm) && a->radius_mm >= 0.0) || !(isfinite(a->f_number) && a->f_number >= 0.0) ||
+        !isfinite(a->rotation_deg))
+        return lensrt_fail(ctx, LENSRT_ERROR_INVALID_ARGUMENT, "lensrt_image_desc: aperture radius_mm %g, f_number %g, "
+                           "rotation_deg %g: each must be finite and the first two >= 0", a->radius_mm, a->f_number,
+                           a->rotation_deg);
+    if (a->shape == LENSRT_APERTURE_BLADES &&
+        (a->blades < 3 || a->blades > LENSRT_MAX_BLADES || !(a->blade_curvature >= 0.0 && a->blade_curvature <= 1.0)))
+        return lensrt_fail(ctx, LENSRT_ERROR_INVALID_ARGUMENT, "lensrt_image_desc: aperture blades %d, blade_curvature "
+                           "%g; blades are 3 .. %d, curvature in [0, 1]", (int)a->blades, a->blade_curvature,
+                           LENSRT_MAX_BLADES);
+    if (a->shape == LENSRT_APERTURE_SLIT &&
+        (!(a->slit_width_mm > 0.0) || !(a->slit_separation_mm >= 0.0) ||
+         (a->slit_separation_mm > 0.0 && a->slit_separation_mm < a->slit_width_mm)))
+        return lensrt_fail(ctx, LENSRT_ERROR_INVALID_ARGUMENT, "lensrt_image_desc: aperture slit_width_mm %g, "
+                           "slit_separation_mm %g; a slit needs width > 0 and a separation of 0 or at least the "
+                           "width", a->slit_width_mm, a->slit_separation_mm);
+    if (d->n_ghosts > 0 && !d->ghosts)
+        return lensrt_fail(ctx, LENSRT_ERROR_INVALID_ARGUMENT, "lensrt_image_desc: ghosts is NULL with n_ghosts %d",
+                           (int)d->n_ghosts);
+    for (g = 0; g < d->n_ghosts; g++) {
+        lensrt_lens_info info = LENSRT_LENS_INFO_INIT;
+        lensrt_result res;
+        if (!d->ghosts[g])
+            return lensrt_fail(ctx, LENSRT_ERROR_INVALID_ARGUMENT, "lensrt_image_desc: ghosts[%d] is NULL", g);
+        if ((res = lensrt_lens_get_info(d->ghosts[g], &info)) != LENSRT_SUCCESS) return res;
+        if (!info.ghost)
+            return lensrt_fail(ctx, LENSRT_ERROR_INVALID_ARGUMENT, "lensrt_image_desc: ghosts[%d] (%s) is not a ghost "
+                               "table (a lens's direct table)", g, info.name ? info.name : "");
+    }
+    return LENSRT_SUCCESS;
+}
+
 /* The channel weights: n_channels rows over the bank's wavelengths, each finite, >= 0 and
  * summing to > 0; NULL is one channel per wavelength (the identity). Copied into im. */
 static lensrt_result copy_weights(struct lensrt_image_s *im, const double *w)
@@ -169,7 +210,6 @@ lensrt_result lensrt_image_create(lensrt_context ctx, const lensrt_image_desc *d
     lensrt_bank_info info = LENSRT_BANK_INFO_INIT;
     lensrt_image_desc d;
     lensrt_result res;
-    int g;
     if (!ctx || !desc || !out) {
         if (ctx) lensrt_fail(ctx, LENSRT_ERROR_INVALID_ARGUMENT, "lensrt_image_create: desc or out is NULL");
         return LENSRT_ERROR_INVALID_ARGUMENT;
@@ -179,12 +219,7 @@ lensrt_result lensrt_image_create(lensrt_context ctx, const lensrt_image_desc *d
     if ((res = lensrt_struct_in(ctx, "lensrt_image_desc", desc, &d, sizeof d)) != LENSRT_SUCCESS) return res;
     if (!d.bank) return lensrt_fail(ctx, LENSRT_ERROR_INVALID_ARGUMENT, "lensrt_image_desc: bank is NULL");
     if ((res = check_numbers(ctx, &d)) != LENSRT_SUCCESS) return res;
-    if (d.n_ghosts > 0 && !d.ghosts)
-        return lensrt_fail(ctx, LENSRT_ERROR_INVALID_ARGUMENT, "lensrt_image_desc: ghosts is NULL with n_ghosts %d",
-                           (int)d.n_ghosts);
-    for (g = 0; g < d.n_ghosts; g++)
-        if (!d.ghosts[g])
-            return lensrt_fail(ctx, LENSRT_ERROR_INVALID_ARGUMENT, "lensrt_image_desc: ghosts[%d] is NULL", g);
+    if ((res = check_flares(ctx, &d)) != LENSRT_SUCCESS) return res;
     if ((res = lensrt_bank_get_info(d.bank, &info)) != LENSRT_SUCCESS) return res;
     im = lensrt_calloc(ctx, 1, sizeof *im);
     if (!im) return lensrt_fail(ctx, LENSRT_ERROR_OUT_OF_MEMORY, "lensrt_image_create: out of memory");
