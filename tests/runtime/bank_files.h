@@ -176,7 +176,8 @@ static inline int write_node_exr(const char *path, int w, int h, int n, const do
         buf_u32(&b, (uint32_t)y);
         buf_u32(&b, (uint32_t)(4 * n * w));
         for (c = 0; c < n; c++)
-            for (x = 0; x < w; x++) buf_f32(&b, planes[((size_t)order[c] * (size_t)h + (size_t)y) * (size_t)w + (size_t)x]);
+            for (x = 0; x < w; x++)
+                buf_f32(&b, planes[((size_t)order[c] * (size_t)h + (size_t)y) * (size_t)w + (size_t)x]);
     }
     ok = !b.failed && write_bytes(path, b.p, b.n);
     free(b.p);

@@ -95,9 +95,10 @@ static void test_2d(int w, int h, int nz, int r0, int nr)
 {
     image_fft_plan *px = image_fft_plan_create(NULL, w), *py = image_fft_plan_create(NULL, h);
     const size_t n = (size_t)w * (size_t)h;
-    double *x = calloc(2 * n, sizeof(double)), *y = malloc(2 * n * sizeof(double)), *work = malloc(2 * n * sizeof(double));
-    double *rows = malloc(2 * n * sizeof(double));
-    long double *ref = malloc(2 * n * sizeof(long double)), *tmp = malloc(2 * (size_t)(w > h ? w : h) * sizeof(long double));
+    double *x = calloc(2 * n, sizeof(double)), *y = malloc(2 * n * sizeof(double));
+    double *work = malloc(2 * n * sizeof(double)), *rows = malloc(2 * n * sizeof(double));
+    long double *ref = malloc(2 * n * sizeof(long double));
+    long double *tmp = malloc(2 * (size_t)(w > h ? w : h) * sizeof(long double));
     long double big = 0.0L, err = 0.0L;
     size_t k;
     int i, j;

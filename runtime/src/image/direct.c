@@ -295,7 +295,8 @@ static lensrt_result build_kernels(struct lensrt_image_s *im, struct image_direc
         any_shift = 1;
         memset(pad, 0, 2 * kn * sizeof(double));
         for (j = 0; j < bh; j++)
-            for (i = 0; i < bw; i++) pad[2 * ((size_t)(j + oy) * (size_t)d->kw + (size_t)(i + ox))] = psf[(size_t)j * (size_t)bw + (size_t)i];
+            for (i = 0; i < bw; i++)
+                pad[2 * ((size_t)(j + oy) * (size_t)d->kw + (size_t)(i + ox))] = psf[(size_t)j * (size_t)bw + (size_t)i];
         image_fft_2d_forward(kx, ky, pad, work, d->kh);
         ramp(rx, d->kw, sx);
         ramp(ry, d->kh, sy);
@@ -390,7 +391,8 @@ static lensrt_result set_up_chiefs(struct lensrt_image_s *im, struct image_direc
         for (l = 0; l < nl; l++) {
             const double *cl = chief + 2 * ((size_t)k * (size_t)nl + (size_t)l);
             const double *cr = chief + 2 * ((size_t)k * (size_t)nl + (size_t)*ref);
-            const double sx = (cl[0] - cr[0]) / info->pixel_x_mm + half_x, sy = -(cl[1] - cr[1]) / info->pixel_y_mm + half_y;
+            const double sx = (cl[0] - cr[0]) / info->pixel_x_mm + half_x;
+            const double sy = -(cl[1] - cr[1]) / info->pixel_y_mm + half_y;
             if (!s->used[l]) continue;
             if (sx != 0.0 || sy != 0.0) any = 1;
             most_x = fabs(sx) > most_x ? fabs(sx) : most_x;
