@@ -12,12 +12,14 @@ field-varying PSF, the warp and the node split cost on top of that. A second fig
 times pocketfft doing lensrt's own per-node work (each node's 2 x 2 cells convolved with
 a kernel, 3 channels, times the nodes): what lensrt's FFT costs against pocketfft.
 
-usage: python runtime/bench/image_bench.py [--threads N] [--repeat N] [--width W --height H]
+usage: python runtime/bench/image_bench.py [--library PATH] [--out DIR] [--threads N]
+                                           [--repeat N] [--width W --height H]
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import tempfile
 import time
 from pathlib import Path
@@ -61,6 +63,8 @@ def make_bank(folder: Path) -> Path:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--library", default=None, help="liblensrt.so (default: the checkout's)")
+    ap.add_argument("--out", default=None, help="write image.json here")
     ap.add_argument("--threads", type=int, default=1)
     ap.add_argument("--repeat", type=int, default=2)
     ap.add_argument("--width", type=int, default=1920)
@@ -68,7 +72,7 @@ def main() -> None:
     args = ap.parse_args()
     rng = np.random.default_rng(1)
     frame = rng.random((3, args.height, args.width), dtype=np.float32)
-    rt = Lensrt(threads=args.threads)
+    rt = Lensrt(args.library, threads=args.threads)
     with tempfile.TemporaryDirectory() as tmp:
         bank = Bank(rt, make_bank(Path(tmp)))
         bank.load_nodes()
@@ -96,8 +100,13 @@ def main() -> None:
         base = min(base, time.perf_counter() - t0)
     # The second: the same per-node work done by pocketfft, one node's region (its 2 x 2
     # cells) convolved in full with a kernel of the bank's grid, 3 channels, times the nodes
-    cell_w = 2 * args.width // (len(FIELDS_X) - 1)
-    cell_h = 2 * args.height // (len(FIELDS_Y) - 1)
+    # (a cell's mean pixels: the frame's pixels over the grid steps its field spans)
+    def cells(pixels: int, step_deg: float) -> float:
+        return 2 * np.degrees(np.arctan(0.5 * pixels * PITCH_MM / FOCAL_MM)) / step_deg
+
+    # (approximate: a node's 2 x 2 cells, or the frame when it is smaller)
+    cell_w = min(args.width, int(2 * args.width / cells(args.width, FIELDS_X[1] - FIELDS_X[0])))
+    cell_h = min(args.height, int(2 * args.height / cells(args.height, FIELDS_Y[1] - FIELDS_Y[0])))
     region = rng.random((cell_h, cell_w))
     kernel = np.pad(psf, 4)
     per_node = float("inf")
@@ -121,6 +130,16 @@ def main() -> None:
           f"{cell_h} px) {nodes_pocketfft:.3f} s; lensrt's kernels + convolve "
           f"{stats['seconds_kernels'] + stats['seconds_convolve']:.3f} s, ratio "
           f"{(stats['seconds_kernels'] + stats['seconds_convolve']) / nodes_pocketfft:.1f}")
+
+    if args.out:
+        Path(args.out).mkdir(parents=True, exist_ok=True)
+        record = {"width": args.width, "height": args.height, "channels": 3,
+                  "nodes": [len(FIELDS_X), len(FIELDS_Y)], "psf_pixels": PSF,
+                  "threads": args.threads, "seconds_create": t_create, "seconds_run": best,
+                  "stats": stats, "seconds_baseline_one_psf": base,
+                  "seconds_pocketfft_nodes": nodes_pocketfft,
+                  "ratio_to_one_psf": best / base}
+        (Path(args.out) / "image.json").write_text(json.dumps(record, indent=1) + "\n")
 
 
 if __name__ == "__main__":
