@@ -624,38 +624,18 @@ static int splat(const struct lensrt_image_s *im, const struct image_direct *d, 
     return lit;
 }
 
-/* The spectra of two real planes packed as one complex one, z = a + i b, and of their
- * kernels, q = ka + i kb: Y = A Ka + i B Kb, whose inverse is a * ka + i b * kb. With
- * A(f) = (Z(f) + conj Z(-f)) / 2 and B(f) = (Z(f) - conj Z(-f)) / 2i (the same for the
- * kernels), each pair (f, -f) in one step, into z. */
-static void packed_product(double *z, const double *q, int nx, int ny)
+/* The frame's part of a convolution (real part e = 0 or imaginary e = 1 of z, scaled)
+ * into out (ow x oh): frame pixel (x, y) is the linear convolution's (x - sx0 + kcx,
+ * y - sy0 + kcy). */
+static void write_out(const struct image_direct *d, const node_part *p, const double *z, int fw, int e, double scale,
+                      float *out)
 {
-    int u, v;
-    for (v = 0; v < ny; v++) {
-        const int vm = v == 0 ? 0 : ny - v;
-        for (u = 0; u < nx; u++) {
-            const int um = u == 0 ? 0 : nx - u;
-            const size_t a = (size_t)v * (size_t)nx + (size_t)u, b = (size_t)vm * (size_t)nx + (size_t)um;
-            double ar, ai, br, bi, kar, kai, kbr, kbi, p1r, p1i, p2r, p2i;
-            if (b < a) continue;
-            ar = 0.5 * (z[2 * a] + z[2 * b]);
-            ai = 0.5 * (z[2 * a + 1] - z[2 * b + 1]);
-            br = 0.5 * (z[2 * a + 1] + z[2 * b + 1]);
-            bi = -0.5 * (z[2 * a] - z[2 * b]);
-            kar = 0.5 * (q[2 * a] + q[2 * b]);
-            kai = 0.5 * (q[2 * a + 1] - q[2 * b + 1]);
-            kbr = 0.5 * (q[2 * a + 1] + q[2 * b + 1]);
-            kbi = -0.5 * (q[2 * a] - q[2 * b]);
-            p1r = ar * kar - ai * kai;
-            p1i = ar * kai + ai * kar;
-            p2r = br * kbr - bi * kbi;
-            p2i = br * kbi + bi * kbr;
-            // Y(f) = P1 + i P2; Y(-f) = conj P1 + i conj P2
-            z[2 * a] = p1r - p2i;
-            z[2 * a + 1] = p1i + p2r;
-            z[2 * b] = p1r + p2i;
-            z[2 * b + 1] = p2r - p1i;
-        }
+    int i, j;
+    for (j = 0; j < p->oh; j++) {
+        const size_t row = (size_t)(p->oy0 + j - p->sy0 + d->kcy) * (size_t)fw;
+        float *o = out + (size_t)j * (size_t)p->ow;
+        const double *zr = z + 2 * (row + (size_t)(p->ox0 - p->sx0 + d->kcx)) + (size_t)e;
+        for (i = 0; i < p->ow; i++) o[i] = (float)(zr[2 * (size_t)i] * scale);
     }
 }
 
@@ -671,6 +651,24 @@ static void convolve(const struct lensrt_image_s *im, const struct image_direct 
     for (c = 0; c < nc; c += 2) {
         const int pair = c + 1 < nc ? 2 : 1;
         const double t0 = lensrt_seconds();
+        if (pair == 1) {
+            // An odd last channel: its layer and kernel packed in one transform (the
+            // kernel's share counted with the convolutions)
+            memset(z, 0, 2 * fn * sizeof(double));
+            for (j = 0; j < p->sh; j++)
+                for (i = 0; i < p->sw; i++)
+                    z[2 * ((size_t)j * (size_t)fw + (size_t)i)] =
+                        layer[(size_t)c * lp + (size_t)j * (size_t)p->sw + (size_t)i];
+            for (j = 0; j < d->kh; j++)
+                for (i = 0; i < d->kw; i++)
+                    z[2 * ((size_t)j * (size_t)fw + (size_t)i) + 1] =
+                        p->kernels[(size_t)c * kn + (size_t)j * (size_t)d->kw + (size_t)i];
+            image_fft_2d_forward(p->px, p->py, z, work, p->sh > d->kh ? p->sh : d->kh);
+            image_fft_packed_self_product(z, fw, fh);
+            image_fft_2d_inverse(p->px, p->py, z, work, p->oy0 - p->sy0 + d->kcy, p->oh);
+            write_out(d, p, z, fw, 0, scale, out + (size_t)c * (size_t)p->ow * (size_t)p->oh);
+            continue;
+        }
         // The kernels of channels c and c + 1, packed, padded, transformed
         memset(q, 0, 2 * fn * sizeof(double));
         for (e = 0; e < pair; e++)
@@ -688,16 +686,10 @@ static void convolve(const struct lensrt_image_s *im, const struct image_direct 
                     z[2 * ((size_t)j * (size_t)fw + (size_t)i) + (size_t)e] =
                         layer[(size_t)(c + e) * lp + (size_t)j * (size_t)p->sw + (size_t)i];
         image_fft_2d_forward(p->px, p->py, z, work, p->sh);
-        packed_product(z, q, fw, fh);
+        image_fft_packed_product(z, q, fw, fh);
         image_fft_2d_inverse(p->px, p->py, z, work, p->oy0 - p->sy0 + d->kcy, p->oh);
-        // Frame pixel (x, y) is the linear convolution's (x - sx0 + kcx, y - sy0 + kcy)
         for (e = 0; e < pair; e++)
-            for (j = 0; j < p->oh; j++) {
-                const size_t row = (size_t)(p->oy0 + j - p->sy0 + d->kcy) * (size_t)fw;
-                float *o = out + (size_t)(c + e) * (size_t)p->ow * (size_t)p->oh + (size_t)j * (size_t)p->ow;
-                for (i = 0; i < p->ow; i++)
-                    o[i] = (float)(z[2 * (row + (size_t)(p->ox0 + i - p->sx0 + d->kcx)) + (size_t)e] * scale);
-            }
+            write_out(d, p, z, fw, e, scale, out + (size_t)(c + e) * (size_t)p->ow * (size_t)p->oh);
     }
 }
 

@@ -257,3 +257,59 @@ void image_fft_2d_inverse(const image_fft_plan *rows, const image_fft_plan *cols
     for (j = first_row < 0 ? 0 : first_row; j < first_row + n_rows && j < cols->n; j++)
         image_fft_many(rows, data + 2 * (size_t)j * w, work, 1, 1);
 }
+
+void image_fft_packed_product(double *z, const double *q, int nx, int ny)
+{
+    int u, v;
+    for (v = 0; v < ny; v++) {
+        const int vm = v == 0 ? 0 : ny - v;
+        for (u = 0; u < nx; u++) {
+            const int um = u == 0 ? 0 : nx - u;
+            const size_t a = (size_t)v * (size_t)nx + (size_t)u, b = (size_t)vm * (size_t)nx + (size_t)um;
+            double ar, ai, br, bi, kar, kai, kbr, kbi, p1r, p1i, p2r, p2i;
+            if (b < a) continue;
+            ar = 0.5 * (z[2 * a] + z[2 * b]);
+            ai = 0.5 * (z[2 * a + 1] - z[2 * b + 1]);
+            br = 0.5 * (z[2 * a + 1] + z[2 * b + 1]);
+            bi = -0.5 * (z[2 * a] - z[2 * b]);
+            kar = 0.5 * (q[2 * a] + q[2 * b]);
+            kai = 0.5 * (q[2 * a + 1] - q[2 * b + 1]);
+            kbr = 0.5 * (q[2 * a + 1] + q[2 * b + 1]);
+            kbi = -0.5 * (q[2 * a] - q[2 * b]);
+            p1r = ar * kar - ai * kai;
+            p1i = ar * kai + ai * kar;
+            p2r = br * kbr - bi * kbi;
+            p2i = br * kbi + bi * kbr;
+            // Y(f) = P1 + i P2; Y(-f) = conj P1 + i conj P2
+            z[2 * a] = p1r - p2i;
+            z[2 * a + 1] = p1i + p2r;
+            z[2 * b] = p1r + p2i;
+            z[2 * b + 1] = p2r - p1i;
+        }
+    }
+}
+
+void image_fft_packed_self_product(double *z, int nx, int ny)
+{
+    int u, v;
+    for (v = 0; v < ny; v++) {
+        const int vm = v == 0 ? 0 : ny - v;
+        for (u = 0; u < nx; u++) {
+            const int um = u == 0 ? 0 : nx - u;
+            const size_t a = (size_t)v * (size_t)nx + (size_t)u, b = (size_t)vm * (size_t)nx + (size_t)um;
+            double ar, ai, br, bi, pr, pi;
+            if (b < a) continue;
+            ar = 0.5 * (z[2 * a] + z[2 * b]);
+            ai = 0.5 * (z[2 * a + 1] - z[2 * b + 1]);
+            br = 0.5 * (z[2 * a + 1] + z[2 * b + 1]);
+            bi = -0.5 * (z[2 * a] - z[2 * b]);
+            pr = ar * br - ai * bi;
+            pi = ar * bi + ai * br;
+            // Y(f) = A B, Y(-f) = conj(A B): a real plane's spectrum
+            z[2 * a] = pr;
+            z[2 * a + 1] = pi;
+            z[2 * b] = pr;
+            z[2 * b + 1] = -pi;
+        }
+    }
+}

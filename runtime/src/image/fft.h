@@ -47,4 +47,13 @@ void image_fft_2d_forward(const image_fft_plan *rows, const image_fft_plan *cols
 void image_fft_2d_inverse(const image_fft_plan *rows, const image_fft_plan *cols, double *data, double *work,
                           int first_row, int n_rows);
 
+/* Products of the spectra of real planes packed two in one complex transform (nx x ny,
+ * in z): with z = FFT(a + i b) and q = FFT(ka + i kb), image_fft_packed_product makes z
+ * FFT(a * ka + i b * kb) (* the cyclic convolution: two products for one inverse); with
+ * z = FFT(a + i ka), image_fft_packed_self_product makes z FFT(a * ka). Each uses
+ * A(f) = (Z(f) + conj Z(-f)) / 2 and B(f) = (Z(f) - conj Z(-f)) / 2i, the transforms of
+ * the real and imaginary parts, a pair (f, -f) at a time. */
+void image_fft_packed_product(double *z, const double *q, int nx, int ny);
+void image_fft_packed_self_product(double *z, int nx, int ny);
+
 #endif
