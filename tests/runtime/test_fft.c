@@ -4,11 +4,12 @@
  * Every length 1 .. 64 (radices 4, 2, 3, 5 and the plain butterfly of 7, 11, 13, ...,
  * 61), forward and inverse, one sequence and 3 interleaved; 2-D transforms of several
  * sizes, with the forward's zero rows skipped and the inverse's rows picked; the good
- * sizes; the packed products (two real planes in one complex transform). Tolerance: the largest error over the largest |X_k| below 1e-12. A radix-r
- * Stockham pass adds a few ulps (2^-53 = 1.1e-16) per element and there are at most
- * log2(64) = 6 passes, with each twiddle correct to an ulp: 1e-15 expected; the plain
- * butterfly of a prime p sums p terms (61 x 1.1e-16 = 7e-15). 1e-12 leaves a margin of
- * over 100 and still catches any wrong twiddle or index (errors of order 1). */
+ * sizes; the packed products (two real planes in one complex transform). Tolerance:
+ * the largest error over the largest |X_k| below 1e-12. A radix-r Stockham pass adds a
+ * few ulps (2^-53 = 1.1e-16) per element and there are at most log2(64) = 6 passes,
+ * with each twiddle correct to an ulp: 1e-15 expected; the plain butterfly of a prime p
+ * sums p terms (61 x 1.1e-16 = 7e-15). 1e-12 leaves a margin of over 100 and still
+ * catches any wrong twiddle or index (errors of order 1). */
 #include "image/fft.h"
 
 #include "check.h"
