@@ -190,7 +190,7 @@ static inline int write_node_exr(const char *path, int w, int h, int n, const do
  * node (ix, iy) at wavelength l. */
 typedef struct synth_bank {
     int w, h;
-    double pitch_mm;
+    double pitch_mm, pitch_y_mm; /* pixel pitch in x, and in y (0: the same) */
     int n_wl;
     const double *wl_nm;
     int nx, ny;
@@ -216,7 +216,8 @@ static inline int synth_bank_write(const synth_bank *sb, const char *folder, cha
 #define PUT(...) (used += (size_t)snprintf(text + used, cap - used, __VA_ARGS__))
     if (ok) {
         PUT("lensrt-bank 1\nlens synthetic\ntable_crc32 00000000\nwidth %d\nheight %d\npixel_mm %.17g %.17g\n"
-            "registration %s\nwavelengths_nm %d", sb->w, sb->h, sb->pitch_mm, sb->pitch_mm, sb->registration, sb->n_wl);
+            "registration %s\nwavelengths_nm %d", sb->w, sb->h, sb->pitch_mm,
+            sb->pitch_y_mm > 0.0 ? sb->pitch_y_mm : sb->pitch_mm, sb->registration, sb->n_wl);
         for (l = 0; l < sb->n_wl; l++) PUT(" %.17g", sb->wl_nm[l]);
         PUT("\nf_numbers 1 %.17g\nfocus_offsets_mm 1 0\ndistances_mm 1 0\nfield_x_deg %d", sb->f_number, sb->nx);
         for (k = 0; k < sb->nx; k++) PUT(" %.17g", sb->fx_deg[k]);

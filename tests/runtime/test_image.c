@@ -7,6 +7,8 @@
  *   shift-invariant: every node the same PSF, 3 channels mixing 3 wavelengths: the
  *     direct layer is the plain convolution of the input with PSF / axis power (float
  *     rounding: 2e-6 of the largest value);
+ *   axes: an off-centre frame of non-square pixels behind a pinhole of two focal lengths:
+ *     the plain convolution again;
  *   energy: an even 16 x 16 PSF with lateral colour (sub-pixel shifts as phase ramps): a
  *     point near the axis keeps its power in every channel to 1e-5;
  *   seams: node PSFs of widths and powers varying with field: each point's output is its
@@ -50,6 +52,7 @@ typedef struct kind {
     int varying;     /* widths and powers varying with the node */
     double k_dist;   /* distortion: chief = f t (1 + k |t|^2) */
     double lateral;  /* lateral colour: pixels of x shift per wavelength step */
+    double focal_y;  /* the chief points' focal length in y (0: FOCAL) */
 } kind;
 
 static double tan_deg(double deg)
@@ -83,12 +86,12 @@ static void kind_chief(const synth_bank *b, int ix, int iy, int l, double xy[2])
     const kind *k = b->user;
     const double tx = tan_deg(b->fx_deg[ix]), ty = tan_deg(b->fy_deg[iy]), d = 1.0 + k->k_dist * (tx * tx + ty * ty);
     xy[0] = FOCAL * tx * d + k->lateral * (l - 1) * PITCH;
-    xy[1] = FOCAL * ty * d - 0.5 * k->lateral * (l - 1) * PITCH;
+    xy[1] = (k->focal_y > 0.0 ? k->focal_y : FOCAL) * ty * d - 0.5 * k->lateral * (l - 1) * PITCH;
 }
 
 /* Write a bank of this kind and open it (NULL on failure, checked). */
 static lensrt_bank make_bank(lensrt_context ctx, const char *name, const kind *k, int size, int n_wl,
-                             const char *registration)
+                             const char *registration, double pitch_y)
 {
     synth_bank sb;
     char folder[4200], index[4400];
@@ -96,6 +99,7 @@ static lensrt_bank make_bank(lensrt_context ctx, const char *name, const kind *k
     memset(&sb, 0, sizeof sb);
     sb.w = sb.h = size;
     sb.pitch_mm = PITCH;
+    sb.pitch_y_mm = pitch_y;
     sb.n_wl = n_wl;
     sb.wl_nm = n_wl == 3 ? WL3 : WL1;
     sb.nx = 5;
@@ -140,19 +144,46 @@ static double axis_power(lensrt_bank bank, const float *psf, size_t n)
 
 /* ------------------------------------------------------ shift-invariant ----- */
 
+/* The largest distance of out from the plain convolution of in (nc planes of w x h) with
+ * psf / ap (s x s, odd: pixel (a, b) at offset (a - s / 2, b - s / 2) from the light's
+ * pixel), and the convolution's largest value into *big. */
+static double plain_convolution_error(const float *in, const float *out, int w, int h, int nc, const float *psf,
+                                      int s, double ap, double *big)
+{
+    double worst = 0.0;
+    int c, x, y, a, b;
+    *big = 0.0;
+    for (c = 0; c < nc; c++)
+        for (y = 0; y < h; y++)
+            for (x = 0; x < w; x++) {
+                double ref = 0.0, e;
+                for (b = 0; b < s; b++)
+                    for (a = 0; a < s; a++) {
+                        const int sx = x - (a - s / 2), sy = y - (b - s / 2);
+                        if (sx >= 0 && sx < w && sy >= 0 && sy < h)
+                            ref += (double)in[(c * h + sy) * w + sx] * (double)psf[b * s + a] / ap;
+                    }
+                e = fabs((double)out[(c * h + y) * w + x] - ref);
+                worst = e > worst ? e : worst;
+                *big = ref > *big ? ref : *big;
+            }
+    return worst;
+}
+
+
 static void test_shift_invariant(lensrt_context ctx)
 {
     static const double weights[9] = {1.0, 0.2, 0.0, 0.1, 1.0, 0.1, 0.0, 0.3, 1.0};
-    const kind k = {1.3, 0, 0.0, 0.0};
+    const kind k = {1.3, 0, 0.0, 0.0, 0.0};
     enum { S = 9, NC = 3 };
     synth_bank sb;
     float psf[S * S], *in = malloc(NC * W * H * sizeof(float)), *out = malloc(NC * W * H * sizeof(float));
-    lensrt_bank bank = make_bank(ctx, "invariant", &k, S, 3, "channel");
+    lensrt_bank bank = make_bank(ctx, "invariant", &k, S, 3, "channel", 0.0);
     lensrt_image im = bank ? make_image(ctx, bank, NC, weights) : NULL;
     lensrt_image_stats st = LENSRT_IMAGE_STATS_INIT;
     uint32_t seed = 12345;
     double ap, worst = 0.0, big = 0.0;
-    int c, x, y, a, b;
+    int x;
     if (!im || !in || !out) goto done;
     memset(&sb, 0, sizeof sb);
     sb.w = sb.h = S;
@@ -165,21 +196,7 @@ static void test_shift_invariant(lensrt_context ctx)
     }
     CHECK_OK(ctx, lensrt_image_run(im, in, NC * W * H));
     CHECK_OK(ctx, lensrt_image_get_layer(im, LENSRT_IMAGE_DIRECT, out, NC * W * H));
-    // The plain convolution: PSF pixel (a, b) at offset (a - 4, b - 4) from the light's pixel
-    for (c = 0; c < NC; c++)
-        for (y = 0; y < H; y++)
-            for (x = 0; x < W; x++) {
-                double ref = 0.0, e;
-                for (b = 0; b < S; b++)
-                    for (a = 0; a < S; a++) {
-                        const int sx = x - (a - S / 2), sy = y - (b - S / 2);
-                        if (sx >= 0 && sx < W && sy >= 0 && sy < H)
-                            ref += (double)in[(c * H + sy) * W + sx] * (double)psf[b * S + a] / ap;
-                    }
-                e = fabs((double)out[(c * H + y) * W + x] - ref);
-                worst = e > worst ? e : worst;
-                big = ref > big ? ref : big;
-            }
+    worst = plain_convolution_error(in, out, W, H, NC, psf, S, ap, &big);
     CHECK(worst <= 2e-6 * big, "shift-invariant: the direct layer is %g (of %g) from the plain convolution", worst, big);
     CHECK_OK(ctx, lensrt_image_get_stats(im, &st));
     CHECK(st.n_nodes == 25 && st.fft_width > 0 && st.fft_height > 0 && st.seconds_convolve >= 0.0,
@@ -193,15 +210,62 @@ done:
     free(out);
 }
 
+/* The frame's geometry on both axes: a frame off the axis (centre 0.03, -0.02 mm), 40 x
+ * 50 pixels of 5 x 4 um, a pinhole of focal lengths 10 and 12 mm with the bank's chief
+ * points at (10 tan field_x, 12 tan field_y): every pixel lands on itself, and the
+ * direct layer is the plain convolution again. */
+static void test_axes(lensrt_context ctx)
+{
+    const kind k = {1.1, 0, 0.0, 0.0, 12.0};
+    enum { S = 9, AW = 40, AH = 50 };
+    synth_bank sb;
+    float psf[S * S], *in = malloc(AW * AH * sizeof(float)), *out = malloc(AW * AH * sizeof(float));
+    lensrt_bank bank = make_bank(ctx, "axes", &k, S, 1, "channel", 0.004);
+    lensrt_image_desc d = LENSRT_IMAGE_DESC_INIT;
+    lensrt_image im = NULL;
+    uint32_t seed = 777;
+    double big = 0.0, worst;
+    int x;
+    if (!bank || !in || !out) goto done;
+    d.bank = bank;
+    d.width = AW;
+    d.height = AH;
+    d.center_x_mm = 0.03;
+    d.center_y_mm = -0.02;
+    d.focal_x_mm = FOCAL;
+    d.focal_y_mm = 12.0;
+    d.n_channels = 1;
+    CHECK_OK(ctx, lensrt_image_create(ctx, &d, &im));
+    if (!im) goto done;
+    memset(&sb, 0, sizeof sb);
+    sb.w = sb.h = S;
+    sb.user = &k;
+    kind_psf(&sb, 2, 2, 0, psf);
+    for (x = 0; x < AW * AH; x++) {
+        seed = seed * 1664525u + 1013904223u;
+        in[x] = (float)(seed >> 8) / 16777216.0f;
+    }
+    CHECK_OK(ctx, lensrt_image_run(im, in, AW * AH));
+    CHECK_OK(ctx, lensrt_image_get_layer(im, LENSRT_IMAGE_DIRECT, out, AW * AH));
+    worst = plain_convolution_error(in, out, AW, AH, 1, psf, S, axis_power(bank, psf, S * S), &big);
+    CHECK(worst <= 2e-6 * big, "axes: the direct layer is %g (of %g) from the plain convolution", worst, big);
+    printf("test_image: axes (off-centre, 5 x 4 um, focal 10 x 12 mm): %.3g of the largest value\n", worst / big);
+done:
+    lensrt_image_destroy(im);
+    lensrt_bank_close(bank);
+    free(in);
+    free(out);
+}
+
 /* --------------------------------------------------------------- energy ----- */
 
 static void test_energy(lensrt_context ctx)
 {
     static const double weights[9] = {1.0, 0.5, 0.0, 0.2, 1.0, 0.2, 0.0, 0.5, 1.0};
-    const kind k = {1.5, 0, 0.0, 0.37};
+    const kind k = {1.5, 0, 0.0, 0.37, 0.0};
     enum { NC = 3 };
     float *in = calloc(NC * W * H, sizeof(float)), *out = malloc(NC * W * H * sizeof(float));
-    lensrt_bank bank = make_bank(ctx, "energy", &k, 16, 3, "channel");
+    lensrt_bank bank = make_bank(ctx, "energy", &k, 16, 3, "channel", 0.0);
     lensrt_image im = bank ? make_image(ctx, bank, NC, weights) : NULL;
     int c, p;
     if (!im || !in || !out) goto done;
@@ -245,11 +309,11 @@ static void test_seams(lensrt_context ctx)
      * inside cells */
     static const int points[][2] = {{10, 14}, {11, 15}, {31, 31}, {32, 32}, {52, 48}, {53, 49}, {20, 40}, {42, 22},
                                     {3, 60}, {60, 3}};
-    const kind k = {1.0, 1, 0.0, 0.0};
+    const kind k = {1.0, 1, 0.0, 0.0, 0.0};
     enum { S = 11 };
     synth_bank sb;
     float node[25][S * S], *in = calloc(W * H, sizeof(float)), *out = malloc(W * H * sizeof(float));
-    lensrt_bank bank = make_bank(ctx, "seams", &k, S, 1, "channel");
+    lensrt_bank bank = make_bank(ctx, "seams", &k, S, 1, "channel", 0.0);
     lensrt_image im = bank ? make_image(ctx, bank, 1, NULL) : NULL;
     double ap, worst = 0.0;
     size_t q;
@@ -300,10 +364,10 @@ done:
 static void test_distortion(lensrt_context ctx)
 {
     static const int points[][2] = {{5, 6}, {58, 7}, {32, 32}, {12, 50}, {55, 57}, {40, 20}};
-    const kind k = {1.2, 0, 150.0, 0.0};
+    const kind k = {1.2, 0, 150.0, 0.0, 0.0};
     enum { S = 11 };
     float *in = calloc(W * H, sizeof(float)), *out = malloc(W * H * sizeof(float)), psf[S * S];
-    lensrt_bank bank = make_bank(ctx, "distortion", &k, S, 1, "channel");
+    lensrt_bank bank = make_bank(ctx, "distortion", &k, S, 1, "channel", 0.0);
     lensrt_image im = bank ? make_image(ctx, bank, 1, NULL) : NULL;
     double worst = 0.0, moved = 0.0;
     size_t q;
@@ -352,11 +416,11 @@ done:
  * added in node order). */
 static void test_threads(lensrt_context ctx)
 {
-    const kind k = {1.0, 1, 40.0, 0.3};
+    const kind k = {1.0, 1, 40.0, 0.3, 0.0};
     enum { NC = 3 };
     lensrt_context_init init = LENSRT_CONTEXT_INIT;
     lensrt_context one = NULL, three = NULL;
-    lensrt_bank bank = make_bank(ctx, "threads", &k, 12, 3, "channel");
+    lensrt_bank bank = make_bank(ctx, "threads", &k, 12, 3, "channel", 0.0);
     lensrt_image a = NULL, b = NULL;
     float *in = malloc(NC * W * H * sizeof(float)), *oa = malloc(NC * W * H * sizeof(float));
     float *ob = malloc(NC * W * H * sizeof(float));
@@ -394,9 +458,9 @@ done:
 
 static void test_refusals(lensrt_context ctx)
 {
-    const kind k = {1.0, 0, 0.0, 0.0};
-    lensrt_bank bank = make_bank(ctx, "refusals", &k, 9, 3, "channel");
-    lensrt_bank chief_bank = make_bank(ctx, "chief", &k, 9, 3, "chief");
+    const kind k = {1.0, 0, 0.0, 0.0, 0.0};
+    lensrt_bank bank = make_bank(ctx, "refusals", &k, 9, 3, "channel", 0.0);
+    lensrt_bank chief_bank = make_bank(ctx, "chief", &k, 9, 3, "chief", 0.0);
     lensrt_image_desc d = LENSRT_IMAGE_DESC_INIT;
     lensrt_image im = NULL;
     lensrt_image_source src = LENSRT_IMAGE_SOURCE_INIT;
@@ -530,7 +594,7 @@ done:
 /* Without OpenEXR: the bank's index opens, its nodes do not, so nor does an image. */
 static void test_without_exr(lensrt_context ctx)
 {
-    const kind k = {1.0, 0, 0.0, 0.0};
+    const kind k = {1.0, 0, 0.0, 0.0, 0.0};
     synth_bank sb;
     char folder[4200], index[4400];
     lensrt_bank bank = NULL;
@@ -583,6 +647,7 @@ int main(int argc, char **argv)
     CHECK(lensrt_version() >= 11000u, "lensrt %s: the image calls are 0.11.0's", lensrt_version_string());
     if (LENSRT_TEST_EXR) {
         test_shift_invariant(ctx);
+        test_axes(ctx);
         test_energy(ctx);
         test_seams(ctx);
         test_distortion(ctx);
