@@ -20,7 +20,8 @@
 #                per-ray evaluation against the exact tracer, error against run time (the
 #                cells integrator against Monte Carlo too, and flare_figure.py's default
 #                full frame against its point-filter flare row: cells_bench.py; the Fourier
-#                integrator against both on the demo's PSFs: fourier_bench.py), banks on Dask
+#                integrator against both on the demo's PSFs: fourier_bench.py), a 1920 x 1080
+#                frame through a bank's PSFs (lensrt_image_run: image_bench.py), banks on Dask
 #                (scaling 1 -> 2 workers, the scheduler's overhead: banks.md), and per generated
 #                lens the adaptive fit against the full one of the same degrees (fit time, worst
 #                PSF cell against exactly traced rays, table size, lensrt set-up and splat rate:
@@ -170,6 +171,7 @@ bench: setup runtime
 	$(PY) runtime/bench/flare_bench.py --library $(RUNTIME_BUILD)/runtime/liblensrt.so --out build/bench
 	$(PY) runtime/bench/cells_bench.py --library $(RUNTIME_BUILD)/runtime/liblensrt.so --out build/bench
 	$(PY) runtime/bench/fourier_bench.py --library $(RUNTIME_BUILD)/runtime/liblensrt.so --out build/bench
+	$(PY) runtime/bench/image_bench.py --library $(RUNTIME_BUILD)/runtime/liblensrt.so --out build/bench
 	LENSRT_LIBRARY=$(CURDIR)/$(RUNTIME_BUILD)/runtime/liblensrt.so $(PY) -m lensfit.banks.bench --out build/bench
 	$(PY) -m lensfit.bench --out build/bench
 	$(PY) -m lensfit.codegen.bench | tee build/bench/codegen.txt

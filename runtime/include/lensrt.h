@@ -52,7 +52,7 @@ extern "C" {
  * when a program built against one header runs with a newer shared library, which the
  * versioned structs below allow within one major version. */
 #define LENSRT_VERSION_MAJOR 0
-#define LENSRT_VERSION_MINOR 10
+#define LENSRT_VERSION_MINOR 11
 #define LENSRT_VERSION_PATCH 0
 #define LENSRT_VERSION \
     ((uint32_t)LENSRT_VERSION_MAJOR * 1000000u + (uint32_t)LENSRT_VERSION_MINOR * 1000u + \

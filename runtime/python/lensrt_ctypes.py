@@ -28,6 +28,8 @@ import ctypes as C
 import enum
 import math
 import os
+import struct
+import zlib
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -795,3 +797,238 @@ class Bank:
             self.handle, C.byref(query), out.ctypes.data_as(C.POINTER(C.c_float)),
             C.c_size_t(out.size), chief))
         return out, (chief[0], chief[1])
+
+
+class ImageDesc(Versioned):
+    _fields_ = [("struct_size", C.c_size_t), ("bank", C.c_void_p), ("f_number", C.c_double),
+                ("focus_offset_mm", C.c_double), ("distance_mm", C.c_double),
+                ("width", C.c_int32), ("height", C.c_int32),
+                ("center_x_mm", C.c_double), ("center_y_mm", C.c_double),
+                ("focal_x_mm", C.c_double), ("focal_y_mm", C.c_double),
+                ("n_channels", C.c_int32), ("channel_weights", C.POINTER(C.c_double)),
+                ("ghosts", C.POINTER(C.c_void_p)), ("n_ghosts", C.c_int32),
+                ("aperture", Aperture), ("flare_threshold", C.c_double),
+                ("max_sources", C.c_int32), ("flare_target_error", C.c_double),
+                ("flare_downsample", C.c_int32)]
+
+
+class ImageStats(Versioned):
+    _fields_ = [("struct_size", C.c_size_t), ("seconds_warp", C.c_double),
+                ("seconds_kernels", C.c_double), ("seconds_convolve", C.c_double),
+                ("seconds_flares", C.c_double), ("n_nodes", C.c_int32),
+                ("fft_width", C.c_int32), ("fft_height", C.c_int32),
+                ("n_sources", C.c_int32), ("n_ghost_renders", C.c_int32),
+                ("worst_flare_error", C.c_double)]
+
+
+class ImageSource(Versioned):
+    _fields_ = [("struct_size", C.c_size_t), ("field_x_deg", C.c_double),
+                ("field_y_deg", C.c_double), ("power", C.c_double), ("pixels", C.c_int32)]
+
+
+IMAGE_DIRECT, IMAGE_FLARE, IMAGE_GHOST = 0, 1, 2
+
+
+class Image:
+    """An image through the lens (lensrt_image_*, 0.11.0): a pinhole framebuffer of
+    (n_channels, height, width) float32 through a bank's PSFs (``registration channel``)
+    and its lens's ghosts. ``run(input)`` puts one frame through; ``layer(i)`` reads a
+    layer back (IMAGE_DIRECT, IMAGE_FLARE, IMAGE_GHOST + g). The bank must outlive the
+    image (the image keeps a reference to it)."""
+
+    def __init__(self, bank: Bank, *, width: int, height: int, focal_x_mm: float,
+                 focal_y_mm: float = 0.0, center: tuple[float, float] = (0.0, 0.0),
+                 f_number: float = 0.0, focus_offset_mm: float = 0.0, distance_mm: float = 0.0,
+                 channel_weights: np.ndarray | Sequence[Sequence[float]] | None = None,
+                 n_channels: int = 0, ghosts: Sequence[C.c_void_p] = (),
+                 aperture: dict[str, Any] | None = None, flare_threshold: float = 0.0,
+                 max_sources: int = 0, flare_target_error: float = 0.0,
+                 flare_downsample: int = 0) -> None:
+        """``channel_weights``: (n_channels, bank wavelengths), or None for one channel per
+        bank wavelength; ``aperture``: the ghost renders' (keys of Render's: shape,
+        radius_mm, f_number, blades, blade_curvature, rotation_deg, slit_width_mm,
+        slit_separation_mm)."""
+        rt = bank.rt
+        lib = rt.lib
+        _need(lib, "lensrt_image_create", since="0.11.0").argtypes = [
+            C.c_void_p, C.POINTER(ImageDesc), C.POINTER(C.c_void_p)]
+        lib.lensrt_image_destroy.argtypes = [C.c_void_p]
+        lib.lensrt_image_run.argtypes = [C.c_void_p, C.POINTER(C.c_float), C.c_size_t]
+        lib.lensrt_image_get_layer.argtypes = [C.c_void_p, C.c_int32, C.POINTER(C.c_float),
+                                               C.c_size_t]
+        lib.lensrt_image_get_stats.argtypes = [C.c_void_p, C.POINTER(ImageStats)]
+        lib.lensrt_image_get_source.argtypes = [C.c_void_p, C.c_int32, C.POINTER(ImageSource)]
+        self.rt = rt
+        self.bank = bank
+        self.handle: C.c_void_p | None = None
+        desc = ImageDesc()
+        desc.bank = bank.handle
+        desc.f_number = f_number
+        desc.focus_offset_mm, desc.distance_mm = focus_offset_mm, distance_mm
+        desc.width, desc.height = width, height
+        desc.center_x_mm, desc.center_y_mm = center
+        desc.focal_x_mm, desc.focal_y_mm = focal_x_mm, focal_y_mm
+        keep: list[Any] = []
+        if channel_weights is None:
+            desc.n_channels = n_channels or len(bank.info()["wavelengths_nm"])
+        else:
+            w = np.ascontiguousarray(channel_weights, dtype=np.float64)
+            if w.ndim != 2:
+                raise ValueError(f"channel_weights: shape {w.shape}; (n_channels, wavelengths)")
+            keep.append(w)
+            desc.n_channels = w.shape[0]
+            desc.channel_weights = w.ctypes.data_as(C.POINTER(C.c_double))
+        if ghosts:
+            arr = (C.c_void_p * len(ghosts))(*[g.value if isinstance(g, C.c_void_p) else g
+                                               for g in ghosts])
+            keep.append(arr)
+            desc.ghosts = arr
+            desc.n_ghosts = len(ghosts)
+        ap = dict(aperture or {})
+        desc.aperture = Aperture(SHAPES[ap.get("shape", "circle")], ap.get("radius_mm", 0.0),
+                                 ap.get("f_number", 0.0), ap.get("blades", 0),
+                                 ap.get("blade_curvature", 0.0), ap.get("rotation_deg", 0.0),
+                                 ap.get("slit_width_mm", 0.0), ap.get("slit_separation_mm", 0.0))
+        desc.flare_threshold, desc.max_sources = flare_threshold, max_sources
+        desc.flare_target_error, desc.flare_downsample = flare_target_error, flare_downsample
+        handle = C.c_void_p()
+        rt._check(lib.lensrt_image_create(rt.ctx, C.byref(desc), C.byref(handle)))
+        self.handle = handle
+        self.shape = (int(desc.n_channels), height, width)
+        self.n_layers = 2 + len(ghosts)
+
+    @classmethod
+    def create(cls, bank: Bank, **kwargs: Any) -> Image:
+        """The same as Image(bank, **kwargs)."""
+        return cls(bank, **kwargs)
+
+    def close(self) -> None:
+        if getattr(self, "handle", None) and getattr(self.rt, "ctx", None):
+            self.rt.lib.lensrt_image_destroy(self.handle)
+        self.handle = None
+
+    def __del__(self) -> None:
+        self.close()
+
+    def __enter__(self) -> Image:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def run(self, frame: np.ndarray) -> None:
+        """Put one framebuffer through: float32 (n_channels, height, width), finite, >= 0."""
+        a = np.ascontiguousarray(frame, dtype=np.float32)
+        if a.shape != self.shape:
+            raise ValueError(f"frame: shape {a.shape}; the image takes {self.shape}")
+        self.rt._check(self.rt.lib.lensrt_image_run(
+            self.handle, a.ctypes.data_as(C.POINTER(C.c_float)), C.c_size_t(a.size)))
+
+    def layer(self, i: int = IMAGE_DIRECT) -> np.ndarray:
+        """Layer i of the last run: float32 (n_channels, height, width)."""
+        out = np.zeros(self.shape, dtype=np.float32)
+        self.rt._check(self.rt.lib.lensrt_image_get_layer(
+            self.handle, i, out.ctypes.data_as(C.POINTER(C.c_float)), C.c_size_t(out.size)))
+        return out
+
+    def stats(self) -> dict[str, Any]:
+        """lensrt_image_stats of the last run as a dict."""
+        st = ImageStats()
+        self.rt._check(self.rt.lib.lensrt_image_get_stats(self.handle, C.byref(st)))
+        return {name: getattr(st, name) for name, _ in ImageStats._fields_
+                if name != "struct_size"}
+
+    def sources(self) -> list[dict[str, Any]]:
+        """The sources the last run found (brightest first), each a dict."""
+        out = []
+        for i in range(self.stats()["n_sources"]):
+            s = ImageSource()
+            self.rt._check(self.rt.lib.lensrt_image_get_source(self.handle, i, C.byref(s)))
+            out.append({name: getattr(s, name) for name, _ in ImageSource._fields_
+                        if name != "struct_size"})
+        return out
+
+
+# ------------------------------------------------------------------------------------
+# A bank from PSFs the caller already has (tests, benchmarks, measured PSFs): the node
+# EXRs of a `registration channel` bank (uncompressed scanline OpenEXR packed here, no
+# OpenEXR module needed) and its stamped index (lensrt.h, "PSF banks"). lensfit's own
+# writer (lensfit.banks) renders the PSFs; this one only writes them.
+# ------------------------------------------------------------------------------------
+
+def _exr_attr(name: str, kind: str, value: bytes) -> bytes:
+    return name.encode() + b"\0" + kind.encode() + b"\0" + struct.pack("<i", len(value)) + value
+
+
+def spectral_channel_name(wavelength_nm: float) -> str:
+    """lensrt's EXR channel name of a wavelength: "S0.<nm>,<6 decimals>nm"."""
+    micro = math.floor(wavelength_nm * 1e6 + 0.5)
+    return f"S0.{micro // 1000000},{micro % 1000000:06d}nm"
+
+
+def write_node_exr(path: str | os.PathLike[str], planes: np.ndarray,
+                   wavelengths_nm: Sequence[float], identity: str) -> None:
+    """planes (n_wavelengths, height, width) as FLOAT channels named after the
+    wavelengths, no compression, with the string attribute lensrt/bankNode `identity`."""
+    n, h, w = planes.shape
+    names = [spectral_channel_name(v) for v in wavelengths_nm]
+    order = sorted(range(n), key=lambda c: names[c])  # EXR keeps channels sorted
+    box = struct.pack("<4i", 0, 0, w - 1, h - 1)
+    chlist = b"".join(names[c].encode() + b"\0" + struct.pack("<iB3xii", 2, 0, 1, 1)
+                      for c in order) + b"\0"
+    header = (b"\x76\x2f\x31\x01\x02\x00\x00\x00" + _exr_attr("channels", "chlist", chlist)
+              + _exr_attr("compression", "compression", b"\0")
+              + _exr_attr("dataWindow", "box2i", box) + _exr_attr("displayWindow", "box2i", box)
+              + _exr_attr("lineOrder", "lineOrder", b"\0")
+              + _exr_attr("pixelAspectRatio", "float", struct.pack("<f", 1.0))
+              + _exr_attr("screenWindowCenter", "v2f", struct.pack("<2f", 0.0, 0.0))
+              + _exr_attr("screenWindowWidth", "float", struct.pack("<f", 1.0))
+              + _exr_attr("lensrt/bankNode", "string", identity.encode()) + b"\0")
+    data = np.ascontiguousarray(planes[order], dtype="<f4")
+    chunks = [struct.pack("<ii", y, 4 * n * w) + data[:, y, :].tobytes() for y in range(h)]
+    offsets, at = [], len(header) + 8 * h
+    for chunk in chunks:
+        offsets.append(at)
+        at += len(chunk)
+    Path(path).write_bytes(header + struct.pack(f"<{h}Q", *offsets) + b"".join(chunks))
+
+
+def write_bank(folder: str | os.PathLike[str], psfs: np.ndarray, chiefs: np.ndarray, *,
+               field_x_deg: Sequence[float], field_y_deg: Sequence[float],
+               wavelengths_nm: Sequence[float], pixel_mm: float, f_number: float = 8.0,
+               lens_name: str = "synthetic") -> Path:
+    """A `registration channel` bank of one slice (f_number, focus 0, distance 0) in
+    `folder`: psfs (n_field_y, n_field_x, n_wavelengths, height, width), each channel on
+    its own chief point chiefs (n_field_y, n_field_x, n_wavelengths, 2) mm, row 0 at +y.
+    Returns the index's path."""
+    folder = Path(folder)
+    (folder / "nodes").mkdir(parents=True, exist_ok=True)
+    ny, nx, nl, h, w = psfs.shape
+    r = repr
+
+    def grid(key: str, values: Sequence[float]) -> str:
+        return " ".join([key, str(len(values)), *(r(float(v)) for v in values)])
+
+    lines = ["lensrt-bank 1", f"lens {lens_name}", "table_crc32 00000000", f"width {w}",
+             f"height {h}", f"pixel_mm {r(float(pixel_mm))} {r(float(pixel_mm))}",
+             "registration channel", grid("wavelengths_nm", wavelengths_nm),
+             grid("f_numbers", [f_number]), "focus_offsets_mm 1 0.0", "distances_mm 1 0.0",
+             grid("field_x_deg", field_x_deg), grid("field_y_deg", field_y_deg),
+             f"nodes {nx * ny}"]
+    for iy in range(ny):
+        for ix in range(nx):
+            k = iy * nx + ix
+            rel = f"nodes/y{iy}-x{ix}.exr"
+            identity = (f"0 0 0 {iy} {ix} {r(float(f_number))} 0.0 0.0 "
+                        f"{r(float(field_x_deg[ix]))} {r(float(field_y_deg[iy]))}")
+            write_node_exr(folder / rel, psfs[iy, ix], wavelengths_nm, identity)
+            crc = zlib.crc32((folder / rel).read_bytes())
+            mid = chiefs[iy, ix, nl // 2]
+            lines.append(f"node {k} 0 0 0 {iy} {ix} {r(float(mid[0]))} {r(float(mid[1]))} "
+                         f"0.001 {crc:08x} {rel}")
+            lines.append(" ".join(["chief", str(k),
+                                   *(r(float(v)) for v in chiefs[iy, ix].reshape(-1))]))
+    body = "\n".join(lines) + "\n"
+    index = folder / "bank.index"
+    index.write_text(body + f"checksum crc32 {zlib.crc32(body.encode()):08x}\n")
+    return index

@@ -118,6 +118,9 @@ lensrt_result lensrt_array_in(lensrt_context ctx, const char *what, const void *
 lensrt_result lensrt_struct_out(lensrt_context ctx, const char *what, void *dst, const void *full,
                                 size_t full_size);
 
+/* A bank's `registration` as its index names it: "chief", "window" or "channel". */
+const char *lensrt_bank_registration(lensrt_bank bank);
+
 /* Normalised value of input `in` for raw value v. */
 double lensrt_normalise(const lensrt_input *in, double v);
 

@@ -11,6 +11,12 @@
 #include <stdio.h>
 #include <stdlib.h>
 
+void *lensrt_alloc(lensrt_context ctx, size_t size)
+{
+    (void)ctx;
+    return malloc(size);
+}
+
 void *lensrt_calloc(lensrt_context ctx, size_t count, size_t size)
 {
     (void)ctx;

@@ -61,6 +61,9 @@ static void test_init_macros(void)
     EXPECT_INIT(lensrt_exr_options, LENSRT_EXR_OPTIONS_INIT);
     EXPECT_INIT(lensrt_bank_info, LENSRT_BANK_INFO_INIT);
     EXPECT_INIT(lensrt_bank_query, LENSRT_BANK_QUERY_INIT);
+    EXPECT_INIT(lensrt_image_desc, LENSRT_IMAGE_DESC_INIT);
+    EXPECT_INIT(lensrt_image_stats, LENSRT_IMAGE_STATS_INIT);
+    EXPECT_INIT(lensrt_image_source, LENSRT_IMAGE_SOURCE_INIT);
 }
 
 static void test_version(void)

@@ -25,6 +25,7 @@
 #include "lensrt.h"
 
 #include "check.h"
+#include "bank_files.h"
 
 #include <errno.h>
 #include <math.h>
@@ -61,28 +62,6 @@ typedef struct node_rec {
 } node_rec;
 static node_rec g_nodes[NN];
 static char g_bank[4200]; /* the bank's folder */
-
-/* A bitwise CRC-32 (zlib's), independent of the library's. */
-static uint32_t test_crc32(const void *data, size_t size)
-{
-    const unsigned char *p = data;
-    uint32_t crc = 0xFFFFFFFFu;
-    size_t k;
-    for (k = 0; k < size; k++) {
-        int b;
-        crc ^= p[k];
-        for (b = 0; b < 8; b++) crc = (crc >> 1) ^ (0xEDB88320u & (0u - (crc & 1u)));
-    }
-    return ~crc;
-}
-
-static int write_bytes(const char *path, const void *data, size_t size)
-{
-    FILE *f = fopen(path, "wb");
-    int ok = f && fwrite(data, 1, size, f) == size;
-    if (f) ok = fclose(f) == 0 && ok;
-    return ok;
-}
 
 /* Does the file hold the bytes of `text`? (EXR attribute names are plain text.) */
 static int file_holds(const char *path, const char *text)

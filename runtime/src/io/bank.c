@@ -971,6 +971,12 @@ lensrt_result lensrt_bank_get_info(lensrt_bank b, lensrt_bank_info *out)
     return lensrt_struct_out(b->ctx, "lensrt_bank_info", out, &info, sizeof info);
 }
 
+/* How the bank's node images are placed (internal; lensrt_image_create needs `channel`). */
+const char *lensrt_bank_registration(lensrt_bank b)
+{
+    return b ? REGISTRATION_NAMES[b->registration] : "";
+}
+
 /* The bank's values of an axis as text for a message: "2, 8, 16" (cut short when long). */
 static void list_values(const lensrt_bank b, int axis, char *buf, size_t size)
 {
@@ -1130,10 +1136,12 @@ lensrt_result lensrt_bank_psf(lensrt_bank b, const lensrt_bank_query *query, flo
             for (c = 0; c < 2; c++) {
                 const double w = wf * (c ? tl : 1.0 - tl);
                 const int ch = il + c;
-                const double ux = node->chief[2 * ch], uy = node->chief[2 * ch + 1];
-                double sx = 0.0, sy = 0.0, fx, fy;
+                double ux, uy, sx = 0.0, sy = 0.0, fx, fy;
                 psf_term *t;
+                // (a channel of weight 0 may be past the last: a bank of one wavelength)
                 if (w == 0.0) continue;
+                ux = node->chief[2 * ch];
+                uy = node->chief[2 * ch + 1];
                 // The shift in pixels (row 0 at +y), whole and fractional parts: a node
                 // centred on its middle chief point moves each channel onto its own; none
                 // when each channel is centred on its own, or the nodes share one window
