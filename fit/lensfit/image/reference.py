@@ -19,19 +19,21 @@ import numpy as np
 from lensfit.image.frame import Geometry
 
 
-def _psf(rt: Any, lens: Any, geometry: Geometry, field: tuple[float, float], centre_px:
-         tuple[int, int], half: int, wavelengths: tuple[float, ...], f_number: float,
-         focus_offset_mm: float, distance_mm: float, aperture: dict[str, Any],
-         target: float) -> np.ndarray:
-    """(n_wavelengths, 2 half + 1, 2 half + 1): the PSF on the frame's grid around pixel
-    centre_px (i, j)."""
+def _psf(rt: Any, lens: Any, geometry: Geometry, fields: list[tuple[float, float]],
+         centre_px: tuple[int, int], half: int, wavelengths: tuple[float, ...],
+         f_number: float, focus_offset_mm: float, distance_mm: float,
+         aperture: dict[str, Any], target: float) -> np.ndarray:
+    """(n_wavelengths, 2 half + 1, 2 half + 1): the image of point lights at ``fields``
+    (each of intensity 1 / their count) on the frame's grid around pixel centre_px
+    (i, j)."""
     n = 2 * half + 1
-    light = (field[0], field[1], 0.0 if math.isinf(distance_mm) else distance_mm, 1.0)
+    d = 0.0 if math.isinf(distance_mm) else distance_mm
+    lights = [(fx, fy, d, 1.0 / len(fields)) for fx, fy in fields]
     # the centre of pixel (i, j) of the frame's grid (also beyond the frame's edge)
     cx = geometry.center_x_mm + (centre_px[0] + 0.5 - geometry.width / 2) * geometry.pitch_mm
     cy = geometry.center_y_mm + (geometry.height / 2 - centre_px[1] - 0.5) * geometry.pitch_mm
     r = rt.create(lens, width=n, height=n, width_mm=n * geometry.pitch_mm, center=(cx, cy),
-                  focus_offset_mm=focus_offset_mm, f_number=f_number, lights=[light],
+                  focus_offset_mm=focus_offset_mm, f_number=f_number, lights=lights,
                   wavelengths=list(wavelengths), **aperture)
     r.integrate_auto_to(target)
     return r.image().astype(np.float64)
@@ -41,7 +43,7 @@ def per_pixel_reference(rt: Any, lens: Any, geometry: Geometry, planes: np.ndarr
                         weights: np.ndarray, wavelengths: tuple[float, ...], *,
                         f_number: float, focus_offset_mm: float = 0.0,
                         distance_mm: float = math.inf, aperture: dict[str, Any] | None = None,
-                        half: int = 8, target: float = 0.005) -> np.ndarray:
+                        half: int = 8, target: float = 0.005, sub: int = 4) -> np.ndarray:
     """The direct layer by every lit pixel's own PSF (module doc): (channels, height,
     width) for planes (channels, height, width) with spectral weights (channels,
     n_wavelengths)."""
@@ -55,7 +57,7 @@ def per_pixel_reference(rt: Any, lens: Any, geometry: Geometry, planes: np.ndarr
                               + geometry.width / 2)),
                int(math.floor(geometry.height / 2 - (ay - geometry.center_y_mm)
                               / geometry.pitch_mm)))
-    axis = _psf(rt, lens, geometry, (0.0, 0.0), axis_px, half, wavelengths, f_number,
+    axis = _psf(rt, lens, geometry, [(0.0, 0.0)], axis_px, half, wavelengths, f_number,
                 focus_offset_mm, distance_mm, ap, target)
     power = axis.sum(axis=(1, 2))  # (n_wavelengths,)
     norm = weights @ power  # (channels,)
@@ -64,11 +66,17 @@ def per_pixel_reference(rt: Any, lens: Any, geometry: Geometry, planes: np.ndarr
     mid = wavelengths[len(wavelengths) // 2]
     for j, i in lit:
         fx, fy = geometry.field_deg(xs[i], ys[j])
-        light = (float(fx), float(fy), 0.0 if math.isinf(distance_mm) else distance_mm, 1.0)
-        cx, cy = rt.image_point(lens, light, mid, focus_offset_mm)
+        cx, cy = rt.image_point(lens, (float(fx), float(fy),
+                                       0.0 if math.isinf(distance_mm) else distance_mm, 1.0),
+                                mid, focus_offset_mm)
         ci = int(math.floor((cx - geometry.center_x_mm) / geometry.pitch_mm + width / 2))
         cj = int(math.floor(height / 2 - (cy - geometry.center_y_mm) / geometry.pitch_mm))
-        psf = _psf(rt, lens, geometry, (float(fx), float(fy)), (ci, cj), half, wavelengths,
+        # the pixel's footprint: sub x sub point lights at the midpoints of its parts
+        offs = (np.arange(sub) + 0.5) / sub - 0.5
+        fields = [tuple(float(v) for v in geometry.field_deg(xs[i] + a * geometry.pitch_mm,
+                                                             ys[j] + b * geometry.pitch_mm))
+                  for b in offs for a in offs]
+        psf = _psf(rt, lens, geometry, fields, (ci, cj), half, wavelengths,
                    f_number, focus_offset_mm, distance_mm, ap, target)
         for c in range(planes.shape[0]):
             v = float(planes[c, j, i])

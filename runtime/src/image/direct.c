@@ -21,9 +21,8 @@
  *    node's channel bit for bit), so a lossless axis keeps a pixel's value and
  *    vignetting and transmission come from the PSFs' own power. The sub-pixel shifts
  *    (lateral colour, and half a pixel along an axis of even PSF size, whose pixel
- *    centres lie half a pixel off its chief point) are phase ramps on the kernel's grid,
- *    padded to hold the shift: the band-limited shift, which keeps each PSF's power
- *    exactly; a shift of zero adds the PSF as it is. Built once, at creation.
+ *    centres lie half a pixel off its chief point) are bilinear taps, as the warp's
+ *    splat (step 2): they keep each PSF's power and sign. Built once, at creation.
  * 4. Convolution. Each node's layer covers only the landing points of its pixels (its
  *    <= 2 x 2 cells, warped); it is convolved with the kernel by FFT, padded to the full
  *    linear size (no wrap-around), two channels packed in one complex transform, and the
@@ -65,7 +64,8 @@ struct image_direct {
     float *kernels;             /* n_parts x n_channels x kh x kw */
     int *col_cell, *row_cell;   /* hat weights: node cell gets 1 - frac, cell + 1 gets frac */
     double *col_frac, *row_frac;
-    float *land;                /* per input pixel, its landing point (u, v) in pixel indices */
+    float *land;                /* n_channels x per input pixel, its landing point (u, v) in
+                                   pixel indices: the channel's own chief point */
     image_fft_plan **plans;     /* every size used, once */
     int n_plans;
     int slots;                  /* nodes done at once */
@@ -158,11 +158,12 @@ static lensrt_result node_psf(struct lensrt_image_s *im, int ix, int iy, int l, 
 }
 
 /* Step 1 and 2's fixed parts: the hat cells of every column and row, and every pixel's
- * landing point from the nodes' reference chief points (chief_ref: ny x nx x 2). */
+ * landing point in each channel from the nodes' chief points of that channel (chief_ch:
+ * ny x nx x n_channels x 2). */
 static void set_up_warp(struct lensrt_image_s *im, struct image_direct *d, const lensrt_bank_info *info,
-                        const double *chief_ref)
+                        const double *chief_ch)
 {
-    const int w = im->desc.width, h = im->desc.height;
+    const int w = im->desc.width, h = im->desc.height, nc = im->desc.n_channels;
     const double px = info->pixel_x_mm, py = info->pixel_y_mm;
     int i, j;
     for (i = 0; i < w; i++)
@@ -178,20 +179,23 @@ static void set_up_warp(struct lensrt_image_s *im, struct image_direct *d, const
         lagrange(d->ty, d->ny, d->row_cell[j], ty, &y0, &ny, wy);
         for (i = 0; i < w; i++) {
             const double tx = (im->desc.center_x_mm + (i + 0.5 - 0.5 * w) * px) / im->desc.focal_x_mm;
-            double wx[4], cx = 0.0, cy = 0.0;
-            int x0, nx;
+            double wx[4];
+            int x0, nx, ch;
             lagrange(d->tx, d->nx, d->col_cell[i], tx, &x0, &nx, wx);
-            for (b = 0; b < ny; b++)
-                for (a = 0; a < nx; a++) {
-                    const double *c = chief_ref + 2 * ((size_t)(y0 + b) * (size_t)d->nx + (size_t)(x0 + a));
-                    cx += wy[b] * wx[a] * c[0];
-                    cy += wy[b] * wx[a] * c[1];
-                }
-            // In pixel indices of the frame's grid (row 0 at +y)
-            d->land[2 * ((size_t)j * (size_t)w + (size_t)i)] =
-                (float)((cx - im->desc.center_x_mm) / px + 0.5 * w - 0.5);
-            d->land[2 * ((size_t)j * (size_t)w + (size_t)i) + 1] =
-                (float)((im->desc.center_y_mm - cy) / py + 0.5 * h - 0.5);
+            for (ch = 0; ch < nc; ch++) {
+                double cx = 0.0, cy = 0.0;
+                float *u = d->land + 2 * ((size_t)ch * im->plane + (size_t)j * (size_t)w + (size_t)i);
+                for (b = 0; b < ny; b++)
+                    for (a = 0; a < nx; a++) {
+                        const size_t node = (size_t)(y0 + b) * (size_t)d->nx + (size_t)(x0 + a);
+                        const double *c = chief_ch + 2 * (node * (size_t)nc + (size_t)ch);
+                        cx += wy[b] * wx[a] * c[0];
+                        cy += wy[b] * wx[a] * c[1];
+                    }
+                // In pixel indices of the frame's grid (row 0 at +y)
+                u[0] = (float)((cx - im->desc.center_x_mm) / px + 0.5 * w - 0.5);
+                u[1] = (float)((im->desc.center_y_mm - cy) / py + 0.5 * h - 0.5);
+            }
         }
     }
 }
@@ -201,7 +205,7 @@ static int set_up_part(const struct lensrt_image_s *im, const struct image_direc
 {
     const int w = im->desc.width, h = im->desc.height;
     double umin = 1e300, umax = -1e300, vmin = 1e300, vmax = -1e300;
-    int i, j, sx1, sy1;
+    int i, j, c, sx1, sy1;
     p->i0 = p->j0 = -1;
     for (i = 0; i < w; i++)
         if (hat_weight(p->ix, d->col_cell[i], d->col_frac[i]) > 0.0) {
@@ -216,14 +220,15 @@ static int set_up_part(const struct lensrt_image_s *im, const struct image_direc
     if (p->i0 < 0 || p->j0 < 0) return 0;
     // The landing points' box, one more pixel for the bilinear taps, cut to where a
     // kernel can still reach the frame
-    for (j = p->j0; j < p->j1; j++)
-        for (i = p->i0; i < p->i1; i++) {
-            const float *u = d->land + 2 * ((size_t)j * (size_t)w + (size_t)i);
-            umin = u[0] < umin ? u[0] : umin;
-            umax = u[0] > umax ? u[0] : umax;
-            vmin = u[1] < vmin ? u[1] : vmin;
-            vmax = u[1] > vmax ? u[1] : vmax;
-        }
+    for (c = 0; c < im->desc.n_channels; c++)
+        for (j = p->j0; j < p->j1; j++)
+            for (i = p->i0; i < p->i1; i++) {
+                const float *u = d->land + 2 * ((size_t)c * im->plane + (size_t)j * (size_t)w + (size_t)i);
+                umin = u[0] < umin ? u[0] : umin;
+                umax = u[0] > umax ? u[0] : umax;
+                vmin = u[1] < vmin ? u[1] : vmin;
+                vmax = u[1] > vmax ? u[1] : vmax;
+            }
     p->sx0 = (int)floor(umin);
     p->sy0 = (int)floor(vmin);
     sx1 = (int)floor(umax) + 1;
@@ -243,97 +248,52 @@ static int set_up_part(const struct lensrt_image_s *im, const struct image_direc
     return p->ow > 0 && p->oh > 0;
 }
 
-/* The phase ramp of a shift by s samples on a periodic grid of n: exp(-2 pi i u s / n)
- * at the signed frequency u, and at the Nyquist frequency of an even n the cosine
- * cos(pi s) (the average of u = +-n/2: the band-limited shift of a real signal). */
-static void ramp(double *r, int n, double s)
-{
-    int i;
-    for (i = 0; i < n; i++) {
-        const int u = 2 * i < n ? i : i - n;
-        const double phase = -2.0 * DIRECT_PI * (double)u * s / (double)n;
-        r[2 * i] = 2 * i == n ? cos(DIRECT_PI * s) : cos(phase);
-        r[2 * i + 1] = 2 * i == n ? 0.0 : sin(phase);
-    }
-}
-
-/* Step 3: a part's kernels (see the top). shifts: n_wavelengths x 2 pixel shifts of this
- * node; spec: n_channels x kw x kh complex scratch, acc: n_channels x kw x kh, psf: the
- * bank's size, pad: kw x kh complex, work as much, rx and ry kw and kh complex. */
+/* Step 3: a part's kernels (see the top). shifts: n_channels x n_wavelengths x 2 pixel
+ * shifts of this node (each wavelength's chief point from its channel's); acc: n_channels x kw x kh scratch, psf: the bank's size. */
 static lensrt_result build_kernels(struct lensrt_image_s *im, struct image_direct *d, node_part *p,
                                    const lensrt_bank_info *info, const double *shifts, const int *used,
-                                   const image_fft_plan *kx, const image_fft_plan *ky, double *spec, double *acc,
-                                   float *psf, double *pad, double *work, double *rx, double *ry)
+                                   double *acc, float *psf)
 {
     const int nc = im->desc.n_channels, nl = im->n_wavelengths, bw = info->width, bh = info->height;
     const size_t kn = (size_t)d->kw * (size_t)d->kh, count = (size_t)bw * (size_t)bh;
     const int ox = d->kcx - bw / 2, oy = d->kcy - bh / 2; /* the PSF's pixel (0, 0) on the kernel grid */
-    int c, l, i, j, any_shift = 0;
+    int c, l, i, j;
     double chief[2];
     lensrt_result res;
     memset(acc, 0, (size_t)nc * kn * sizeof(double));
-    if (kx) memset(spec, 0, 2 * (size_t)nc * kn * sizeof(double));
     for (l = 0; l < nl; l++) {
-        const double sx = shifts[2 * l], sy = shifts[2 * l + 1];
         if (!used[l]) continue;
         if ((res = node_psf(im, p->ix, p->iy, l, psf, count, chief)) != LENSRT_SUCCESS) return res;
-        if (sx == 0.0 && sy == 0.0) {
-            // No shift: the PSF as it is
-            for (c = 0; c < nc; c++) {
-                const double wc = im->channel_weights[(size_t)c * (size_t)nl + (size_t)l];
-                if (wc == 0.0) continue;
-                for (j = 0; j < bh; j++)
-                    for (i = 0; i < bw; i++)
-                        acc[(size_t)c * kn + (size_t)(j + oy) * (size_t)d->kw + (size_t)(i + ox)] +=
-                            wc * (double)psf[(size_t)j * (size_t)bw + (size_t)i];
-            }
-            continue;
-        }
-        // A shift: the PSF's spectrum on the kernel grid times the phase ramp
-        // exp(-2 pi i (u sx / kw + v sy / kh)), u and v the signed frequencies (at the
-        // Nyquist frequency of an even size, the cosine: the band-limited shift's real part)
-        any_shift = 1;
-        memset(pad, 0, 2 * kn * sizeof(double));
-        for (j = 0; j < bh; j++)
-            for (i = 0; i < bw; i++)
-                pad[2 * ((size_t)(j + oy) * (size_t)d->kw + (size_t)(i + ox))] = psf[(size_t)j * (size_t)bw + (size_t)i];
-        image_fft_2d_forward(kx, ky, pad, work, d->kh);
-        ramp(rx, d->kw, sx);
-        ramp(ry, d->kh, sy);
-        for (j = 0; j < d->kh; j++)
-            for (i = 0; i < d->kw; i++) {
-                const size_t o = (size_t)j * (size_t)d->kw + (size_t)i;
-                const double rr = rx[2 * i] * ry[2 * j] - rx[2 * i + 1] * ry[2 * j + 1];
-                const double ri = rx[2 * i] * ry[2 * j + 1] + rx[2 * i + 1] * ry[2 * j];
-                const double fr = pad[2 * o] * rr - pad[2 * o + 1] * ri, fi = pad[2 * o] * ri + pad[2 * o + 1] * rr;
-                for (c = 0; c < nc; c++) {
-                    const double wc = im->channel_weights[(size_t)c * (size_t)nl + (size_t)l];
-                    spec[2 * ((size_t)c * kn + o)] += wc * fr;
-                    spec[2 * ((size_t)c * kn + o) + 1] += wc * fi;
+        for (c = 0; c < nc; c++) {
+            // The PSF moved by (sx, sy) pixels, from the channel's chief point to its own:
+            // the whole-pixel part exactly, the fraction by the bilinear taps (1 - f, f) on
+            // each axis, as the warp's splat; they keep its power and never go below 0. A
+            // band-limited shift (a phase ramp) rings: these PSFs are box-filtered at the
+            // frame's pitch, not band-limited
+            const double sx = shifts[2 * ((size_t)c * (size_t)nl + (size_t)l)];
+            const double sy = shifts[2 * ((size_t)c * (size_t)nl + (size_t)l) + 1];
+            const int gx = (int)floor(sx), gy = (int)floor(sy);
+            const double fx = sx - gx, fy = sy - gy;
+            const double tap[4] = {(1 - fx) * (1 - fy), fx * (1 - fy), (1 - fx) * fy, fx * fy};
+            const double wc = im->channel_weights[(size_t)c * (size_t)nl + (size_t)l];
+            double *k = acc + (size_t)c * kn;
+            if (wc == 0.0) continue;
+            for (j = 0; j < bh; j++)
+                for (i = 0; i < bw; i++) {
+                    const double v = wc * (double)psf[(size_t)j * (size_t)bw + (size_t)i];
+                    const size_t o = (size_t)(j + oy + gy) * (size_t)d->kw + (size_t)(i + ox + gx);
+                    k[o] += tap[0] * v;
+                    k[o + 1] += tap[1] * v;
+                    k[o + (size_t)d->kw] += tap[2] * v;
+                    k[o + (size_t)d->kw + 1] += tap[3] * v;
                 }
-            }
+        }
     }
-    // The shifted PSFs back on the grid (real part: the kernel is real), then each channel
-    // divided by its spectrum's power on the axis
+    // Each channel divided by its spectrum's power on the axis
     for (c = 0; c < nc; c++) {
         double norm = 0.0;
         size_t o;
         for (l = 0; l < nl; l++) norm += im->channel_weights[(size_t)c * (size_t)nl + (size_t)l] * im->axis_power[l];
-        if (any_shift) {
-            double before = 0.0, after = 0.0;
-            image_fft_2d_inverse(kx, ky, spec + 2 * (size_t)c * kn, work, 0, d->kh);
-            for (o = 0; o < kn; o++) acc[(size_t)c * kn + o] += spec[2 * ((size_t)c * kn + o)] / (double)kn;
-            // A band-limited shift of a PSF that is not band-limited ripples, partly below
-            // 0 (1e-5 of the peak for a Gaussian of 1.5 pixels): irradiance is not, so the
-            // ripple's negative part is cut and the rest scaled to keep the kernel's power
-            // (the shift's own, exactly the PSFs' weighted sum)
-            for (o = 0; o < kn; o++) {
-                before += acc[(size_t)c * kn + o];
-                if (acc[(size_t)c * kn + o] < 0.0) acc[(size_t)c * kn + o] = 0.0;
-                after += acc[(size_t)c * kn + o];
-            }
-            for (o = 0; o < kn && after > 0.0; o++) acc[(size_t)c * kn + o] *= before / after;
-        }
         for (o = 0; o < kn; o++) p->kernels[(size_t)c * kn + o] = (float)(acc[(size_t)c * kn + o] / norm);
     }
     return LENSRT_SUCCESS;
@@ -341,7 +301,7 @@ static lensrt_result build_kernels(struct lensrt_image_s *im, struct image_direc
 
 /* The scratch of the kernels' set-up (freed at its end). */
 typedef struct kernel_scratch {
-    double *shifts, *spec, *acc, *pad, *work, *rx, *ry;
+    double *shifts, *acc;
     float *psf;
     int *used;
 } kernel_scratch;
@@ -349,12 +309,7 @@ typedef struct kernel_scratch {
 static void free_scratch(lensrt_context ctx, kernel_scratch *s)
 {
     lensrt_free(ctx, s->shifts);
-    lensrt_free(ctx, s->spec);
     lensrt_free(ctx, s->acc);
-    lensrt_free(ctx, s->pad);
-    lensrt_free(ctx, s->work);
-    lensrt_free(ctx, s->rx);
-    lensrt_free(ctx, s->ry);
     lensrt_free(ctx, s->psf);
     lensrt_free(ctx, s->used);
 }
@@ -403,7 +358,9 @@ static lensrt_result set_up_chiefs(struct lensrt_image_s *im, struct image_direc
                            "by %g x %g pixels between its wavelengths; at most %d", most_x, most_y,
                            LENSRT_MAX_RESOLUTION / 4);
     if (any) {
-        const int pad_x = (int)ceil(most_x) + 2, pad_y = (int)ceil(most_y) + 2;
+        // A channel's chief point is a mean of its wavelengths': a shift from it is at
+        // most twice the largest from the reference
+        const int pad_x = (int)ceil(2.0 * most_x) + 2, pad_y = (int)ceil(2.0 * most_y) + 2;
         d->kw = image_fft_good_size(bw + 2 * pad_x);
         d->kh = image_fft_good_size(bh + 2 * pad_y);
         d->kcx = pad_x + bw / 2;
@@ -451,10 +408,9 @@ lensrt_result image_direct_create(struct lensrt_image_s *im)
     lensrt_bank_info info = LENSRT_BANK_INFO_INIT;
     struct image_direct *d;
     kernel_scratch s;
-    double *chief = NULL;
-    const image_fft_plan *kx = NULL, *ky = NULL;
+    double *chief = NULL, *chief_ch = NULL;
     const int nc = im->desc.n_channels, nl = im->n_wavelengths;
-    int i, k, ref = 0, nthreads = 1;
+    int i, k, c, ref = 0, nthreads = 1;
     size_t kn, nodes;
     lensrt_result res;
     memset(&s, 0, sizeof s);
@@ -471,12 +427,12 @@ lensrt_result image_direct_create(struct lensrt_image_s *im)
     d->col_frac = lensrt_alloc(ctx, (size_t)im->desc.width * sizeof(double));
     d->row_cell = lensrt_alloc(ctx, (size_t)im->desc.height * sizeof(int));
     d->row_frac = lensrt_alloc(ctx, (size_t)im->desc.height * sizeof(double));
-    d->land = lensrt_alloc(ctx, 2 * im->plane * sizeof(float));
+    d->land = lensrt_alloc(ctx, 2 * (size_t)nc * im->plane * sizeof(float));
     d->parts = lensrt_calloc(ctx, nodes, sizeof *d->parts);
     d->plans = lensrt_calloc(ctx, 2 * nodes + 2, sizeof *d->plans);
     chief = lensrt_alloc(ctx, nodes * (size_t)nl * 2 * sizeof(double));
     s.used = lensrt_calloc(ctx, (size_t)nl, sizeof(int));
-    s.shifts = lensrt_alloc(ctx, 2 * (size_t)nl * sizeof(double));
+    s.shifts = lensrt_alloc(ctx, 2 * (size_t)nc * (size_t)nl * sizeof(double));
     s.psf = lensrt_alloc(ctx, (size_t)info.width * (size_t)info.height * sizeof(float));
     if (!d->tx || !d->ty || !d->col_cell || !d->col_frac || !d->row_cell || !d->row_frac || !d->land || !d->parts ||
         !d->plans || !chief || !s.used || !s.shifts || !s.psf) {
@@ -486,20 +442,35 @@ lensrt_result image_direct_create(struct lensrt_image_s *im)
     for (i = 0; i < d->nx; i++) d->tx[i] = tan_deg(info.field_x_deg[i]);
     for (i = 0; i < d->ny; i++) d->ty[i] = tan_deg(info.field_y_deg[i]);
     if ((res = set_up_chiefs(im, d, &info, &s, chief, &ref)) != LENSRT_SUCCESS) goto done;
-    {
-        // The reference chief points, node by node, for the warp
-        double *cref = lensrt_alloc(ctx, nodes * 2 * sizeof(double));
-        if (!cref) {
-            res = DIRECT_OOM("the chief points");
-            goto done;
-        }
-        for (k = 0; k < (int)nodes; k++) {
-            cref[2 * k] = chief[2 * ((size_t)k * (size_t)nl + (size_t)ref)];
-            cref[2 * k + 1] = chief[2 * ((size_t)k * (size_t)nl + (size_t)ref) + 1];
-        }
-        set_up_warp(im, d, &info, cref);
-        lensrt_free(ctx, cref);
+    // Each channel's chief point at each node, for its warp: its wavelengths' chief points
+    // weighted by the channel's light there (w[c][l] times the axis PSF's power), so that
+    // a channel of one wavelength lands exactly where that wavelength's chief ray does
+    chief_ch = lensrt_alloc(ctx, nodes * (size_t)nc * 2 * sizeof(double));
+    if (!chief_ch) {
+        res = DIRECT_OOM("the chief points");
+        goto done;
     }
+    for (k = 0; k < (int)nodes; k++)
+        for (c = 0; c < nc; c++) {
+            double sum = 0.0, cx = 0.0, cy = 0.0;
+            int l;
+            for (l = 0; l < nl; l++) {
+                const double a = im->channel_weights[(size_t)c * (size_t)nl + (size_t)l] * im->axis_power[l];
+                const double *cl = chief + 2 * ((size_t)k * (size_t)nl + (size_t)l);
+                if (a <= 0.0) continue;
+                sum += a;
+                cx += a * cl[0];
+                cy += a * cl[1];
+            }
+            if (!(sum > 0.0)) { // no power on the axis in this channel: the reference's
+                cx = chief[2 * ((size_t)k * (size_t)nl + (size_t)ref)];
+                cy = chief[2 * ((size_t)k * (size_t)nl + (size_t)ref) + 1];
+                sum = 1.0;
+            }
+            chief_ch[2 * ((size_t)k * (size_t)nc + (size_t)c)] = cx / sum;
+            chief_ch[2 * ((size_t)k * (size_t)nc + (size_t)c) + 1] = cy / sum;
+        }
+    set_up_warp(im, d, &info, chief_ch);
     // The parts: nodes whose light reaches the frame, their rectangles and transform sizes
     for (k = 0; k < (int)nodes; k++) {
         node_part *p = &d->parts[d->n_parts];
@@ -520,34 +491,25 @@ lensrt_result image_direct_create(struct lensrt_image_s *im)
     kn = (size_t)d->kw * (size_t)d->kh;
     d->kernels = lensrt_alloc(ctx, (size_t)(d->n_parts > 0 ? d->n_parts : 1) * (size_t)nc * kn * sizeof(float));
     s.acc = lensrt_alloc(ctx, (size_t)nc * kn * sizeof(double));
-    s.spec = lensrt_alloc(ctx, 2 * (size_t)nc * kn * sizeof(double));
-    s.pad = lensrt_alloc(ctx, 2 * kn * sizeof(double));
-    s.work = lensrt_alloc(ctx, 2 * kn * sizeof(double));
-    s.rx = lensrt_alloc(ctx, 2 * (size_t)d->kw * sizeof(double));
-    s.ry = lensrt_alloc(ctx, 2 * (size_t)d->kh * sizeof(double));
-    if (!d->kernels || !s.acc || !s.spec || !s.pad || !s.work || !s.rx || !s.ry) {
+    if (!d->kernels || !s.acc) {
         res = DIRECT_OOM("the kernels");
         goto done;
-    }
-    if (d->kw != info.width || d->kh != info.height || d->kcx != info.width / 2 || d->kcy != info.height / 2) {
-        if (!(kx = plan_for(ctx, d, d->kw)) || !(ky = plan_for(ctx, d, d->kh))) {
-            res = DIRECT_OOM("the FFT plans");
-            goto done;
-        }
     }
     for (k = 0; k < d->n_parts; k++) {
         node_part *p = &d->parts[k];
         const size_t node = (size_t)p->iy * (size_t)d->nx + (size_t)p->ix;
-        const double *cr = chief + 2 * (node * (size_t)nl + (size_t)ref);
         int l;
-        for (l = 0; l < nl; l++) {
-            const double *cl = chief + 2 * (node * (size_t)nl + (size_t)l);
-            s.shifts[2 * l] = (cl[0] - cr[0]) / info.pixel_x_mm + (info.width % 2 == 0 ? 0.5 : 0.0);
-            s.shifts[2 * l + 1] = -(cl[1] - cr[1]) / info.pixel_y_mm + (info.height % 2 == 0 ? 0.5 : 0.0);
+        for (c = 0; c < nc; c++) {
+            const double *cr = chief_ch + 2 * (node * (size_t)nc + (size_t)c);
+            for (l = 0; l < nl; l++) {
+                const double *cl = chief + 2 * (node * (size_t)nl + (size_t)l);
+                double *sh = s.shifts + 2 * ((size_t)c * (size_t)nl + (size_t)l);
+                sh[0] = (cl[0] - cr[0]) / info.pixel_x_mm + (info.width % 2 == 0 ? 0.5 : 0.0);
+                sh[1] = -(cl[1] - cr[1]) / info.pixel_y_mm + (info.height % 2 == 0 ? 0.5 : 0.0);
+            }
         }
         p->kernels = d->kernels + (size_t)k * (size_t)nc * kn;
-        if ((res = build_kernels(im, d, p, &info, s.shifts, s.used, kx, ky, s.spec, s.acc, s.psf, s.pad, s.work, s.rx,
-                                 s.ry)) != LENSRT_SUCCESS)
+        if ((res = build_kernels(im, d, p, &info, s.shifts, s.used, s.acc, s.psf)) != LENSRT_SUCCESS)
             goto done;
     }
     // The slots' buffers: one node at a time per thread
@@ -565,6 +527,7 @@ lensrt_result image_direct_create(struct lensrt_image_s *im)
 done:
     free_scratch(ctx, &s);
     lensrt_free(ctx, chief);
+    lensrt_free(ctx, chief_ch);
     if (res != LENSRT_SUCCESS) image_direct_destroy(im);
     return res;
 }
@@ -587,23 +550,24 @@ static int splat(const struct lensrt_image_s *im, const struct image_direct *d, 
         for (i = p->i0; i < p->i1; i++) {
             const size_t pix = (size_t)j * (size_t)w + (size_t)i;
             const float wt = wy * (float)hat_weight(p->ix, d->col_cell[i], d->col_frac[i]);
-            const float u = d->land[2 * pix] - (float)p->sx0, v = d->land[2 * pix + 1] - (float)p->sy0;
-            const float fu = floorf(u), fv = floorf(v), ax = u - fu, ay = v - fv;
-            const int x0 = (int)fu, y0 = (int)fv;
-            const int inside = x0 >= 0 && x0 + 1 < sw && y0 >= 0 && y0 + 1 < sh;
-            float tap[4];
-            int t;
             if (wt == 0.0f) continue;
-            // The bilinear taps (they sum to 1: the power and the centroid are kept)
-            tap[0] = (1.0f - ax) * (1.0f - ay) * wt;
-            tap[1] = ax * (1.0f - ay) * wt;
-            tap[2] = (1.0f - ax) * ay * wt;
-            tap[3] = ax * ay * wt;
             for (c = 0; c < nc; c++) {
                 const float val = input[(size_t)c * im->plane + pix];
+                const float *land = d->land + 2 * ((size_t)c * im->plane + pix);
+                const float u = land[0] - (float)p->sx0, v = land[1] - (float)p->sy0;
+                const float fu = floorf(u), fv = floorf(v), ax = u - fu, ay = v - fv;
+                const int x0 = (int)fu, y0 = (int)fv;
+                const int inside = x0 >= 0 && x0 + 1 < sw && y0 >= 0 && y0 + 1 < sh;
                 float *l = layer + (size_t)c * lp;
+                float tap[4];
+                int t;
                 if (val == 0.0f) continue;
                 lit = 1;
+                // The bilinear taps (they sum to 1: the power and the centroid are kept)
+                tap[0] = (1.0f - ax) * (1.0f - ay) * wt;
+                tap[1] = ax * (1.0f - ay) * wt;
+                tap[2] = (1.0f - ax) * ay * wt;
+                tap[3] = ax * ay * wt;
                 if (inside) {
                     // The usual case: all four taps in the layer
                     float *q = l + (size_t)y0 * (size_t)sw + (size_t)x0;
