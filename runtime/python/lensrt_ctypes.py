@@ -809,7 +809,7 @@ class ImageDesc(Versioned):
                 ("ghosts", C.POINTER(C.c_void_p)), ("n_ghosts", C.c_int32),
                 ("aperture", Aperture), ("flare_threshold", C.c_double),
                 ("max_sources", C.c_int32), ("flare_target_error", C.c_double),
-                ("flare_downsample", C.c_int32)]
+                ("flare_downsample", C.c_int32), ("oversample", C.c_int32)]
 
 
 class ImageStats(Versioned):
@@ -843,7 +843,7 @@ class Image:
                  n_channels: int = 0, ghosts: Sequence[C.c_void_p] = (),
                  aperture: dict[str, Any] | None = None, flare_threshold: float = 0.0,
                  max_sources: int = 0, flare_target_error: float = 0.0,
-                 flare_downsample: int = 0) -> None:
+                 flare_downsample: int = 0, oversample: int = 0) -> None:
         """``channel_weights``: (n_channels, bank wavelengths), or None for one channel per
         bank wavelength; ``aperture``: the ghost renders' (keys of Render's: shape,
         radius_mm, f_number, blades, blade_curvature, rotation_deg, slit_width_mm,
@@ -891,6 +891,7 @@ class Image:
                                  ap.get("slit_width_mm", 0.0), ap.get("slit_separation_mm", 0.0))
         desc.flare_threshold, desc.max_sources = flare_threshold, max_sources
         desc.flare_target_error, desc.flare_downsample = flare_target_error, flare_downsample
+        desc.oversample = oversample
         handle = C.c_void_p()
         rt._check(lib.lensrt_image_create(rt.ctx, C.byref(desc), C.byref(handle)))
         self.handle = handle

@@ -123,27 +123,44 @@ def spec_toml(spec: dict[str, Any]) -> str:
     return "\n".join(top) + "\n" + "\n".join(tables) + "\n"
 
 
-def cache_folder(cache: str | Path | None, spec: dict[str, Any]) -> Path:
-    """The spec's folder in the cache: <cache>/<the spec's digest>."""
+def table_name(table: Path) -> str:
+    """The name a table goes by in the cache: its generated folder's (lens0001.table in
+    generated/0001-angenieux-double-gauss/ is 0001-angenieux-double-gauss.table)."""
+    stem = table.parent.name if table.stem.startswith("lens") else table.stem
+    return f"{stem}.table"
+
+
+def cache_folder(cache: str | Path | None, spec: dict[str, Any], table_bytes: bytes) -> Path:
+    """The spec's folder in the cache: <cache>/<digest of the spec with its table's CRC-32
+    in place of its path> (the same frame and table reuse it from any checkout)."""
+    import zlib
+
     from lensfit.banks.spec import BankSpec
 
+    keyed = dict(spec, lens=f"{spec['lens']}:{zlib.crc32(table_bytes):08x}")
     root = Path(cache or os.environ.get(CACHE_ENV) or DEFAULT_CACHE)
-    return root / BankSpec.from_dict(spec).digest()[:20]
+    return root / BankSpec.from_dict(keyed).digest()[:20]
 
 
-def ensure_bank(spec: dict[str, Any], cache: str | Path | None, *, scheduler: str | None,
-                workers: int | None, progress: bool, say: Any = None
+def ensure_bank(spec: dict[str, Any], table: Path, cache: str | Path | None, *,
+                scheduler: str | None, workers: int | None, progress: bool, say: Any = None
                 ) -> tuple[Path, dict[str, Any]]:
     """The bank's index, rendering the nodes not yet in the cache (Dask): its path and
-    what it cost ({'rendered': nodes, 'cpu_seconds', 'wall_seconds'})."""
+    what it cost ({'rendered': nodes, 'cpu_seconds', 'wall_seconds'}). The table is
+    copied beside the spec, which names it by a relative path."""
     from lensfit.atomic import make_folder, write_atomic
     from lensfit.banks.run import run_bank
 
-    folder = cache_folder(cache, spec)
+    data = table.read_bytes()
+    spec = dict(spec, lens=table_name(table))
+    folder = cache_folder(cache, spec, data)
     make_folder(folder, "image bank cache folder")
+    copy = folder / spec["lens"]
+    if not copy.is_file() or copy.read_bytes() != data:
+        write_atomic(copy, data)
     spec_path = folder / "spec.toml"
     text = spec_toml(spec)
-    if not spec_path.exists() or spec_path.read_text() != text:
+    if not spec_path.is_file() or spec_path.read_text() != text:
         write_atomic(spec_path, text)
     summary = run_bank(spec_path, folder / "bank", scheduler=scheduler, workers=workers,
                        progress=progress, sheet=False, check=False, say=say)

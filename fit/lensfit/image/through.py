@@ -232,7 +232,7 @@ def through_lens(lens: str, input_path: str | Path, output: str | Path,
                            focus_offset_mm=o.focus_offset_mm, distances_mm=distances,
                            wavelengths_nm=wavelengths, half_px=half, nodes_x=o.nodes_x,
                            aperture=o.aperture, target_error=o.target_error)
-    index, bank_cost = ensure_bank(spec, o.cache, scheduler=o.scheduler, workers=o.workers,
+    index, bank_cost = ensure_bank(spec, table, o.cache, scheduler=o.scheduler, workers=o.workers,
                                    progress=o.progress, say=say)
     seconds["bank"] = time.perf_counter() - t
 

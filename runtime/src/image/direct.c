@@ -270,8 +270,12 @@ static lensrt_result build_kernels(struct lensrt_image_s *im, struct image_direc
             // each axis, as the warp's splat; they keep its power and never go below 0. A
             // band-limited shift (a phase ramp) rings: these PSFs are box-filtered at the
             // frame's pitch, not band-limited
-            const double sx = shifts[2 * ((size_t)c * (size_t)nl + (size_t)l)];
-            const double sy = shifts[2 * ((size_t)c * (size_t)nl + (size_t)l) + 1];
+            // (a shift within 1e-9 pixels of a whole one is that one: rounding of chief
+            // points that agree)
+            const double sx0 = shifts[2 * ((size_t)c * (size_t)nl + (size_t)l)];
+            const double sy0 = shifts[2 * ((size_t)c * (size_t)nl + (size_t)l) + 1];
+            const double sx = fabs(sx0 - floor(sx0 + 0.5)) < 1e-9 ? floor(sx0 + 0.5) : sx0;
+            const double sy = fabs(sy0 - floor(sy0 + 0.5)) < 1e-9 ? floor(sy0 + 0.5) : sy0;
             const int gx = (int)floor(sx), gy = (int)floor(sy);
             const double fx = sx - gx, fy = sy - gy;
             const double tap[4] = {(1 - fx) * (1 - fy), fx * (1 - fy), (1 - fx) * fy, fx * fy};
@@ -281,11 +285,14 @@ static lensrt_result build_kernels(struct lensrt_image_s *im, struct image_direc
             for (j = 0; j < bh; j++)
                 for (i = 0; i < bw; i++) {
                     const double v = wc * (double)psf[(size_t)j * (size_t)bw + (size_t)i];
-                    const size_t o = (size_t)(j + oy + gy) * (size_t)d->kw + (size_t)(i + ox + gx);
-                    k[o] += tap[0] * v;
-                    k[o + 1] += tap[1] * v;
-                    k[o + (size_t)d->kw] += tap[2] * v;
-                    k[o + (size_t)d->kw + 1] += tap[3] * v;
+                    int t;
+                    for (t = 0; t < 4; t++) {
+                        // The kernel grid is padded by the largest shift (set_up_chiefs):
+                        // a tap off it has weight 0
+                        const int x = i + ox + gx + t % 2, y = j + oy + gy + t / 2;
+                        if (tap[t] != 0.0 && x >= 0 && x < d->kw && y >= 0 && y < d->kh)
+                            k[(size_t)y * (size_t)d->kw + (size_t)x] += tap[t] * v;
+                    }
                 }
         }
     }

@@ -13,6 +13,7 @@
 #define IMAGE_DEFAULT_SOURCES 16
 #define IMAGE_DEFAULT_TARGET_ERROR 0.02
 #define IMAGE_DEFAULT_DOWNSAMPLE 4
+#define IMAGE_MAX_OVERSAMPLE 16
 
 /* The field angle (deg) a pinhole of focal length f sees at sensor coordinate x (mm). */
 static double pinhole_deg(double x, double f)
@@ -57,6 +58,12 @@ static lensrt_result check_numbers(lensrt_context ctx, lensrt_image_desc *d)
     if (d->flare_downsample < 0)
         return lensrt_fail(ctx, LENSRT_ERROR_INVALID_ARGUMENT, "lensrt_image_desc: flare_downsample is %d; it must be "
                            ">= 0 (0: %d)", (int)d->flare_downsample, IMAGE_DEFAULT_DOWNSAMPLE);
+    if (d->oversample < 0 || d->oversample > IMAGE_MAX_OVERSAMPLE ||
+        (d->oversample > 1 && ((int64_t)d->width * d->oversample > LENSRT_MAX_RESOLUTION ||
+                               (int64_t)d->height * d->oversample > LENSRT_MAX_RESOLUTION)))
+        return lensrt_fail(ctx, LENSRT_ERROR_INVALID_ARGUMENT, "lensrt_image_desc: oversample is %d; it must be 0 .. %d "
+                           "(0: 1) with width and height times it at most %d", (int)d->oversample,
+                           IMAGE_MAX_OVERSAMPLE, LENSRT_MAX_RESOLUTION);
     // The defaults zero stands for
     if (d->max_sources == 0) d->max_sources = IMAGE_DEFAULT_SOURCES;
     if (d->flare_target_error == 0.0) d->flare_target_error = IMAGE_DEFAULT_TARGET_ERROR;
@@ -153,9 +160,9 @@ static lensrt_result check_bank(struct lensrt_image_s *im, const lensrt_bank_inf
         return lensrt_fail(im->ctx, LENSRT_ERROR_INVALID_ARGUMENT, "lensrt_image_desc: the bank's registration is '%s'; "
                            "an image needs a bank of `registration channel` (each channel on its own chief point)",
                            reg);
-    // The frame's corner pixel centres through the pinhole, against the field grid
-    half_x = 0.5 * (double)(d->width - 1) * info->pixel_x_mm;
-    half_y = 0.5 * (double)(d->height - 1) * info->pixel_y_mm;
+    // The frame's corner (sub-)pixel centres through the pinhole, against the field grid
+    half_x = 0.5 * ((double)d->width * im->oversample - 1.0) * info->pixel_x_mm;
+    half_y = 0.5 * ((double)d->height * im->oversample - 1.0) * info->pixel_y_mm;
     fx[0] = pinhole_deg(d->center_x_mm - half_x, d->focal_x_mm);
     fx[1] = pinhole_deg(d->center_x_mm + half_x, d->focal_x_mm);
     fy[0] = pinhole_deg(d->center_y_mm - half_y, im->focal_y_mm);
@@ -204,6 +211,85 @@ static lensrt_result check_bank(struct lensrt_image_s *im, const lensrt_bank_inf
     return LENSRT_SUCCESS;
 }
 
+/* The direct layer's object on the finer grid (image.h): a copy of this one with the
+ * sizes times oversample and the axis power per fine pixel; this one's axis power
+ * becomes per frame pixel (over oversample^2), which the flares use. */
+static lensrt_result create_fine(struct lensrt_image_s *im)
+{
+    const int s = im->oversample, nl = im->n_wavelengths;
+    struct lensrt_image_s *f = lensrt_alloc(im->ctx, sizeof *f);
+    int l;
+    if (!f) return lensrt_fail(im->ctx, LENSRT_ERROR_OUT_OF_MEMORY, "lensrt_image_create: out of memory");
+    *f = *im;
+    f->desc.width = im->desc.width * s;
+    f->desc.height = im->desc.height * s;
+    f->plane = (size_t)f->desc.width * (size_t)f->desc.height;
+    f->oversample = 1;
+    f->pitch_x_mm = im->pitch_x_mm / s;
+    f->pitch_y_mm = im->pitch_y_mm / s;
+    f->layers = NULL;
+    f->direct = NULL;
+    f->flare = NULL;
+    f->fine = NULL;
+    f->axis_power = lensrt_alloc(im->ctx, (size_t)nl * sizeof(double));
+    im->fine = f;
+    if (!f->axis_power) return lensrt_fail(im->ctx, LENSRT_ERROR_OUT_OF_MEMORY, "lensrt_image_create: out of memory");
+    for (l = 0; l < nl; l++) {
+        f->axis_power[l] = im->axis_power[l];
+        im->axis_power[l] /= (double)s * (double)s;
+    }
+    im->fine_input = lensrt_alloc(im->ctx, (size_t)im->desc.n_channels * f->plane * sizeof(float));
+    im->fine_direct = lensrt_alloc(im->ctx, (size_t)im->desc.n_channels * f->plane * sizeof(float));
+    if (!im->fine_input || !im->fine_direct)
+        return lensrt_fail(im->ctx, LENSRT_ERROR_OUT_OF_MEMORY, "lensrt_image_create: out of memory for the %d x %d "
+                           "grid of oversample %d", (int)f->desc.width, (int)f->desc.height, s);
+    return image_direct_create(f);
+}
+
+/* The direct layer on the finer grid: each pixel's value on its oversample^2 sub-pixels
+ * (the same value: the light per area is the pixel's), put through, then each pixel the
+ * mean of its sub-pixels (the sensor's box filter over the pixel). */
+static lensrt_result run_fine(struct lensrt_image_s *im, const float *input)
+{
+    struct lensrt_image_s *f = im->fine;
+    const int s = im->oversample, w = im->desc.width, h = im->desc.height, fw = f->desc.width;
+    const size_t nc = (size_t)im->desc.n_channels;
+    size_t c;
+    int i, j, a, b;
+    lensrt_result res;
+    for (c = 0; c < nc; c++)
+        for (j = 0; j < h; j++)
+            for (i = 0; i < w; i++) {
+                const float v = input[c * im->plane + (size_t)j * (size_t)w + (size_t)i];
+                for (b = 0; b < s; b++) {
+                    float *row = im->fine_input + c * f->plane + (size_t)(j * s + b) * (size_t)fw + (size_t)i * s;
+                    for (a = 0; a < s; a++) row[a] = v;
+                }
+            }
+    memset(&f->stats, 0, sizeof f->stats);
+    if ((res = image_direct_run(f, im->fine_input, im->fine_direct)) != LENSRT_SUCCESS) {
+        // its message is in the shared context already
+        return res;
+    }
+    for (c = 0; c < nc; c++)
+        for (j = 0; j < h; j++)
+            for (i = 0; i < w; i++) {
+                double sum = 0.0;
+                for (b = 0; b < s; b++) {
+                    const float *row = im->fine_direct + c * f->plane + (size_t)(j * s + b) * (size_t)fw + (size_t)i * s;
+                    for (a = 0; a < s; a++) sum += (double)row[a];
+                }
+                im->layers[c * im->plane + (size_t)j * (size_t)w + (size_t)i] = (float)(sum / ((double)s * s));
+            }
+    im->stats.seconds_warp = f->stats.seconds_warp;
+    im->stats.seconds_kernels = f->stats.seconds_kernels;
+    im->stats.seconds_convolve = f->stats.seconds_convolve;
+    im->stats.n_nodes = f->stats.n_nodes;
+    im->stats.fft_width = f->stats.fft_width;
+    im->stats.fft_height = f->stats.fft_height;
+    return LENSRT_SUCCESS;
+}
+
 lensrt_result lensrt_image_create(lensrt_context ctx, const lensrt_image_desc *desc, lensrt_image *out)
 {
     struct lensrt_image_s *im;
@@ -230,6 +316,9 @@ lensrt_result lensrt_image_create(lensrt_context ctx, const lensrt_image_desc *d
     im->n_wavelengths = info.n_wavelengths;
     im->wavelengths_nm = info.wavelengths_nm;
     im->focal_y_mm = d.focal_y_mm > 0.0 ? d.focal_y_mm : d.focal_x_mm;
+    im->oversample = d.oversample > 0 ? d.oversample : 1;
+    im->pitch_x_mm = info.pixel_x_mm * im->oversample;
+    im->pitch_y_mm = info.pixel_y_mm * im->oversample;
     im->plane = (size_t)d.width * (size_t)d.height;
     im->n_layers = 2 + d.n_ghosts;
     im->stats.struct_size = sizeof im->stats;
@@ -255,8 +344,12 @@ lensrt_result lensrt_image_create(lensrt_context ctx, const lensrt_image_desc *d
                           "x %d floats", im->n_layers, (int)d.n_channels, (int)d.width, (int)d.height);
         goto failed;
     }
-    // The parts
-    if ((res = image_direct_create(im)) != LENSRT_SUCCESS) goto failed;
+    // The parts: the direct layer here, or on its finer grid
+    if (im->oversample > 1) {
+        if ((res = create_fine(im)) != LENSRT_SUCCESS) goto failed;
+    } else if ((res = image_direct_create(im)) != LENSRT_SUCCESS) {
+        goto failed;
+    }
     if ((res = image_flare_create(im)) != LENSRT_SUCCESS) goto failed;
     *out = im;
     return LENSRT_SUCCESS;
@@ -271,7 +364,15 @@ void lensrt_image_destroy(lensrt_image im)
     if (!im) return;
     ctx = im->ctx;
     image_flare_destroy(im);
-    image_direct_destroy(im);
+    if (im->fine) {
+        image_direct_destroy(im->fine);
+        lensrt_free(ctx, im->fine->axis_power);
+        lensrt_free(ctx, im->fine);
+    } else {
+        image_direct_destroy(im);
+    }
+    lensrt_free(ctx, im->fine_input);
+    lensrt_free(ctx, im->fine_direct);
     lensrt_free(ctx, im->channel_weights);
     lensrt_free(ctx, im->ghosts);
     lensrt_free(ctx, im->axis_power);
@@ -308,7 +409,11 @@ lensrt_result lensrt_image_run(lensrt_image im, const float *input, size_t count
     memset(&im->stats, 0, sizeof im->stats);
     im->stats.struct_size = sizeof im->stats;
     im->stats.worst_flare_error = -1.0;
-    if ((res = image_direct_run(im, input, im->layers)) != LENSRT_SUCCESS) return res;
+    if (im->fine) {
+        if ((res = run_fine(im, input)) != LENSRT_SUCCESS) return res;
+    } else if ((res = image_direct_run(im, input, im->layers)) != LENSRT_SUCCESS) {
+        return res;
+    }
     if ((res = image_flare_run(im, input, im->layers + 2 * nc * plane)) != LENSRT_SUCCESS) return res;
     // LENSRT_IMAGE_FLARE: the ghost layers' sum, in ghost order
     flare = im->layers + nc * plane;

@@ -21,9 +21,12 @@ struct lensrt_image_s {
     int n_wavelengths;           /* the bank's */
     const double *wavelengths_nm; /* the bank's (valid while it lives) */
     double focal_y_mm;           /* desc.focal_y_mm, or focal_x_mm when 0 */
+    int oversample;              /* desc.oversample, or 1 when 0 */
+    double pitch_x_mm, pitch_y_mm; /* the frame's pixels: the bank's times oversample */
     double *axis_power;          /* n_wavelengths: the sum of the bank's PSF pixels at field
-                                    (0, 0) (owned; image.c): both layers are divided by it,
-                                    so a lossless axis keeps a pixel's value */
+                                    (0, 0) over oversample^2 (owned; image.c), the power of
+                                    the axis PSF in frame pixels: both layers are divided by
+                                    it, so a lossless axis keeps a pixel's value */
     size_t plane;                /* width x height */
     int n_layers;                /* 2 + n_ghosts */
     float *layers;               /* n_layers x n_channels x plane, zero before a run */
@@ -32,6 +35,11 @@ struct lensrt_image_s {
     lensrt_image_source *sources; /* max_sources */
     struct image_direct *direct;
     struct image_flare *flare;
+    /* With oversample > 1, the direct layer's own object: this one on the finer grid
+     * (width, height and plane times oversample, the bank's pitch, axis power per fine
+     * pixel), and its input and output there */
+    struct lensrt_image_s *fine;
+    float *fine_input, *fine_direct;
 };
 
 /* direct.c: set up after the description is checked (bank slice, field grid covering
