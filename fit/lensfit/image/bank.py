@@ -86,10 +86,14 @@ def frame_bank_spec(name: str, table: Path, geometry: Geometry, *, f_number: flo
     (x0, x1), (y0, y1) = geometry.edge_fields_deg()
     nx, ny = node_counts(geometry, nodes_x)
     pixels = 2 * half_px + 1
+    # The axis is a node too (lensrt_image divides by the axis PSF's power): a frame off
+    # the axis gets one more field point there
+    fx, fy = list(tan_grid(x0, x1, nx)), list(tan_grid(y0, y1, ny))
+    fx = sorted(set(fx) | ({0.0} if not x0 <= 0.0 <= x1 else set()))
+    fy = sorted(set(fy) | ({0.0} if not y0 <= 0.0 <= y1 else set()))
     spec: dict[str, Any] = {
         "name": name, "lens": str(table),
-        "grid": {"field_x_deg": list(tan_grid(x0, x1, nx)),
-                 "field_y_deg": list(tan_grid(y0, y1, ny)),
+        "grid": {"field_x_deg": fx, "field_y_deg": fy,
                  "f_numbers": [f_number], "focus_offsets_mm": [focus_offset_mm],
                  "distances_mm": ["inf" if math.isinf(d) else d for d in distances_mm],
                  "wavelengths_nm": list(wavelengths_nm)},

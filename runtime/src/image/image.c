@@ -267,6 +267,7 @@ static lensrt_result run_fine(struct lensrt_image_s *im, const float *input)
                 }
             }
     memset(&f->stats, 0, sizeof f->stats);
+    memset(im->fine_direct, 0, nc * f->plane * sizeof(float)); // the direct run adds into it
     if ((res = image_direct_run(f, im->fine_input, im->fine_direct)) != LENSRT_SUCCESS) {
         // its message is in the shared context already
         return res;
