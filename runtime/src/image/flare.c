@@ -160,20 +160,6 @@ lensrt_result image_flare_create(struct lensrt_image_s *im)
     }
     for (n = 0; n < d->width; n++) coarse_position(n, d->width, f->coarse_w, f->downsample, &f->col_k[n], &f->col_t[n]);
     for (n = 0; n < d->height; n++) coarse_position(n, d->height, f->coarse_h, f->downsample, &f->row_k[n], &f->row_t[n]);
-    // Each channel's axis power, the denominator of its weights
-    for (n = 0; n < d->n_channels; n++) {
-        int l;
-        double s = 0.0;
-        for (l = 0; l < im->n_wavelengths; l++)
-            s += im->channel_weights[(size_t)n * (size_t)im->n_wavelengths + (size_t)l] * im->axis_power[l];
-        if (!(s > 0.0) || !isfinite(s)) {
-            double zero = s;
-            image_flare_destroy(im);
-            return lensrt_fail(ctx, LENSRT_ERROR_INVALID_ARGUMENT, "image: channel %d: its weights times the axis PSF's "
-                               "power sum to %g: no flare can be scaled to it", n, zero);
-        }
-        f->axis[n] = s;
-    }
     return LENSRT_SUCCESS;
 }
 
@@ -301,7 +287,9 @@ static lensrt_result ghost_fail(struct lensrt_image_s *im, lensrt_result res, in
  * would exceed FOURIER_MAX_NODES or its estimate stays above the target, the cells
  * integrator from CELLS_RINGS, refined from its estimate (the error falls as
  * 1 / rings^2) up to CELLS_MAX_RINGS. *err: the estimate of the image the render keeps
- * (the last integral's); *reached: it is within the target. */
+ * (the last integral's); *reached: it is within the target. A first rule above
+ * FOURIER_MAX_NODES goes to cells at once, where lensrt-psf would try it (ghost 0-2 on
+ * a frame-wide window asked for 4095 per side, 6 x 4095^2 nodes, and ran out of 24 GB). */
 static lensrt_result integrate_auto(lensrt_render r, double target, double *err, int *reached)
 {
     lensrt_result res;
@@ -316,7 +304,10 @@ static lensrt_result integrate_auto(lensrt_render r, double target, double *err,
             *reached = 1;
             return LENSRT_SUCCESS;
         }
-        if (*err >= FOURIER_UNRESOLVED || (last >= 0 && *err > 0.5 * last)) break;
+        // The next rule's estimate takes 1.25 times its nodes again
+        if ((int)ceil(LENSRT_FOURIER_FINER * ceil(LENSRT_FOURIER_FINER * nodes)) > FOURIER_MAX_NODES ||
+            *err >= FOURIER_UNRESOLVED || (last >= 0 && *err > 0.5 * last))
+            break;
         last = *err;
         nodes = (int32_t)ceil(LENSRT_FOURIER_FINER * nodes);
     }
@@ -501,12 +492,23 @@ lensrt_result image_flare_run(struct lensrt_image_s *im, const float *input, flo
     const double start = lensrt_seconds();
     const size_t layer = (size_t)im->desc.n_channels * im->plane;
     lensrt_result res = LENSRT_SUCCESS;
-    int s, g;
+    int s, g, c;
     im->stats.n_sources = 0;
     im->stats.n_ghost_renders = 0;
     im->stats.worst_flare_error = -1.0;
     im->stats.seconds_flares = 0.0;
     if (im->desc.n_ghosts == 0 || !im->flare) return LENSRT_SUCCESS;
+    // Each channel's axis power, the denominator of its weights
+    for (c = 0; c < im->desc.n_channels; c++) {
+        const double *w = im->channel_weights + (size_t)c * (size_t)im->n_wavelengths;
+        double sum = 0.0;
+        int l;
+        for (l = 0; l < im->n_wavelengths; l++) sum += w[l] * im->axis_power[l];
+        if (!(sum > 0.0) || !isfinite(sum))
+            return lensrt_fail(im->ctx, LENSRT_ERROR_INVALID_ARGUMENT, "image: channel %d: its weights times the axis "
+                               "PSF's power sum to %g: no flare can be scaled to it", c, sum);
+        im->flare->axis[c] = sum;
+    }
     memset(ghosts, 0, (size_t)im->desc.n_ghosts * layer * sizeof *ghosts);
     find_sources(im, input);
     for (s = 0; s < im->flare->n_kept && res == LENSRT_SUCCESS; s++)
