@@ -389,7 +389,7 @@ static lensrt_result render_ghost(struct lensrt_image_s *im, int s, int g, float
     lensrt_light light = LENSRT_LIGHT_INIT;
     lensrt_render r = NULL;
     lensrt_result res;
-    double box[4], err = -1.0;
+    double box[4], err = -1.0, t0;
     int x0 = 0, y0 = 0, x1 = f->coarse_w - 1, y1 = f->coarse_h - 1, reached = 0, c, l;
     float *img;
     size_t count;
@@ -444,6 +444,7 @@ static lensrt_result render_ghost(struct lensrt_image_s *im, int s, int g, float
     rd.sensor.height_mm = rd.sensor.height * py;
     rd.sensor.center_x_mm = d->center_x_mm + (0.5 * (x0 + x1 + 1) - 0.5 * f->coarse_w) * px;
     rd.sensor.center_y_mm = d->center_y_mm + (0.5 * f->coarse_h - 0.5 * (y0 + y1 + 1)) * py;
+    t0 = lensrt_seconds();
     if ((res = lensrt_render_create(im->ctx, &rd, &r)) != LENSRT_SUCCESS) return ghost_fail(im, res, s, g, "render");
     if ((res = integrate_auto(r, f->target, &err, &reached)) != LENSRT_SUCCESS) {
         lensrt_render_destroy(r);
@@ -470,9 +471,9 @@ static lensrt_result render_ghost(struct lensrt_image_s *im, int s, int g, float
         lensrt_render_stats st = LENSRT_RENDER_STATS_INIT;
         lensrt_render_get_stats(r, &st);
         lensrt_log(im->ctx, LENSRT_LOG_INFO, "image: flare: source %d through ghost %d: %d x %d coarse pixels from (%d, %d), "
-                   "%s %d, error estimate %.3g%%", s, g, (int)rd.sensor.width, (int)rd.sensor.height, x0, y0,
-                   st.fourier_nodes ? "Fourier nodes" : "cells rings", st.fourier_nodes ? (int)st.fourier_nodes :
-                   (int)st.cells_rings, 100.0 * err);
+                   "%s %d, error estimate %.3g%%, %.2f s", s, g, (int)rd.sensor.width, (int)rd.sensor.height, x0,
+                   y0, st.fourier_nodes ? "Fourier nodes" : "cells rings", st.fourier_nodes ? (int)st.fourier_nodes :
+                   (int)st.cells_rings, 100.0 * err, lensrt_seconds() - t0);
     }
     lensrt_render_destroy(r);
     // Channel c's weights: V_c w[c][l] / sum_l w[c][l] axis_power[l]
