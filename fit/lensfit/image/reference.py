@@ -84,3 +84,11 @@ def per_pixel_reference(rt: Any, lens: Any, geometry: Geometry, planes: np.ndarr
                 k = np.tensordot(weights[c], psf, axes=1) / norm[c]
                 out[c, cj:cj + 2 * half + 1, ci:ci + 2 * half + 1] += v * k
     return out[:, half:half + height, half:half + width]
+
+
+def window_error(layer: np.ndarray, ref: np.ndarray, i: int, j: int, radius: int = 6) -> float:
+    """Relative L2 of ``layer`` against ``ref`` (channels, height, width) in the window of
+    ``radius`` pixels around pixel (i, j): one lit pixel's own error."""
+    sl = (slice(None), slice(max(j - radius, 0), j + radius + 1),
+          slice(max(i - radius, 0), i + radius + 1))
+    return float(np.linalg.norm(layer[sl] - ref[sl]) / np.linalg.norm(ref[sl]))
