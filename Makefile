@@ -133,6 +133,22 @@ demo: setup runtime
 	@# resumes (renders only unfinished nodes)
 	LENSRT_LIBRARY=$(CURDIR)/$(RUNTIME_BUILD)/runtime/liblensrt.so \
 		$(VENV)/bin/lensfit bank banks/demo.toml -o build/demo/bank --restart
+	@# A whole frame through the lens (issue 38): a night street rendered by Mitsuba 3
+	@# (a pinhole of lens 0001's focal length on a 36 mm wide sensor), through lens 0001 at
+	@# f/8: every pixel by its own field point's PSF (a bank over the frame, built once and
+	@# cached in build/image-cache), and the brightest lamp's ghosts; then pinhole | through
+	@# the lens | flare side by side (docs/image.md)
+	@mkdir -p build/demo/image
+	$(PY) scenes/night_street.py -o build/demo/image/street.exr --focal-mm 99.9507
+	LENSRT_LIBRARY=$(CURDIR)/$(RUNTIME_BUILD)/runtime/liblensrt.so \
+		$(VENV)/bin/lensfit image $(DEMO_LENS) build/demo/image/street.exr \
+		-o build/demo/image/street-lens.exr --png build/demo/image/street-lens.png \
+		--f-number 8 --ghosts kept --max-sources 1 --flare-target-error 0.05
+	$(PY) runtime/tools/image_sheet.py -o build/demo/image/sheet.png \
+		--title "lens $(DEMO_LENS) at f/8: pinhole | through the lens | flare (the brightest lamp's ghosts)" \
+		--panel build/demo/image/street.exr "pinhole (Mitsuba 3)" \
+		--panel build/demo/image/street-lens.exr "through lens $(DEMO_LENS), f/8" \
+		--panel build/demo/image/street-lens.exr:flare "flare layer"
 
 lint: setup
 	$(VENV)/bin/ruff check --config fit/pyproject.toml fit tests runtime/python runtime/bench runtime/tools
@@ -185,6 +201,9 @@ bench: setup runtime
 		--table build/bench/fit-tables/$$t-$$m.table --json build/bench/lensrt-$$t-$$m.json \
 		| grep -A4 '^f/N'; done; done | tee build/bench/lensrt-tables.txt
 	$(PY) -m lensfit.bench --ghosts --out build/bench
+	@# A whole frame through the lens (issue 38): the 1080p frame's stages cold and cached,
+	@# and a window against every lit pixel's own PSF at four settings: image.md
+	LENSRT_LIBRARY=$(CURDIR)/$(RUNTIME_BUILD)/runtime/liblensrt.so $(PY) -m lensfit.image.bench --out build/bench
 	@# Every lens of lensdb (coated and uncoated) and the imported fixtures, fitted with
 	@# defaults one at a time (CPU seconds of each fit alone; at most 300 each): sweep.md
 	$(PY) -m lensfit.fitting.sweep --out build/bench --workers 1 --cpu-limit 300

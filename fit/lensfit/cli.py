@@ -1285,14 +1285,15 @@ def build_parser() -> argparse.ArgumentParser:
                         "default 3: about 3%% from every pixel's own PSF, 1: about 12%%)")
     p.add_argument("--target-error", type=float, default=0.01,
                    help="each bank node's relative L2 error estimate (default 0.01)")
-    p.add_argument("--ghosts", default="kept",
-                   help="ghost tables: 'kept' (the lens folder's ghosts/), a folder, or "
-                        "'none'")
+    p.add_argument("--ghosts", default="none",
+                   help="flares: ghost tables 'kept' (the lens folder's ghosts/) or a folder "
+                        "of them; default 'none' (each ghost of each source is a Huygens "
+                        "render of 1-7 minutes of CPU: docs/image.md)")
     p.add_argument("--threshold", type=float, default=0.0,
                    help="a pixel whose channels sum above this is a light source (default: "
                         "the frame's brightest / 16)")
-    p.add_argument("--max-sources", type=int, default=0,
-                   help="the brightest sources given flares (default 16)")
+    p.add_argument("--max-sources", type=int, default=4,
+                   help="the brightest sources given flares (default 4)")
     p.add_argument("--flare-target-error", type=float, default=0.0,
                    help="each ghost render's error estimate (default 0.02)")
     p.add_argument("--flare-downsample", type=int, default=0,

@@ -55,9 +55,9 @@ class Options:
     nodes_x: int = DEFAULT_NODES
     oversample: int = DEFAULT_OVERSAMPLE
     target_error: float = 0.01
-    ghosts: str | None = "kept"  # "kept": the lens folder's ghosts/, a folder, or None
+    ghosts: str | None = None  # "kept": the lens folder's ghosts/, a folder, or None
     flare_threshold: float = 0.0
-    max_sources: int = 0
+    max_sources: int = 4  # each source's ghosts are Huygens renders of minutes each
     flare_target_error: float = 0.0
     flare_downsample: int = 0
     depth_slices: int = DEFAULT_DEPTH_SLICES
