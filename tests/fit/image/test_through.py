@@ -158,3 +158,20 @@ def test_a_bad_frame_is_refused_naming_the_pixel(tmp_path):
     r = lensfit("image", "0001", str(frame), "-o", str(tmp_path / "o.exr"))
     assert r.returncode == 2 and "(x 3, y 2) = nan" in r.stderr, r.stderr
     assert not (tmp_path / "o.exr").exists()
+
+
+def test_a_depth_nearer_than_fitted_is_refused(tmp_path):
+    """Lens 0001 was fitted from infinity to 999.5 mm (ten focal lengths): a depth of
+    500 mm in the frame's Z channel is named, before any bank is built."""
+    names = ["S0." + f"{lam:.6f}".replace(".", ",") + "nm" for lam in WAVELENGTHS]
+    channels = {n: np.ones((4, 4), np.float32) for n in names}
+    channels["Z"] = np.full((4, 4), 5000.0, np.float32)
+    channels["Z"][1, 1] = 500.0
+    frame = tmp_path / "depth.exr"
+    with OpenEXR.File({"compression": OpenEXR.ZIP_COMPRESSION,
+                       "type": OpenEXR.scanlineimage}, channels) as f:
+        f.write(str(frame))
+    r = lensfit("image", "0001", str(frame), "-o", str(tmp_path / "o.exr"), "--pixel-um",
+                "18.75", "--cache", str(tmp_path / "cache"))
+    assert r.returncode == 2 and "500 mm is nearer than the lens was fitted for" in r.stderr
+    assert not (tmp_path / "o.exr").exists() and not (tmp_path / "cache").exists()
