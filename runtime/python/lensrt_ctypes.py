@@ -28,7 +28,6 @@ import ctypes as C
 import enum
 import math
 import os
-import struct
 import zlib
 from collections.abc import Sequence
 from pathlib import Path
@@ -952,47 +951,10 @@ class Image:
 
 # ------------------------------------------------------------------------------------
 # A bank from PSFs the caller already has (tests, benchmarks, measured PSFs): the node
-# EXRs of a `registration channel` bank (uncompressed scanline OpenEXR packed here, no
-# OpenEXR module needed) and its stamped index (lensrt.h, "PSF banks"). lensfit's own
-# writer (lensfit.banks) renders the PSFs; this one only writes them.
+# EXRs of a `registration channel` bank (lensrt_exr.write_node_exr) and its stamped index
+# (lensrt.h, "PSF banks"). lensfit's own writer (lensfit.banks) renders the PSFs; this
+# one only writes them.
 # ------------------------------------------------------------------------------------
-
-def _exr_attr(name: str, kind: str, value: bytes) -> bytes:
-    return name.encode() + b"\0" + kind.encode() + b"\0" + struct.pack("<i", len(value)) + value
-
-
-def spectral_channel_name(wavelength_nm: float) -> str:
-    """lensrt's EXR channel name of a wavelength: "S0.<nm>,<6 decimals>nm"."""
-    micro = math.floor(wavelength_nm * 1e6 + 0.5)
-    return f"S0.{micro // 1000000},{micro % 1000000:06d}nm"
-
-
-def write_node_exr(path: str | os.PathLike[str], planes: np.ndarray,
-                   wavelengths_nm: Sequence[float], identity: str) -> None:
-    """planes (n_wavelengths, height, width) as FLOAT channels named after the
-    wavelengths, no compression, with the string attribute lensrt/bankNode `identity`."""
-    n, h, w = planes.shape
-    names = [spectral_channel_name(v) for v in wavelengths_nm]
-    order = sorted(range(n), key=lambda c: names[c])  # EXR keeps channels sorted
-    box = struct.pack("<4i", 0, 0, w - 1, h - 1)
-    chlist = b"".join(names[c].encode() + b"\0" + struct.pack("<iB3xii", 2, 0, 1, 1)
-                      for c in order) + b"\0"
-    header = (b"\x76\x2f\x31\x01\x02\x00\x00\x00" + _exr_attr("channels", "chlist", chlist)
-              + _exr_attr("compression", "compression", b"\0")
-              + _exr_attr("dataWindow", "box2i", box) + _exr_attr("displayWindow", "box2i", box)
-              + _exr_attr("lineOrder", "lineOrder", b"\0")
-              + _exr_attr("pixelAspectRatio", "float", struct.pack("<f", 1.0))
-              + _exr_attr("screenWindowCenter", "v2f", struct.pack("<2f", 0.0, 0.0))
-              + _exr_attr("screenWindowWidth", "float", struct.pack("<f", 1.0))
-              + _exr_attr("lensrt/bankNode", "string", identity.encode()) + b"\0")
-    data = np.ascontiguousarray(planes[order], dtype="<f4")
-    chunks = [struct.pack("<ii", y, 4 * n * w) + data[:, y, :].tobytes() for y in range(h)]
-    offsets, at = [], len(header) + 8 * h
-    for chunk in chunks:
-        offsets.append(at)
-        at += len(chunk)
-    Path(path).write_bytes(header + struct.pack(f"<{h}Q", *offsets) + b"".join(chunks))
-
 
 def write_bank(folder: str | os.PathLike[str], psfs: np.ndarray, chiefs: np.ndarray, *,
                field_x_deg: Sequence[float], field_y_deg: Sequence[float],
@@ -1022,6 +984,8 @@ def write_bank(folder: str | os.PathLike[str], psfs: np.ndarray, chiefs: np.ndar
             rel = f"nodes/y{iy}-x{ix}.exr"
             identity = (f"0 0 0 {iy} {ix} {r(float(f_number))} 0.0 0.0 "
                         f"{r(float(field_x_deg[ix]))} {r(float(field_y_deg[iy]))}")
+            from lensrt_exr import write_node_exr
+
             write_node_exr(folder / rel, psfs[iy, ix], wavelengths_nm, identity)
             crc = zlib.crc32((folder / rel).read_bytes())
             mid = chiefs[iy, ix, nl // 2]

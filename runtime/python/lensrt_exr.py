@@ -20,6 +20,7 @@ naming the file.
 
 from __future__ import annotations
 
+import math
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -56,6 +57,26 @@ def _wavelength_nm(name: str) -> float | None:
     if not m or not m.group(1).replace(",", ""):
         return None
     return float(m.group(1).replace(",", ".")) * _TO_NM[m.group(2)]
+
+
+def spectral_channel_name(wavelength_nm: float) -> str:
+    """lensrt's channel name of a wavelength, "S0.<nm>,<6 decimals>nm" (the inverse of
+    the reading above)."""
+    micro = math.floor(wavelength_nm * 1e6 + 0.5)
+    return f"S0.{micro // 1000000},{micro % 1000000:06d}nm"
+
+
+def write_node_exr(path: str | Path, planes: np.ndarray, wavelengths_nm, identity: str
+                   ) -> None:
+    """A bank node's EXR (lensrt.h, "PSF banks", registration channel): planes
+    (n_wavelengths, height, width) as FLOAT channels named after the wavelengths, no
+    compression, with the string attribute lensrt/bankNode ``identity``."""
+    header = {"compression": OpenEXR.NO_COMPRESSION, "type": OpenEXR.scanlineimage,
+              "lensrt/bankNode": identity}
+    channels = {spectral_channel_name(lam): np.ascontiguousarray(p, dtype=np.float32)
+                for lam, p in zip(wavelengths_nm, planes, strict=True)}
+    with OpenEXR.File(header, channels) as f:
+        f.write(str(path))
 
 
 def _split_layer(name: str) -> tuple[str, str] | None:

@@ -5,9 +5,9 @@ convolution of the input with PSF / axis power, plus the layers, stats, sources 
 refusal through the binding. The deeper checks (energy, seams, distortion, every refusal)
 are tests/runtime/test_image.c's; this one measures the library against numpy's FFT.
 
-The bank is written by the binding's write_bank (uncompressed scanline EXRs packed by
-hand, as tests/runtime/bank_files.h does in C, with the lensrt/bankNode attribute of a
-`registration channel` bank, and its stamped index).
+The bank is written by the binding's write_bank (uncompressed scanline EXRs written by
+lensrt_exr.write_node_exr with the lensrt/bankNode attribute of a `registration channel`
+bank, and its stamped index).
 """
 
 from __future__ import annotations

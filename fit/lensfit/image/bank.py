@@ -31,7 +31,6 @@ PSF_MIN_HALF = 8  # pixels either side of the chief point at least
 PSF_MAX_HALF = 96  # at most (a window of 193 px: a PSF wider than that is a defocus)
 FOOTPRINT_MARGIN_PX = 3  # beyond the geometric footprint: the diffraction's skirt
 RGB_WAVELENGTHS_NM = (420.0, 470.0, 510.0, 550.0, 590.0, 630.0, 670.0, 700.0)
-DEFAULT_NODES_X = 9
 CACHE_ENV = "LENSFIT_IMAGE_CACHE"
 DEFAULT_CACHE = Path("build") / "image-cache"
 

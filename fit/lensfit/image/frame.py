@@ -98,12 +98,6 @@ class Frame:
     attributes: dict[str, Any] = field(default_factory=dict)
 
     @property
-    def channel_names(self) -> list[str]:
-        if self.kind == "rgb":
-            return list(RGB)
-        return [f"S0.{lam:g}nm" for lam in self.wavelengths_nm]
-
-    @property
     def shape(self) -> tuple[int, int]:
         return int(self.planes.shape[2]), int(self.planes.shape[1])  # width, height
 

@@ -18,11 +18,6 @@ import numpy as np
 from lensfit.image.frame import RGB, Frame, Geometry
 
 
-def _spectral_name(lam: float) -> str:
-    # lensrt's spelling: a decimal comma, six decimals ("S0.550,000000nm")
-    return "S0." + f"{lam:.6f}".replace(".", ",") + "nm"
-
-
 def layer_channels(name: str, planes: np.ndarray, frame: Frame,
                    wavelengths: tuple[float, ...], rt: Any) -> dict[str, np.ndarray]:
     prefix = f"{name}." if name else ""
@@ -31,8 +26,10 @@ def layer_channels(name: str, planes: np.ndarray, frame: Frame,
         for c, plane in zip(RGB, planes, strict=True):
             out[prefix + c] = np.ascontiguousarray(plane, dtype=np.float32)
         return out
+    from lensrt_exr import spectral_channel_name
+
     for lam, plane in zip(wavelengths, planes, strict=True):
-        out[prefix + _spectral_name(lam)] = np.ascontiguousarray(plane, dtype=np.float32)
+        out[prefix + spectral_channel_name(lam)] = np.ascontiguousarray(plane, dtype=np.float32)
     rgb = rt.spectrum_rgb(list(wavelengths), planes)
     for k, c in enumerate(RGB):
         out[prefix + c] = np.ascontiguousarray(rgb[..., k])

@@ -71,7 +71,7 @@ class Options:
 class Result:
     output: Path
     layers: dict[str, np.ndarray]  # name -> (channels, height, width)
-    channel_names: list[str]
+    spectral_nm: tuple[float, ...]  # the channels' wavelengths; () for R, G, B
     geometry: Geometry
     seconds: dict[str, float]
     bank: dict[str, Any]
@@ -304,7 +304,7 @@ def through_lens(lens: str, input_path: str | Path, output: str | Path,
                          "lens loses none (each PSF's power is relative to the axis PSF's)"},
         rt=rt)
     seconds["write"] = time.perf_counter() - t
-    return Result(output=out, layers=named, channel_names=frame.channel_names,
+    return Result(output=out, layers=named, spectral_nm=frame.wavelengths_nm,
                   geometry=geometry, seconds=seconds, bank=bank_cost, stats=stats,
                   sources=sources, ghost_labels=labels)
 
@@ -339,12 +339,11 @@ def preview_rgb(result: Result, layer: str | None = None) -> np.ndarray:
     """Linear sRGB (height, width, 3) of a layer (None: the total)."""
     planes = (result.layers["direct"] + result.layers["flare"] if layer is None
               else result.layers[layer])
-    if len(planes) == 3 and result.channel_names == ["R", "G", "B"]:
+    if not result.spectral_nm:
         return np.moveaxis(planes, 0, -1)
     from lensrt_ctypes import LIBRARY, Lensrt
 
-    lams = [float(n[3:-2]) for n in result.channel_names]
-    return Lensrt(LIBRARY).spectrum_rgb(lams, planes)
+    return Lensrt(LIBRARY).spectrum_rgb(list(result.spectral_nm), planes)
 
 
 def write_preview(result: Result, path: str | Path) -> None:
