@@ -12,6 +12,8 @@
 #   make test    lint, the C tests and examples/embed (also under ASan/UBSan, and a minimal
 #                build without EXR, OpenMP and GL), the C parsers under libFuzzer for 15 s
 #                each, and the Python test suite (the TOML loaders under hypothesis too)
+#   make docs    the documentation site (MkDocs, strict: a broken link or a lensrt.h function
+#                missing from the C API page fails) into build/site; part of make test
 #   make fuzz    the parsers fuzzed for longer (FUZZ_SECONDS per libFuzzer target,
 #                FUZZ_EXAMPLES hypothesis examples)
 #   make bench   ray-tracer throughput, generated-code speed, fit report, lensrt splat rate
@@ -37,7 +39,7 @@ PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
 DEMO_LENS ?= 0001
 
-.PHONY: setup runtime demo test bench fuzz lint clean
+.PHONY: setup runtime demo test bench fuzz lint docs clean
 
 # Seconds per libFuzzer target: a short budget in `make test`, a long one in `make fuzz`
 FUZZ_TEST_SECONDS ?= 15
@@ -151,11 +153,17 @@ demo: setup runtime
 		--panel build/demo/image/street-lens.exr:flare "flare layer"
 
 lint: setup
-	$(VENV)/bin/ruff check --config fit/pyproject.toml fit tests runtime/python runtime/bench runtime/tools
+	$(VENV)/bin/ruff check --config fit/pyproject.toml fit tests runtime/python runtime/bench runtime/tools docs/gen
+
+# The documentation site (docs/about.md): docs/*.md, and pages generated at build time by
+# docs/gen/*.py from lensrt.h, the Python packages, the CLI parsers (and the runtime's
+# tools' --help, hence runtime) and docs/benchmarks/snapshots/. Strict: any warning fails.
+docs: setup runtime
+	DISABLE_MKDOCS_2_WARNING=true $(VENV)/bin/mkdocs build --strict -f mkdocs.yml
 
 # ctest -j 2: the C tests are independent (each its own scratch folder) and mostly one
 # thread each, so two at a time take the two cores (the ASan build's 160 s become ~90 s)
-test: setup lint runtime
+test: setup lint runtime docs
 	ctest --test-dir $(RUNTIME_BUILD) --output-on-failure -j 2
 	cmake -S . -B $(ASAN_BUILD) -DCMAKE_BUILD_TYPE=Debug -DLENSRT_SANITIZE=ON > $(ASAN_BUILD).configure.log 2>&1 \
 		|| (cat $(ASAN_BUILD).configure.log; exit 1)
@@ -212,6 +220,9 @@ bench: setup runtime
 	@# (issue 36; `make test` runs three of the eight)
 	$(PY) -m pytest tests -m slow -q \
 		| tee build/bench/slow-tests.txt
+	@# Last: the summaries above (build/bench/*.md, *.txt) copied into the docs as dated
+	@# snapshots (docs/benchmarks/snapshots/, pages of the site); commit those that changed
+	$(PY) docs/gen/collect_bench.py --from build/bench --to docs/benchmarks/snapshots
 
 clean:
 	rm -rf build $(VENV)

@@ -36,7 +36,8 @@ def neutralise_links(md: str) -> str:
     not in the docs: keep their text and name the file."""
     md = re.sub(r"!\[([^\]]*)\]\(([^)\s]+)\)",
                 lambda m: m.group(0) if "://" in m.group(2)
-                else f"*(figure `build/bench/{m.group(2)}`{': ' + m.group(1) if m.group(1) else ''})*",
+                else "*(figure `build/bench/" + m.group(2) + "`"
+                + (": " + m.group(1) if m.group(1) else "") + ")*",
                 md)
     md = re.sub(r"(?<!!)\[([^\]]+)\]\(([^)\s]+)\)",
                 lambda m: m.group(0) if "://" in m.group(2) or m.group(2).startswith("#")

@@ -27,7 +27,8 @@ HEADER = ROOT / "runtime" / "include" / "lensrt.h"
 PAGE = "reference/c-api.md"
 
 SECTION = re.compile(r"^/\*\s*-{3,}\s*(.*?)\s*-{3,}\s*\*/\s*$")
-SKIP_DIRECTIVES = re.compile(r"^#\s*(ifndef LENSRT_H|define LENSRT_H|include\b|endif\s*/\*\s*LENSRT_H)")
+SKIP_DIRECTIVES = re.compile(
+    r"^#\s*(ifndef LENSRT_H|define LENSRT_H|include\b|endif\s*/\*\s*LENSRT_H)")
 
 
 @dataclass

@@ -50,8 +50,7 @@ out = ["# Command-line reference\n",
        "parser (`lensfit.cli.build_parser()`) and the C tools' own `--help`. What the "
        "commands are for: [lensfit commands](../cli.md), [Render a PSF](../psf.md).\n",
        "lensfit subcommands: " + ", ".join(f"[`{s}`](#lensfit-{s})" for s in subs) + "\n"]
-body: list[str] = []
-out.append(f"## `lensfit` {{#lensfit}}\n\n" + fence(parser.format_help()))
+out.append("## `lensfit` {#lensfit}\n\n" + fence(parser.format_help()))
 for name, sub in subparsers(parser):
     sub.prog = f"lensfit {name}"
     out.append(f"### `lensfit {name}` {{#lensfit-{name}}}\n\n" + fence(sub.format_help()))

@@ -64,13 +64,15 @@ def main(argv: list[str] | None = None) -> int:
         return 1
     dst.mkdir(parents=True, exist_ok=True)
     head = git("rev-parse", "--short=12", "HEAD") or "unknown"
-    dirty = " with uncommitted changes" if git("status", "--porcelain", "--untracked-files=no") else ""
+    changed = git("status", "--porcelain", "--untracked-files=no")
+    dirty = " with uncommitted changes" if changed else ""
     now = dt.datetime.now().astimezone().strftime("%Y-%m-%d %H:%M %Z")
     where = machine()
     for p in files:
         measured = dt.datetime.fromtimestamp(p.stat().st_mtime).astimezone()
         header = [f"source: build/bench/{p.name}",
-                  f"measured: {measured.strftime('%Y-%m-%d %H:%M %Z')} (the file's modification time)",
+                  f"measured: {measured.strftime('%Y-%m-%d %H:%M %Z')} "
+                  "(the file's modification time)",
                   f"collected: {now} by docs/gen/collect_bench.py",
                   f"commit: {head}{dirty} (the checkout's HEAD when collected)",
                   f"machine: {where}"]

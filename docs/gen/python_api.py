@@ -70,7 +70,8 @@ index = ["# Python API reference", "",
          "Generated at build time from the code (`docs/gen/python_api.py`: the packages are "
          "walked with pkgutil, so renamed or new modules appear without an edit). One page "
          "per package with its modules. Docstrings are shown as written "
-         "(reST-ish prose rendered as Markdown, no section parsing: [About these docs](../../about.md)).",
+         "(reST-ish prose rendered as Markdown, no section parsing: "
+         "[About these docs](../../about.md)).",
          "", "| page | modules | what it is |", "|---|---:|---|"]
 for pkg, mods in sorted(packages.items()):
     page = f"reference/python/{pkg}.md"
