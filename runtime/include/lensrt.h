@@ -774,7 +774,44 @@ LENSRT_API lensrt_result lensrt_spectrum_rgb(lensrt_context ctx, int n_wavelengt
                                              const float *spectral, size_t n_pixels, float *rgb);
 
 /* Phasor sums: save, load (replace), merge (add; the scene must match and the sample
- * ranges must not overlap). Files are written atomically. */
+ * ranges must not overlap). Files are written atomically (format: io/phasor_file.c).
+ * Only Monte Carlo sums are saved (run(), splat_points(), tiles; a cells or Fourier
+ * render is refused).
+ *
+ * What a saved sum is, and its phase reference. For light l, wavelength lambda and grid
+ * point s (the pixel centre; a box filter's sub-pixel points), the file holds the complex
+ * sum over the samples a_j of the stop, S(s) = sum_j A_j K(s) exp(+i 2 pi P_j(s) / lambda),
+ * with A_j the sample's amplitude (sqrt of intensity x tau_o x flux x tau_i), K(s) the
+ * pixel's Huygens amplitude (README "The model"); the field is U(s) = measure / N x S(s)
+ * and the paper estimator's intensity |U|^2. The phase is in radians of exp(+i k OPL):
+ * a longer path turns it counter-clockwise. P_j(s), in mm, is:
+ *   - fitted lenses (tables), precision DEFAULT or DOUBLE, either device:
+ *     phi_o(a_j) + phi_i(a_j, s) - phi_i(0, s). phi_o is the table's P_o phase (the
+ *     optical path from the light to the stop point minus d_O, the light's distance from
+ *     the first vertex; at infinity, from the plane wave through that vertex), kept whole;
+ *     phi_i(0, s) is the rear group's path from the stop centre to s. So each grid point's
+ *     phase is referenced to the stop-centre ray's rear path to that point: arg S(s)
+ *     equals the phase of the total path relative to the stop-centre path
+ *     (phi_o(0) + phi_i(0, s)), plus 2 pi phi_o(0) / lambda, which is the same for every
+ *     grid point of a light and wavelength. Terms the pixel set-up prunes change it by at
+ *     most phase_tolerance_waves (none in DOUBLE);
+ *   - fitted lenses in precision NAIVE_FLOAT: the whole path, phi_o + d_O + phi_i (no
+ *     reference);
+ *   - analytic lenses: the whole free-space path, incoming wave + |s - a_j| (no per-pixel
+ *     reference): the incoming wave is -(x, y) . the light's direction cosines at infinity,
+ *     |light - a_j| - d_O for a near light, or for a perfect lens -|image point - a_j| (its
+ *     sphere converging on the light's image, so a pixel at focus on the image point has
+ *     phase 0); NAIVE_FLOAT adds the light's distance.
+ * Checked against quadratures of the integrand (lens 0001 at f/8, 550 nm, 9 x 9 pixels of
+ * 2 um: within 1.2 mrad with the reference, up to 2.1 rad without; a perfect lens 2 um
+ * behind focus: arg S at the image point equals k (|s - a| - |I - a|) integrated).
+ * Two files of the same scene (the scene hash: lens, lights, wavelengths, window,
+ * aperture, precision, phase tolerance) share this reference, so merging (adding the
+ * sums and sample counts, N the total) is coherent. Sums of different lights, different
+ * ghost paths or another lens must not be added coherently at all (their intensities
+ * add): lensrt never does, and a reader that wants the absolute phase of a fitted lens's
+ * sum must multiply S(s) by
+ * exp(+i 2 pi phi_i(0, s) / lambda) itself (lensrt_lens_eval of P_s at the stop centre). */
 LENSRT_API lensrt_result lensrt_render_save(lensrt_render render, const char *path);
 LENSRT_API lensrt_result lensrt_render_load(lensrt_render render, const char *path);
 LENSRT_API lensrt_result lensrt_render_merge(lensrt_render render, const char *path);

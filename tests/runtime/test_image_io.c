@@ -399,9 +399,12 @@ static void check_exr_file(const char *path, const float *spectral, const float 
     CHECK(exr_attr_get_string(f, 0, "spectralLayoutVersion", &len, &s) == EXR_ERR_SUCCESS &&
               strcmp(s, "1.0") == 0,
           "spectralLayoutVersion is not the string \"1.0\"");
-    CHECK(exr_attr_get_string(f, 0, "emissiveUnits", &len, &s) == EXR_ERR_SUCCESS &&
-              strcmp(s, "W.m^-2.sr^-1") == 0,
-          "emissiveUnits is not \"W.m^-2.sr^-1\"");
+    /* No radiance unit: lensrt's values are relative irradiance, which lensrt/units says */
+    CHECK(exr_attr_get_string(f, 0, "emissiveUnits", &len, &s) == EXR_ERR_NO_ATTR_BY_NAME,
+          "emissiveUnits is present; lensrt's values are not radiance");
+    CHECK(exr_attr_get_string(f, 0, "lensrt/units", &len, &s) == EXR_ERR_SUCCESS &&
+              strncmp(s, "relative irradiance, dimensionless", 34) == 0,
+          "lensrt/units is '%s'", s ? s : "");
     CHECK(exr_attr_get_string(f, 0, "lensrt/lens", &len, &s) == EXR_ERR_SUCCESS &&
               strcmp(s, "Test double Gauss 50 mm f/2") == 0,
           "lensrt/lens is wrong");

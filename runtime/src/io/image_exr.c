@@ -13,10 +13,13 @@
  *     the wavelength with std::to_string (6 decimals), e.g. "S0.550,000000nm". We
  *     write exactly that: 6 decimals, comma separator, "nm".
  *   - header attribute "spectralLayoutVersion", type string, value "1.0";
- *   - header attribute "emissiveUnits", type string, required for emissive images; the
- *     only value the reference reader supports is "W.m^-2.sr^-1", so we write that for
- *     interoperability. lensrt's values are relative (sensor irradiance per unit
- *     irradiance on the stop, dimensionless); "lensrt/units" says so in words.
+ *   - header attribute "emissiveUnits": left out. The layout wants it for emissive
+ *     images and its reference reader knows one value, "W.m^-2.sr^-1" (radiance); it
+ *     reads a file without it all the same, with a warning that it assumes that unit.
+ *     lensrt's values are not radiance and not absolute: each is a sensor irradiance
+ *     relative to the light's irradiance on the lens's first vertex plane (dimensionless;
+ *     LENSRT_EXR_UNITS below), which "lensrt/units" says in words. Writing the radiance
+ *     unit would be false (lensrt before 0.11 did).
  *   - an RGB preview in channels R, G, B next to the spectral channels (the reference
  *     writer does the same).
  *
@@ -39,14 +42,24 @@
  * "comments" (string, a one-line summary). "focus" (focus distance in metres) is left
  * out: a render knows the sensor shift, not a focus distance.
  *
- * lensrt metadata, namespaced "lensrt/...": strings, doubles, v2d (x, y pairs) and one
- * int; 64-bit counts (samples per wavelength, seed) are decimal strings because EXR has
- * no 64-bit integer attribute; "lensrt/integrator" is "montecarlo", "cells" or "fourier",
- * with "lensrt/cellsRings" or "lensrt/fourierNodes" and "lensrt/errorEstimate";
+ * lensrt metadata, namespaced "lensrt/...": strings, doubles, v2d (x, y pairs) and ints;
+ * 64-bit counts (samples per wavelength, seed) are decimal strings because EXR has no
+ * 64-bit integer attribute. "lensrt/integrator" is "montecarlo", "cells" or "fourier"
+ * and only that integrator's parameters follow (since 0.11; before, every file had the
+ * Monte Carlo ones, a deterministic render's "1 sample" among them):
+ *   montecarlo: "lensrt/samplesPerWavelength", "lensrt/sampler", "lensrt/estimator",
+ *     "lensrt/seed", "lensrt/splatsPerSecond", "lensrt/phaseToleranceWaves" (fitted
+ *     lenses) and "lensrt/sampleRuns" when the sums hold several runs (merged, resumed);
+ *   cells: "lensrt/cellsRings", and "lensrt/errorEstimate" with
+ *     "lensrt/errorEstimateMethod" when one was asked for;
+ *   fourier: "lensrt/fourierNodes", "lensrt/fourierTolerance", and the estimate likewise.
  * "lensrt/pixelFilter" ("box": each pixel the mean intensity over its area, "point":
  * the intensity at its centre), "lensrt/pixelSamplesX" and "lensrt/pixelSamplesY" (ints:
- * the box filter's points per pixel and axis, 1 for point; since 0.8.0). Every name is at most 31 characters, so the file needs
- * no long-name support. A reproducible file (lensrt_image_meta.reproducible,
+ * the box filter's points per pixel and axis, 1 for point; since 0.8.0). A file that adds
+ * several renders (layers, lensrt_renders_write_exr) has the first render's integrator
+ * attributes and "lensrt/renders", each render's integrator in words. Every name is at
+ * most 31 characters, so the file needs no long-name support. The whole list, with
+ * types and units, is docs' EXR metadata table. A reproducible file (lensrt_image_meta.reproducible,
  * lensrt_render_write_exr_with) leaves out "lensrt/seconds", "lensrt/splatsPerSecond" and
  * "lensrt/lensFile": nothing else in the file depends on the run, so the same render
  * gives the same bytes.
@@ -468,12 +481,7 @@ lensrt_result lensrt_write_exr_layers(const lensrt_allocator *allocator, const c
     step = "setting the attributes";
     rv = exr_attr_set_string(ctxt, part, "spectralLayoutVersion", "1.0");
     if (rv == EXR_ERR_SUCCESS)
-        rv = exr_attr_set_string(ctxt, part, "emissiveUnits", "W.m^-2.sr^-1");
-    if (rv == EXR_ERR_SUCCESS)
-        rv = exr_attr_set_string(ctxt, part, "lensrt/units",
-                                 "relative irradiance: sensor irradiance per unit irradiance on "
-                                 "the aperture stop (dimensionless); R, G, B linear sRGB (D65) "
-                                 "through the CIE 1931 2-degree observer");
+        rv = exr_attr_set_string(ctxt, part, "lensrt/units", LENSRT_EXR_UNITS);
     if (rv == EXR_ERR_SUCCESS) {
         /* sRGB / Rec. 709 primaries and the D65 white point, CIE xy. */
         exr_attr_chromaticities_t srgb;
@@ -502,15 +510,21 @@ lensrt_result lensrt_write_exr_layers(const lensrt_allocator *allocator, const c
         /* Standard: a one-line summary for people. */
         if (rv == EXR_ERR_SUCCESS) {
             double lo = wavelengths_nm[0], hi = wavelengths_nm[0];
+            char how[96];
             for (i = 1; i < n_wavelengths; ++i) {
                 lo = wavelengths_nm[i] < lo ? wavelengths_nm[i] : lo;
                 hi = wavelengths_nm[i] > hi ? wavelengths_nm[i] : hi;
             }
-            lensrt_snprintf_c(text, sizeof text,
-                     "lensrt spectral PSF: %s, f/%.3g, %d wavelengths %.6g-%.6g nm, %llu samples "
-                     "per wavelength",
-                     meta->lens_name ? meta->lens_name : "unnamed lens", meta->f_number,
-                     n_wavelengths, lo, hi, (unsigned long long)meta->samples_per_wavelength);
+            if (meta->cells_rings)
+                snprintf(how, sizeof how, "cells integrator, %d rings", meta->cells_rings);
+            else if (meta->fourier_nodes)
+                snprintf(how, sizeof how, "Fourier integrator, %d nodes per side", meta->fourier_nodes);
+            else
+                snprintf(how, sizeof how, "Monte Carlo, %llu samples per wavelength",
+                         (unsigned long long)meta->samples_per_wavelength);
+            lensrt_snprintf_c(text, sizeof text, "lensrt spectral PSF: %s, f/%.3g, %d wavelengths %.6g-%.6g nm, %s",
+                              meta->lens_name ? meta->lens_name : "unnamed lens", meta->f_number, n_wavelengths, lo,
+                              hi, how);
             rv = exr_attr_set_string(ctxt, part, "comments", text);
         }
         if (rv == EXR_ERR_SUCCESS && meta->lens_name)
@@ -536,38 +550,63 @@ lensrt_result lensrt_write_exr_layers(const lensrt_allocator *allocator, const c
             v2.y = meta->center_y_mm;
             rv = exr_attr_set_v2d(ctxt, part, "lensrt/centerMm", &v2);
         }
-        if (rv == EXR_ERR_SUCCESS) {
-            snprintf(text, sizeof text, "%llu", (unsigned long long)meta->samples_per_wavelength);
-            rv = exr_attr_set_string(ctxt, part, "lensrt/samplesPerWavelength", text);
-        }
         // ... and the timings, which differ from run to run
         if (rv == EXR_ERR_SUCCESS && !meta->reproducible)
             rv = exr_attr_set_double(ctxt, part, "lensrt/seconds", meta->seconds);
-        if (rv == EXR_ERR_SUCCESS && !meta->reproducible)
-            rv = exr_attr_set_double(ctxt, part, "lensrt/splatsPerSecond", meta->splats_per_second);
-        if (rv == EXR_ERR_SUCCESS && meta->sampler)
-            rv = exr_attr_set_string(ctxt, part, "lensrt/sampler", meta->sampler);
-        if (rv == EXR_ERR_SUCCESS && meta->estimator)
-            rv = exr_attr_set_string(ctxt, part, "lensrt/estimator", meta->estimator);
         if (rv == EXR_ERR_SUCCESS && meta->aperture)
             rv = exr_attr_set_string(ctxt, part, "lensrt/aperture", meta->aperture);
         if (rv == EXR_ERR_SUCCESS && meta->layers)
             rv = exr_attr_set_string(ctxt, part, "lensrt/layers", meta->layers);
-        if (rv == EXR_ERR_SUCCESS) {
-            snprintf(text, sizeof text, "%llu", (unsigned long long)meta->seed);
-            rv = exr_attr_set_string(ctxt, part, "lensrt/seed", text);
-        }
-        // How the image was integrated: Monte Carlo samples, or the cells integrator's
-        // mesh or the Fourier integrator's rule, and its error estimate (issue 22)
+        if (rv == EXR_ERR_SUCCESS && meta->renders)
+            rv = exr_attr_set_string(ctxt, part, "lensrt/renders", meta->renders);
+        // How the image was integrated, with that integrator's parameters only (issue 40):
+        // Monte Carlo's samples, or the cells integrator's mesh or the Fourier
+        // integrator's rule, and their error estimate (issue 22)
         if (rv == EXR_ERR_SUCCESS)
             rv = exr_attr_set_string(ctxt, part, "lensrt/integrator",
                                      meta->cells_rings ? "cells" : meta->fourier_nodes ? "fourier" : "montecarlo");
-        if (rv == EXR_ERR_SUCCESS && meta->cells_rings)
-            rv = exr_attr_set_int(ctxt, part, "lensrt/cellsRings", meta->cells_rings);
-        if (rv == EXR_ERR_SUCCESS && meta->fourier_nodes)
-            rv = exr_attr_set_int(ctxt, part, "lensrt/fourierNodes", meta->fourier_nodes);
-        if (rv == EXR_ERR_SUCCESS && (meta->cells_rings || meta->fourier_nodes) && meta->error_estimate >= 0.0)
-            rv = exr_attr_set_double(ctxt, part, "lensrt/errorEstimate", meta->error_estimate);
+        if (!meta->cells_rings && !meta->fourier_nodes) {
+            if (rv == EXR_ERR_SUCCESS) {
+                snprintf(text, sizeof text, "%llu", (unsigned long long)meta->samples_per_wavelength);
+                rv = exr_attr_set_string(ctxt, part, "lensrt/samplesPerWavelength", text);
+            }
+            if (rv == EXR_ERR_SUCCESS && meta->sampler)
+                rv = exr_attr_set_string(ctxt, part, "lensrt/sampler", meta->sampler);
+            if (rv == EXR_ERR_SUCCESS && meta->estimator)
+                rv = exr_attr_set_string(ctxt, part, "lensrt/estimator", meta->estimator);
+            if (rv == EXR_ERR_SUCCESS) {
+                snprintf(text, sizeof text, "%llu", (unsigned long long)meta->seed);
+                rv = exr_attr_set_string(ctxt, part, "lensrt/seed", text);
+            }
+            if (rv == EXR_ERR_SUCCESS && meta->sample_runs)
+                rv = exr_attr_set_string(ctxt, part, "lensrt/sampleRuns", meta->sample_runs);
+            if (rv == EXR_ERR_SUCCESS && meta->phase_tolerance_waves > 0.0)
+                rv = exr_attr_set_double(ctxt, part, "lensrt/phaseToleranceWaves", meta->phase_tolerance_waves);
+            if (rv == EXR_ERR_SUCCESS && !meta->reproducible)
+                rv = exr_attr_set_double(ctxt, part, "lensrt/splatsPerSecond", meta->splats_per_second);
+        } else {
+            if (rv == EXR_ERR_SUCCESS && meta->cells_rings)
+                rv = exr_attr_set_int(ctxt, part, "lensrt/cellsRings", meta->cells_rings);
+            if (rv == EXR_ERR_SUCCESS && meta->fourier_nodes)
+                rv = exr_attr_set_int(ctxt, part, "lensrt/fourierNodes", meta->fourier_nodes);
+            if (rv == EXR_ERR_SUCCESS && meta->fourier_nodes && meta->fourier_tolerance > 0.0)
+                rv = exr_attr_set_double(ctxt, part, "lensrt/fourierTolerance", meta->fourier_tolerance);
+            if (rv == EXR_ERR_SUCCESS && meta->error_estimate >= 0.0)
+                rv = exr_attr_set_double(ctxt, part, "lensrt/errorEstimate", meta->error_estimate);
+            if (rv == EXR_ERR_SUCCESS && meta->error_estimate >= 0.0) {
+                if (meta->cells_rings)
+                    snprintf(text, sizeof text,
+                             "relative L2 error over every pixel and wavelength, from the difference of the "
+                             "images of %d and %d rings (lensrt_render_integrate)",
+                             meta->cells_rings, meta->cells_rings / 2);
+                else
+                    snprintf(text, sizeof text,
+                             "relative L2 distance over every pixel and wavelength from the image of %d nodes "
+                             "per side (lensrt_render_integrate_fourier)",
+                             (int)ceil(LENSRT_FOURIER_FINER * meta->fourier_nodes));
+                rv = exr_attr_set_string(ctxt, part, "lensrt/errorEstimateMethod", text);
+            }
+        }
         if (rv == EXR_ERR_SUCCESS && meta->pixel_filter)
             rv = exr_attr_set_string(ctxt, part, "lensrt/pixelFilter", meta->pixel_filter);
         if (rv == EXR_ERR_SUCCESS && meta->pixel_filter)

@@ -36,6 +36,17 @@ int lensrt_open_temporary(const lensrt_allocator *allocator, const char *path, c
 /* The same as a stdio stream opened "wb" (NULL, no file left and *out_name NULL on failure). */
 FILE *lensrt_fopen_temporary(const lensrt_allocator *allocator, const char *path, char **out_name, int *out_errno);
 
+/* What a pixel of lensrt's EXR is: "lensrt/units" (there is no "emissiveUnits": the
+ * spectral layout's one value, radiance in W.m^-2.sr^-1, would be false). */
+#define LENSRT_EXR_UNITS                                                                                  \
+    "relative irradiance, dimensionless: each spectral channel S0.<lambda>nm is the irradiance on the "   \
+    "sensor at that wavelength in units of the lights' irradiance on the plane of the lens's first "      \
+    "vertex (a light's intensity, default 1; an analytic lens: its aperture plane), the lights added, "  \
+    "so that the sum over pixels times the pixel area (mm^2) is the power the lens passes per unit "      \
+    "irradiance (mm^2); a pixel is the mean over its area (lensrt/pixelFilter box) or the value at its "  \
+    "centre (point). R, G, B: linear sRGB (D65) of X, Y, Z = the sum over the spectral channels of the "  \
+    "value x the CIE 1931 2-degree colour matching function x the channel's span (nm)"
+
 /* What a render records in its image files. Strings may be NULL (left out). */
 typedef struct lensrt_image_meta {
     const char *lens_name;      /* e.g. "Angenieux double Gauss 100 mm f/1.1 (1953)" */
@@ -46,15 +57,24 @@ typedef struct lensrt_image_meta {
     double focus_offset_mm;     /* z_S */
     double pixel_pitch_x_mm, pixel_pitch_y_mm;
     double center_x_mm, center_y_mm;
+    /* The integrator is Monte Carlo unless cells_rings or fourier_nodes is set; the
+     * Monte Carlo fields (samples_per_wavelength, splats_per_second, sampler, estimator,
+     * seed, sample_runs, phase_tolerance_waves) are written only for Monte Carlo, the
+     * cells and Fourier ones only for theirs. */
     uint64_t samples_per_wavelength;
     double seconds;
     double splats_per_second;
     const char *sampler;        /* "sobol", "random", "stratified" */
     const char *estimator;      /* "paper", "unbiased" */
+    const char *sample_runs;    /* "<seed> <first> <end>; ..." when the sums hold more than
+                                   one run (merged, resumed), or NULL */
+    double phase_tolerance_waves; /* Monte Carlo's pruning tolerance (> 0: written) */
     const char *aperture;       /* e.g. "circle", "7 blades, curvature 0.3, rotation 10 deg" */
     const char *layers;         /* what each layer holds (EXR "lensrt/layers"), or NULL */
+    const char *renders;        /* each render's integrator when the file adds several, or NULL */
     int cells_rings;            /* the cells integrator's mesh (0: Monte Carlo samples) */
     int fourier_nodes;          /* the Fourier integrator's rule (0: none) */
+    double fourier_tolerance;   /* its interpolation and NUFFT tolerance (> 0: written) */
     double error_estimate;      /* its estimated relative L2 error (< 0: none) */
     const char *pixel_filter;   /* "box" or "point" (NULL: left out) */
     int pixel_samples_x, pixel_samples_y; /* the box filter's points per pixel and axis */

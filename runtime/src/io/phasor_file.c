@@ -6,7 +6,11 @@
  *   u64 scene hash, u64 seed, u64 samples per wavelength, u64 splats, f64 seconds,
  *   i32 width, height, wavelengths, lights, has_sum_of_squares, runs, u64 checksum,
  *   u64 runs[runs][3] ({seed, first, end} of the sample indices the sums hold),
- *   f64 sums[2 * lights * wavelengths * pixels], f64 sums of squares[...] (if present).
+ *   f64 sums[2 * lights * wavelengths * pixels], f64 sums of squares[...] (if present);
+ *   sums[((l * wavelengths + w) * pixels + p) * 2 + (0 re, 1 im)], p = y * width + x
+ *   (row 0 at the top, +y), sums of squares likewise without the pair. What a sum is
+ *   and its phase reference (per grid point, the stop-centre ray's rear path for fitted
+ *   lenses): lensrt.h, above lensrt_render_save.
  * "pixels", width and height are the render's grid points (core/render.h): with the box
  * pixel filter each pixel's sx x sy sub-pixel points (since 0.8.0), so sums of renders
  * whose filter or samples per pixel differ are refused as another grid, with a message

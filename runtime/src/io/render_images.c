@@ -2,6 +2,7 @@
  * channels, RGB preview, lens and render metadata) and PNG files (io/image_exr.c,
  * io/image_png.c), written atomically. */
 #include "../c_numbers.h"
+#include "../core/fourier.h"
 #include "../core/render.h"
 #include "../lens/lens.h"
 
@@ -164,10 +165,46 @@ static void describe_aperture(const lensrt_render r, char *buf, size_t size)
         snprintf(buf, size, "circle");
 }
 
-/* The EXR metadata of render r (`aperture`: 128 bytes for its description). */
-static void image_meta(const lensrt_render r, lensrt_image_meta *out, char *aperture)
+/* Room for "lensrt/sampleRuns": every run a phasor file records, and the render's own. */
+#define RUNS_TEXT_SIZE ((64 + 1) * 64)
+
+/* The runs of samples the sums hold, "<seed> <first> <end>; ..." (sample indices
+ * [first, end) of that seed's sequence), into text; 0 (text empty) when they are simply
+ * the render's own sequence from sample 0, which "lensrt/seed" and
+ * "lensrt/samplesPerWavelength" already say. The render's own run since the last save or
+ * merge is the one core/render.h says lies past runs_samples (recorded there later). */
+static int sample_runs_text(const lensrt_render r, char *text, size_t size)
+{
+    uint64_t runs[65][3];
+    size_t used = 0;
+    int n = 0, i;
+    text[0] = '\0';
+    for (i = 0; i < r->n_runs && i < 64; i++, n++) memcpy(runs[n], r->runs[i], sizeof runs[n]);
+    if (r->samples > r->runs_samples) {
+        if (n > 0 && runs[n - 1][0] == r->desc.seed && runs[n - 1][2] == r->runs_samples)
+            runs[n - 1][2] = r->samples; /* the same sequence, continued */
+        else {
+            runs[n][0] = r->desc.seed;
+            runs[n][1] = r->runs_samples;
+            runs[n][2] = r->samples;
+            n++;
+        }
+    }
+    if (n == 0 || (n == 1 && runs[0][0] == r->desc.seed && runs[0][1] == 0 && runs[0][2] == r->samples)) return 0;
+    for (i = 0; i < n && used < size; i++)
+        used += (size_t)snprintf(text + used, size - used, "%s%llu %llu %llu", i ? "; " : "",
+                                 (unsigned long long)runs[i][0], (unsigned long long)runs[i][1],
+                                 (unsigned long long)runs[i][2]);
+    return 1;
+}
+
+/* The EXR metadata of render r (`aperture`: 128 bytes for its description, `runs`:
+ * RUNS_TEXT_SIZE bytes for its sample runs). Only the integrator's own parameters are
+ * set: a cells or Fourier render has no samples, sampler, estimator or seed. */
+static void image_meta(const lensrt_render r, lensrt_image_meta *out, char *aperture, char *runs)
 {
     lensrt_image_meta meta;
+    const int deterministic = r->cells_rings || r->fourier_nodes;
     memset(&meta, 0, sizeof meta);
     describe_aperture(r, aperture, 128);
     meta.lens_name = r->lens->name;
@@ -180,22 +217,69 @@ static void image_meta(const lensrt_render r, lensrt_image_meta *out, char *aper
     meta.pixel_pitch_y_mm = r->pixel_y;
     meta.center_x_mm = r->desc.sensor.center_x_mm;
     meta.center_y_mm = r->desc.sensor.center_y_mm;
-    meta.samples_per_wavelength = r->samples;
     meta.seconds = r->seconds;
-    meta.splats_per_second = r->seconds > 0 ? (double)r->splats / r->seconds : 0.0;
-    meta.sampler = lensrt_sampler_name(r->desc.sampler);
-    meta.estimator = r->desc.estimator == LENSRT_ESTIMATOR_UNBIASED ? "unbiased" : "paper";
     meta.aperture = aperture;
-    meta.seed = r->desc.seed;
+    if (!deterministic) {
+        meta.samples_per_wavelength = r->samples;
+        meta.splats_per_second = r->seconds > 0 ? (double)r->splats / r->seconds : 0.0;
+        meta.sampler = lensrt_sampler_name(r->desc.sampler);
+        meta.estimator = r->desc.estimator == LENSRT_ESTIMATOR_UNBIASED ? "unbiased" : "paper";
+        meta.seed = r->desc.seed;
+        meta.sample_runs = sample_runs_text(r, runs, RUNS_TEXT_SIZE) ? runs : NULL;
+        // The pruning tolerance: fitted lenses' phase terms, unless precision DOUBLE keeps all
+        if (r->lens_ops->transport == LENSRT_TRANSPORT_POLYNOMIAL && r->desc.precision != LENSRT_PRECISION_DOUBLE)
+            meta.phase_tolerance_waves = r->desc.phase_tolerance_waves;
+    }
     meta.cells_rings = r->cells_rings;
     meta.fourier_nodes = r->fourier_nodes;
+    meta.fourier_tolerance = r->fourier_nodes ? LENSRT_FOURIER_TOL : 0.0;
+    meta.error_estimate = deterministic ? r->cells_error : -1.0;
     meta.pixel_filter = r->pixel_filter == LENSRT_PIXEL_FILTER_POINT ? "point" : "box";
     meta.pixel_samples_x = r->sx;
     meta.pixel_samples_y = r->sy;
-    meta.error_estimate = r->cells_rings || r->fourier_nodes ? r->cells_error : -1.0;
     meta.n_lights = r->n_lights;
     meta.lights = r->lights;
     *out = meta;
+}
+
+/* One render's integrator in words, for "lensrt/renders": "<table>: fourier, 48 nodes
+ * per side, error estimate 0.0012" (NUL-terminated, at most size bytes). */
+static size_t describe_integrator(const lensrt_render r, char *text, size_t size)
+{
+    const char *file = r->lens_ops->table_file(r->lens);
+    const char *name = file ? file : r->lens->name;
+    int n;
+    if (r->cells_rings)
+        n = lensrt_snprintf_c(text, size, "%s: cells, %d rings", name, r->cells_rings);
+    else if (r->fourier_nodes)
+        n = lensrt_snprintf_c(text, size, "%s: fourier, %d nodes per side", name, r->fourier_nodes);
+    else
+        n = lensrt_snprintf_c(text, size, "%s: montecarlo, %llu samples per wavelength, sampler %s, seed %llu", name,
+                              (unsigned long long)r->samples, lensrt_sampler_name(r->desc.sampler),
+                              (unsigned long long)r->desc.seed);
+    if ((r->cells_rings || r->fourier_nodes) && r->cells_error >= 0.0 && n >= 0 && (size_t)n < size)
+        n += lensrt_snprintf_c(text + n, size - (size_t)n, ", error estimate %.3g", r->cells_error);
+    return n < 0 ? 0 : (size_t)n < size ? (size_t)n : size - 1;
+}
+
+/* "lensrt/renders" of a file that adds n > 1 renders: each render's integrator, in file
+ * order, separated by "; " (NULL when out of memory; the caller frees it). */
+static char *renders_text(lensrt_context ctx, const lensrt_render *rs, int n)
+{
+    size_t size = 1, used = 0;
+    char *text;
+    int i;
+    for (i = 0; i < n; i++) {
+        const char *file = rs[i]->lens_ops->table_file(rs[i]->lens);
+        size += strlen(file ? file : rs[i]->lens->name) + 160;
+    }
+    if (!(text = lensrt_alloc(ctx, size))) return NULL;
+    text[0] = '\0';
+    for (i = 0; i < n; i++) {
+        if (i) used += (size_t)snprintf(text + used, size - used, "; ");
+        used += describe_integrator(rs[i], text + used, size - used);
+    }
+    return text;
 }
 
 /* The image (the sum of the renders' images) as EXR, with the first render's metadata
@@ -206,13 +290,16 @@ static lensrt_result write_image_as(const lensrt_render *rs, int n, const char *
     float *spectral = NULL, *rgb = NULL;
     lensrt_render r = rs ? rs[0] : NULL;
     lensrt_result res;
-    char err[LENSRT_ERROR_SIZE] = "", aperture[128];
+    char err[LENSRT_ERROR_SIZE] = "", aperture[128], runs[RUNS_TEXT_SIZE], *renders = NULL;
     if (!r || !path || n < 1) return LENSRT_ERROR_INVALID_ARGUMENT;
     if ((res = check_same_frame(rs, n)) != LENSRT_SUCCESS) return res;
     res = spectral_and_rgb_of(rs, n, &spectral, &rgb);
+    if (res == LENSRT_SUCCESS && exr && n > 1 && !(renders = renders_text(r->ctx, rs, n)))
+        res = lensrt_fail(r->ctx, LENSRT_ERROR_OUT_OF_MEMORY, "EXR '%s': out of memory", path);
     if (res == LENSRT_SUCCESS && exr) {
         lensrt_image_meta meta;
-        image_meta(r, &meta, aperture);
+        image_meta(r, &meta, aperture, runs);
+        meta.renders = renders;
         meta.reproducible = reproducible;
         res = lensrt_write_exr(&r->ctx->allocator, path, r->out_width, r->out_height, r->n_wl, r->wavelengths,
                                spectral, rgb, &meta, err, sizeof err);
@@ -220,6 +307,7 @@ static lensrt_result write_image_as(const lensrt_render *rs, int n, const char *
         res = lensrt_write_png(&r->ctx->allocator, path, r->out_width, r->out_height, rgb, decades, err, sizeof err);
     }
     if (res != LENSRT_SUCCESS && err[0]) lensrt_fail(r->ctx, res, "%s", err);
+    lensrt_free(r->ctx, renders);
     lensrt_free(r->ctx, spectral);
     lensrt_free(r->ctx, rgb);
     return res;
@@ -367,7 +455,7 @@ lensrt_result lensrt_layers_write_exr_with(const lensrt_exr_layer *layers, int n
     lensrt_context ctx;
     lensrt_image_meta meta;
     lensrt_result res = LENSRT_SUCCESS;
-    char err[LENSRT_ERROR_SIZE] = "", aperture[128], *text = NULL;
+    char err[LENSRT_ERROR_SIZE] = "", aperture[128], runs[RUNS_TEXT_SIZE], *text = NULL, *renders = NULL;
     size_t size, n_total = 0;
     int i, n_all = 0, reproducible = 0;
 
@@ -413,12 +501,13 @@ lensrt_result lensrt_layers_write_exr_with(const lensrt_exr_layer *layers, int n
     }
 
     // Step 4: the file, with the first render's metadata and what each layer holds
-    image_meta(r0, &meta, aperture);
-    if (!(text = layers_text(ctx, ls, n_layers))) {
+    image_meta(r0, &meta, aperture, runs);
+    if (!(text = layers_text(ctx, ls, n_layers)) || (n_all > 1 && !(renders = renders_text(ctx, all, n_all)))) {
         res = lensrt_fail(ctx, LENSRT_ERROR_OUT_OF_MEMORY, "EXR '%s': out of memory", path);
         goto done;
     }
     meta.layers = text;
+    meta.renders = renders;
     meta.reproducible = reproducible;
     res = lensrt_write_exr_layers(&ctx->allocator, path, r0->out_width, r0->out_height, r0->n_wl, r0->wavelengths,
                                   n_layers + 1, images, &meta, err, sizeof err);
@@ -428,6 +517,7 @@ done:
     lensrt_free(ctx, planes);
     lensrt_free(ctx, images);
     lensrt_free(ctx, text);
+    lensrt_free(ctx, renders);
     lensrt_free(ctx, all);
     lensrt_free(ctx, ls);
     return res;
