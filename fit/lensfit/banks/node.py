@@ -420,7 +420,8 @@ def write_channel_exr(rt, exr: Path, parts: list[list[Any]], wavelengths: list[f
 
     header: dict[str, Any] = {}
     spectral: dict[str, np.ndarray] = {}
-    estimates, rings = [], []
+    estimates: list[float] = []
+    params: dict[str, list[int]] = {}  # each group's integrator parameter (ints), by name
     with tempfile.TemporaryDirectory(dir=exr.parent, prefix=".node-") as tmp:
         for gi, renders in enumerate(parts):
             path = Path(tmp) / f"{gi}.exr"
@@ -433,7 +434,9 @@ def write_channel_exr(rt, exr: Path, parts: list[list[Any]], wavelengths: list[f
                 h = dict(f.header())
                 header = header or h
                 estimates.append(float(np.max(h.get("lensrt/errorEstimate", -1.0))))
-                rings.append(int(h.get("lensrt/cellsRings", 0)))
+                for key in ("lensrt/cellsRings", "lensrt/fourierNodes"):
+                    if key in h:
+                        params.setdefault(key, []).append(int(h[key]))
                 # The values straight from the renders (the EXR gives the names and the
                 # header): nothing of a render is decoded back
                 direct = renders[0].image()[0]
@@ -465,9 +468,14 @@ def write_channel_exr(rt, exr: Path, parts: list[list[Any]], wavelengths: list[f
                                    "centred on its wavelength's chief point "
                                    "(lensrt/channelCentersMm, x y per wavelength)",
             "lensrt/channelCentersMm": " ".join(repr(float(v)) for xy in chief for v in xy),
-            "lensrt/centerMm": np.array(mid, dtype=np.float64),
-            "lensrt/errorEstimate": np.array([-1.0 if min(estimates) < 0 else max(estimates)]),
-            "lensrt/cellsRings": max(rings)})
+            "lensrt/centerMm": np.array(mid, dtype=np.float64)})
+        # The integrator's own parameters only (issue 40): the largest of the groups'
+        # rings or nodes, and the largest estimate when every group has one
+        for key, values in params.items():
+            header[key] = max(values)
+        header.pop("lensrt/errorEstimate", None)
+        if estimates and min(estimates) >= 0:
+            header["lensrt/errorEstimate"] = np.array([max(estimates)])
         if "comments" in header:
             header["comments"] = re.sub(
                 r"1 wavelengths? [0-9.]+-[0-9.]+ nm",
