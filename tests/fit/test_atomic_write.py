@@ -1,4 +1,4 @@
-"""lensfit's one checked atomic write (lensfit.atomic, issue 25): the rules of lensrt's
+"""lensfit's one checked atomic write (lensfit.common.atomic, issue 25): the rules of lensrt's
 (runtime/src/io/atomic_file.c), and the commands that write files through it."""
 
 from __future__ import annotations
@@ -12,9 +12,9 @@ from pathlib import Path
 
 import pytest
 
-from lensfit import atomic
-from lensfit.atomic import OutputError, check_target, write_atomic, write_files
 from lensfit.cli import main
+from lensfit.common import atomic
+from lensfit.common.atomic import OutputError, check_target, write_atomic, write_files
 
 
 def _dead_pid() -> int:

@@ -1,4 +1,4 @@
-"""lensfit.errors.refuse_repeated_tables: the same ghost table named twice (the same
+"""lensfit.common.errors.refuse_repeated_tables: the same ghost table named twice (the same
 path, a symbolic link, another relative path; the same device and inode) is refused
 naming both spellings, since its flare would be added twice; distinct files (even equal
 copies, which the callers tell apart by their ghost) and missing ones pass."""
@@ -9,7 +9,7 @@ import os
 
 import pytest
 
-from lensfit.errors import InputError, refuse_repeated_tables
+from lensfit.common.errors import InputError, refuse_repeated_tables
 
 
 def test_same_file_under_any_spelling_refused(tmp_path, monkeypatch):

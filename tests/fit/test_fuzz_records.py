@@ -1,5 +1,5 @@
 """Property-based fuzzing of the checksummed records lensfit reads back (issue 39): fit
-checkpoints (``lensfit.fit_cache``: a system's fit, the PSF check) and ghost-task records
+checkpoints (``lensfit.pipeline.cache``: a system's fit, the PSF check) and ghost-task records
 (``lensfit.ghosts.tasks``).
 
 A checksum only says a record is as some writer left it, so the strategies here craft
@@ -33,9 +33,9 @@ from hypothesis import strategies as st
 from lensfit.codegen import write_table
 from lensfit.codegen.checked_json import checked_json_text
 from lensfit.codegen.table import read_table
-from lensfit.fit_cache import FitCache, fit_key
 from lensfit.fitting import FitOptions, error_metric, fit_lens
 from lensfit.ghosts import tasks
+from lensfit.pipeline.cache import FitCache, fit_key
 from lensfit.poly.polynomial import Polynomial, System
 from lensfit.prescription import load_lens
 from lensfit.sample import default_domain

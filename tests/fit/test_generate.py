@@ -2,7 +2,7 @@
 strict C99 that agrees with System.evaluate, tables that carry the lens facts and the PSF
 trust figures, atomic writes, and the CLI's errors.
 
-Every folder test runs on a quick fit written to a temporary folder by lensfit.stage.run
+Every folder test runs on a quick fit written to a temporary folder by lensfit.pipeline.stage.run
 (the session fixture ``quick_run`` of conftest.py: the pursuit method with small budgets)
 and on every folder under generated/ that has a fit.json.
 """
@@ -23,11 +23,7 @@ from lensfit.cli import main
 from lensfit.codegen import call_c, check_compiles, emit_c, load_c, read_table
 from lensfit.codegen.c_horner import file_stem
 from lensfit.codegen.common import check_prefix
-from lensfit.codegen.table import TRUST_KEYS, with_checksum, write_table
-from lensfit.errors import InputError
-from lensfit.facts import lens_facts
-from lensfit.fitting import FitOptions
-from lensfit.generate import (
+from lensfit.codegen.generate import (
     GENERATED_DIR,
     fit_json,
     header_comment,
@@ -41,11 +37,15 @@ from lensfit.generate import (
     wavelengths_note,
     write_folder,
 )
+from lensfit.codegen.scene import load_scene, max_abs_difference, specialise
+from lensfit.codegen.table import TRUST_KEYS, with_checksum, write_table
+from lensfit.common.errors import InputError
+from lensfit.fitting import FitOptions
+from lensfit.paraxial.facts import lens_facts
 from lensfit.poly import System, design_matrix
 from lensfit.prescription import load_lens, with_coating
 from lensfit.sample import Domain
-from lensfit.scene import load_scene, max_abs_difference, specialise
-from lensfit.trust import cell_label
+from lensfit.trust.check import cell_label
 
 REPO = Path(__file__).resolve().parents[2]
 COMMITTED = sorted(p.parent.name for p in GENERATED_DIR.glob("*/fit.json"))
@@ -191,7 +191,7 @@ def test_fit_json_records_domain_options_and_errors(folder):
         assert min(abs(r - h["rms"]) for r in h["path_rms"]) <= 1e-10 * h["rms"]
         if options["method"] == "tensor":
             assert h["terms"] in h["path_terms"]
-    # The PSF table against exact rays (lensfit.trust): its worst cell is the table's
+    # The PSF table against exact rays (lensfit.trust.check): its worst cell is the table's
     # trust figure, bit for bit (the table writes %.17g), and names that cell
     table = meta["psf_vs_exact"]
     assert set(table) == {"cells", "worst"}

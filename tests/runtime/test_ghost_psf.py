@@ -1,6 +1,6 @@
 """The runtime's image of a fitted ghost against exactly traced ghost rays (issue 13,
 deliverable 5): lens 0001's committed ghost tables (generated/.../ghosts/) rendered by
-lensrt with the same stop points as :func:`lensfit.psf.exact_psf` with ``ghost=`` sums
+lensrt with the same stop points as :func:`lensfit.psf.psf.exact_psf` with ``ghost=`` sums
 over (so Monte Carlo noise cancels), and the ghost's power against the direct image's.
 
 * Shape: relative L2 of the normalised intensities <= 3% (the issue's bound) on the
@@ -20,11 +20,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from lensfit import psf
 from lensfit.codegen.table import read_table
 from lensfit.ghosts.enumerate import enumerate_ghosts
-from lensfit.ghosts.sample import ghost_half
 from lensfit.prescription import load_lens
+from lensfit.psf import psf
+from lensfit.sample.ghost import ghost_half
 
 ROOT = Path(__file__).resolve().parents[2]
 FOLDER = ROOT / "generated" / "0001-angenieux-double-gauss"

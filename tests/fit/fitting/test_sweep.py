@@ -1,10 +1,10 @@
-"""make bench's sweep (lensfit.fitting.sweep): each lens's row comes from its own
+"""make bench's sweep (lensfit.pipeline.sweep): each lens's row comes from its own
 `lensfit fit` process, CPU-limited; refusals and unfinished fits are rows with their
 reason, not failures of the sweep. The fits themselves belong to `make bench`."""
 
 from __future__ import annotations
 
-from lensfit.fitting import sweep
+from lensfit.pipeline import sweep
 
 
 def test_a_refused_lens_is_a_row_with_its_reason():
