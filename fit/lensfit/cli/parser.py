@@ -20,7 +20,9 @@ from lensfit.ghosts.enumerate import (
 
 
 def build_parser() -> argparse.ArgumentParser:
-    ap = argparse.ArgumentParser(prog="lensfit", description=__doc__.split("\n\n")[0])
+    # What argparse prints is plain text: no reST (the module docstrings are for the API
+    # docs; tests/fit/test_cli_help.py checks every subcommand's --help)
+    ap = argparse.ArgumentParser(prog="lensfit", description="The lensfit command line.")
     sub = ap.add_subparsers(dest="cmd", required=True)
 
     p = sub.add_parser("info", help="paraxial table of a lens")
@@ -74,7 +76,7 @@ def build_parser() -> argparse.ArgumentParser:
                         "tables to <generated>/<lens folder>/ghosts/")
     p.add_argument("--c", action="store_true",
                    help="with --fit: also write each ghost's Horner C (2-3 MB a ghost; lensrt "
-                        "loads the tables, `lensfit scene` writes a scene's ghosts as C)")
+                        "loads the tables, lensfit scene writes a scene's ghosts as C)")
     p.add_argument("--glsl", action="store_true",
                    help="with --fit: also write each ghost's GLSL (P_o, P_s and P_clip, "
                         "float and double)")
