@@ -152,6 +152,9 @@ demo: setup runtime
 
 lint: setup
 	$(VENV)/bin/ruff check --config fit/pyproject.toml fit tests runtime/python runtime/bench runtime/tools
+	@# lensfit's import structure (fit/pyproject.toml [tool.importlinter]): no import cycle,
+	@# the packages layered in the data flow's order. PYTHONPATH=fit: this checkout's lensfit
+	PYTHONPATH=fit $(VENV)/bin/lint-imports --config fit/pyproject.toml --no-cache
 
 # ctest -j 2: the C tests are independent (each its own scratch folder) and mostly one
 # thread each, so two at a time take the two cores (the ASan build's 160 s become ~90 s)
