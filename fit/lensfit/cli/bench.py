@@ -196,7 +196,7 @@ def bench_fits(outdir: Path, lenses: list[str]) -> int:
              "the same run: every term of the degrees that reach the target on a fixed grid "
              "of 4000 x 128 rays (the method before it), same domain. Fit seconds (sampling and "
              "fitting), and the whole `lensfit fit` with the PSF check; the worst cell of "
-             "the PSF table (`lensfit.trust.check`, relative L2, target 1%); the .table's size; "
+             "the PSF table (`lensfit.trust`, relative L2, target 1%); the .table's size; "
              "lensrt's load and set-up of an 80 x 60 frame wide open, 16 wavelengths, one "
              "sample at each pixel centre (the two tables in turn, 7 times, the best of each).", "",
              "| lens | method | fit s | total s | worst cell | terms | table KB | lensrt load "

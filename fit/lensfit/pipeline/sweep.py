@@ -148,7 +148,7 @@ def markdown(rows: list[dict[str, Any]], cpu_limit: int, workers: int) -> str:
              f"process limited to {cpu_limit} CPU-s; CPU s is that process's user + system "
              f"time (one core), wall s its wall time with {workers} fits at once on "
              f"{os.cpu_count()} cores. Worst cell: the PSF against exactly traced rays "
-             f"(`lensfit.trust.check`, relative L2; target {PSF_TARGET:.0%}), the fitted field's "
+             f"(`lensfit.trust`, relative L2; target {PSF_TARGET:.0%}), the fitted field's "
              "edges included. Imported lenses are converted by `lensfit import` first.", "",
              "| lens | coating | status | CPU s | wall s | sampling / fitting / PSF check / "
              "rest s | worst cell | where | table KB | terms | note |",

@@ -241,7 +241,7 @@ def _trust_markdown(fig: dict[str, Any]) -> list[str]:
         "one summed with exactly traced rays, over the same stop points (so sampling noise "
         "cancels), light at infinity, sensor at the best focus of the axis at 550 nm for "
         "each stop; the window holds the geometric spot and at least four Airy radii "
-        "(`lensfit.trust.check`). This is what a render can be trusted to.", "",
+        "(`lensfit.trust`). This is what a render can be trusted to.", "",
         *markdown_table(table), "",
         f"Worst cell: **{worst['relative_l2']:.3%}** ({cell_label(worst)}){verdict}. "
         f"Computed in {table['seconds']:.0f} s.", "",
