@@ -26,7 +26,7 @@ QUICK_F_NUMBER = 8.0
 
 @dataclass
 class QuickRun:
-    """What lensfit.pipeline.stage.run gave and wrote for lens 0001."""
+    """What lensfit.stage.run gave and wrote for lens 0001."""
 
     lens: Lens
     domain: Domain

@@ -1,4 +1,4 @@
-"""lensfit's one checked atomic write (lensfit.common.atomic, issue 25): the rules of lensrt's
+"""lensfit's one checked atomic write (lensfit.atomic, issue 25): the rules of lensrt's
 (runtime/src/io/atomic_file.c), and the commands that write files through it."""
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""lensfit.common.errors.refuse_repeated_tables: the same ghost table named twice (the same
+"""lensfit.errors.refuse_repeated_tables: the same ghost table named twice (the same
 path, a symbolic link, another relative path; the same device and inode) is refused
 naming both spellings, since its flare would be added twice; distinct files (even equal
 copies, which the callers tell apart by their ghost) and missing ones pass."""

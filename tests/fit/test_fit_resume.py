@@ -1,5 +1,5 @@
-"""`lensfit fit` is deterministic, resumable and never half-written (lensfit.pipeline.cache,
-lensfit.common.atomic.replacing_folder, lensfit.pipeline.progress).
+"""`lensfit fit` is deterministic, resumable and never half-written (lensfit.fit_cache,
+lensfit.atomic.replacing_folder, lensfit.fit_progress).
 
 The command-line fits use `--quick --no-timing --f-number 8`: small budgets, no C
 compiled, and the PSF check at f/8, whose cells have fewer stop points than at f/2

@@ -1,5 +1,5 @@
 """Property-based fuzzing of the checksummed records lensfit reads back (issue 39): fit
-checkpoints (``lensfit.pipeline.cache``: a system's fit, the PSF check) and ghost-task records
+checkpoints (``lensfit.fit_cache``: a system's fit, the PSF check) and ghost-task records
 (``lensfit.ghosts.tasks``).
 
 A checksum only says a record is as some writer left it, so the strategies here craft

@@ -1,6 +1,6 @@
 """Property-based fuzzing of the TOML loaders (issue 14): the lens prescription loader
 (``lensfit.prescription.load.load_lens``, what ``lensfit info`` uses), the scene loader
-(``lensfit.codegen.scene.load_scene``) and the bank spec loader (``lensfit.banks.spec.load_spec``).
+(``lensfit.scene.load_scene``) and the bank spec loader (``lensfit.banks.spec.load_spec``).
 
 Property: loading any file either succeeds or raises one of the errors the command line
 reports as one line (``lensfit.cli.main`` catches exactly these); any other exception

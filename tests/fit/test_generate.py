@@ -2,7 +2,7 @@
 strict C99 that agrees with System.evaluate, tables that carry the lens facts and the PSF
 trust figures, atomic writes, and the CLI's errors.
 
-Every folder test runs on a quick fit written to a temporary folder by lensfit.pipeline.stage.run
+Every folder test runs on a quick fit written to a temporary folder by lensfit.stage.run
 (the session fixture ``quick_run`` of conftest.py: the pursuit method with small budgets)
 and on every folder under generated/ that has a fit.json.
 """
@@ -191,7 +191,7 @@ def test_fit_json_records_domain_options_and_errors(folder):
         assert min(abs(r - h["rms"]) for r in h["path_rms"]) <= 1e-10 * h["rms"]
         if options["method"] == "tensor":
             assert h["terms"] in h["path_terms"]
-    # The PSF table against exact rays (lensfit.trust.check): its worst cell is the table's
+    # The PSF table against exact rays (lensfit.trust): its worst cell is the table's
     # trust figure, bit for bit (the table writes %.17g), and names that cell
     table = meta["psf_vs_exact"]
     assert set(table) == {"cells", "worst"}

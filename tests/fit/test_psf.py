@@ -1,4 +1,4 @@
-"""The exact-trace PSF reference (lensfit.psf.psf): conventions, the fitted polynomials against
+"""The exact-trace PSF reference (lensfit.psf): conventions, the fitted polynomials against
 it, a mirror symmetry and the Airy pattern of a stopped-down lens.
 
 Lens 0001 (the Angenieux double Gauss, fitted at f/2 in generated/) throughout; 550 nm.

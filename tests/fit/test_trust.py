@@ -1,4 +1,4 @@
-"""How far a fit can be trusted (lensfit.trust.check): the exact PSF it measures against, its
+"""How far a fit can be trusted (lensfit.trust): the exact PSF it measures against, its
 table on a quick fit, and the committed fits' figures checked from fresh points.
 
 * psf.exact_psf_nodes (each stop point's sensor-side rays traced to a Chebyshev grid and
@@ -43,7 +43,7 @@ def airy_radius_mm(wavelength_nm: float, f_number: float) -> float:
 
 
 def relative_l2(poly: np.ndarray, exact: np.ndarray) -> float:
-    """The figure of lensfit.trust.check: ||I_poly - I_exact|| / ||I_exact|| of the intensities."""
+    """The figure of lensfit.trust: ||I_poly - I_exact|| / ||I_exact|| of the intensities."""
     ie, ip = np.abs(exact) ** 2, np.abs(poly) ** 2
     return float(np.linalg.norm(ip - ie) / np.linalg.norm(ie))
 
@@ -189,7 +189,7 @@ def committed_fits():
 
 def recompute(lens, systems, cell: dict, points: int, nodes: int) -> float:
     """The cell's figure from scratch: its stop, light, focus, wavelength and window
-    (centred on the chief ray's image, as lensfit.trust.check centres it), but ``points``
+    (centred on the chief ray's image, as lensfit.trust centres it), but ``points``
     sunflower stop points and ``nodes`` Chebyshev nodes."""
     lam, field = cell["wavelength_nm"], tuple(cell["field_deg"])
     distance = math.inf if cell["distance_mm"] == "inf" else cell["distance_mm"]

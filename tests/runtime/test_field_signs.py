@@ -18,7 +18,7 @@ WL_NM = 550.0
 
 def test_direction_cosines_are_lensfits(rt):
     """One conversion on both sides: lensrt_light_direction_cosines against
-    lensfit.codegen.scene.light_direction (the same float64 formula: equal to 1 ulp)."""
+    lensfit.scene.light_direction (the same float64 formula: equal to 1 ulp)."""
     from lensfit.codegen.scene import light_direction
 
     for field in [(0.0, 0.0), (-6.0, -4.0), (3.0, -2.0), (0.0, 5.0), (60.0, -45.0)]:

@@ -1,6 +1,6 @@
 """The runtime's image of a fitted ghost against exactly traced ghost rays (issue 13,
 deliverable 5): lens 0001's committed ghost tables (generated/.../ghosts/) rendered by
-lensrt with the same stop points as :func:`lensfit.psf.psf.exact_psf` with ``ghost=`` sums
+lensrt with the same stop points as :func:`lensfit.psf.exact_psf` with ``ghost=`` sums
 over (so Monte Carlo noise cancels), and the ghost's power against the direct image's.
 
 * Shape: relative L2 of the normalised intensities <= 3% (the issue's bound) on the

@@ -5,7 +5,7 @@
   different summation order), for lenses 0001 and 2004 (anamorphic), both systems.
 * The Jacobians: central finite differences of lensrt_lens_eval itself.
 * The physics: rays traced exactly through the prescription of 0001 with the fit's own
-  aiming (``lensfit.sample.aim.aim_sensor_side`` / ``aim_object_side``, what the fit was
+  aiming (``lensfit.sample.rays.aim_sensor_side`` / ``aim_object_side``, what the fit was
   made from): pupil positions within the fit's held-out error, and ray directions from the
   gradients of the optical path length (Hamilton's point characteristic), within a bound
   derived from the held-out phase error.

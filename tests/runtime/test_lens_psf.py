@@ -3,21 +3,21 @@
 Two comparisons, each with the same aperture points on both sides (so Monte Carlo noise
 cancels and only the transport differs):
 
-* C against ``lensfit.psf.psf.poly_psf`` (the same polynomials evaluated in float64 numpy):
+* C against ``lensfit.psf.poly_psf`` (the same polynomials evaluated in float64 numpy):
   checks the runtime's per-pixel specialisation, phase basis, pruning, float kernel and
   clipping, for the committed fit of the default lens (its version-3 table) at f/2, f/8
   and f/32;
-* C against ``lensfit.psf.psf.exact_psf`` (exactly traced rays, no polynomials): checks the
+* C against ``lensfit.psf.exact_psf`` (exactly traced rays, no polynomials): checks the
   whole chain prescription -> fit -> table -> runtime. This test fits the scene's own
   domain (f/8, 530-570 nm, 4 deg field, focus 0.1-0.35 mm) with the sparse pursuit (the
   method of the first fits, ``method="pursuit"``) to 5e-4 waves, as a user wanting a 2%
   PSF would, and asserts 2%. The fitting stage also measures the fit's PSF against
-  exact rays (lensfit.trust.check) and writes it into the table the runtime loads; the test
+  exact rays (lensfit.trust) and writes it into the table the runtime loads; the test
   checks the runtime's PSF against that figure too. (The committed fit, by the tensor
   method over the whole f/2 domain, is tested against exact rays in
   tests/fit/test_trust.py.)
 
-Intensities are compared normalised to unit sum over the window: lensfit.psf.psf applies no
+Intensities are compared normalised to unit sum over the window: lensfit.psf applies no
 Huygens amplitude factor, and the runtime's (constant across a window of a few Airy
 radii to 1e-5) would only scale the image.
 """
@@ -120,7 +120,7 @@ def test_runtime_matches_exact_trace(rt, lens, scene_fit):
     # well inside the issue's 2% (measured 0.24%; the table claims 0.59%)
     assert got < 0.02
     # The table the runtime loaded says how far its PSF is from exact rays (the worst of
-    # lensfit.trust.check's cells over this domain). This light, window and point set are not
+    # lensfit.trust's cells over this domain). This light, window and point set are not
     # one of its cells, and the runtime adds its float kernel and pruning (< 4e-2 of the
     # polynomial PSF at worst, measured 3e-5 - 2e-4 above): within twice the claim plus
     # the pruning's measured share (5e-4)

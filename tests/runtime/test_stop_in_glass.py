@@ -8,7 +8,7 @@ is the power through the stop in glass as in air; a model that took the stop to 
 would be off by n or n^2 (1.52 or 2.3 for N-BK7). Each lens is fitted with small budgets
 (tests/fit/test_stop_placement.py checks those fits against exact traces), written as a
 table, rendered on axis at f/8 and compared with the power through the stop and with the
-exactly traced PSF of lensfit.psf.psf.
+exactly traced PSF of lensfit.psf.
 """
 
 from __future__ import annotations
@@ -96,7 +96,7 @@ def test_stop_in_glass_renders_the_power_through_the_stop(rt, tmp_path, name):
     energy = float(img.sum(dtype=np.float64)) * PITCH**2
     assert energy / power == pytest.approx(1.0, abs=0.01)
     # The shape: the exactly traced PSF (4096 sunflower points; sensor-side rays on
-    # Chebyshev nodes, as lensfit.trust.check does), both normalised. Measured 0.23-0.29% for
+    # Chebyshev nodes, as lensfit.trust does), both normalised. Measured 0.23-0.29% for
     # all three (the fit's and the Monte Carlo error); 1% is the fits' target
     field, _ = psf.exact_psf_nodes(lens, stop_radius_mm=r, field_deg=(0.0, 0.0),
                                    distance_mm=math.inf, wavelength_nm=LAM,

@@ -1,7 +1,7 @@
 """Adaptive fits (issue 24): the degrees grow until the held-out error leaves room, the
 terms the target does not need are cut, and the grid grows where the samples, not the
 degree, limit a fit. Each judged against what a user trusts: the PSF against exactly
-traced rays (lensfit.trust.check), and the terms and bytes of the table.
+traced rays (lensfit.trust), and the terms and bytes of the table.
 
 * A lens whose target is met at low degree stops there: the stopping rule.
 * A synthetic system whose stop degree needs more stop points than the grid starts with:

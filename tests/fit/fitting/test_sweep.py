@@ -1,4 +1,4 @@
-"""make bench's sweep (lensfit.pipeline.sweep): each lens's row comes from its own
+"""make bench's sweep (lensfit.fitting.sweep): each lens's row comes from its own
 `lensfit fit` process, CPU-limited; refusals and unfinished fits are rows with their
 reason, not failures of the sweep. The fits themselves belong to `make bench`."""
 

@@ -1,4 +1,4 @@
-"""The default fit band follows the glasses (lensfit.prescription.ranges.default_wavelengths).
+"""The default fit band follows the glasses (lensfit.glass.ranges.default_wavelengths).
 
 A lens fits 380-780 nm narrowed to the range every glass supports; ``--wavelengths`` (or
 a scene) outside a glass's range is still refused; extrapolation stays opt-in and keeps

@@ -103,7 +103,7 @@ def test_energy_is_the_psfs_power(run):
 
 def test_points_land_on_their_exact_chief_rays(run):
     """Distortion: each lit pixel's image centred where the exactly traced chief ray of
-    its field meets the sensor (lensfit.psf.psf.geometric_image_point, float64 rays through
+    its field meets the sensor (lensfit.psf.geometric_image_point, float64 rays through
     the prescription), within 0.15 px (its PSF's centroid is off its chief point by
     coma: the polynomial render's own centroid is the reference for that part)."""
     from lensfit.prescription import load_lens

@@ -175,7 +175,7 @@ def test_import_problems_is_a_cli_error() -> None:
 # Issue 25: the shapes the first fuzzer never produced (7 Optiland tracebacks, 3 lentil):
 # huge integers, numbers beyond a float's range, deep nesting, containers of the wrong
 # type (a list where an object is expected), other encodings. The whole path from the
-# file's bytes is fuzzed (lensfit.common.strict_json, then the converter).
+# file's bytes is fuzzed (lensfit.strict_json, then the converter).
 
 from lensfit.common import strict_json  # noqa: E402
 from lensfit.prescription.lentil import convert_entry  # noqa: E402

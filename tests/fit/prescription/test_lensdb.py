@@ -79,7 +79,7 @@ def test_efl_check_fails_on_a_wrong_focal_length(tmp_path: Path) -> None:
 def test_default_lens_0001_first_order() -> None:
     lens = load_lens("0001")
     p = paraxial(lens)
-    # patent: 100 mm; 1% is the rounding of a patent table (see lensfit.paraxial.validate)
+    # patent: 100 mm; 1% is the rounding of a patent table (see lensfit.validate)
     assert p.efl_mm == pytest.approx(100.0, rel=0.01)
     # lentil's f-number is a real-ray trace, ours paraxial (EFL / entrance pupil): the
     # two differ by the aperture's spherical aberration and pupil aberration, a few

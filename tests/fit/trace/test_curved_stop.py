@@ -195,7 +195,7 @@ def huygens_psf(lens, field_deg: float, radius: float, focus: float, xs: np.ndar
     * "stop": a = sqrt(dA_stop / dA_entrance), dA_stop the grid cell's area on the stop
       surface (by differences over the grid). Per unit stop area the amplitude is then
       sqrt(dA_entrance / dA_stop), the square root of the light's flux through the stop:
-      the weight lensfit gives its stop points (lensfit.psf.psf, exact_front_flux), where
+      the weight lensfit gives its stop points (lensfit.psf, exact_front_flux), where
       "entrance" weighs them by the flux itself."""
     pos, d, opl0 = beam(field_deg, 6.5, n)
     z_plane = float(lens.vertex_z[-1]) + 0.5
