@@ -154,6 +154,9 @@ demo: setup runtime
 
 lint: setup
 	$(VENV)/bin/ruff check --config fit/pyproject.toml fit tests runtime/python runtime/bench runtime/tools docs/gen
+	@# lensfit's import structure (fit/pyproject.toml [tool.importlinter]): no import cycle,
+	@# the packages layered in the data flow's order. PYTHONPATH=fit: this checkout's lensfit
+	PYTHONPATH=fit $(VENV)/bin/lint-imports --config fit/pyproject.toml --no-cache
 
 # The documentation site (docs/about.md): docs/*.md, and pages generated at build time by
 # docs/gen/*.py from lensrt.h, the Python packages, the CLI parsers (and the runtime's
@@ -197,24 +200,24 @@ bench: setup runtime
 	$(PY) runtime/bench/fourier_bench.py --library $(RUNTIME_BUILD)/runtime/liblensrt.so --out build/bench
 	$(PY) runtime/bench/image_bench.py --library $(RUNTIME_BUILD)/runtime/liblensrt.so --out build/bench
 	LENSRT_LIBRARY=$(CURDIR)/$(RUNTIME_BUILD)/runtime/liblensrt.so $(PY) -m lensfit.banks.bench --out build/bench
-	$(PY) -m lensfit.bench --out build/bench
+	$(PY) -m lensfit.cli.bench --out build/bench
 	$(PY) -m lensfit.codegen.bench | tee build/bench/codegen.txt
 	$(VENV)/bin/lensfit report $(DEMO_LENS) -o build/bench/fit-$(DEMO_LENS) --json \
 		> build/bench/fit-$(DEMO_LENS).json
-	LENSRT_LIBRARY=$(CURDIR)/$(RUNTIME_BUILD)/runtime/liblensrt.so $(PY) -m lensfit.bench --fits --out build/bench
+	LENSRT_LIBRARY=$(CURDIR)/$(RUNTIME_BUILD)/runtime/liblensrt.so $(PY) -m lensfit.cli.bench --fits --out build/bench
 	@# lensrt's splat rate against its scalar baseline on each lens's two tables, adaptive
 	@# and full, from the fits just made (issue 24: the smaller table must not be slower)
 	for t in 0001 0009; do for m in full adaptive; do echo "== $$t $$m"; \
 		$(RUNTIME_BUILD)/runtime/lensrt-bench --device cpu --repeats 3 --tile 0x0 \
 		--table build/bench/fit-tables/$$t-$$m.table --json build/bench/lensrt-$$t-$$m.json \
 		| grep -A4 '^f/N'; done; done | tee build/bench/lensrt-tables.txt
-	$(PY) -m lensfit.bench --ghosts --out build/bench
+	$(PY) -m lensfit.cli.bench --ghosts --out build/bench
 	@# A whole frame through the lens (issue 38): the 1080p frame's stages cold and cached,
 	@# and a window against every lit pixel's own PSF at four settings: image.md
 	LENSRT_LIBRARY=$(CURDIR)/$(RUNTIME_BUILD)/runtime/liblensrt.so $(PY) -m lensfit.image.bench --out build/bench
 	@# Every lens of lensdb (coated and uncoated) and the imported fixtures, fitted with
 	@# defaults one at a time (CPU seconds of each fit alone; at most 300 each): sweep.md
-	$(PY) -m lensfit.fitting.sweep --out build/bench --workers 1 --cpu-limit 300
+	$(PY) -m lensfit.pipeline.sweep --out build/bench --workers 1 --cpu-limit 300
 	@# The slow physics checks (`-m slow`: each has a faster sibling in `make test`), and
 	@# exact-ray PSFs against Optiland's Huygens PSF at every stop position and field
 	@# (issue 36; `make test` runs three of the eight)

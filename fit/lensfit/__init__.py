@@ -82,7 +82,7 @@ def require_data_folder(kind: DataKind, given: str | os.PathLike[str] | None = N
     """data_folder(), or InputError (missing_data_folder) when it is not a folder."""
     path = data_folder(kind, given)
     if not path.is_dir():
-        from lensfit.errors import InputError
+        from lensfit.common.errors import InputError
 
         raise InputError(missing_data_folder(kind, given))
     return path

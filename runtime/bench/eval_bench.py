@@ -71,7 +71,7 @@ def main(argv: list[str] | None = None) -> int:
 
     # Imported here: lensfit and its dependencies are only needed for the reference
     from lensfit.prescription import load_lens
-    from lensfit.sample.rays import aim_sensor_side
+    from lensfit.sample.aim import aim_sensor_side
 
     domain = json.loads((ROOT / "generated" / LENS / "fit.json").read_text())["domain"]
     rt = Lensrt(args.library, threads=1)

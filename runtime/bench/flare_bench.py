@@ -389,8 +389,8 @@ def fit_all_live(lens, est: list, ghosts: list[dict[str, Any]]) -> dict[str, Any
     (lensfit.ghosts.tables.fit_with_trust: the fit, its trust cells against exact ghost
     rays, and the refit with larger budgets where the first misses 3%), from the live
     enumeration's estimates; the fits' and the exact rays' seconds apart."""
+    from lensfit.codegen.generate import read_fit_json
     from lensfit.codegen.table import read_table
-    from lensfit.generate import read_fit_json
     from lensfit.ghosts.tables import fit_with_trust
     from lensfit.sample.domain import Domain
 
@@ -424,7 +424,7 @@ def fit_times(ghosts: list[dict[str, Any]], fit_ghost: tuple[int, int] | str | N
     if fit_ghost == "all":
         live = fit_all_live(lens, est, ghosts)
     elif fit_ghost is not None:
-        from lensfit.generate import read_fit_json
+        from lensfit.codegen.generate import read_fit_json
         from lensfit.ghosts.fit import fit_ghost as fit_one
         from lensfit.sample.domain import Domain
 

@@ -217,7 +217,7 @@ def footprints(folder: Path, ghosts: list[dict], f_number: float,
                light: tuple[float, float]) -> dict[str, tuple[float, float, float, float]]:
     """Each ghost's footprint box (x0, x1, y0, y1) in mm for this light and stop, from
     exactly traced rays, over every wavelength the enumeration traces."""
-    from lensfit.generate import read_fit_json
+    from lensfit.codegen.generate import read_fit_json
     from lensfit.ghosts.enumerate import enumerate_ghosts
     from lensfit.prescription import load_lens, with_coating
 
@@ -322,7 +322,7 @@ def render_panel(rt, folder: Path, f_number: float, light, frame: Frame, args):
     if not index.is_file():
         raise SystemExit(f"flare_figure: {index}: not found; run `lensfit ghosts LENS --fit`")
     from lensfit.codegen.checked_json import REGENERATE_FOLDER, load_checked_json
-    from lensfit.errors import InputError, refuse_repeated_tables
+    from lensfit.common.errors import InputError, refuse_repeated_tables
 
     try:
         ghosts = load_checked_json(index, REGENERATE_FOLDER)["ghosts"]

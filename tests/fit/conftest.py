@@ -51,8 +51,8 @@ def build_lens() -> Callable[..., Lens]:
 def quick_run(tmp_path_factory) -> QuickRun:
     """stage.run as `lensfit fit 0001 --f-number 8` runs it, with small budgets, without
     timing and report (~12 s: the fit ~0.5 s, the PSF table the rest)."""
-    from lensfit import stage
-    from lensfit.generate import lens_folder_name
+    from lensfit.codegen.generate import lens_folder_name
+    from lensfit.pipeline import stage
 
     lens = load_lens("0001")
     domain = default_domain(lens, QUICK_F_NUMBER)

@@ -12,9 +12,9 @@ from pathlib import Path
 
 import pytest
 
-from lensfit import atomic
-from lensfit.atomic import OutputError, check_target, write_atomic, write_files
 from lensfit.cli import main
+from lensfit.common import atomic
+from lensfit.common.atomic import OutputError, check_target, write_atomic, write_files
 
 
 def _dead_pid() -> int:

@@ -17,8 +17,9 @@ from pathlib import Path
 
 import pytest
 
-from lensfit import cli, stage
+from lensfit.cli import lens as cli
 from lensfit.cli import main
+from lensfit.pipeline import stage
 
 ROOT = Path(__file__).resolve().parents[2]
 LENS = (ROOT / "lensdb" / "0001-angenieux-double-gauss.toml").read_text(encoding="utf-8")

@@ -10,9 +10,9 @@ import numpy as np
 import pytest
 
 from lensfit.cli import main
+from lensfit.codegen.generate import GENERATED_DIR, lens_folder_name
 from lensfit.codegen.table import read_table
-from lensfit.errors import InputError
-from lensfit.generate import GENERATED_DIR, lens_folder_name
+from lensfit.common.errors import InputError
 from lensfit.prescription import BARE, load_lens, with_coating
 
 

@@ -14,10 +14,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from lensfit import psf
-from lensfit.cli import CONVENTION_NOTE, main
+from lensfit.cli import main
+from lensfit.cli.lens import CONVENTION_NOTE
+from lensfit.codegen.scene import Light, light_direction
 from lensfit.prescription import load_lens
-from lensfit.scene import Light, light_direction
+from lensfit.psf import psf
 from lensfit.trace.tracer import Rays, forward_path, trace
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -129,7 +130,7 @@ def test_the_demo_scene_is_the_light_of_the_committed_scene_code():
     """scenes/demo.toml gives (-6°, -4°) since the switch to the designers' convention:
     the light up and to the right of the axis that generated/0001-*/scenes/demo and
     scene-fits/demo were made for, direction cosines (0.104277, 0.069376)."""
-    from lensfit.scene import load_scene
+    from lensfit.codegen.scene import load_scene
 
     (light,) = load_scene(ROOT / "scenes" / "demo.toml").lights
     x_o, y_o = light.inputs_xy()

@@ -14,19 +14,7 @@ from pathlib import Path
 import pytest
 
 from lensfit.cli import main
-from lensfit.errors import LensError
-from lensfit.paraxial import paraxial, stop_radius_for_f_number
-from lensfit.paraxial.paraxial import image_distance
-from lensfit.prescription import lens_from_dict, load_lens
-from lensfit.psf import geometric_image_point
-from lensfit.sample.domain import (
-    CLOSE_FOCUS_EFL,
-    FULL_FRAME_HALF_DIAGONAL_MM,
-    IMAGE_MARGIN,
-    declared_fit,
-    default_domain,
-)
-from lensfit.scene import (
+from lensfit.codegen.scene import (
     SCENE_FIELD_MARGIN,
     SCENE_FOCUS_MARGIN_MM,
     SCENE_IMAGE_MARGIN_MM,
@@ -35,6 +23,18 @@ from lensfit.scene import (
     SceneError,
     light_direction,
     scene_domain,
+)
+from lensfit.common.errors import LensError
+from lensfit.paraxial import paraxial, stop_radius_for_f_number
+from lensfit.paraxial.paraxial import image_distance
+from lensfit.prescription import lens_from_dict, load_lens
+from lensfit.psf.psf import geometric_image_point
+from lensfit.sample.domain import (
+    CLOSE_FOCUS_EFL,
+    FULL_FRAME_HALF_DIAGONAL_MM,
+    IMAGE_MARGIN,
+    declared_fit,
+    default_domain,
 )
 
 REPO = Path(__file__).resolve().parents[2]

@@ -7,8 +7,8 @@ import pytest
 from matplotlib.image import imread
 
 from lensfit.cli import main
-from lensfit.draw import FAN_OVERFILL, fan
 from lensfit.prescription import load_lens
+from lensfit.sample.draw import FAN_OVERFILL, fan
 from lensfit.trace.tracer import forward_path, trace
 
 

@@ -9,7 +9,7 @@ import os
 
 import pytest
 
-from lensfit.errors import InputError, refuse_repeated_tables
+from lensfit.common.errors import InputError, refuse_repeated_tables
 
 
 def test_same_file_under_any_spelling_refused(tmp_path, monkeypatch):

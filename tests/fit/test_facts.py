@@ -6,8 +6,8 @@ import math
 
 import pytest
 
-from lensfit.facts import LensFacts, lens_facts
 from lensfit.paraxial import paraxial, stop_radius_f1_mm, stop_radius_for_f_number, table
+from lensfit.paraxial.facts import LensFacts, lens_facts
 from lensfit.prescription import load_lens
 
 

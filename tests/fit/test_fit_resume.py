@@ -25,14 +25,15 @@ import numpy as np
 import pytest
 
 import lensfit.fitting.lens as fitting_lens
-from lensfit import atomic, fit_cache
-from lensfit.atomic import replace_folder, replacing_folder
 from lensfit.cli import main
 from lensfit.codegen import write_table
-from lensfit.fit_cache import FitCache, fit_key
-from lensfit.fit_progress import RESOLUTION, FitProgress, step_weights
+from lensfit.common import atomic
+from lensfit.common.atomic import replace_folder, replacing_folder
 from lensfit.fitting import FitOptions, fit_lens
 from lensfit.fitting.lens import SYSTEMS
+from lensfit.pipeline import cache as fit_cache
+from lensfit.pipeline.cache import FitCache, fit_key
+from lensfit.pipeline.progress import RESOLUTION, FitProgress, step_weights
 from lensfit.prescription import load_lens
 from lensfit.sample import default_domain
 
@@ -148,7 +149,7 @@ def test_an_interrupted_fit_leaves_the_old_folder_and_resumes(tmp_path, monkeypa
 def test_an_interrupted_report_resumes_from_every_step(tmp_path, monkeypatch, reference):
     """Ctrl-C after the PSF check (while the report is measured): the rerun samples
     nothing and checks no PSF, and writes the same files."""
-    from lensfit import stage
+    from lensfit.pipeline import stage
 
     real_measure, calls = stage.measure, []
 
@@ -453,8 +454,8 @@ def test_after_a_retry_the_table_holds_the_polynomials_its_trust_line_judged(
     """A first PSF check missing the target by under 3x makes a second fit; when the
     second is kept, the table written holds its polynomials (it held the first fit's,
     under the second's trust line)."""
-    from lensfit import stage
     from lensfit.codegen.table import read_table
+    from lensfit.pipeline import stage
 
     lens, domain, first = tiny
     # The second fit's polynomials differ from the first's (here: another seed)

@@ -33,9 +33,9 @@ from hypothesis import strategies as st
 from lensfit.codegen import write_table
 from lensfit.codegen.checked_json import checked_json_text
 from lensfit.codegen.table import read_table
-from lensfit.fit_cache import FitCache, fit_key
 from lensfit.fitting import FitOptions, error_metric, fit_lens
 from lensfit.ghosts import tasks
+from lensfit.pipeline.cache import FitCache, fit_key
 from lensfit.poly.polynomial import Polynomial, System
 from lensfit.prescription import load_lens
 from lensfit.sample import default_domain

@@ -34,11 +34,11 @@ from hypothesis import HealthCheck, event, example, given, settings
 from hypothesis import strategies as st
 
 from lensfit.banks.spec import load_spec
-from lensfit.errors import InputError, LensError
+from lensfit.codegen.scene import SceneError, load_scene
+from lensfit.common.errors import InputError, LensError
 from lensfit.glass import UnknownGlassError
 from lensfit.prescription.load import load_lens
-from lensfit.sample.rays import SamplingError
-from lensfit.scene import SceneError, load_scene
+from lensfit.sample.aim import SamplingError
 
 ROOT = Path(__file__).resolve().parents[2]
 LENS_FILES = sorted((ROOT / "lensdb").glob("*.toml"))

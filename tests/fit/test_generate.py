@@ -23,11 +23,7 @@ from lensfit.cli import main
 from lensfit.codegen import call_c, check_compiles, emit_c, load_c, read_table
 from lensfit.codegen.c_horner import file_stem
 from lensfit.codegen.common import check_prefix
-from lensfit.codegen.table import TRUST_KEYS, with_checksum, write_table
-from lensfit.errors import InputError
-from lensfit.facts import lens_facts
-from lensfit.fitting import FitOptions
-from lensfit.generate import (
+from lensfit.codegen.generate import (
     GENERATED_DIR,
     fit_json,
     header_comment,
@@ -41,11 +37,15 @@ from lensfit.generate import (
     wavelengths_note,
     write_folder,
 )
+from lensfit.codegen.scene import load_scene, max_abs_difference, specialise
+from lensfit.codegen.table import TRUST_KEYS, with_checksum, write_table
+from lensfit.common.errors import InputError
+from lensfit.fitting import FitOptions
+from lensfit.paraxial.facts import lens_facts
 from lensfit.poly import System, design_matrix
 from lensfit.prescription import load_lens, with_coating
 from lensfit.sample import Domain
-from lensfit.scene import load_scene, max_abs_difference, specialise
-from lensfit.trust import cell_label
+from lensfit.trust.check import cell_label
 
 REPO = Path(__file__).resolve().parents[2]
 COMMITTED = sorted(p.parent.name for p in GENERATED_DIR.glob("*/fit.json"))

@@ -15,10 +15,10 @@ import pytest
 
 from lensfit.banks.spec import SpecError, load_spec
 from lensfit.codegen.checked_json import load_checked_json
-from lensfit.errors import InputError, LensError
+from lensfit.codegen.scene import SceneError, load_scene
+from lensfit.common.errors import InputError, LensError
 from lensfit.glass.catalog import _load_catalog
 from lensfit.prescription import load_lens
-from lensfit.scene import SceneError, load_scene
 
 BIG = "9" * 5000
 SAID = "an integer literal of more than 4300 digits"

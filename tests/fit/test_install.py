@@ -29,7 +29,7 @@ from bank_specs import bank_spec
 import lensfit
 from lensfit import data_folder, missing_data_folder, require_data_folder
 from lensfit.cli import main
-from lensfit.errors import InputError
+from lensfit.common.errors import InputError
 
 ROOT = Path(__file__).resolve().parents[2]
 TABLE = ROOT / "generated" / "0001-angenieux-double-gauss" / "lens0001.table"
@@ -69,7 +69,7 @@ def test_data_folder_rule_order(clean_env: pytest.MonkeyPatch, tmp_path: Path) -
     assert data_folder("generated") == tmp_path / "generated"
     assert data_folder("lensdb") == tmp_path / "lensdb"
     # GENERATED_DIR follows the rule at each use
-    from lensfit import generate
+    from lensfit.codegen import generate
 
     assert generate.GENERATED_DIR == tmp_path / "generated"
 

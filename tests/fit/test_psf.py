@@ -16,12 +16,12 @@ import numpy as np
 import pytest
 from scipy.special import j1
 
-from lensfit import psf
-from lensfit.facts import lens_facts
-from lensfit.generate import GENERATED_DIR, read_fit_json
+from lensfit.codegen.generate import GENERATED_DIR, read_fit_json
 from lensfit.paraxial import paraxial, stop_radius_for_f_number
+from lensfit.paraxial.facts import lens_facts
 from lensfit.prescription import load_lens
-from lensfit.sample.rays import aim_object_side, aim_sensor_side
+from lensfit.psf import psf
+from lensfit.sample.aim import aim_object_side, aim_sensor_side
 
 LAMBDA_NM = 550.0
 WAVE_MM = LAMBDA_NM * 1e-6
@@ -375,7 +375,7 @@ def test_rays_that_never_reach_the_stop_come_back_missed():
     stop (NaN positions). The rear trace must report them MISSED and trace the others as
     it would alone; it used to stop the PSF check of `lensfit fit 0003` with "positions
     and directions must be finite"."""
-    from lensfit.psf import _rear_trace, aim_object_side, sunflower_points
+    from lensfit.psf.psf import _rear_trace, aim_object_side, sunflower_points
     from lensfit.trace.tracer import Status
 
     lens = load_lens("0003")

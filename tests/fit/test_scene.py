@@ -9,9 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from lensfit.poly import Polynomial, System, monomials
-from lensfit.sample import OUTPUTS_O, OUTPUTS_S, Domain
-from lensfit.scene import (
+from lensfit.codegen.scene import (
     Light,
     Scene,
     SceneError,
@@ -20,6 +18,8 @@ from lensfit.scene import (
     specialise,
     terms,
 )
+from lensfit.poly import Polynomial, System, monomials
+from lensfit.sample import OUTPUTS_O, OUTPUTS_S, Domain
 
 REPO = Path(__file__).resolve().parents[2]
 DOMAIN = Domain(field_deg=20.0, close_focus_mm=500.0, stop_radius_mm=10.0,

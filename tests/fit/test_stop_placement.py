@@ -19,16 +19,16 @@ import numpy as np
 import pytest
 
 from lensfit.cli import main
-from lensfit.errors import LensError
+from lensfit.common.errors import LensError
 from lensfit.fitting import FitOptions, fit_lens
 from lensfit.paraxial import paraxial
 from lensfit.prescription import lens_from_dict, load_lens, make_lens
 from lensfit.prescription.lentil import to_toml
-from lensfit.psf import _rear_trace
+from lensfit.psf.psf import _rear_trace
 from lensfit.sample import default_domain
-from lensfit.sample.rays import NEWTON_TOL_MM, aim_object_side, aim_sensor_side
+from lensfit.sample.aim import NEWTON_TOL_MM, aim_object_side, aim_sensor_side
 from lensfit.trace.tracer import Rays, Status, forward_path, trace
-from lensfit.trust import psf_vs_exact
+from lensfit.trust.check import psf_vs_exact
 
 ROOT = Path(__file__).resolve().parents[2]
 getcontext().prec = 40  # closed forms in 40 digits: exact against float64

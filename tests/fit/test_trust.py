@@ -18,13 +18,14 @@ import math
 import numpy as np
 import pytest
 
-from lensfit import psf, trust
+from lensfit.codegen.generate import GENERATED_DIR, lens_folder_name, read_fit_json
+from lensfit.codegen.scene import light_direction
 from lensfit.codegen.table import TRUST_KEYS, read_table
-from lensfit.facts import lens_facts
-from lensfit.generate import GENERATED_DIR, lens_folder_name, read_fit_json
 from lensfit.paraxial import stop_radius_for_f_number
+from lensfit.paraxial.facts import lens_facts
 from lensfit.prescription import load_lens
-from lensfit.scene import light_direction
+from lensfit.psf import psf
+from lensfit.trust import check as trust
 
 LAMBDA_NM = 550.0
 CELL_KEYS = {"stop", "f_number", "stop_radius_mm", "field", "field_deg", "distance_mm",

@@ -19,7 +19,7 @@ WL_NM = 550.0
 def test_direction_cosines_are_lensfits(rt):
     """One conversion on both sides: lensrt_light_direction_cosines against
     lensfit.scene.light_direction (the same float64 formula: equal to 1 ulp)."""
-    from lensfit.scene import light_direction
+    from lensfit.codegen.scene import light_direction
 
     for field in [(0.0, 0.0), (-6.0, -4.0), (3.0, -2.0), (0.0, 5.0), (60.0, -45.0)]:
         got, want = rt.light_direction_cosines(field), light_direction(*field)
@@ -56,8 +56,8 @@ def test_fitted_lens_images_where_the_exact_trace_does(rt, field):
     test_conventions.py holds to EFL tan θ): the same point, sign included. Measured
     difference 9e-8 mm (Newton on the fitted phase); bound 1e-5 mm, 1% of the Airy
     radius at f/2; a mirrored light would be off by 3.5 mm."""
-    from lensfit import psf
     from lensfit.prescription import load_lens
+    from lensfit.psf import psf
 
     lens = rt.load(LENS0001)
     focus = 0.2866  # about the paraxial focus for infinity (inside the fitted range)

@@ -20,11 +20,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from lensfit import psf
 from lensfit.codegen.table import read_table
 from lensfit.ghosts.enumerate import enumerate_ghosts
-from lensfit.ghosts.sample import ghost_half
 from lensfit.prescription import load_lens
+from lensfit.psf import psf
+from lensfit.sample.ghost import ghost_half
 
 ROOT = Path(__file__).resolve().parents[2]
 FOLDER = ROOT / "generated" / "0001-angenieux-double-gauss"

@@ -25,7 +25,7 @@ import pytest
 from lensfit.codegen.table import read_table
 from lensfit.paraxial.paraxial import stop_radius_for_f_number
 from lensfit.prescription import load_lens
-from lensfit.sample.rays import aim_object_side, aim_sensor_side
+from lensfit.sample.aim import aim_object_side, aim_sensor_side
 
 ROOT = Path(__file__).resolve().parents[2]
 LENSES = {"0001": ROOT / "generated" / "0001-angenieux-double-gauss",

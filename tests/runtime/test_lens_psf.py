@@ -30,13 +30,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from lensfit import psf
 from lensfit.codegen.table import read_table
 from lensfit.fitting import FitOptions
 from lensfit.paraxial.paraxial import stop_radius_for_f_number
+from lensfit.pipeline.stage import run
 from lensfit.prescription import load_lens
+from lensfit.psf import psf
 from lensfit.sample.domain import default_domain
-from lensfit.stage import run
 
 ROOT = Path(__file__).resolve().parents[2]
 TABLE = ROOT / "generated" / "0001-angenieux-double-gauss" / "lens0001.table"

@@ -18,14 +18,14 @@ import math
 import numpy as np
 import pytest
 
-from lensfit import psf
+from lensfit.codegen.generate import lens_files, write_folder
 from lensfit.fitting import FitOptions, fit_lens
-from lensfit.generate import lens_files, write_folder
 from lensfit.paraxial import stop_radius_for_f_number
 from lensfit.prescription import make_lens
+from lensfit.psf import psf
 from lensfit.sample import default_domain
-from lensfit.sample.rays import aim_object_side, aim_sensor_side
-from lensfit.trust import psf_vs_exact, trust_figures
+from lensfit.sample.aim import aim_object_side, aim_sensor_side
+from lensfit.trust.check import psf_vs_exact, trust_figures
 
 LENSES = {
     # a biconvex N-BK7 singlet 2 mm behind a stop plane in air (lensdb/README.md's example)

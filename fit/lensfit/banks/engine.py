@@ -54,7 +54,7 @@ import time
 from collections.abc import Callable, Sequence
 from typing import Any
 
-from lensfit.errors import InputError
+from lensfit.common.errors import InputError
 
 
 class TaskError(RuntimeError):

@@ -29,9 +29,9 @@ import zlib
 from pathlib import Path
 from typing import Any
 
-from lensfit.atomic import write_atomic
 from lensfit.codegen.checked_json import checked_json_text, load_checked_json
-from lensfit.errors import InputError
+from lensfit.common.atomic import write_atomic
+from lensfit.common.errors import InputError
 
 RECORD_VERSION = 2  # 2: each channel on its own chief point (lensrt 0.9.0)
 
@@ -102,7 +102,7 @@ def refuse_special(path: Path) -> None:
     """A node's file that is there but not a regular file (a FIFO, a device, a socket, a
     folder, a link) is refused naming it: lensfit never opens one for reading (a FIFO
     would block the run) and never replaces one."""
-    from lensfit.atomic import target_refusal
+    from lensfit.common.atomic import target_refusal
 
     why = target_refusal(path)
     if why is not None:

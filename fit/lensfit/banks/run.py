@@ -19,7 +19,6 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from lensfit.atomic import OutputError, make_folder, write_atomic
 from lensfit.banks.engine import check_scheduler, check_workers, run_tasks
 from lensfit.banks.index import INDEX_NAME, index_text
 from lensfit.banks.node import (
@@ -32,7 +31,8 @@ from lensfit.banks.node import (
 )
 from lensfit.banks.spec import BankSpec, SpecError, load_spec
 from lensfit.codegen.checked_json import checked_json_text, load_checked_json
-from lensfit.errors import InputError, refuse_repeated_tables
+from lensfit.common.atomic import OutputError, make_folder, write_atomic
+from lensfit.common.errors import InputError, refuse_repeated_tables
 
 BANK_RECORD = "bank.json"
 SHEET_NAME = "contact-sheet.png"
@@ -67,7 +67,7 @@ def resolve_table(lens: str, base: Path, generated: Path | None = None) -> Path:
     """The coefficient table a spec's ``lens`` names: a ``.table`` file or a folder
     (relative to the spec's folder), else a lens id or folder name of generated/ (an id
     shared by a lens and its variants, ``<folder>-uncoated``, names the lens)."""
-    from lensfit.generate import GENERATED_DIR
+    from lensfit.codegen.generate import GENERATED_DIR
 
     gen = generated or GENERATED_DIR
     as_path = (base / lens) if not Path(lens).is_absolute() else Path(lens)

@@ -47,7 +47,7 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
-from lensfit.errors import InputError, int_shown, read_toml, toml_overflow
+from lensfit.common.errors import InputError, int_shown, read_toml, toml_overflow
 
 NAME = re.compile(r"[A-Za-z0-9_-]{1,64}")
 GHOST = re.compile(r"[0-9]{1,3}-[0-9]{1,3}")  # a ghost's label: the file's surfaces i-j

@@ -16,7 +16,7 @@ from pathlib import Path
 from typing import Any
 
 from lensfit.codegen.table import REGENERATE
-from lensfit.errors import InputError, parse_problem
+from lensfit.common.errors import InputError, parse_problem
 
 KEY = "checksum"
 REGENERATE_FOLDER = f"regenerate the folder with {REGENERATE}"  # for a record without a checksum

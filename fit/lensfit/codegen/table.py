@@ -32,7 +32,7 @@ per system:
   in the output's unit: the term is ``coefficient * prod_j xhat_j ** e_j``.
 
 Version 2 adds the lens lines: first-order facts of the lens a runtime needs besides
-the polynomials (:class:`lensfit.facts.LensFacts`), exactly these keys in this order,
+the polynomials (:class:`lensfit.paraxial.facts.LensFacts`), exactly these keys in this order,
 one line each, between the header (and the comments the writer puts after it) and the
 first ``system`` line:
 
@@ -55,7 +55,7 @@ inside its range (below, "Ranges"). Version 1 has no lens lines; the writer emit
 1 when it is given no lens facts.
 
 Version 3 adds the trust lines after the lens lines: how far the PSF of these polynomials
-is from the exactly traced one (:mod:`lensfit.trust`), so that a runtime can say so when it
+is from the exactly traced one (:mod:`lensfit.trust.check`), so that a runtime can say so when it
 loads the table. Exactly these keys, in this order, one line each:
 
     trust psf_vs_exact       the worst relative L2 distance of the polynomial PSF from the
@@ -137,7 +137,7 @@ refuses to write one; the bounds are inclusive):
     input lo, hi                           finite, lo < hi (inverse_square: lo > 0)
     coefficients, probe values             finite
 
-(:mod:`lensfit.facts` holds the lens ranges, TRUST_RANGES the trust ones; lensrt's
+(:mod:`lensfit.paraxial.facts` holds the lens ranges, TRUST_RANGES the trust ones; lensrt's
 runtime/src/lens/table.c the same numbers.) Numbers are the decimal syntax above only:
 hex floats (0x1p3), inf, nan and infinity, which C's strtod would read, are refused by
 both readers. A table is text: a control byte (below 0x20 but tab, or DEL; a CR only
@@ -160,7 +160,7 @@ from typing import Any
 
 import numpy as np
 
-from lensfit.facts import LensFacts, fact_problem
+from lensfit.paraxial.facts import LensFacts, fact_problem
 from lensfit.poly import Input, Polynomial, System
 from lensfit.poly.polynomial import TRANSFORMS
 

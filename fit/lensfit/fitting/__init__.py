@@ -44,7 +44,6 @@ from lensfit.fitting.options import (
     APERTURE,
     FIELD,
     METHODS,
-    TRAIN_VIGNETTING,
     WAVE_MM,
     X_LIKE,
     Y_LIKE,
@@ -53,6 +52,7 @@ from lensfit.fitting.options import (
 from lensfit.fitting.pursuit import fit_system
 from lensfit.fitting.results import OutputFit, SystemFit, error_metric
 from lensfit.fitting.tensor import fit_system_tensor
+from lensfit.sample.rays import TRAIN_VIGNETTING
 
 __all__ = ["APERTURE", "FIELD", "METHODS", "TRAIN_VIGNETTING", "WAVE_MM", "X_LIKE", "Y_LIKE",
            "FitOptions", "OutputFit", "SystemFit", "error_metric", "fit_lens", "fit_system",

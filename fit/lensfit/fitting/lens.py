@@ -23,7 +23,7 @@ from lensfit.sample.rays import (
 
 
 class Checkpoints(Protocol):
-    """Where finished systems are kept and found again (lensfit.fit_cache.FitCache)."""
+    """Where finished systems are kept and found again (lensfit.pipeline.cache.FitCache)."""
 
     def load_system(self, name: str, inputs: tuple[Input, ...] | None = None
                     ) -> SystemFit | None: ...

@@ -7,7 +7,6 @@ from dataclasses import dataclass
 from typing import Any
 
 WAVE_MM = 550e-6  # OPL errors are quoted in waves at 550 nm
-TRAIN_VIGNETTING = 1.1  # train on rays up to 10% beyond a housing, so the clip edge fits
 APERTURE = (3, 4)  # columns of x_a, y_a in both systems
 X_LIKE, Y_LIKE = (0, 3), (1, 4)  # mirror pairs: (x_O|x_S, x_a) and (y_O|y_S, y_a)
 FIELD = (0, 1, 2, 5)  # the inputs a renderer fixes per pixel (or light) and wavelength
@@ -45,7 +44,7 @@ class FitOptions:
     field_degrees: tuple[int, ...] = (4, 6, 8, 10, 12, 14)  # tried in turn against the target
     prune: bool = True  # cut the terms the target does not need (GROW_SHARE, PRUNE_SHARE)
     # Fit once more with a tighter phase target when the PSF check misses the target by
-    # a little (lensfit.stage._tighter)
+    # a little (lensfit.pipeline.stage._tighter)
     retry: bool = True
     # pursuit method
     max_degree: int = 9  # positions and transmittance

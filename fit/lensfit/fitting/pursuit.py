@@ -7,8 +7,8 @@ from collections.abc import Callable
 
 import numpy as np
 
-from lensfit.errors import InputError
-from lensfit.fitting.options import APERTURE, TRAIN_VIGNETTING, FitOptions
+from lensfit.common.errors import InputError
+from lensfit.fitting.options import APERTURE, FitOptions
 from lensfit.fitting.results import (
     OutputFit,
     _group_centre,
@@ -20,7 +20,7 @@ from lensfit.fitting.results import (
 )
 from lensfit.poly.omp import OmpPath, omp
 from lensfit.poly.polynomial import Input, Polynomial, System, design_matrix, monomials
-from lensfit.sample.rays import Samples
+from lensfit.sample.rays import TRAIN_VIGNETTING, Samples
 
 
 def _pursue(A_train, y_train, A_test, name, test_group, y_test, max_terms, target):

@@ -8,14 +8,13 @@ from collections.abc import Callable
 
 import numpy as np
 
-from lensfit.errors import InputError
+from lensfit.common.errors import InputError
 from lensfit.fitting.options import (
     APERTURE,
     FIELD,
     GROW_SHARE,
     PRUNE_SHARE,
     STAGNATION,
-    TRAIN_VIGNETTING,
     WAVE_MM,
     FitOptions,
 )
@@ -30,7 +29,7 @@ from lensfit.poly.tensor import (
 )
 from lensfit.prescription.model import Lens
 from lensfit.sample.domain import Domain
-from lensfit.sample.rays import GridSamples, Samples, extend_grid
+from lensfit.sample.rays import TRAIN_VIGNETTING, GridSamples, Samples, extend_grid
 
 
 def fit_system_tensor(name: str, inputs: tuple[Input, ...], outputs, train: GridSamples,

@@ -86,10 +86,10 @@ from pathlib import Path
 
 import numpy as np
 
-from lensfit.errors import InputError
+from lensfit.common.errors import InputError
 from lensfit.paraxial import paraxial, stop_radius_for_f_number
 from lensfit.prescription.model import Lens
-from lensfit.scene import light_direction
+from lensfit.psf.psf import light_direction
 from lensfit.trace.tracer import Rays, Status, Step, forward_path, ghost_path, trace
 
 DEFAULT_WAVELENGTHS_NM = (450.0, 550.0, 650.0)
@@ -393,7 +393,7 @@ def enumerate_ghosts(
     exact rays, brightest first.
 
     ``f_number``: the stop (default: the widest the housing allows); ``light``: field
-    angles (x, y) in degrees, designers' sign (``lensfit.scene.light_direction``), at
+    angles (x, y) in degrees, designers' sign (``lensfit.psf.psf.light_direction``), at
     ``distance_mm`` from the first vertex (default infinity); ``rays``: rays per
     wavelength over the launch disc (pass 1), ``fine_rays`` per path (pass 2);
     ``pixel_mm``: the pixel the visibility's peaks are averaged over. The direct peak's

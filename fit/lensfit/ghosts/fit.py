@@ -29,17 +29,17 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from lensfit.fitting import APERTURE, FIELD, FitOptions, OutputFit, fit_system_tensor
-from lensfit.ghosts.sample import (
+from lensfit.poly.polynomial import Polynomial, System
+from lensfit.poly.tensor import TensorFit
+from lensfit.prescription.model import Lens
+from lensfit.sample.domain import Domain, default_domain
+from lensfit.sample.ghost import (
     GhostHalf,
     GhostSamples,
     ghost_half,
     sample_ghost,
     sample_ghost_grid,
 )
-from lensfit.poly.polynomial import Polynomial, System
-from lensfit.poly.tensor import TensorFit
-from lensfit.prescription.model import Lens
-from lensfit.sample.domain import Domain, default_domain
 from lensfit.sample.rays import OUTPUTS_O, OUTPUTS_S, GridSamples, Samples
 
 CLIP_TRAIN = 2.0  # clip outputs: train on rays up to twice a housing's radius out

@@ -14,15 +14,16 @@
 Brightness is the enumeration's exact-ray estimate (:func:`lensfit.ghosts.enumerate.
 enumerate_ghosts`) for each light at the scene's f-number (wide open without one),
 restricted to the fitted ghosts. Each kept ghost is then specialised as the direct
-systems are (:func:`lensfit.scene.specialise`, P_clip folded with its ghost side).
+systems are (:func:`lensfit.codegen.scene.specialise`, P_clip folded with its ghost side).
 """
 
 from __future__ import annotations
 
 from pathlib import Path
 
+from lensfit.codegen.scene import Scene, SceneError
 from lensfit.codegen.table import Table, read_table
-from lensfit.errors import InputError
+from lensfit.common.errors import InputError
 from lensfit.ghosts.enumerate import (
     DEFAULT_OVEREXPOSURE_STOPS,
     black_level,
@@ -31,7 +32,6 @@ from lensfit.ghosts.enumerate import (
 )
 from lensfit.ghosts.tasks import read_ghost_index
 from lensfit.prescription.model import Lens
-from lensfit.scene import Scene, SceneError
 
 
 def fitted_ghosts(folder: Path, lens_arg: str) -> dict[str, Table]:

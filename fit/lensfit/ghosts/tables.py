@@ -11,12 +11,12 @@ the f-number it is checked at (:func:`fit_with_trust`), and the table's other ha
 the direct one re-expressed over that stop (:func:`on_inputs`, exact).
 
 Trust (``trust`` lines and the report): the ghost's image from the fitted table against
-the image from exactly traced ghost rays (:func:`lensfit.psf.exact_psf` with ``ghost=``),
+the image from exactly traced ghost rays (:func:`lensfit.psf.psf.exact_psf` with ``ghost=``),
 the same sunflower stop points, on a window around the ghost at 450, 550 and 650 nm:
 relative L2 of the intensities (not normalised, so that energy errors count), the energy
 ratio, and the energy ratio without P_clip (the paper's Figure 6 failure: a ghost whose
 clipping matters comes out too bright without it). The exact image's sensor side is
-interpolated from checked node rays (:func:`lensfit.psf._interpolated_sensor`); the three
+interpolated from checked node rays (:func:`lensfit.psf.psf._interpolated_sensor`); the three
 wavelengths' cells run on threads.
 """
 
@@ -30,16 +30,16 @@ from typing import Any
 import numpy as np
 
 from lensfit.codegen.table import CLIP_SYSTEM, GhostLines, Table
-from lensfit.errors import InputError
+from lensfit.common.errors import InputError
 from lensfit.fitting import FitOptions
 from lensfit.ghosts.enumerate import GhostEstimate, enumerate_ghosts
 from lensfit.ghosts.fit import GHOST_OPTIONS, GhostFit, fit_ghost
-from lensfit.ghosts.sample import GhostHalf
 from lensfit.poly.polynomial import Input, System
 from lensfit.poly.tensor import single_blas
 from lensfit.prescription.model import Lens
-from lensfit.psf import _workers, exact_psf, poly_psf, sunflower_points
+from lensfit.psf.psf import _workers, exact_psf, poly_psf, sunflower_points
 from lensfit.sample.domain import Domain
+from lensfit.sample.ghost import GhostHalf
 
 TRUST_WAVELENGTHS_NM = (450.0, 550.0, 650.0)
 TRUST_PIXELS = 32  # window of 32 x 32 pixels

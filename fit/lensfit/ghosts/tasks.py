@@ -29,10 +29,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from lensfit.atomic import make_folder, plain_name, write_atomic
 from lensfit.codegen.checked_json import REGENERATE_FOLDER, checked_json_text, load_checked_json
 from lensfit.codegen.table import read_table
-from lensfit.errors import InputError
+from lensfit.common.atomic import make_folder, plain_name, write_atomic
+from lensfit.common.errors import InputError
 
 TASKS_FOLDER = ".ghost-tasks"
 
@@ -249,7 +249,7 @@ def read_ghost_index(index: Path) -> list[dict[str, Any]]:
 def plan_jobs(plan: LensPlan, *, c: bool, glsl: bool) -> list[dict[str, Any]]:
     """The tasks of a lens's kept ghosts that are not done (no record, not in the folder
     as fitted for the same digest)."""
-    from lensfit.generate import header_comment, lens_prefix
+    from lensfit.codegen.generate import header_comment, lens_prefix
 
     out, work = plan.folder / "ghosts", plan.folder / TASKS_FOLDER
     before = _before(out)
@@ -277,7 +277,7 @@ def plan_jobs(plan: LensPlan, *, c: bool, glsl: bool) -> list[dict[str, Any]]:
 def write_lens(plan: LensPlan, *, c: bool, glsl: bool, add: bool) -> list[str]:
     """Write a lens's ghosts folder from its records (and what the folder held for the
     same digests), then remove the records; the lines to print."""
-    from lensfit.generate import lens_prefix, write_folder
+    from lensfit.codegen.generate import lens_prefix, write_folder
 
     out, work = plan.folder / "ghosts", plan.folder / TASKS_FOLDER
     before = _before(out)

@@ -19,7 +19,7 @@ from typing import Protocol, runtime_checkable
 import numpy as np
 import numpy.typing as npt
 
-from lensfit.errors import InputError, parse_problem
+from lensfit.common.errors import InputError, parse_problem
 
 __all__ = [
     "AIR",

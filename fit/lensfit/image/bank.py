@@ -151,8 +151,8 @@ def ensure_bank(spec: dict[str, Any], table: Path, cache: str | Path | None, *,
     """The bank's index, rendering the nodes not yet in the cache (Dask): its path and
     what it cost ({'rendered': nodes, 'cpu_seconds', 'wall_seconds'}). The table is
     copied beside the spec, which names it by a relative path."""
-    from lensfit.atomic import make_folder, write_atomic
     from lensfit.banks.run import run_bank
+    from lensfit.common.atomic import make_folder, write_atomic
 
     data = table.read_bytes()
     spec = dict(spec, lens=table_name(table))

@@ -29,7 +29,7 @@ from typing import Any
 
 import numpy as np
 
-from lensfit.errors import InputError, regular_file_problem
+from lensfit.common.errors import InputError, regular_file_problem
 
 RGB = ("R", "G", "B")
 DEPTH = "Z"

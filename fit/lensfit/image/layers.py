@@ -4,7 +4,7 @@ Layers (OpenEXR channel prefixes): ``direct``, ``flare`` (the sum of the ghosts)
 ``ghost_<i>_<j>`` per ghost table, each with the input's channels (R, G, B, or the
 spectral S0.<lambda>nm, which also get an R, G, B preview); the unprefixed channels are
 direct + flare. Written to a temporary file beside the output and renamed over it
-(lensfit.atomic): never half-written, never over a special file.
+(lensfit.common.atomic): never half-written, never over a special file.
 """
 
 from __future__ import annotations
@@ -41,7 +41,7 @@ def write_layers(path: Path, layers: dict[str, np.ndarray], frame: Frame, geomet
     """Write the layers and their total (module doc)."""
     import OpenEXR
 
-    from lensfit.atomic import write_atomic
+    from lensfit.common.atomic import write_atomic
 
     for name, planes in layers.items():
         if not np.isfinite(planes).all():  # what lensrt_image hands back is checked

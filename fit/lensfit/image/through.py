@@ -24,7 +24,7 @@ from typing import Any
 
 import numpy as np
 
-from lensfit.errors import InputError
+from lensfit.common.errors import InputError
 from lensfit.image.bank import (
     RGB_WAVELENGTHS_NM,
     ensure_bank,
@@ -186,9 +186,9 @@ def through_lens(lens: str, input_path: str | Path, output: str | Path,
 
     from lensrt_ctypes import LIBRARY, Bank, Image, Lensrt, LensrtError
 
-    from lensfit.atomic import check_target
     from lensfit.banks.run import resolve_table
     from lensfit.banks.spec import SpecError
+    from lensfit.common.atomic import check_target
     from lensfit.image.layers import write_layers
 
     o = options or Options()
@@ -356,7 +356,7 @@ def write_preview(result: Result, path: str | Path) -> None:
     import matplotlib.image as mpimg
     from lensrt_exr import tone_map
 
-    from lensfit.atomic import check_target, write_atomic
+    from lensfit.common.atomic import check_target, write_atomic
 
     target = check_target(path, "--png")
     rgb = preview_rgb(result)

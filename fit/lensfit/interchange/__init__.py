@@ -7,8 +7,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from lensfit import strict_json
-from lensfit.errors import regular_file_problem
+from lensfit.common import strict_json
+from lensfit.common.errors import regular_file_problem
 from lensfit.interchange.common import ImportProblems, ImportResult, write_atomic
 from lensfit.interchange.optiland import convert_optiland, looks_like_optiland, read_optiland
 from lensfit.interchange.zemax import parse_zmx, read_zmx, write_zmx

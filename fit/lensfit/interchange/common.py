@@ -10,7 +10,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from lensfit.errors import InputError, LensError
+from lensfit.common.errors import InputError, LensError
 from lensfit.glass import (
     AIR,
     MODEL_ND_RANGE,
@@ -289,9 +289,9 @@ def validate(data: dict[str, Any], label: str, where_surface: list[str], *,
 
 def write_atomic(path: Path, text: str, *, option: str = "") -> None:
     """Write ``text`` to ``path`` with lensfit's one checked atomic write
-    (:func:`lensfit.atomic.write_atomic`: special files and links refused, a temporary
+    (:func:`lensfit.common.atomic.write_atomic`: special files and links refused, a temporary
     in the same folder, fsync, rename; the file's mode kept; OutputError on failure)."""
-    from lensfit.atomic import write_atomic as _write
+    from lensfit.common.atomic import write_atomic as _write
 
     _write(path, text, option=option)
 

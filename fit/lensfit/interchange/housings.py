@@ -58,7 +58,7 @@ from typing import Any
 
 import numpy as np
 
-from lensfit.errors import InputError, LensError
+from lensfit.common.errors import InputError, LensError
 
 # How much wider than the traced rays an automatic housing is. The rays are a sample of
 # the domain: against 16,000 samples of lensfit's default fit (P_o and P_s) of lenses
@@ -175,10 +175,10 @@ def _object_side(lens: Any, field_xy_deg: tuple[float, float], us: list[float],
                  stop_r: float, lams: np.ndarray, apertures: set[int]) -> tuple[np.ndarray, int]:
     """Heights (:func:`_heights`) of the rays from scene points on the field (inverse
     distances ``us``) through the stop's points (radius ``stop_r``) at ``lams``, aimed at
-    the stop (:func:`lensfit.sample.rays.aim_object_side`) and traced on to the last
+    the stop (:func:`lensfit.sample.aim.aim_object_side`) and traced on to the last
     surface without clipping; a ray that misses a surface or reflects totally behind
     the stop counts at the surfaces before. And the number of rays aimed."""
-    from lensfit.sample.rays import aim_object_side
+    from lensfit.sample.aim import aim_object_side
     from lensfit.trace.tracer import Rays, Status, Step, trace
 
     dirs = np.array(_directions(lens, *field_xy_deg))
@@ -208,8 +208,8 @@ def _sensor_side(lens: Any, domain: Any, lams: np.ndarray, apertures: set[int]
     default: from the stop's points (the domain's stop radius) to sensor points out to
     the domain's image circle (FIELD_STEPS + 1 radii, along the azimuths of
     :func:`_directions`) at the ends and the middle of its sensor travel, aimed by
-    :func:`lensfit.sample.rays.aim_sensor_side`. And the number of rays aimed."""
-    from lensfit.sample.rays import aim_sensor_side
+    :func:`lensfit.sample.aim.aim_sensor_side`. And the number of rays aimed."""
+    from lensfit.sample.aim import aim_sensor_side
 
     n, s = len(lens.surfaces), lens.stop_index
     if s == n - 1:
@@ -256,10 +256,10 @@ def trace_design_beam(lens: Any, half_field_deg: float, apertures: set[int],
     housings are to be widened (the default fit domain is found with them widened for
     the design beam, as its chief rays must pass the housings). Raises ValueError,
     InputError or LensError when the design beam cannot be traced."""
-    from lensfit.glass.ranges import default_wavelengths
     from lensfit.paraxial.paraxial import paraxial
+    from lensfit.prescription.ranges import default_wavelengths
+    from lensfit.sample.aim import SamplingError
     from lensfit.sample.domain import CLOSE_FOCUS_EFL, default_domain
-    from lensfit.sample.rays import SamplingError
 
     lo, hi = default_wavelengths(lens).range_nm
     lams = np.array([lo, 0.5 * (lo + hi), hi])

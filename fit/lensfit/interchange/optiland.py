@@ -65,7 +65,7 @@ import math
 from pathlib import Path
 from typing import Any
 
-from lensfit import strict_json
+from lensfit.common import strict_json
 from lensfit.glass import MODEL_VD_RANGE, UnknownGlassError, catalog_glass
 from lensfit.interchange.common import (
     MANUFACTURERS,
@@ -99,7 +99,7 @@ def looks_like_optiland(data: Any) -> bool:
 def read_optiland(path: str | Path, *, lens_id: str | None = None) -> ImportResult:
     p = Path(path)
     label = str(path)
-    try:  # encodings, huge numbers and deep nesting: lensfit.strict_json
+    try:  # encodings, huge numbers and deep nesting: lensfit.common.strict_json
         data = strict_json.read(p, label)
     except strict_json.JSONInputError as e:
         raise ImportProblems([str(e)]) from None

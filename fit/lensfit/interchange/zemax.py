@@ -113,7 +113,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from lensfit.errors import regular_file_problem
+from lensfit.common.errors import regular_file_problem
 from lensfit.glass import MODEL_DPGF_MAX, MODEL_VD_RANGE, UnknownGlassError
 from lensfit.interchange.common import (
     ImportProblems,

@@ -16,7 +16,7 @@ from typing import Any
 
 import numpy as np
 
-from lensfit.errors import InputError
+from lensfit.common.errors import InputError
 from lensfit.prescription.model import Lens
 
 D_LINE_NM = 587.5618

@@ -29,7 +29,7 @@ import re
 from pathlib import Path
 from typing import Any
 
-from lensfit.errors import LensError
+from lensfit.common.errors import LensError
 from lensfit.glass import UnknownGlassError, catalog_glass
 
 # Catalog melts vary by about 1e-3 in nd; a larger gap means a different glass.
@@ -39,7 +39,7 @@ COATED_FROM_YEAR = 1940  # single-layer MgF2 became common in the 1940s
 
 
 def load_lentil_json(path: str | Path) -> dict[str, Any]:
-    from lensfit import strict_json
+    from lensfit.common import strict_json
 
     p = Path(path)
     # Encodings, huge numbers and deep nesting are one line naming the file (strict_json)

@@ -25,7 +25,7 @@ import jsonschema
 import numpy as np
 
 from lensfit import data_folder, missing_data_folder
-from lensfit.errors import (
+from lensfit.common.errors import (
     InputError,
     LensError,
     int_digits,

@@ -23,11 +23,11 @@ from typing import Any
 
 import numpy as np
 
-from lensfit.errors import InputError
-from lensfit.glass.ranges import Wavelengths, default_wavelengths
+from lensfit.common.errors import InputError
 from lensfit.paraxial.paraxial import image_distance, paraxial, stop_radius_for_f_number
 from lensfit.poly.polynomial import Input
 from lensfit.prescription.model import Lens
+from lensfit.prescription.ranges import Wavelengths, default_wavelengths
 
 FULL_FRAME_HALF_DIAGONAL_MM = 0.5 * math.hypot(36.0, 24.0)
 CLOSE_FOCUS_EFL = 10.0  # default close focus: ten focal lengths in front of the lens
@@ -158,7 +158,7 @@ def fit_wavelengths(lens: Lens, wavelengths_nm: tuple[float, float] | None = Non
                     asked_by: str = "wavelengths_nm") -> Wavelengths:
     """The band a fit covers and why: ``wavelengths_nm`` as asked (``asked_by`` names
     who asked, e.g. ``--wavelengths 400,700``), else the default of
-    :func:`lensfit.glass.ranges.default_wavelengths`: 380-780 nm narrowed to the range
+    :func:`lensfit.prescription.ranges.default_wavelengths`: 380-780 nm narrowed to the range
     every glass of the lens supports (unchanged when the lens allows extrapolation)."""
     if wavelengths_nm is None:
         return default_wavelengths(lens)
@@ -197,7 +197,7 @@ def default_domain(lens: Lens, f_number: float | None = None, *,
     radius of the sensor disc outright; ``close_focus_mm`` the nearest scene point (inf:
     infinity only) and with it the sensor travel; ``focus_mm`` the sensor shift range
     z_S outright; ``wavelengths_nm`` (lo, hi) outright (checked against the glasses'
-    ranges when the fit starts: :func:`lensfit.glass.ranges.check_glass_ranges`)."""
+    ranges when the fit starts: :func:`lensfit.prescription.ranges.check_glass_ranges`)."""
     # A lens file may declare a narrower default ([fit] in its TOML, with the reason)
     declared = declared_fit(lens)
     stated = stated_design(lens)
@@ -367,7 +367,7 @@ def _chief_rays(lens: Lens, field_deg: np.ndarray, wavelength_nm: float = 550.0
     """The chief rays (through the stop centre) of lights at infinity at field angles
     ``field_deg`` in x: (image height on the nominal sensor (mm; NaN where the ray
     fails), passes: the ray exists and passes every housing)."""
-    from lensfit.sample.rays import aim_object_side
+    from lensfit.sample.aim import aim_object_side
     from lensfit.trace.tracer import Rays, Status, Step, trace
 
     x_O = np.sin(np.radians(np.asarray(field_deg, dtype=np.float64)))

@@ -17,8 +17,8 @@ from enum import IntEnum
 
 import numpy as np
 
-from lensfit.glass.ranges import check_glass_ranges
 from lensfit.prescription.model import Lens
+from lensfit.prescription.ranges import check_glass_ranges
 from lensfit.trace import fresnel, surfaces
 
 # Rays traced at once: arrays of this many float64 stay in a core's cache, measured
@@ -293,7 +293,7 @@ def _reflect_xyz(dx: np.ndarray, dy: np.ndarray, dz: np.ndarray, nx: np.ndarray,
 
 def _check_wavelengths(lens: Lens, lam: np.ndarray) -> None:
     """Refuse wavelengths outside a glass's published range (no silent extrapolation of
-    dispersion formulas) unless the lens allows it: ``lensfit.glass.ranges`` decides."""
+    dispersion formulas) unless the lens allows it: ``lensfit.prescription.ranges`` decides."""
     if lam.size == 0:
         return
     check_glass_ranges(lens, float(lam.min()), float(lam.max()))

@@ -27,7 +27,7 @@ from bank_specs import bank_spec
 from lensfit.banks import engine, node
 from lensfit.banks.engine import TaskError, run_tasks
 from lensfit.banks.run import run_bank
-from lensfit.errors import InputError
+from lensfit.common.errors import InputError
 
 ROOT = Path(__file__).resolve().parents[3]
 sys.path.insert(0, str(ROOT / "runtime" / "python"))

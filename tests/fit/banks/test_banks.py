@@ -24,7 +24,7 @@ from bank_specs import bank_spec
 
 from lensfit.banks.run import run_bank
 from lensfit.banks.spec import SpecError, load_spec
-from lensfit.errors import InputError
+from lensfit.common.errors import InputError
 
 ROOT = Path(__file__).resolve().parents[3]
 sys.path.insert(0, str(ROOT / "runtime" / "python"))

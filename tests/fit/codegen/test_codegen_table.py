@@ -16,7 +16,7 @@ from lensfit.codegen.table import (
     with_checksum,
 )
 from lensfit.codegen.table import read_table as read_checked
-from lensfit.facts import LensFacts
+from lensfit.paraxial.facts import LensFacts
 from lensfit.poly import Input, Polynomial, System
 
 FACTS = LensFacts(name="Test lens, 50 mm f/2 (100%)", focal_length_mm=49.999999999999993,

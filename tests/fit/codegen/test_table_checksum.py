@@ -22,9 +22,9 @@ import numpy as np
 import pytest
 
 from lensfit.codegen.checked_json import load_checked_json
+from lensfit.codegen.generate import read_fit_json, upgrade_json, upgrade_table
 from lensfit.codegen.table import read_table, split_checksum, write_table
-from lensfit.errors import InputError
-from lensfit.generate import read_fit_json, upgrade_json, upgrade_table
+from lensfit.common.errors import InputError
 
 ROOT = Path(__file__).resolve().parents[3]
 TINY = ROOT / "tests" / "fuzz" / "seeds" / "table" / "ghost_tiny.table"  # a whole ghost table

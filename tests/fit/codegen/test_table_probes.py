@@ -33,6 +33,7 @@ from test_table_checksum import _lensrt  # tests/fit/codegen is on sys.path (roo
 from test_table_checksum import lensrt_refuses as lensrt_message
 
 from lensfit.cli import main
+from lensfit.codegen.generate import upgrade_ghosts_json, upgrade_table
 from lensfit.codegen.table import (
     PROBE_RTOL,
     PROBES,
@@ -45,7 +46,6 @@ from lensfit.codegen.table import (
     upgrade_text,
     with_checksum,
 )
-from lensfit.generate import upgrade_ghosts_json, upgrade_table
 from lensfit.poly.polynomial import design_matrix
 
 ROOT = Path(__file__).resolve().parents[3]

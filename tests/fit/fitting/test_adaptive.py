@@ -26,10 +26,10 @@ import numpy as np
 import pytest
 
 import lensfit.fitting.tensor as tensor_fit
-from lensfit import stage
 from lensfit.cli import main
 from lensfit.fitting import FitOptions
 from lensfit.fitting.options import GROW_SHARE
+from lensfit.pipeline import stage
 from lensfit.poly.polynomial import System
 from lensfit.poly.tensor import symmetric_disc_points
 from lensfit.prescription import load_lens

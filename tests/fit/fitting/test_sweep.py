@@ -4,7 +4,7 @@ reason, not failures of the sweep. The fits themselves belong to `make bench`.""
 
 from __future__ import annotations
 
-from lensfit.fitting import sweep
+from lensfit.pipeline import sweep
 
 
 def test_a_refused_lens_is_a_row_with_its_reason():

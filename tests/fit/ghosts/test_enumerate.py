@@ -9,7 +9,7 @@ import math
 import numpy as np
 import pytest
 
-from lensfit.errors import InputError
+from lensfit.common.errors import InputError
 from lensfit.ghosts.enumerate import (
     DEFAULT_OVEREXPOSURE_STOPS,
     DISPLAY_STOPS,

@@ -11,10 +11,10 @@ import numpy as np
 import pytest
 
 from lensfit.ghosts.fit import GHOST_OPTIONS, fit_ghost, select_housings
-from lensfit.ghosts.sample import aim_ghost, ghost_half
 from lensfit.prescription import load_lens
 from lensfit.sample import aim_object_side, aim_sensor_side, default_domain
-from lensfit.sample.rays import NEWTON_TOL_MM, _front_plane
+from lensfit.sample.aim import NEWTON_TOL_MM, _front_plane
+from lensfit.sample.ghost import aim_ghost, ghost_half
 from lensfit.trace.tracer import Rays, Status, Step, ghost_path, trace
 
 # The aiming accepts a ray whose miss is at most 10 NEWTON_TOL_MM (lensfit.sample.rays:

@@ -11,8 +11,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from lensfit.codegen.generate import read_fit_json
 from lensfit.codegen.table import read_table, write_table
-from lensfit.generate import read_fit_json
 from lensfit.ghosts.enumerate import enumerate_ghosts, parse_ghost
 from lensfit.ghosts.tables import TRUST_TARGET, fit_with_trust, on_inputs
 from lensfit.poly import Input

@@ -16,12 +16,12 @@ import pytest
 
 from lensfit.cli import main
 from lensfit.codegen import call_c, glsl_as_c, glsl_check_shader, load_c
+from lensfit.codegen.scene import Scene, SceneError, max_abs_difference, specialise
 from lensfit.codegen.table import read_table
-from lensfit.errors import InputError
+from lensfit.common.errors import InputError
 from lensfit.ghosts.scene import choose_ghosts, fitted_ghosts
 from lensfit.poly import design_matrix
 from lensfit.prescription import load_lens
-from lensfit.scene import Scene, SceneError, max_abs_difference, specialise
 
 ROOT = Path(__file__).resolve().parents[3]
 FOLDER = ROOT / "generated" / "0001-angenieux-double-gauss"

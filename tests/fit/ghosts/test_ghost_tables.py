@@ -19,10 +19,10 @@ from lensfit.codegen.table import (
     with_checksum,
     write_table,
 )
-from lensfit.ghosts.sample import ghost_half
 from lensfit.poly import Input, Polynomial, System
 from lensfit.prescription import load_lens
-from lensfit.psf import exact_psf, poly_psf, sunflower_points
+from lensfit.psf.psf import exact_psf, poly_psf, sunflower_points
+from lensfit.sample.ghost import ghost_half
 
 ROOT = Path(__file__).resolve().parents[3]
 FOLDER = ROOT / "generated" / "0001-angenieux-double-gauss"
@@ -174,7 +174,7 @@ def test_exact_ghost_psf_interpolated_sensor_side_agrees_with_every_pair(
     interpolated to the pixels where checked rays agree (psf._interpolated_sensor); the
     image agrees with the one from a ray traced for every (stop point, pixel) pair
     (measured ~1e-9), and a stop point whose check fails is traced per pixel instead."""
-    import lensfit.psf as psf
+    import lensfit.psf.psf as psf
 
     lens = load_lens("0001")
     half = ghost_half(lens, first, second)

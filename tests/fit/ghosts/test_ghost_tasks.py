@@ -186,7 +186,7 @@ def test_ghosts_json_entries_are_typed_for_every_reader(tmp_path, entry):
     (they name the table file: ghost_<first>_<second>.table) or whose keys are of the
     wrong type is refused by its one reader, for the scenes and banks that read it too,
     naming the file and the key (issue 39)."""
-    from lensfit.errors import InputError
+    from lensfit.common.errors import InputError
     from lensfit.ghosts.scene import fitted_ghosts
     from lensfit.ghosts.tasks import read_ghost_index
 

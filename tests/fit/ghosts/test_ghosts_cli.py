@@ -161,7 +161,7 @@ def test_fit_with_no_ghost_kept_refused(singlet, tmp_path, capsys, monkeypatch):
     """--fit needs a ghost kept: none above the threshold is one line naming --fit, the
     lens file, the threshold and the brightest ghost, exit 2, before any fit (the direct
     fit's folder stands in: the refusal comes before it is read)."""
-    from lensfit import cli
+    from lensfit.cli import ghosts as cli
 
     def no_fit(*a, **k):
         raise AssertionError("a fit ran with no ghost kept")

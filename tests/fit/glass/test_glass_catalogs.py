@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 from lensfit.cli import main
-from lensfit.errors import LensError
+from lensfit.common.errors import LensError
 from lensfit.glass import (
     FORMULAS,
     MANUFACTURERS,
@@ -29,11 +29,11 @@ from lensfit.glass import (
 )
 from lensfit.glass.formulas import LINE_NM, formula_n_squared
 from lensfit.glass.manufacturers import load_catalog
-from lensfit.glass.ranges import allow_extrapolation, out_of_range
 from lensfit.prescription import list_lenses, load_lens
 from lensfit.prescription.load import lens_from_dict
-from lensfit.report import _glass_range_markdown
+from lensfit.prescription.ranges import allow_extrapolation, out_of_range
 from lensfit.trace.tracer import _check_wavelengths
+from lensfit.trust.report import _glass_range_markdown
 
 # Glasses per catalog in opticalglass 1.1.1's data (rows with a name and a complete set of
 # coefficients): a parser that drops or misreads rows changes these.
@@ -414,7 +414,7 @@ def test_cli_fit_refuses_before_any_work(tmp_path: Path,
 
 def test_cli_fit_lists_extrapolated_glasses(capsys: pytest.CaptureFixture[str]) -> None:
     """What `lensfit fit` and `lensfit report` print after an allowed extrapolation."""
-    from lensfit.cli import _print_extrapolated
+    from lensfit.cli.fit import _print_extrapolated
 
     lens = lens_from_dict(_lens(SK16_INLINE, extrapolation="allow"), file="t.toml")
     _print_extrapolated(lens, {"wavelength_min_nm": 380.0, "wavelength_max_nm": 700.0})

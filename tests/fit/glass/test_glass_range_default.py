@@ -21,16 +21,17 @@ from pathlib import Path
 
 import pytest
 
-from lensfit import stage
-from lensfit.cli import _print_extrapolated, main
+from lensfit.cli import main
+from lensfit.cli.fit import _print_extrapolated
 from lensfit.codegen import read_table
-from lensfit.errors import LensError
+from lensfit.codegen.scene import SCENE_WAVELENGTH_MARGIN_NM, Scene, scene_domain
+from lensfit.common.errors import LensError
 from lensfit.glass.manufacturers import load_catalog
-from lensfit.glass.ranges import DEFAULT_BAND_NM, MIN_BAND_NM, default_wavelengths
 from lensfit.paraxial import paraxial, stop_radius_for_f_number
+from lensfit.pipeline import stage
 from lensfit.prescription import load_lens
+from lensfit.prescription.ranges import DEFAULT_BAND_NM, MIN_BAND_NM, default_wavelengths
 from lensfit.sample.domain import default_domain, fit_wavelengths
-from lensfit.scene import SCENE_WAVELENGTH_MARGIN_NM, Scene, scene_domain
 
 REPO = Path(__file__).resolve().parents[3]
 TRIPLET = REPO / "tests" / "fit" / "fixtures" / "lens" / "cooke_triplet_n_f2.toml"

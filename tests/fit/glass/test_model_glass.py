@@ -22,7 +22,7 @@ import math
 import numpy as np
 import pytest
 
-from lensfit.errors import LensError
+from lensfit.common.errors import LensError
 from lensfit.glass import (
     ConstantGlass,
     abbe_glass,
@@ -30,8 +30,8 @@ from lensfit.glass import (
     inline_glass,
     partial_dispersion,
 )
-from lensfit.glass.ranges import check_glass_ranges, default_wavelengths
 from lensfit.prescription import lens_from_dict, make_lens
+from lensfit.prescription.ranges import check_glass_ranges, default_wavelengths
 
 D, F, C, G = 587.56, 486.13, 656.27, 435.83
 

@@ -107,7 +107,7 @@ def test_points_land_on_their_exact_chief_rays(run):
     the prescription), within 0.15 px (its PSF's centroid is off its chief point by
     coma: the polynomial render's own centroid is the reference for that part)."""
     from lensfit.prescription import load_lens
-    from lensfit.psf import geometric_image_point
+    from lensfit.psf.psf import geometric_image_point
 
     planes, result = run
     g = result.geometry

@@ -24,7 +24,7 @@ import pytest
 from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
-from lensfit.errors import InputError, LensError
+from lensfit.common.errors import InputError, LensError
 from lensfit.glass import UnknownGlassError
 from lensfit.interchange import ImportProblems, convert_optiland, parse_zmx
 from lensfit.interchange.zemax import SURFACE_KEYWORDS, decode
@@ -177,7 +177,7 @@ def test_import_problems_is_a_cli_error() -> None:
 # type (a list where an object is expected), other encodings. The whole path from the
 # file's bytes is fuzzed (lensfit.strict_json, then the converter).
 
-from lensfit import strict_json  # noqa: E402
+from lensfit.common import strict_json  # noqa: E402
 from lensfit.prescription.lentil import convert_entry  # noqa: E402
 
 LENTIL = [{"optical-elements-patent": [

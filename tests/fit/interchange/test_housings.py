@@ -27,8 +27,9 @@ from lensfit.interchange import convert_optiland, parse_zmx, read_zmx, write_zmx
 from lensfit.interchange.housings import AUTOMATIC_MARGIN
 from lensfit.prescription import lens_from_dict, load_lens
 from lensfit.prescription.lentil import to_toml
+from lensfit.sample.aim import aim_object_side
 from lensfit.sample.domain import default_domain
-from lensfit.sample.rays import aim_object_side, sample_object_side, sample_sensor_side
+from lensfit.sample.rays import sample_object_side, sample_sensor_side
 from lensfit.trace.tracer import Rays, Status, Step, trace
 
 FIX = Path(__file__).resolve().parents[1] / "fixtures"

@@ -139,7 +139,7 @@ def test_round_trip_of_manufacturer_glasses():
          "semi_diameter": 4.0},
         {"shape": "plane", "thickness": 30.0, "material": "air", "semi_diameter": 4.0},
     ]
-    from lensfit.errors import LensError
+    from lensfit.common.errors import LensError
 
     try:
         lens = make_lens(rows)

@@ -14,8 +14,8 @@ import pytest
 from lensfit.cli import main
 from lensfit.glass import AIR, catalog_glass
 from lensfit.paraxial import paraxial
+from lensfit.paraxial.validate import efl_check
 from lensfit.prescription import lens_from_dict, list_lenses, load_lens
-from lensfit.validate import efl_check
 
 LENSES = list_lenses()
 IDS = [p.stem for p in LENSES]

@@ -11,7 +11,7 @@ from typing import Any
 import pytest
 
 from lensfit.cli import main
-from lensfit.errors import LensError
+from lensfit.common.errors import LensError
 from lensfit.glass import catalog_glass
 from lensfit.prescription import lens_from_dict, load_lens
 from lensfit.prescription.lentil import (

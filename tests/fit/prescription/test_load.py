@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from lensfit.errors import LensError
+from lensfit.common.errors import LensError
 from lensfit.glass import AIR, catalog_glass
 from lensfit.paraxial import paraxial
 from lensfit.prescription import BARE, lens_from_dict, load_lens

@@ -17,13 +17,13 @@ from pathlib import Path
 
 import pytest
 
-from lensfit import cli
 from lensfit.cli import EXIT_MISS, main
-from lensfit.errors import InputError
+from lensfit.cli import fit as cli
+from lensfit.common.errors import InputError
 from lensfit.paraxial import paraxial, stop_radius_for_f_number
 from lensfit.paraxial.paraxial import image_distance
 from lensfit.prescription import lens_from_dict, load_lens
-from lensfit.psf import geometric_image_point
+from lensfit.psf.psf import geometric_image_point
 from lensfit.sample.domain import (
     IMAGE_MARGIN,
     MAX_DEFAULT_FIELD_DEG,
@@ -102,7 +102,7 @@ def test_a_fisheye_field_is_capped_and_said(base):
 def test_lenses_without_a_real_image_are_refused_up_front(capsys, monkeypatch, lens_id, words):
     def fail(*_a, **_k):
         raise AssertionError("the fit started")
-    monkeypatch.setattr("lensfit.stage.run", fail)
+    monkeypatch.setattr("lensfit.pipeline.stage.run", fail)
     assert main(["fit", lens_id, "--no-progress"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1, err
@@ -232,7 +232,7 @@ def test_a_near_miss_is_fitted_again_with_a_tighter_phase_target():
     with retry off (--quick) or a phase target given outright: no second fit; a miss by
     1.5x: the phase target cut to RETRY_MARGIN / 1.5 of the automatic one."""
     from lensfit.fitting import FitOptions
-    from lensfit.stage import RETRY_MARGIN, RETRY_WITHIN, _tighter
+    from lensfit.pipeline.stage import RETRY_MARGIN, RETRY_WITHIN, _tighter
 
     def table(worst):
         return {"worst": {"relative_l2": worst}}

@@ -24,7 +24,7 @@ from lensfit.sample import (
     sample_object_side,
     sample_sensor_side,
 )
-from lensfit.sample.rays import NEWTON_TOL_MM
+from lensfit.sample.aim import NEWTON_TOL_MM
 from lensfit.trace.tracer import Rays, Status, Step, trace
 
 BK7 = catalog_glass("N-BK7")

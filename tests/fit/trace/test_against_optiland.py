@@ -41,12 +41,12 @@ import warnings
 import numpy as np
 import pytest
 
-from lensfit import psf as psf_module
 from lensfit.interchange import write_zmx
 from lensfit.interchange.common import file_surfaces
 from lensfit.paraxial import paraxial, stop_radius_for_f_number
 from lensfit.prescription import load_lens, make_lens
-from lensfit.psf import (
+from lensfit.psf import psf as psf_module
+from lensfit.psf.psf import (
     best_focus_offset,
     exact_psf,
     geometric_image_point,
@@ -54,7 +54,7 @@ from lensfit.psf import (
     sunflower_points,
 )
 from lensfit.sample import default_domain
-from lensfit.sample.rays import aim_object_side, aim_sensor_side
+from lensfit.sample.aim import aim_object_side, aim_sensor_side
 from lensfit.trace.tracer import Rays, trace
 
 with warnings.catch_warnings():

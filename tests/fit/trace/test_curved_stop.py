@@ -18,13 +18,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from lensfit.codegen.scene import light_direction
 from lensfit.paraxial import stop_radius_for_f_number
 from lensfit.prescription import load_lens, make_lens
-from lensfit.psf import best_focus_offset, exact_psf_nodes, sunflower_points
-from lensfit.sample.rays import aim_object_side
-from lensfit.scene import light_direction
+from lensfit.psf.psf import best_focus_offset, exact_psf_nodes, sunflower_points
+from lensfit.sample.aim import aim_object_side
 from lensfit.trace.tracer import Rays, Step, trace
-from lensfit.trust import _window
+from lensfit.trust.check import _window
 
 FIXTURE = Path(__file__).resolve().parents[1] / "fixtures" / "lenses" / "cooke-curved-stop.toml"
 STOP_FILE_INDEX = 2  # the file's surface with `stop = true`
@@ -267,7 +267,7 @@ def test_exact_psf_matches_a_brute_force_huygens_sum(field_deg):
     construction with a plane stop), is as close to the old model as the surface is to
     ours (0.06%, 0.74%, 0.84%): the reference is right for each model, and the old model
     is wrong because it clips a different aperture."""
-    from lensfit.psf import pixel_centres
+    from lensfit.psf.psf import pixel_centres
 
     new, old = curved(), vertex_plane()
     radius = stop_radius_for_f_number(new, F_NUMBER)
@@ -321,7 +321,7 @@ def main() -> None:
 
         PYTHONPATH=fit .venv/bin/python tests/fit/trace/test_curved_stop.py
     """
-    from lensfit.psf import pixel_centres
+    from lensfit.psf.psf import pixel_centres
 
     new, old = curved(), vertex_plane()
     radius = stop_radius_for_f_number(new, F_NUMBER)

@@ -3,7 +3,7 @@ per output fitted, the PSF check, and writing the code and the report, each weig
 its typical share of the wall time so that the ETA is honest.
 
 Shares measured on lens 0001 with the default options and domain (f/2, 380-780 nm) as
-lensfit.stage runs them (single-threaded BLAS), on a shared 2-core machine, 57.5 s in
+lensfit.pipeline.stage runs them (single-threaded BLAS), on a shared 2-core machine, 57.5 s in
 all: P_o sampled 6.3 s, x_o/y_o/tau_o 0.08 s each, phi_o 0.85 s; P_s sampled 6.7 s,
 x_i/y_i/tau_i 0.07 s each, phi_i 0.7 s; the PSF check 22.9 s (40%); the generated
 code, the held-out figures and the report's plots 19.5 s (34%; timing the C, without

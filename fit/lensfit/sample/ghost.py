@@ -16,7 +16,7 @@ crosses the stop (index s), which splits it into two halves as the direct path i
 A ghost half has the inputs of the half it replaces and its four outputs (x, y on the
 first surface for P_o or the last for P_s, tau with the lens's coatings including both
 reflectances, phi), found by the same Newton aiming as the direct halves
-(:func:`lensfit.sample.rays.aim_object_side` / ``aim_sensor_side`` along the ghost's
+(:func:`lensfit.sample.aim.aim_object_side` / ``aim_sensor_side`` along the ghost's
 steps), plus clip data: for every surface step of the half (each crossing of a housing
 counted apart) the position over the housing's radius (x_k / R_k, y_k / R_k).
 """
@@ -31,17 +31,9 @@ import numpy as np
 
 from lensfit.poly.tensor import symmetric_disc_points
 from lensfit.prescription.model import Lens
+from lensfit.sample.aim import Aimed, SamplingError, aim_object_side, aim_sensor_side
 from lensfit.sample.domain import Domain
-from lensfit.sample.rays import (
-    INFINITY_SHARE,
-    Aimed,
-    GridSamples,
-    Samples,
-    SamplingError,
-    _disc,
-    aim_object_side,
-    aim_sensor_side,
-)
+from lensfit.sample.rays import INFINITY_SHARE, GridSamples, Samples, _disc
 from lensfit.trace.tracer import Step, ghost_path
 
 # A stop's shape: (x, y) mm arrays on the stop surface (the stop plane, or the refracting
@@ -244,7 +236,7 @@ def _scan_guess(lens: Lens, half: GhostHalf, args: list[np.ndarray], m: int) -> 
     field point (:func:`aim_ghost`, item 2): (N, 2) unknowns of the aiming (P_o: where
     the ray crosses z = 0; P_s: its slopes leaving the stop), NaN where no scan ray
     reached the stop plane."""
-    from lensfit.sample.rays import _front_plane
+    from lensfit.sample.aim import _front_plane
     from lensfit.trace.tracer import Rays, Status, trace
 
     field = np.column_stack([args[k] for k in (0, 1, 2, 5)])

@@ -2,7 +2,7 @@
 
 Everything written here depends only on the fitted systems and the prescription (no
 timings, no dates), so fitting the same lens again rewrites the same bytes. `lensfit
-fit` replaces the folder as a whole (:func:`lensfit.atomic.replace_folder` with
+fit` replaces the folder as a whole (:func:`lensfit.common.atomic.replace_folder` with
 :func:`fit_folder_keep`): an interrupted fit leaves the previous folder as it was.
 
     <stem>.h, <stem>.c            hand-emitted Horner C99, double and float (the fast form)
@@ -31,7 +31,6 @@ from pathlib import Path
 from typing import Any
 
 from lensfit import data_folder
-from lensfit.atomic import write_files
 from lensfit.codegen import emit_c, emit_glsl, write_table
 from lensfit.codegen.c_horner import file_stem
 from lensfit.codegen.checked_json import REGENERATE_FOLDER, checked_json_text, load_checked_json
@@ -43,8 +42,9 @@ from lensfit.codegen.table import (
     upgrade_text,
 )
 from lensfit.codegen.table import VERSION as TABLE_VERSION
-from lensfit.errors import InputError
-from lensfit.facts import LensFacts, lens_facts
+from lensfit.common.atomic import write_files
+from lensfit.common.errors import InputError
+from lensfit.paraxial.facts import LensFacts, lens_facts
 from lensfit.poly import System
 from lensfit.prescription.model import Lens
 
@@ -118,7 +118,7 @@ def table_file(systems: Sequence[System], prefix: str, comment: str,
 def lens_files(lens: Lens, systems: Sequence[System], meta: dict[str, Any],
                trust: dict[str, Any]) -> dict[str, str]:
     """Every file of the folder ``generated/<lens>/``, by name (``meta``: fit.json's keys;
-    ``trust``: the table's trust figures, :func:`lensfit.trust.trust_figures`; GLSL
+    ``trust``: the table's trust figures, :func:`lensfit.trust.check.trust_figures`; GLSL
     when ``meta["glsl"]`` is true, as `lensfit fit --glsl` records it). The table gets a
     comment line with the fitted wavelengths and why when ``meta["wavelengths"]`` has
     them (:func:`wavelengths_note`).
@@ -136,7 +136,7 @@ def lens_files(lens: Lens, systems: Sequence[System], meta: dict[str, Any],
 
 def wavelengths_note(meta: dict[str, Any]) -> str:
     """The table's comment line on its wavelengths, from fit.json's ``wavelengths``
-    (:meth:`lensfit.glass.ranges.Wavelengths.to_dict`): e.g. ``wavelengths 404.66-780 nm:
+    (:meth:`lensfit.prescription.ranges.Wavelengths.to_dict`): e.g. ``wavelengths 404.66-780 nm:
     the range every glass supports (N-F2: 404.66-2325.4 nm) within 380-780 nm``. Empty
     for a fit.json written before the key. A comment: lensrt and lensfit skip it; the
     table's own lambda input line holds the range they check."""
@@ -144,7 +144,7 @@ def wavelengths_note(meta: dict[str, Any]) -> str:
     if not isinstance(w, dict):
         return ""
     try:
-        from lensfit.glass.ranges import Wavelengths
+        from lensfit.prescription.ranges import Wavelengths
 
         line = Wavelengths(float(w["min_nm"]), float(w["max_nm"]), str(w["reason"])).line()
     except (KeyError, TypeError, ValueError):
@@ -218,14 +218,14 @@ def header_comment(lens: Lens, extra: str = "") -> str:
 
 def write_folder(folder: Path, files: dict[str, str]) -> None:
     """Write all files atomically, each through lensfit's one checked atomic write
-    (:func:`lensfit.atomic.write_files`: a temporary then a rename, a link or a special
+    (:func:`lensfit.common.atomic.write_files`: a temporary then a rename, a link or a special
     file refused; every target checked before the first write)."""
     write_files(folder, files, mode=0o644)  # for everyone, whatever the umask
 
 
 def fit_folder_keep(files: dict[str, str]) -> Callable[[str], bool]:
     """Which entries of a lens folder a new fit writing ``files`` keeps
-    (:func:`lensfit.atomic.replace_folder`): not fit.json nor an earlier fit's code of
+    (:func:`lensfit.common.atomic.replace_folder`): not fit.json nor an earlier fit's code of
     the same stem (``lens0001.glsl`` of a fit with --glsl), the rest (ghosts/,
     scenes/, scene-fits/ of other commands) yes."""
     stems = {name.partition(".")[0] for name in files if "." in name}

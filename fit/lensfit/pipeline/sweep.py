@@ -5,7 +5,7 @@ Each fit runs as its own ``lensfit fit`` process (defaults only: no ``--quick``,
 ``--timing``), with a CPU-time limit (``--cpu-limit``, RLIMIT_CPU: the kernel stops a fit
 that uses more), and its CPU seconds (user + system, from ``wait4``: that process alone,
 one core) and wall seconds are recorded with what it wrote: the worst cell of its PSF
-against exactly traced rays (:mod:`lensfit.trust`) and where, the table's size and
+against exactly traced rays (:mod:`lensfit.trust.check`) and where, the table's size and
 terms, or the one line it refused with (exit 2), or that it missed its target (exit 3,
 ``lensfit.cli.EXIT_MISS``), or that it did not finish within the limit. The fits are
 independent, so they run as tasks on a Dask LocalCluster (one process per worker, one
@@ -14,7 +14,7 @@ side by side on this 2-core machine took up to 1.8 times the CPU seconds of the 
 alone (0001: 127 against 69; numpy's memory traffic shares the machine), so the figures
 quoted come from one worker on an otherwise idle machine.
 
-    python -m lensfit.fitting.sweep --out build/bench [--cpu-limit 300] [LENS ...]
+    python -m lensfit.pipeline.sweep --out build/bench [--cpu-limit 300] [LENS ...]
 
 writes ``<out>/sweep.json`` and ``<out>/sweep.md`` and exits 1 when a lens that is not
 refused misses 1% or the time target (TARGET_CPU_SECONDS).
@@ -54,7 +54,7 @@ def fit_one(job: dict[str, Any], cpu_limit: int) -> dict[str, Any]:
     """One ``lensfit fit`` of ``job`` (``lens``: an id or a TOML path; ``coating``:
     "file" or "none"; ``import``: a design file to import first) in a fresh folder:
     the row of the table."""
-    from lensfit.generate import read_fit_json
+    from lensfit.codegen.generate import read_fit_json
 
     row: dict[str, Any] = {"lens": job["name"], "coating": job["coating"]}
     with tempfile.TemporaryDirectory() as tmp:
@@ -97,7 +97,7 @@ def fit_one(job: dict[str, Any], cpu_limit: int) -> dict[str, Any]:
         _, meta = read_fit_json(fit_json)
         worst = meta["psf_vs_exact"]["worst"]
         table = next(fit_json.parent.glob("*.table"))
-        from lensfit.trust import cell_label
+        from lensfit.trust.check import cell_label
 
         row.update(status="missed" if code == 3 else "fitted",
                    worst=worst["relative_l2"], where=cell_label(worst),

@@ -22,7 +22,7 @@ import math
 import re
 from typing import Any
 
-from lensfit.errors import InputError
+from lensfit.common.errors import InputError
 
 MAX_DEPTH = 64
 MAX_INT_DIGITS = 308  # 10**308 is the last power of ten a float holds
@@ -131,7 +131,7 @@ def read(path: Any, label: str) -> Any:
     """Read and parse a JSON file strictly; an unreadable file is a JSONInputError."""
     from pathlib import Path
 
-    from lensfit.errors import regular_file_problem
+    from lensfit.common.errors import regular_file_problem
 
     problem = regular_file_problem(path)
     if problem:

@@ -40,8 +40,9 @@ from typing import Any
 
 import numpy as np
 
-from lensfit.errors import int_shown, read_toml, toml_overflow
+from lensfit.common.errors import int_shown, read_toml, toml_overflow
 from lensfit.poly import Polynomial, System
+from lensfit.psf.psf import light_direction  # the one definition (lensfit.psf.psf)
 
 APERTURE_INPUTS = ("x_a", "y_a")
 
@@ -55,24 +56,6 @@ SCENE_NAME_RULE = ("expected a name of 1 to 64 ASCII letters, digits, '_' or '-'
 
 class SceneError(ValueError):
     """A scene that cannot be served, naming the file, key and value."""
-
-
-def light_direction(field_x_deg: float, field_y_deg: float) -> tuple[float, float]:
-    """P_o's (x_O, y_O) for a light at field angles (θx, θy) in degrees.
-
-    Field angles follow the lens designers' convention (Zemax, Code V, Optiland; README
-    "Conventions"): the light's chief ray travels along (tan θx, tan θy, 1), so +θy is a
-    ray rising towards the lens (dy/dz > 0), from a light *below* the axis, imaged at +y
-    by an ordinary lens. (x_O, y_O) are the direction cosines of the opposite direction:
-    from the first vertex towards the light, (-tan θx, -tan θy, 1) normalised, so
-    x_O = -tan θx / sqrt(1 + tan² θx + tan² θy), and the same for y. This is the one
-    place lensfit turns field angles into P_o's inputs (lensrt: lensrt_light_direction)."""
-    for name, v in (("field_x_deg", field_x_deg), ("field_y_deg", field_y_deg)):
-        if not (math.isfinite(v) and abs(v) < 90.0):
-            raise ValueError(f"{name} = {v!r}: expected an angle in (-90, 90) degrees")
-    tx, ty = math.tan(math.radians(field_x_deg)), math.tan(math.radians(field_y_deg))
-    norm = math.sqrt(1.0 + tx * tx + ty * ty)
-    return -tx / norm, -ty / norm
 
 
 @dataclass(frozen=True)
@@ -332,13 +315,13 @@ SCENE_WAVELENGTH_MARGIN_NM = 1.0  # either side of the scene's wavelengths
 
 
 def scene_wavelengths(lens, scene: Scene):
-    """The band a scene fit covers and why (:class:`lensfit.glass.ranges.Wavelengths`):
+    """The band a scene fit covers and why (:class:`lensfit.prescription.ranges.Wavelengths`):
     the scene's wavelengths with ``SCENE_WAVELENGTH_MARGIN_NM`` either side, the margin
     kept inside the range every glass supports (a scene at 400-700 nm fits a lens whose
     glass is published over 400-700 nm) unless the lens allows extrapolation. A scene
     wavelength itself outside a glass's range is refused when the fit starts, naming
     the scene's file and key."""
-    from lensfit.glass.ranges import Wavelengths, allows_extrapolation, common_range
+    from lensfit.prescription.ranges import Wavelengths, allows_extrapolation, common_range
 
     lam = scene.wavelengths_nm
     lo, hi = min(lam) - SCENE_WAVELENGTH_MARGIN_NM, max(lam) + SCENE_WAVELENGTH_MARGIN_NM
@@ -358,7 +341,7 @@ def scene_domain(lens, scene: Scene):
     their nearest distance, its wavelengths (:func:`scene_wavelengths`), its stop
     (``f_number``, default the lens's default) and its focus (with small margins, named
     above)."""
-    from lensfit.psf import geometric_image_point
+    from lensfit.psf.psf import geometric_image_point
     from lensfit.sample.domain import default_domain
 
     r = max(math.hypot(*lt.inputs_xy()) for lt in scene.lights)

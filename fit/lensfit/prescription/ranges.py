@@ -20,7 +20,7 @@ import math
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
-from lensfit.errors import LensError
+from lensfit.common.errors import LensError
 
 if TYPE_CHECKING:
     from lensfit.prescription.model import Lens

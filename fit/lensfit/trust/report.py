@@ -28,7 +28,7 @@ from lensfit.poly import Polynomial, System
 from lensfit.prescription.model import Lens
 from lensfit.sample.domain import Domain, declared_fit, field_cap_note
 from lensfit.trace.tracer import Rays, Step, trace
-from lensfit.trust import cell_label, markdown_table
+from lensfit.trust.check import cell_label, markdown_table
 
 PARETO_TERMS = (5, 10, 20, 40, 80, 120, 160, 200, 240)
 SMALL_SYSTEM_TERMS = 3000  # systems timed output by output, and in casadi's form too
@@ -226,7 +226,7 @@ def write_report(lens: Lens, fits: Sequence[SystemFit], figures: dict[str, Any],
 
 
 def _trust_markdown(fig: dict[str, Any]) -> list[str]:
-    """The PSF table against exactly traced rays (lensfit.trust), the fit's statement of
+    """The PSF table against exactly traced rays (lensfit.trust.check), the fit's statement of
     trust."""
     table = fig.get("psf_vs_exact")
     if not table:
@@ -249,7 +249,7 @@ def _trust_markdown(fig: dict[str, Any]) -> list[str]:
             f"The first fit's worst cell was {fig['retried']['first_worst']:.3%} "
             f"({cell_label(fig['retried']['first_cell'])}), above the target: the lens was "
             f"fitted again with the phase target {fig['retried']['target_waves']:.3g} waves "
-            f"and the {fig['retried']['kept']} fit kept (`lensfit.stage`).", ""]),
+            f"and the {fig['retried']['kept']} fit kept (`lensfit.pipeline.stage`).", ""]),
     ]
 
 
@@ -260,7 +260,7 @@ def _fmt(v: float | None, spec: str = ".3g") -> str:
 def _glass_range_markdown(lens: Lens, dom: dict[str, Any]) -> list[str]:
     """The glasses used outside their published range (allowed by the lens or the
     command line: otherwise the fit refuses them), one bullet each."""
-    from lensfit.glass.ranges import out_of_range
+    from lensfit.prescription.ranges import out_of_range
 
     if "wavelength_min_nm" not in dom:
         return []

@@ -18,8 +18,8 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from lensfit.atomic import write_atomic  # noqa: E402
-from lensfit.errors import InputError  # noqa: E402
+from lensfit.common.atomic import write_atomic  # noqa: E402
+from lensfit.common.errors import InputError  # noqa: E402
 from lensfit.paraxial import D_LINE_NM, paraxial, stop_radius_for_f_number  # noqa: E402
 from lensfit.prescription.model import Lens  # noqa: E402
 from lensfit.sample.domain import FULL_FRAME_HALF_DIAGONAL_MM, MAX_DEFAULT_FIELD_DEG  # noqa: E402

@@ -7,7 +7,7 @@ For one point light, one wavelength and a sensor window, the field at pixel cent
 
 over the aperture points a_j that pass (below). :func:`exact_psf` takes phi, tau and the
 pupil positions from exactly traced rays, aimed by the very functions that produced the
-fitting data (:func:`lensfit.sample.rays.aim_object_side` and ``aim_sensor_side``), so
+fitting data (:func:`lensfit.sample.aim.aim_object_side` and ``aim_sensor_side``), so
 its phi_o, phi_i are exactly what P_o and P_s approximate:
 
 * phi_o = OPL(scene point -> stop point) - d_O, with (x_O, y_O) the direction cosines of
@@ -23,7 +23,7 @@ test can tell "polynomial against trace" from "C against Python".
 An aperture point passes when it lies in the stop disc, its object-side ray exists (no
 miss, no total internal reflection, Newton converged) and x_o^2 + y_o^2 <= housing_first^2;
 per pixel, its sensor-side ray must exist and x_i^2 + y_i^2 <= housing_last^2. The housing
-radii are the first and last surfaces' semi-diameters (:func:`lensfit.facts.lens_facts`):
+radii are the first and last surfaces' semi-diameters (:func:`lensfit.paraxial.facts.lens_facts`):
 the test a runtime can make with the polynomials' outputs. ``clip="housings"`` applies the
 stricter exact test instead (every housing along both half paths, as the fitter's
 ``vignetting`` measures it).
@@ -60,22 +60,20 @@ from concurrent.futures import ThreadPoolExecutor
 import numpy as np
 from scipy.optimize import minimize_scalar
 
-from lensfit.facts import LensFacts, lens_facts
-from lensfit.ghosts.sample import GhostHalf, StopShape, aim_ghost
+from lensfit.paraxial.facts import LensFacts, lens_facts
 from lensfit.paraxial.paraxial import image_distance, paraxial
 from lensfit.poly import System, design_matrix
 from lensfit.prescription.model import Lens
-from lensfit.sample.rays import (
+from lensfit.sample.aim import (
     FD_STEP,
-    OUTPUTS_O,
-    OUTPUTS_S,
     Aimed,
     _front_plane,
     _stop_sag,
     aim_object_side,
     aim_sensor_side,
 )
-from lensfit.scene import light_direction  # the scenes' convention, one definition
+from lensfit.sample.ghost import GhostHalf, StopShape, aim_ghost
+from lensfit.sample.rays import OUTPUTS_O, OUTPUTS_S
 from lensfit.trace.tracer import Rays, Status, Step, trace
 
 BATCH_PAIRS = 1 << 17  # (aperture point, pixel) pairs traced at once: ~150 MB per worker
@@ -84,6 +82,24 @@ GUESS_NODES = 5  # Chebyshev nodes per axis of the window for the sensor-side fi
 
 
 # --- inputs -------------------------------------------------------------------------------
+
+
+def light_direction(field_x_deg: float, field_y_deg: float) -> tuple[float, float]:
+    """P_o's (x_O, y_O) for a light at field angles (θx, θy) in degrees.
+
+    Field angles follow the lens designers' convention (Zemax, Code V, Optiland; README
+    "Conventions"): the light's chief ray travels along (tan θx, tan θy, 1), so +θy is a
+    ray rising towards the lens (dy/dz > 0), from a light *below* the axis, imaged at +y
+    by an ordinary lens. (x_O, y_O) are the direction cosines of the opposite direction:
+    from the first vertex towards the light, (-tan θx, -tan θy, 1) normalised, so
+    x_O = -tan θx / sqrt(1 + tan² θx + tan² θy), and the same for y. This is the one
+    place lensfit turns field angles into P_o's inputs (lensrt: lensrt_light_direction)."""
+    for name, v in (("field_x_deg", field_x_deg), ("field_y_deg", field_y_deg)):
+        if not (math.isfinite(v) and abs(v) < 90.0):
+            raise ValueError(f"{name} = {v!r}: expected an angle in (-90, 90) degrees")
+    tx, ty = math.tan(math.radians(field_x_deg)), math.tan(math.radians(field_y_deg))
+    norm = math.sqrt(1.0 + tx * tx + ty * ty)
+    return -tx / norm, -ty / norm
 
 
 def pixel_centres(width: int, height: int, width_mm: float, height_mm: float = 0.0,
@@ -240,7 +256,7 @@ def _sensor_guess(lens: Lens, xs: np.ndarray, ys: np.ndarray, z_s: float, ap: np
     for windows up to 2 mm, so almost every pair costs one trace and no Newton step.
 
     With ``ghost`` (a ghost half on the sensor side) the node rays follow the ghost's
-    half (:func:`lensfit.ghosts.sample.aim_ghost`, with its continuation and scan): a
+    half (:func:`lensfit.sample.ghost.aim_ghost`, with its continuation and scan): a
     point with a node ray that failed gets NaN guesses, so its pairs are aimed as
     without a guess. Measured on 0001's ghost 4-8 (f/8, 450 nm): the exact PSF's
     23 s of CPU, mostly Newton from the paraxial guess, fall to ~3 s."""
@@ -312,7 +328,7 @@ def _object_landing(lens: Lens, x_O: float, y_O: float, u_O: float, p: np.ndarra
                     lam: float) -> tuple[np.ndarray, np.ndarray]:
     """Where the light's rays through ``p`` (N, 2) on the first vertex plane z = 0 cross
     the stop (N, 2), and which of them get there: the trace of
-    :func:`lensfit.sample.rays.aim_object_side` (its start plane, its path) without its
+    :func:`lensfit.sample.aim.aim_object_side` (its start plane, its path) without its
     Newton."""
     s = lens.stop_index
     w = np.array([x_O, y_O, -math.sqrt(1.0 - x_O * x_O - y_O * y_O)])  # towards the scene
@@ -410,8 +426,8 @@ def exact_psf(lens: Lens, *, stop_radius_mm: float, aperture_xy_mm: np.ndarray,
     Chebyshev grid over the window and interpolates the sensor-side outputs to the
     pixels (:func:`exact_psf_nodes`; "pupils" clipping only).
 
-    ``ghost`` (:func:`lensfit.ghosts.sample.ghost_half`) sums the ghost's image instead:
-    its half is traced by :func:`lensfit.ghosts.sample.aim_ghost` and always clipped
+    ``ghost`` (:func:`lensfit.sample.ghost.ghost_half`) sums the ghost's image instead:
+    its half is traced by :func:`lensfit.sample.ghost.aim_ghost` and always clipped
     exactly (every housing it crosses and, in case C, a round stop of ``stop_radius_mm``
     at its further stop crossings, or ``stop_shape`` (x, y) mm -> inside for a bladed or
     slit stop; the caller passes only ``aperture_xy_mm`` inside that shape); ``clip``
@@ -610,7 +626,7 @@ def _shoot(lens: Lens, ap: np.ndarray, slopes: np.ndarray, lam: float, end_z: fl
            ) -> tuple[np.ndarray, np.ndarray]:
     """Where rays leaving the stop points ``ap`` (N, 2) with ``slopes`` (N, 2) (dx/dz,
     dy/dz) meet the plane z = end_z behind the lens, (N, 2), and which of them get there:
-    the trace of :func:`lensfit.sample.rays.aim_sensor_side` without its Newton."""
+    the trace of :func:`lensfit.sample.aim.aim_sensor_side` without its Newton."""
     s = lens.stop_index
     start = np.column_stack([ap, float(lens.vertex_z[s]) + _stop_sag(lens, ap)])
     out = trace(lens, Rays(start, np.column_stack([slopes, np.ones(len(ap))]), lam),
@@ -884,8 +900,8 @@ def poly_psf(systems: Sequence[System], *, facts: LensFacts | None = None,
     if facts is None:
         facts = getattr(systems, "lens", None)
         if facts is None:
-            raise ValueError("facts: expected the lens facts (lensfit.facts.lens_facts, or "
-                             "read_table(...).lens of a version-2 table), found None")
+            raise ValueError("facts: expected the lens facts (lensfit.paraxial.facts.lens_facts, "
+                             "or read_table(...).lens of a version-2 table), found None")
     p_o, p_s = _system(systems, "P_o"), _system(systems, "P_s")
     lam, xs, ys, ap, inside, x_O, y_O, u_O, z_s = _checked_inputs(
         stop_radius_mm, aperture_xy_mm, field_deg, distance_mm, wavelength_nm,

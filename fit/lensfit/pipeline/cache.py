@@ -18,7 +18,7 @@ from it instead of sampling and fitting again; any other input gives another fol
 A system's checkpoint holds the fitted System (``System.to_dict``: coefficients as JSON
 numbers, which round-trip float64 exactly), its OutputFit list, and of the samples only
 what the report needs: the held-out rays (their arrays, bit for bit, base64) and the
-counts of the training rays. Each file is written atomically (:mod:`lensfit.atomic`),
+counts of the training rays. Each file is written atomically (:mod:`lensfit.common.atomic`),
 carries the full key and a CRC-32 of its canonical text (:mod:`lensfit.codegen
 .checked_json`); one that does not read back exactly, or names another key, is ignored
 with a one-line note on stderr and the step is redone. The stage removes the folder once
@@ -47,9 +47,9 @@ from typing import Any
 
 import numpy as np
 
-from lensfit.atomic import write_files
 from lensfit.codegen.checked_json import checked_json_text, load_checked_json
-from lensfit.errors import InputError
+from lensfit.common.atomic import write_files
+from lensfit.common.errors import InputError
 from lensfit.fitting.lens import SYSTEMS
 from lensfit.fitting.results import OutputFit, SystemFit, error_metric
 from lensfit.poly.polynomial import Input, System
@@ -58,10 +58,10 @@ from lensfit.sample.rays import Samples
 FORMAT = "lensfit-fit-checkpoint 1"
 ENV = "LENSFIT_FIT_CACHE"
 DEFAULT_DIR = Path("build/fit-cache")
-_PACKAGE = Path(__file__).resolve().parent
-# The sources whose change can change a fit or its PSF check
-_CODE = ("fitting", "poly", "sample", "trace", "paraxial", "psf.py", "trust.py",
-         "facts.py", "fit_cache.py")
+_PACKAGE = Path(__file__).resolve().parents[1]
+# The sources whose change can change a fit or its PSF check (paths in lensfit/)
+_CODE = ("fitting", "poly", "sample", "trace", "paraxial", "psf", "trust/check.py",
+         "pipeline/cache.py")
 
 
 def cache_root() -> Path:
@@ -227,7 +227,7 @@ class FitCache:
         self._loaded[fit.system.name] = fit
 
     def load_psf(self, systems: list[System]) -> dict[str, Any] | None:
-        """The checkpointed PSF table (lensfit.trust.psf_vs_exact) of exactly these
+        """The checkpointed PSF table (lensfit.trust.check.psf_vs_exact) of exactly these
         ``systems``, or None (absent, refused, or the check of other polynomials)."""
         digest = systems_digest(systems)
         if self._loaded.get("psf_of") != digest:
@@ -382,14 +382,14 @@ def _system_fit(doc: dict[str, Any]) -> SystemFit:
                      float(_is(doc["seconds_fitting"], "real", "seconds_fitting")))
 
 
-# A PSF check cell's keys by kind (lensfit.trust.psf_vs_exact); "field_share" optional
+# A PSF check cell's keys by kind (lensfit.trust.check.psf_vs_exact); "field_share" optional
 _CELL_KINDS = {"stop": "text", "f_number": "real", "stop_radius_mm": "real", "field": "text",
                "wavelength_nm": "real", "focus_offset_mm": "real", "window_um": "real",
                "pixels": "count", "points": "count", "relative_l2": "real"}
 
 
 def check_psf_table(table: Any) -> dict[str, Any]:
-    """``table`` when it is a PSF check table of the kind lensfit.trust.psf_vs_exact
+    """``table`` when it is a PSF check table of the kind lensfit.trust.check.psf_vs_exact
     makes (cells of the right types, positive where physical, ``worst`` the worst of
     them), else ValueError saying what is wrong."""
     if not isinstance(table, dict) or not isinstance(table.get("cells"), list) \

@@ -22,7 +22,7 @@ import numpy as np
 from lensfit.prescription import load_lens, make_lens
 from lensfit.prescription.model import Lens
 from lensfit.trace.tracer import Rays, trace
-from lensfit.trust import cell_label
+from lensfit.trust.check import cell_label
 
 
 def _bundle(lens: Lens, n: int, seed: int = 1) -> Rays:
@@ -142,7 +142,7 @@ def _lensrt_setup(tables: list[Path], rounds: int = 7) -> list[dict[str, float]]
 
 def bench_fits(outdir: Path, lenses: list[str]) -> int:
     """Fit time, table size, lensrt set-up time and the worst cell of the PSF table
-    against exactly traced rays (lensfit.trust) for each lens, with the default adaptive
+    against exactly traced rays (lensfit.trust.check) for each lens, with the default adaptive
     fit and, as the baseline measured in the same run, the method before it (every term
     of the degrees that reach the target on the fixed grid: FIT_METHODS); the committed
     table's figure beside them. The tables go to build/bench/fit-tables/ (for
@@ -150,10 +150,10 @@ def bench_fits(outdir: Path, lenses: list[str]) -> int:
     import shutil
     import tempfile
 
+    from lensfit.codegen.generate import GENERATED_DIR, lens_folder_name, read_fit_json
     from lensfit.fitting import FitOptions
-    from lensfit.generate import GENERATED_DIR, lens_folder_name, read_fit_json
+    from lensfit.pipeline.stage import run
     from lensfit.sample.domain import default_domain
-    from lensfit.stage import run
 
     tables = outdir / "fit-tables"
     tables.mkdir(parents=True, exist_ok=True)
@@ -229,7 +229,7 @@ def bench_fits(outdir: Path, lenses: list[str]) -> int:
 def _committed_ghosts() -> list[tuple[str, list[str], tuple[float, float], float]]:
     """(lens id, kept ghosts, light, f-number) of every lens folder in generated/ with a
     ghosts.json (coated variants only)."""
-    from lensfit.generate import GENERATED_DIR
+    from lensfit.codegen.generate import GENERATED_DIR
 
     out = []
     for folder in sorted(GENERATED_DIR.iterdir()):
@@ -274,9 +274,9 @@ def bench_ghosts(outdir: Path, specs: list[str], light: tuple[float, float],
     VISIBLE_SETTINGS. build/bench/ghosts.json and ghosts.md."""
     import hashlib
 
-    from lensfit.cli import _direct_fit
+    from lensfit.cli.ghosts import _direct_fit
+    from lensfit.codegen.generate import GENERATED_DIR, lens_folder_name
     from lensfit.codegen.table import write_table
-    from lensfit.generate import GENERATED_DIR, lens_folder_name
     from lensfit.ghosts.enumerate import enumerate_ghosts, mark_ghosts, parse_ghost
     from lensfit.ghosts.tables import TRUST_TARGET, fit_with_trust, miss_reason
 
@@ -380,7 +380,7 @@ def main(argv: list[str] | None = None) -> int:
         x, y = (float(v) for v in args.light.split(","))
         return bench_ghosts(outdir, args.ghosts, (x, y), args.f_number)
     if args.fits is not None:
-        from lensfit.generate import GENERATED_DIR
+        from lensfit.codegen.generate import GENERATED_DIR
 
         # One row per lens: an uncoated variant's folder (<lens>-uncoated) is the same id
         ids = args.fits or sorted({p.name.split("-")[0] for p in GENERATED_DIR.iterdir()

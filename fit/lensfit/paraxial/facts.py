@@ -10,7 +10,7 @@ from __future__ import annotations
 import math
 from dataclasses import astuple, dataclass, fields
 
-from lensfit.errors import InputError
+from lensfit.common.errors import InputError
 from lensfit.paraxial.paraxial import paraxial, stop_radius_f1_mm
 from lensfit.prescription.model import Lens
 

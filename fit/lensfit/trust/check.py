@@ -9,10 +9,10 @@ the polynomials' field error shows most: smaller stops hide it), two PSFs are
 summed over the same stop points (a sunflower set, so Monte Carlo noise cancels and only
 the transport differs):
 
-* the exact one, :func:`lensfit.psf.exact_psf_nodes` (every ray traced in float64; the
+* the exact one, :func:`lensfit.psf.psf.exact_psf_nodes` (every ray traced in float64; the
   sensor-side rays of each stop point traced to a Chebyshev grid over the window and
   interpolated, which agrees with tracing every pair to ~1e-8);
-* the polynomial one, :func:`lensfit.psf.poly_psf` (the fitted P_o and P_s),
+* the polynomial one, :func:`lensfit.psf.psf.poly_psf` (the fitted P_o and P_s),
 
 and the cell's figure is the relative L2 distance of the intensities,
 ||I_poly - I_exact|| / ||I_exact||, over a window that holds the geometric spot and at
@@ -32,15 +32,15 @@ from typing import Any
 
 import numpy as np
 
-from lensfit import psf
-from lensfit.errors import InputError
-from lensfit.facts import lens_facts
+from lensfit.common.errors import InputError
+from lensfit.paraxial.facts import lens_facts
 from lensfit.paraxial.paraxial import paraxial, stop_radius_for_f_number
 from lensfit.poly import System
 from lensfit.prescription.model import Lens
+from lensfit.psf import psf
+from lensfit.psf.psf import light_direction
+from lensfit.sample.aim import Aimed
 from lensfit.sample.domain import FULL_FRAME_HALF_DIAGONAL_MM, Domain
-from lensfit.sample.rays import Aimed
-from lensfit.scene import light_direction
 from lensfit.trace.tracer import Status
 
 WAVELENGTHS_NM = (450.0, 550.0, 650.0)

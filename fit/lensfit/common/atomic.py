@@ -23,7 +23,7 @@ temporary; one left by a killed process (SIGKILL) is removed when the same folde
 written next.
 
 Every failure is an :class:`OutputError` (an InputError: one line, exit 2) naming the
-path. ``lensfit.generate.write_folder`` should call :func:`write_files`."""
+path. ``lensfit.codegen.generate.write_folder`` should call :func:`write_files`."""
 
 from __future__ import annotations
 
@@ -40,7 +40,7 @@ import time
 from collections.abc import Callable, Iterator, Mapping
 from pathlib import Path
 
-from lensfit.errors import InputError
+from lensfit.common.errors import InputError
 
 
 class OutputError(InputError):

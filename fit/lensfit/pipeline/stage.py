@@ -5,10 +5,10 @@
 
 Deterministic: the same lens, domain and options give the same bytes in the generated
 folder (no timings there; the fits and the PSF check use fixed seeds and single-threaded
-BLAS). Each folder is replaced as a whole or not at all (:func:`lensfit.atomic
+BLAS). Each folder is replaced as a whole or not at all (:func:`lensfit.common.atomic
 .replacing_folder`), so an interrupted run leaves the previous folders as they were.
 With ``checkpoints`` each finished system and the PSF check are kept
-(:mod:`lensfit.fit_cache`) and a rerun of the same fit resumes from them.
+(:mod:`lensfit.pipeline.cache`) and a rerun of the same fit resumes from them.
 """
 
 from __future__ import annotations
@@ -23,18 +23,18 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
-from lensfit.atomic import replace_folder, replacing_folder
+from lensfit.codegen.generate import fit_folder_keep, lens_files, lens_folder_name
+from lensfit.codegen.scene import Scene, scene_wavelengths
+from lensfit.common.atomic import replace_folder, replacing_folder
 from lensfit.fitting import FitOptions, SystemFit, fit_lens
 from lensfit.fitting.lens import SYSTEMS
 from lensfit.fitting.tensor import OutOfReach
-from lensfit.generate import fit_folder_keep, lens_files, lens_folder_name
-from lensfit.glass.ranges import Wavelengths
 from lensfit.poly.tensor import single_blas
 from lensfit.prescription.model import Lens
-from lensfit.report import measure, write_report
+from lensfit.prescription.ranges import Wavelengths
 from lensfit.sample.domain import Domain, default_domain, fit_wavelengths
-from lensfit.scene import Scene, scene_wavelengths
-from lensfit.trust import psf_vs_exact, trust_figures
+from lensfit.trust.check import psf_vs_exact, trust_figures
+from lensfit.trust.report import measure, write_report
 
 
 @contextlib.contextmanager
@@ -72,21 +72,21 @@ def run(lens: Lens, *, domain: Domain | None = None, options: FitOptions | None 
         glsl: bool = False, wavelengths: Wavelengths | None = None,
         progress: bool = False, checkpoints: bool = False,
         cache_root: Path | None = None) -> tuple[list[SystemFit], dict[str, Any]]:
-    """Fit ``lens``; measure its PSF against exactly traced rays (:mod:`lensfit.trust`);
+    """Fit ``lens``; measure its PSF against exactly traced rays (:mod:`lensfit.trust.check`);
     write ``generated_dir/<lens>/`` (``generated_dir`` itself with ``flat``) and
     ``report_dir`` when given, each replaced as a whole. With ``scene`` (a scene fit)
     the PSF check uses the scene's lights, wavelengths and focus. ``glsl`` adds the
     GLSL source to the folder. ``progress``: a bar with ETA on stderr
-    (:mod:`lensfit.fit_progress`). ``checkpoints``: keep each finished step in
-    ``cache_root`` (default :func:`lensfit.fit_cache.cache_root`) and resume from the
+    (:mod:`lensfit.pipeline.progress`). ``checkpoints``: keep each finished step in
+    ``cache_root`` (default :func:`lensfit.pipeline.cache.cache_root`) and resume from the
     steps kept there; removed once everything is written.
 
     ``wavelengths``: the domain's band and why (:func:`lensfit.sample.fit_wavelengths`),
     recorded in fit.json, the table's comment and the report. By default: the default
     band without ``domain``, else the scene's when the domain is the scene's
-    (:func:`lensfit.scene.scene_wavelengths`), else the domain's, "asked for"."""
-    from lensfit.fit_cache import FitCache, fit_key
-    from lensfit.fit_progress import FitProgress, step_weights
+    (:func:`lensfit.codegen.scene.scene_wavelengths`), else the domain's, "asked for"."""
+    from lensfit.pipeline.cache import FitCache, fit_key
+    from lensfit.pipeline.progress import FitProgress, step_weights
 
     if wavelengths is None and domain is None:
         wavelengths = fit_wavelengths(lens)
@@ -100,7 +100,7 @@ def run(lens: Lens, *, domain: Domain | None = None, options: FitOptions | None 
         raise ValueError(f"stage.run: wavelengths {wavelengths.range_nm} are not the "
                          f"domain's {domain.wavelength_min_nm}-{domain.wavelength_max_nm}")
     # Glasses outside their published range: refused before any work unless the lens
-    # allows extrapolation (lensfit.glass.ranges; the report then lists them)
+    # allows extrapolation (lensfit.prescription.ranges; the report then lists them)
     wavelengths.check(lens)
     options = options or FitOptions()
     psf_args = _psf_args(scene)
