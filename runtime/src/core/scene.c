@@ -92,7 +92,7 @@ lensrt_result lensrt_scene_check_desc(lensrt_context ctx, const lensrt_render_de
 }
 
 /* The one place lensrt turns field angles into P_o's (x_O, y_O) (lensfit's is
- * lensfit.scene.light_direction). Field angles are the designers' (lensrt.h, lensrt_light):
+ * lensfit.psf.psf.light_direction). Field angles are the designers' (lensrt.h, lensrt_light):
  * the chief ray travels along (tan x, tan y, 1), so the light lies the other way, along
  * (-tan x, -tan y, 1), and x_O, y_O are that direction's cosines. */
 void lensrt_light_direction(const lensrt_light *l, double *x, double *y)
