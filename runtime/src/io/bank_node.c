@@ -22,7 +22,7 @@
 
 /* A whole regular file into memory (the context's allocator); `what` names it in messages. */
 lensrt_result lensrt_bank_read_whole(lensrt_context ctx, const char *path, const char *what, unsigned char **out,
-                                size_t *size)
+                                     size_t *size)
 {
     struct stat st;
     FILE *f;
