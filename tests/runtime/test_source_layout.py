@@ -6,7 +6,8 @@ undefined symbol of A's object file that B's object file defines (nm). The objec
 are made here, each .c compiled alone with `cc -c -O0` into a temporary folder (the
 include paths and defines of runtime/CMakeLists.txt), in two configurations: every
 optional part this machine has headers for (OpenEXR, GL, OpenMP), and none of them (the
-minimal build); the graph is the union of both. The graph must be a DAG; a cycle is
+minimal build: only the units with a conditional on those parts, whose symbols may
+differ); the graph is the union of both. The graph must be a DAG; a cycle is
 printed edge by edge with the symbols that make each edge. Skipped (with the reason)
 only when there is no C compiler or no nm.
 """
@@ -14,6 +15,7 @@ only when there is no C compiler or no nm.
 from __future__ import annotations
 
 import os
+import re
 import shutil
 import subprocess
 import tempfile
@@ -45,7 +47,8 @@ def test_no_source_over_800_lines() -> None:
             n = sum(1 for _ in f)
         if n > MAX_LINES:
             long.append(f"{path.relative_to(ROOT)}: {n} lines")
-    assert not long, f"runtime sources over {MAX_LINES} lines (split them by concern):\n" + "\n".join(long)
+    assert not long, (f"runtime sources over {MAX_LINES} lines (split them by concern):\n"
+                      + "\n".join(long))
 
 
 def _tool(name: str) -> str | None:
@@ -71,9 +74,23 @@ def _configurations(cc: str) -> dict[str, list[str]]:
     return {"full": full, "minimal": base}
 
 
+OPTIONAL = re.compile(r"^\s*#\s*(if|ifdef|ifndef|elif)\b.*\b(LENSRT_EXR|LENSRT_GL|LENSRT_OPENMP)\b",
+                      re.M)
+
+
+def _optional(unit: Path) -> bool:
+    """Whether a unit's symbols may differ without the optional parts: it, or any header
+    of runtime/src (then every unit), has a conditional on them. The others are compiled
+    once (the full configuration)."""
+    if any(OPTIONAL.search(h.read_text(errors="replace")) for h in _sources((".h",))):
+        return True
+    return bool(OPTIONAL.search(unit.read_text(errors="replace")))
+
+
 def _symbols(nm: str, obj: Path) -> tuple[set[str], set[str]]:
     """(defined, undefined) external symbols of an object file."""
-    out = subprocess.run([nm, "-P", "-g", str(obj)], capture_output=True, text=True, check=True).stdout
+    out = subprocess.run([nm, "-P", "-g", str(obj)], capture_output=True, text=True,
+                         check=True).stdout
     defined, undefined = set(), set()
     for line in out.splitlines():
         parts = line.split()
@@ -91,19 +108,26 @@ def dependency_graph() -> dict[str, dict[str, set[str]]]:
         pytest.skip(f"the translation-unit graph needs a C compiler and nm (cc: {cc}, nm: {nm})")
     units = _sources((".c",))
     graph: dict[str, dict[str, set[str]]] = {u.relative_to(SRC).as_posix(): {} for u in units}
+    full_table: dict[str, tuple[set[str], set[str]]] = {}
     with tempfile.TemporaryDirectory() as tmp:
         for config, flags in _configurations(cc).items():
-            def compile_one(unit: Path, config: str = config, flags: list[str] = flags) -> tuple[str, Path]:
+            def compile_one(unit: Path, config: str = config,
+                            flags: list[str] = flags) -> tuple[str, Path]:
                 name = unit.relative_to(SRC).as_posix()
                 obj = Path(tmp, config, name + ".o")
                 obj.parent.mkdir(parents=True, exist_ok=True)
-                res = subprocess.run([cc, *flags, "-c", str(unit), "-o", str(obj)], capture_output=True, text=True)
+                res = subprocess.run([cc, *flags, "-c", str(unit), "-o", str(obj)],
+                                     capture_output=True, text=True)
                 assert res.returncode == 0, f"{name} ({config}) does not compile:\n{res.stderr}"
                 return name, obj
 
+            todo = units if config == "full" else [u for u in units if _optional(u)]
             with ThreadPoolExecutor(max_workers=os.cpu_count() or 2) as pool:
-                objects = list(pool.map(compile_one, units))
-            table = {name: _symbols(nm, obj) for name, obj in objects}
+                objects = list(pool.map(compile_one, todo))
+            # The units not compiled again have the full configuration's symbols
+            table = {**full_table, **{name: _symbols(nm, obj) for name, obj in objects}}
+            if config == "full":
+                full_table = dict(table)
             owner: dict[str, str] = {}
             for name, (defined, _) in table.items():
                 for sym in defined:
@@ -156,43 +180,50 @@ def strongly_connected(graph: dict[str, dict[str, set[str]]]) -> list[list[str]]
 
 def find_cycles(graph: dict[str, dict[str, set[str]]]) -> list[list[str]]:
     """Cycles (lists of units, the first repeated at the end) of each strongly connected
-    component: every two-unit cycle in it, or else a shortest cycle through its first unit."""
+    component: every two-unit cycle in it, then the same for what stays strongly connected
+    without those pairs' edges; a component without such pairs gives a shortest cycle
+    through its first unit."""
     cycles = []
     for comp in strongly_connected(graph):
         members = set(comp)
         pairs = [[a, b, a] for a in comp for b in comp if a < b and b in graph[a] and a in graph[b]]
         cycles.extend(pairs)
-        if not pairs:
-            # A shortest cycle through the component's first unit (breadth first)
-            start = comp[0]
-            prev: dict[str, str] = {}
-            frontier, seen, found = [start], {start}, None
-            while frontier and not found:
-                nxt = []
-                for v in frontier:
-                    for w in sorted(graph[v]):
-                        if w not in members:
-                            continue
-                        if w == start:
-                            found = v
-                            break
-                        if w not in seen:
-                            seen.add(w)
-                            prev[w] = v
-                            nxt.append(w)
-                    if found:
+        if pairs:
+            cut = {(a, b) for a, b, _ in pairs} | {(b, a) for a, b, _ in pairs}
+            rest = {a: {b: graph[a][b] for b in graph[a] if b in members and (a, b) not in cut}
+                    for a in comp}
+            cycles.extend(find_cycles(rest))
+            continue
+        # A shortest cycle through the component's first unit (breadth first)
+        start = comp[0]
+        prev: dict[str, str] = {}
+        frontier, seen, found = [start], {start}, None
+        while frontier and not found:
+            nxt = []
+            for v in frontier:
+                for w in sorted(graph[v]):
+                    if w not in members:
+                        continue
+                    if w == start:
+                        found = v
                         break
-                frontier = nxt
-            path = [found]
-            while path[-1] != start:
-                path.append(prev[path[-1]])
-            cycles.append([start, *reversed(path[:-1]), start] if len(path) > 1 else [start, found, start])
+                    if w not in seen:
+                        seen.add(w)
+                        prev[w] = v
+                        nxt.append(w)
+                if found:
+                    break
+            frontier = nxt
+        path = [found]
+        while path[-1] != start:
+            path.append(prev[path[-1]])
+        cycles.append([*reversed(path), start])
     return cycles
 
 
 def describe(graph: dict[str, dict[str, set[str]]], cycle: list[str]) -> str:
     lines = [" -> ".join(cycle)]
-    for a, b in zip(cycle, cycle[1:]):
+    for a, b in zip(cycle, cycle[1:], strict=False):
         lines.append(f"    {a} uses {b}: {', '.join(sorted(graph[a][b]))}")
     return "\n".join(lines)
 
