@@ -5,7 +5,6 @@
 
 #include "pass.h"
 
-#include <string.h>
 #ifdef LENSRT_OPENMP
 #include <omp.h>
 #endif
