@@ -5,8 +5,8 @@
  * matrix over a grid of the window's pixels (cyclic Jacobi) give a basis in which a
  * pixel needs about 3 terms instead of 30; each pixel keeps the fewest leading vectors
  * whose dropped tail stays under its output's limit, so the basis only ever speeds
- * things up. The limits and the Huygens step are here so that both devices use one
- * definition. */
+ * things up. The limits are here so that both devices use one definition (the Huygens
+ * step, which both use too, is core/specialise.c's, with the amplitude it is the step of). */
 #include "basis.h"
 
 #include "specialise.h"
@@ -126,13 +126,6 @@ double lensrt_output_limit(const lensrt_render r, int o, double c0)
     // 4 + o: a ghost's P_clip output o, 0.01% of its pair's limit as for the inner pupil
     if (o >= 4) return 1e-4 * r->clip_limit[(o - 4) / 2];
     return o < 2 ? 1e-4 * r->lens->housing_last_mm : o == 2 ? 1e-3 * fabs(c0) : r->desc.phase_tolerance_waves;
-}
-
-/* Step (mm) of the central differences of the Huygens amplitude: 1e-3 of the pixel
- * pitch, at least 1e-6 mm. */
-double lensrt_huygens_step(const lensrt_render r)
-{
-    return 1e-3 * fmax(r->pitch_x, 1e-3);
 }
 
 /* The window's bases per wavelength and output: eigenvectors of sum_p c_p c_p^T over a

@@ -8,8 +8,6 @@
 /* The largest l1 norm of the non-constant coefficients output o (x_i, y_i, tau_i, phi_i)
  * may drop at a pixel whose constant term is c0. */
 double lensrt_output_limit(const lensrt_render r, int o, double c0);
-/* Step (mm) of the central differences of the Huygens amplitude. */
-double lensrt_huygens_step(const lensrt_render r);
 
 /* The window's bases per wavelength (r->basis, r->basis_rank, r->n_rows; nothing when
  * the precision does not use them). */

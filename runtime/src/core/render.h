@@ -47,7 +47,7 @@ typedef struct lensrt_stop_shape {
     float f_half_x, f_half_y, f_centre[2];
 } lensrt_stop_shape;
 
-/* The stop test of `ap` with stop radius `radius_mm`. */
+/* The stop test of `ap` with stop radius `radius_mm` (core/stop_shape.c). */
 void lensrt_stop_shape_init(const lensrt_aperture *ap, double radius_mm, lensrt_stop_shape *s);
 
 /* Whether (x, y) passes the stop test, in double. */
@@ -193,6 +193,8 @@ static inline size_t lensrt_sums_count(const lensrt_render r)
 {
     return 2 * (size_t)r->n_lights * (size_t)r->n_wl * (size_t)r->width * (size_t)r->height;
 }
+
+/* What the integrals share with tile sessions (core/integral.c). */
 
 /* LENSRT_SUCCESS unless the sums hold a cells integral (lensrt_render_integrate), which
  * samples cannot be added to, saved or merged with: then the refusal naming `what`. */

@@ -6,8 +6,6 @@
  * amplitude from its phase. All in double. */
 #include "specialise.h"
 
-#include "basis.h"
-
 #include <math.h>
 #include <string.h>
 
@@ -246,6 +244,13 @@ void lensrt_slot_coefficients(const lensrt_pixel_poly *p, const double *px, cons
     int t;
     memset(c, 0, sizeof(double) * (size_t)n_slots);
     for (t = 0; t < p->n; t++) c[p->slot[t]] += p->coef[t] * px[p->ix[t]] * py[p->iy[t]];
+}
+
+/* Step (mm) of the central differences of the Huygens amplitude: 1e-3 of the pixel
+ * pitch, at least 1e-6 mm. */
+double lensrt_huygens_step(const lensrt_render r)
+{
+    return 1e-3 * fmax(r->pitch_x, 1e-3);
 }
 
 /* The slot (1,0) and (0,1) coefficients of phi at a sensor point: d phi / d u, d phi / d v

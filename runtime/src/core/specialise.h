@@ -79,5 +79,8 @@ void lensrt_slot_coefficients(const lensrt_pixel_poly *p, const double *px, cons
  * lambda at the stop centre (Rayleigh-Sommerfeld's cos(theta) / (lambda r) in free
  * space), by central differences of step lensrt_huygens_step. */
 double lensrt_huygens_amplitude(const lensrt_render r, int w, double x, double y);
+/* Step (mm) of the central differences of the Huygens amplitude (both devices use it:
+ * one definition). */
+double lensrt_huygens_step(const lensrt_render r);
 
 #endif /* LENSRT_SPECIALISE_H */

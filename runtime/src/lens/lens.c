@@ -1,11 +1,6 @@
-/* Lenses of every kind: which kind a lens is (the one place that reads
- * lensrt_lens_s.analytic), destruction, information and input normalisation. */
+/* Lenses of every kind: destruction, information and input normalisation (which kind a
+ * lens is: lens/kind.c). */
 #include "lens.h"
-
-const lensrt_lens_ops *lensrt_lens_ops_of(lensrt_lens lens)
-{
-    return lens->analytic ? &lensrt_lens_analytic : &lensrt_lens_fitted;
-}
 
 static void free_system(lensrt_context ctx, lensrt_system *sys)
 {

@@ -77,7 +77,7 @@ typedef struct lensrt_lens_ops {
 
 extern const lensrt_lens_ops lensrt_lens_fitted, lensrt_lens_analytic;
 
-/* The operations of the lens's kind. */
+/* The operations of the lens's kind (lens/kind.c). */
 const lensrt_lens_ops *lensrt_lens_ops_of(lensrt_lens lens);
 
 #endif /* LENSRT_LENS_H */

@@ -3,13 +3,11 @@
  * and checked here, and a last line with the CRC-32 of everything before it;
  * fit/lensfit/codegen/table.py has the format, its ranges and the probe tolerance).
  *
- * Reentrant and independent of the host's locale: lines are split by split_fields (not
- * strtok, whose hidden state a host's own strtok loop or another thread would share),
- * numbers are read by lensrt_strtod_c (the "C" locale on this thread for the call: under
- * de_DE's LC_NUMERIC strtod stops at the '.' of "1.5"), and characters are classified
- * as ASCII, not by the locale's <ctype.h> tables. */
+ * This file reads the table whole: its header, lens, trust and ghost lines, the checksum
+ * and the lens's information; a system's lines are lens/table_system.c's, and the text
+ * layer (reentrant, independent of the host's locale) lens/table_text.c's. */
 #include "../c_numbers.h"
-#include "../internal.h"
+#include "table.h"
 #include "../core/crc32.h"
 
 #include <errno.h>
@@ -20,20 +18,8 @@
 #include <string.h>
 #include <sys/stat.h>
 
-/* Probe lines (version 5): PROBES per system, after its outputs. A probe output read
- * back may differ from the polynomials evaluated here by PROBE_RTOL * sum |c_t| +
- * PROBE_ATOL: only rounding separates them (the writer's numpy sums and these sums of
- * the same terms at the same doubles each err by at most (n_terms + 15) 2^-53 sum |c_t|,
- * 1.2e-10 sum |c_t| at LENSRT_MAX_TERMS), while a coefficient edited, or two swapped, by
- * more than ~1e-9 of sum |c_t| (the output's bound over its domain) moves a probe further
- * (table.py, PROBE_XHAT, for the points' choice). */
-#define PROBES 6
-#define PROBE_RTOL 1e-9
-#define PROBE_ATOL 1e-300
-#define MAX_IO 16 /* inputs and outputs of one system, at most 8 each */
-
 /* The ranges of the lens and trust values (table.py's module doc, "Ranges"; lensfit's
- * facts.py and table.py hold the same numbers): lengths (radii, |focal length|) in
+ * lensfit.paraxial.facts and lensfit.codegen.table hold the same numbers): lengths (radii, |focal length|) in
  * [LENGTH_MIN_MM, LENGTH_MAX_MM], signed distances at most LENGTH_MAX_MM either way. */
 #define LENGTH_MIN_MM 1e-3
 #define LENGTH_MAX_MM 1e6
@@ -44,370 +30,11 @@
 #define PSF_TARGET_MIN 1e-6
 #define PSF_TARGET_MAX 1.0
 
-/* A system's probe lines as read: inputs then outputs of each, and their line numbers. */
-typedef struct probes {
-    double value[PROBES][MAX_IO];
-    int line[PROBES];
-} probes;
-
-/* A cursor over the table text that knows the current line for messages. */
-typedef struct reader {
-    lensrt_context ctx;
-    const char *name; /* file name for messages */
-    const char *p, *end;
-    int line;
-    char buf[4096];   /* the current line */
-    char *tok[24];
-    int n_tok;
-} reader;
-
-static lensrt_result parse_fail(reader *r, const char *fmt, const char *what)
-{
-    char msg[512];
-    snprintf(msg, sizeof msg, fmt, what);
-    return lensrt_fail(r->ctx, LENSRT_ERROR_PARSE, "%s:%d: %s", r->name, r->line, msg);
-}
-
-/* The same with any printf arguments. */
-static lensrt_result parse_failf(reader *r, const char *fmt, ...)
-#if defined(__GNUC__)
-    __attribute__((format(printf, 2, 3)))
-#endif
-    ;
-static lensrt_result parse_failf(reader *r, const char *fmt, ...)
-{
-    char msg[768];
-    va_list args;
-    va_start(args, fmt);
-    vsnprintf(msg, sizeof msg, fmt, args);
-    va_end(args);
-    return lensrt_fail(r->ctx, LENSRT_ERROR_PARSE, "%s:%d: %s", r->name, r->line, msg);
-}
-
-/* Split s in place at runs of spaces and tabs into at most max fields; the count. */
-static int split_fields(char *s, char **fields, int max)
-{
-    int n = 0;
-    while (n < max) {
-        // Skip the separators, then mark the field's start and end it at the next one
-        while (*s == ' ' || *s == '\t') s++;
-        if (*s == '\0') break;
-        fields[n++] = s;
-        while (*s != '\0' && *s != ' ' && *s != '\t') s++;
-        if (*s == '\0') break;
-        *s++ = '\0';
-    }
-    return n;
-}
-
-/* ASCII classes (the locale's <ctype.h> may count other bytes as letters or digits). */
-static int hex_digit(char c)
-{
-    return c >= '0' && c <= '9' ? c - '0' : c >= 'a' && c <= 'f' ? c - 'a' + 10 : c >= 'A' && c <= 'F' ? c - 'A' + 10 : -1;
-}
-
-static int ascii_alnum(char c)
-{
-    return (c >= '0' && c <= '9') || (c >= 'a' && c <= 'z') || (c >= 'A' && c <= 'Z');
-}
-
-/* Read the next line that is not blank or a comment and split it at spaces. */
-static int next_line(reader *r)
-{
-    while (r->p < r->end) {
-        const char *eol = memchr(r->p, '\n', (size_t)(r->end - r->p));
-        size_t len = eol ? (size_t)(eol - r->p) : (size_t)(r->end - r->p);
-        r->line++;
-        if (len >= sizeof r->buf) len = sizeof r->buf - 1;
-        memcpy(r->buf, r->p, len);
-        r->buf[len] = '\0';
-        r->p = eol ? eol + 1 : r->end;
-        if (len && r->buf[len - 1] == '\r') r->buf[len - 1] = '\0';
-        if (r->buf[0] == '#' || r->buf[0] == '\0') continue;
-        r->n_tok = split_fields(r->buf, r->tok, 24);
-        if (r->n_tok && r->tok[0][0] != '#') return 1; /* '#' after blanks: a comment too */
-    }
-    return 0;
-}
-
-/* Decode %XX escapes in place (fields with spaces are percent-encoded). */
-static void decode_field(char *s)
-{
-    char *o = s;
-    for (; *s; s++) {
-        if (s[0] == '%' && hex_digit(s[1]) >= 0 && hex_digit(s[2]) >= 0) {
-            *o++ = (char)(16 * hex_digit(s[1]) + hex_digit(s[2]));
-            s += 2;
-        } else {
-            *o++ = *s;
-        }
-    }
-    *o = '\0';
-}
-
-/* The table's number syntax, nothing else: [-+] digits [. digits] or [-+] . digits, then
- * an optional exponent [eE][-+]digits. strtod alone would also take hex floats (0x1p3),
- * "inf", "nan" and "infinity"; the writer never emits them and Python's reader refuses
- * them (issue 39). */
-static int real_syntax(const char *s)
-{
-    int digits = 0;
-    if (*s == '-' || *s == '+') s++;
-    for (; *s >= '0' && *s <= '9'; s++) digits++;
-    if (*s == '.')
-        for (s++; *s >= '0' && *s <= '9'; s++) digits++;
-    if (!digits) return 0;
-    if (*s == 'e' || *s == 'E') {
-        s++;
-        if (*s == '-' || *s == '+') s++;
-        if (!(*s >= '0' && *s <= '9')) return 0;
-        while (*s >= '0' && *s <= '9') s++;
-    }
-    return *s == '\0';
-}
-
-static int parse_real(const char *s, double *v)
-{
-    char *end;
-    if (!real_syntax(s)) return 0;
-    errno = 0;
-    *v = lensrt_strtod_c(s, &end);
-    return end != s && *end == '\0' && errno == 0 && isfinite(*v);
-}
-
-/* A decimal integer in [lo, hi] (optional sign, ASCII digits only, nothing after). */
-static int parse_int(const char *s, int lo, int hi, int *v)
-{
-    long x = 0;
-    int negative = *s == '-';
-    if (*s == '-' || *s == '+') s++;
-    if (*s == '\0') return 0;
-    for (; *s; s++) {
-        if (*s < '0' || *s > '9') return 0;
-        x = 10 * x + (*s - '0');
-        if (x > 2147483647L) return 0; /* beyond any int bound: stop before overflow */
-    }
-    if (negative) x = -x;
-    if (x < lo || x > hi) return 0;
-    *v = (int)x;
-    return 1;
-}
-
-/* The declared domain of an input (its line's fields are r->tok[3..7]: lo, hi, transform,
- * c, s), checked against its transform (a reader's check, so
- * that nothing the polynomials are evaluated at can overflow): lo < hi, lo > 0 for
- * inverse_square (w = 1/v^2), and the transform maps the domain onto [-1, 1] exactly as
- * lensfit writes it (within DOMAIN_SLACK for the decimal text), so that every monomial
- * of normalised inputs is at most 1 inside the domain. */
-#define DOMAIN_SLACK 1e-9
-static lensrt_result check_input(reader *r, const char *sys, const lensrt_input *in)
-{
-    double a, b;
-    if (!(in->lo < in->hi))
-        return parse_failf(r, "system %s: input %s: domain lo %s, hi %s is empty (lo must be below hi)", sys,
-                           in->name, r->tok[3], r->tok[4]);
-    if (in->transform == LENSRT_TRANSFORM_INVERSE_SQUARE && !(in->lo > 0))
-        return parse_failf(r, "system %s: input %s: inverse_square needs lo > 0, found lo %s", sys, in->name,
-                           r->tok[3]);
-    // The domain's ends, normalised: -1 and 1 (in either order: 1/v^2 falls with v)
-    a = lensrt_normalise(in, in->lo);
-    b = lensrt_normalise(in, in->hi);
-    if (!(fabs(fmin(a, b) + 1.0) <= DOMAIN_SLACK && fabs(fmax(a, b) - 1.0) <= DOMAIN_SLACK))
-        return parse_failf(r, "system %s: input %s: transform %s c %s s %s maps the domain [%s, %s] to [%.17g, "
-                              "%.17g], not [-1, 1]", sys, in->name, r->tok[5], r->tok[6], r->tok[7], r->tok[3],
-                           r->tok[4], fmin(a, b), fmax(a, b));
-    return LENSRT_SUCCESS;
-}
-
-/* Inside the domain every monomial is at most 1 in magnitude, so sum |c_t| bounds the
- * output there: it must stay below LENSRT_MAX_COEFFICIENT_SUM (transmittances tau_o and
- * tau_i, output 2, below LENSRT_MAX_TRANSMITTANCE_SUM). */
-static lensrt_result check_output(reader *r, const char *sys, const lensrt_poly *p, int k, int line)
-{
-    /* P_clip's outputs are all positions (ratios or mm): no transmittance among them */
-    const double bound = k == 2 && strcmp(sys, "P_clip") != 0 ? LENSRT_MAX_TRANSMITTANCE_SUM : LENSRT_MAX_COEFFICIENT_SUM;
-    double total = 0.0;
-    int t;
-    for (t = 0; t < p->n_terms; t++) total += fabs(p->coefficients[t]);
-    if (!(total <= bound))
-        return lensrt_fail(r->ctx, LENSRT_ERROR_PARSE,
-                           "%s:%d: system %s: output %s: the sum of |coefficients| is %.6g, above the bound %g "
-                           "(the largest value the output may reach inside its domain)", r->name, line, sys, p->name,
-                           total, bound);
-    return LENSRT_SUCCESS;
-}
-
-/* A system's PROBES probe lines (after its outputs): each 'probe', the input values (in
- * their units, inside the declared domain) and the output values; kept in *pr. */
-static lensrt_result read_probes(reader *r, const lensrt_system *sys, probes *pr)
-{
-    int p, j;
-    for (p = 0; p < PROBES; p++) {
-        if (!next_line(r) || strcmp(r->tok[0], "probe") != 0)
-            return parse_failf(r, "expected 'probe <input values> <output values>' (probe line %d of %d of system "
-                                  "%s, after its outputs), found '%s'", p + 1, PROBES, sys->name,
-                               r->n_tok ? r->tok[0] : "");
-        if (r->n_tok != 1 + sys->n_inputs + sys->n_outputs)
-            return parse_failf(r, "probe of system %s: expected %d input values and %d output values, found %d "
-                                  "values", sys->name, sys->n_inputs, sys->n_outputs, r->n_tok - 1);
-        pr->line[p] = r->line;
-        for (j = 0; j < sys->n_inputs + sys->n_outputs; j++) {
-            const char *tok = r->tok[1 + j];
-            double *v = &pr->value[p][j];
-            if (!parse_real(tok, v))
-                return parse_failf(r, "probe of system %s: %s %s: '%s' is not a finite number", sys->name,
-                                   j < sys->n_inputs ? "input" : "output",
-                                   j < sys->n_inputs ? sys->inputs[j].name : sys->outputs[j - sys->n_inputs].name, tok);
-            if (j < sys->n_inputs && !(*v >= sys->inputs[j].lo && *v <= sys->inputs[j].hi))
-                return parse_failf(r, "probe of system %s: input %s = %s is outside its domain [%.17g, %.17g]",
-                                   sys->name, sys->inputs[j].name, tok, sys->inputs[j].lo, sys->inputs[j].hi);
-        }
-    }
-    return LENSRT_SUCCESS;
-}
-
-/* The probes of a system against its polynomials as read (the last check of a table):
- * every output within PROBE_RTOL * sum |c_t| + PROBE_ATOL of the probe line's value. */
-static lensrt_result check_probes(lensrt_context ctx, const char *file, const lensrt_system *sys, const probes *pr)
-{
-    int p, j, k, t, d;
-    for (p = 0; p < PROBES; p++) {
-        double pw[8][LENSRT_MAX_DEGREE + 1] = {{0.0}};
-        for (j = 0; j < sys->n_inputs; j++) {
-            double x = lensrt_normalise(&sys->inputs[j], pr->value[p][j]);
-            pw[j][0] = 1.0;
-            for (d = 1; d <= LENSRT_MAX_DEGREE; d++) pw[j][d] = pw[j][d - 1] * x;
-        }
-        for (k = 0; k < sys->n_outputs; k++) {
-            const lensrt_poly *poly = &sys->outputs[k];
-            double got = 0.0, scale = 0.0, want = pr->value[p][sys->n_inputs + k], tol;
-            for (t = 0; t < poly->n_terms; t++) {
-                const unsigned char *e = poly->exponents + (size_t)t * (size_t)sys->n_inputs;
-                double m = poly->coefficients[t];
-                for (j = 0; j < sys->n_inputs; j++) m *= pw[j][e[j]];
-                got += m;
-                scale += fabs(poly->coefficients[t]);
-            }
-            tol = PROBE_RTOL * scale + PROBE_ATOL;
-            if (!(fabs(got - want) <= tol))
-                return lensrt_fail(ctx, LENSRT_ERROR_PARSE,
-                                   "%s:%d: system %s: output %s: probe %d of %d: the polynomials give %.17g, the probe "
-                                   "line says %.17g (difference %.3g, tolerance %.3g): coefficients changed after "
-                                   "lensfit wrote the table (edited, or lines swapped, behind a valid checksum); "
-                                   "refused", file, pr->line[p], sys->name, poly->name, p + 1, PROBES, got, want,
-                                   fabs(got - want), tol);
-        }
-    }
-    return LENSRT_SUCCESS;
-}
-
-static lensrt_result read_system(reader *r, lensrt_system *sys, probes *pr)
-{
-    lensrt_result res;
-    int i, t, k, line;
-    // system NAME n_inputs n_outputs
-    if (r->n_tok != 4 || !parse_int(r->tok[2], 1, 8, &sys->n_inputs) ||
-        !parse_int(r->tok[3], 1, 8, &sys->n_outputs))
-        return parse_fail(r, "expected 'system NAME N_IN N_OUT' (at most 8 each), found '%s'",
-                          r->tok[0]);
-    snprintf(sys->name, sizeof sys->name, "%s", r->tok[1]);
-    // input NAME UNIT LO HI TRANSFORM C S
-    for (i = 0; i < sys->n_inputs; i++) {
-        lensrt_input *in = &sys->inputs[i];
-        if (!next_line(r) || strcmp(r->tok[0], "input") != 0 || r->n_tok != 8)
-            return parse_fail(r, "expected 'input NAME UNIT LO HI TRANSFORM C S'%s", "");
-        snprintf(in->name, sizeof in->name, "%s", r->tok[1]);
-        if (!parse_real(r->tok[3], &in->lo) || !parse_real(r->tok[4], &in->hi) ||
-            !parse_real(r->tok[6], &in->c) || !parse_real(r->tok[7], &in->s) || in->s == 0.0 ||
-            !(in->lo <= in->hi))
-            return parse_fail(r, "input '%s': bounds or normalisation are not finite numbers "
-                                 "with lo <= hi and s != 0", in->name);
-        if (strcmp(r->tok[5], "affine") == 0) in->transform = LENSRT_TRANSFORM_AFFINE;
-        else if (strcmp(r->tok[5], "inverse_square") == 0) in->transform = LENSRT_TRANSFORM_INVERSE_SQUARE;
-        else return parse_fail(r, "unknown transform '%s' (affine or inverse_square)", r->tok[5]);
-        if ((res = check_input(r, sys->name, in)) != LENSRT_SUCCESS) return res;
-    }
-    // output NAME UNIT N_TERMS, then one line per term: exponents and coefficient
-    for (k = 0; k < sys->n_outputs; k++) {
-        lensrt_poly *p = &sys->outputs[k];
-        if (!next_line(r) || strcmp(r->tok[0], "output") != 0 || r->n_tok != 4 ||
-            !parse_int(r->tok[3], 0, LENSRT_MAX_TERMS, &p->n_terms))
-            return parse_fail(r, "expected 'output NAME UNIT N_TERMS'%s", "");
-        snprintf(p->name, sizeof p->name, "%s", r->tok[1]);
-        if (strcmp(r->tok[2], "-") == 0) r->tok[2][0] = '\0'; /* an empty text field */
-        decode_field(r->tok[2]);
-        snprintf(p->unit, sizeof p->unit, "%s", r->tok[2]);
-        line = r->line;
-        p->exponents = lensrt_calloc(r->ctx, (size_t)p->n_terms * (size_t)sys->n_inputs + 1, 1);
-        p->coefficients = lensrt_calloc(r->ctx, (size_t)p->n_terms + 1, sizeof(double));
-        if (!p->exponents || !p->coefficients)
-            return lensrt_fail(r->ctx, LENSRT_ERROR_OUT_OF_MEMORY, "%s: out of memory", r->name);
-        for (t = 0; t < p->n_terms; t++) {
-            if (!next_line(r) || r->n_tok != sys->n_inputs + 1)
-                return parse_fail(r, "output '%s': expected a term line with one exponent per "
-                                     "input and a coefficient", p->name);
-            for (i = 0; i < sys->n_inputs; i++) {
-                int e;
-                if (!parse_int(r->tok[i], 0, LENSRT_MAX_DEGREE, &e))
-                    return parse_fail(r, "exponent '%s' is not an integer in 0..15", r->tok[i]);
-                p->exponents[t * sys->n_inputs + i] = (unsigned char)e;
-            }
-            if (!parse_real(r->tok[sys->n_inputs], &p->coefficients[t]))
-                return parse_fail(r, "coefficient '%s' is not a finite number", r->tok[sys->n_inputs]);
-        }
-        if ((res = check_output(r, sys->name, p, k, line)) != LENSRT_SUCCESS) return res;
-    }
-    if ((res = read_probes(r, sys, pr)) != LENSRT_SUCCESS) return res;
-    if (!next_line(r) || strcmp(r->tok[0], "end") != 0)
-        return parse_fail(r, "expected 'end' after the outputs of system %s", sys->name);
-    return LENSRT_SUCCESS;
-}
-
 /* The input names each system must have, in this order. */
 static const char *const P_O_INPUTS[6] = {"x_O", "y_O", "u_O", "x_a", "y_a", "lambda"};
 static const char *const P_S_INPUTS[6] = {"x_S", "y_S", "z_S", "x_a", "y_a", "lambda"};
 static const char *const P_O_OUTPUTS[4] = {"x_o", "y_o", "tau_o", "phi_o"};
 static const char *const P_S_OUTPUTS[4] = {"x_i", "y_i", "tau_i", "phi_i"};
-
-static lensrt_result check_system(lensrt_context ctx, const char *file, const lensrt_system *s,
-                                  const char *const *ins, const char *const *outs)
-{
-    int i;
-    if (s->n_inputs != 6 || s->n_outputs != 4)
-        return lensrt_fail(ctx, LENSRT_ERROR_PARSE,
-                           "%s: system %s: expected 6 inputs and 4 outputs, found %d and %d",
-                           file, s->name, s->n_inputs, s->n_outputs);
-    for (i = 0; i < 6; i++)
-        if (strcmp(s->inputs[i].name, ins[i]) != 0)
-            return lensrt_fail(ctx, LENSRT_ERROR_PARSE,
-                               "%s: system %s: input %d: expected '%s', found '%s'", file,
-                               s->name, i, ins[i], s->inputs[i].name);
-    for (i = 0; i < 4; i++)
-        if (strcmp(s->outputs[i].name, outs[i]) != 0)
-            return lensrt_fail(ctx, LENSRT_ERROR_PARSE,
-                               "%s: system %s: output %d: expected '%s', found '%s'", file,
-                               s->name, i, outs[i], s->outputs[i].name);
-    return LENSRT_SUCCESS;
-}
-
-/* The two systems describe one lens: the stop point and wavelength inputs (3, 4, 5) have
- * the same domain in both, and u_O (an inverse distance) is not negative. */
-static lensrt_result check_shared_inputs(lensrt_context ctx, const char *file, const lensrt_lens lens)
-{
-    int i;
-    for (i = 3; i < 6; i++) {
-        const lensrt_input *a = &lens->p_o.inputs[i], *b = &lens->p_s.inputs[i];
-        if (a->lo != b->lo || a->hi != b->hi)
-            return lensrt_fail(ctx, LENSRT_ERROR_PARSE,
-                               "%s: input %s: P_o's domain [%.17g, %.17g] differs from P_s's [%.17g, %.17g] "
-                               "(one lens, one stop and one wavelength range)", file, a->name, a->lo, a->hi, b->lo,
-                               b->hi);
-    }
-    if (!(lens->p_o.inputs[2].lo >= 0))
-        return lensrt_fail(ctx, LENSRT_ERROR_PARSE, "%s: input u_O (1 / distance): domain lo %.17g is negative", file,
-                           lens->p_o.inputs[2].lo);
-    return LENSRT_SUCCESS;
-}
 
 /* `lens KEY VALUE` lines (since table version 2). */
 static lensrt_result read_lens_line(reader *r, lensrt_lens lens, unsigned *seen)
@@ -427,30 +54,30 @@ static lensrt_result read_lens_line(reader *r, lensrt_lens lens, unsigned *seen)
     slots[5] = &lens->sensor_defocus_mm;
     slots[6] = &lens->front_focal_distance_mm;
     slots[7] = &lens->squeeze;
-    if (r->n_tok != 3) return parse_fail(r, "expected 'lens KEY VALUE'%s", "");
+    if (r->n_tok != 3) return lensrt_table_parse_fail(r, "expected 'lens KEY VALUE'%s", "");
     if (strcmp(r->tok[1], "name") == 0) {
-        decode_field(r->tok[2]);
+        lensrt_table_decode_field(r->tok[2]);
         snprintf(lens->name, sizeof lens->name, "%s", r->tok[2]);
         return LENSRT_SUCCESS;
     }
     for (i = 0; i < 8; i++) {
         if (strcmp(r->tok[1], keys[i]) != 0) continue;
-        if (!parse_real(r->tok[2], &v))
-            return parse_failf(r, "lens %s '%s' is not a finite number", keys[i], r->tok[2]);
+        if (!lensrt_table_parse_real(r->tok[2], &v))
+            return lensrt_table_parse_failf(r, "lens %s '%s' is not a finite number", keys[i], r->tok[2]);
         // The ranges (defines above): lengths 0..4 (the focal length either sign), the
         // signed distances 5 and 6, the squeeze 7
         if (i == 0 && !(fabs(v) >= LENGTH_MIN_MM && fabs(v) <= LENGTH_MAX_MM))
-            return parse_failf(r, "lens focal_length_mm %s is out of range: expected %g to %g mm either sign", r->tok[2],
-                               LENGTH_MIN_MM, LENGTH_MAX_MM);
+            return lensrt_table_parse_failf(r, "lens focal_length_mm %s is out of range: expected %g to %g mm either sign", r->tok[2],
+                                            LENGTH_MIN_MM, LENGTH_MAX_MM);
         if (i >= 1 && i <= 4 && !(v >= LENGTH_MIN_MM && v <= LENGTH_MAX_MM))
-            return parse_failf(r, "lens %s %s is out of range: expected a length in [%g, %g] mm", keys[i], r->tok[2],
-                               LENGTH_MIN_MM, LENGTH_MAX_MM);
+            return lensrt_table_parse_failf(r, "lens %s %s is out of range: expected a length in [%g, %g] mm", keys[i], r->tok[2],
+                                            LENGTH_MIN_MM, LENGTH_MAX_MM);
         if ((i == 5 || i == 6) && !(fabs(v) <= LENGTH_MAX_MM))
-            return parse_failf(r, "lens %s %s is out of range: expected a distance in [%g, %g] mm", keys[i], r->tok[2],
-                               -LENGTH_MAX_MM, LENGTH_MAX_MM);
+            return lensrt_table_parse_failf(r, "lens %s %s is out of range: expected a distance in [%g, %g] mm", keys[i], r->tok[2],
+                                            -LENGTH_MAX_MM, LENGTH_MAX_MM);
         if (i == 7 && !(v >= SQUEEZE_MIN && v <= SQUEEZE_MAX))
-            return parse_failf(r, "lens squeeze %s is out of range: expected a squeeze in [%g, %g]", r->tok[2],
-                               SQUEEZE_MIN, SQUEEZE_MAX);
+            return lensrt_table_parse_failf(r, "lens squeeze %s is out of range: expected a squeeze in [%g, %g]", r->tok[2],
+                                            SQUEEZE_MIN, SQUEEZE_MAX);
         *slots[i] = v;
         *seen |= 1u << i;
         return LENSRT_SUCCESS;
@@ -475,33 +102,33 @@ static lensrt_result read_trust_line(reader *r, lensrt_lens lens, int n_lens, in
     double v;
     int i;
     if (n_systems)
-        return parse_failf(r, "trust %s '%s' after a system: the trust lines come before the first "
+        return lensrt_table_parse_failf(r, "trust %s '%s' after a system: the trust lines come before the first "
                               "system", key, value);
     if (!n_lens)
-        return parse_failf(r, "trust %s '%s' before the lens lines: the trust lines follow them",
-                           key, value);
+        return lensrt_table_parse_failf(r, "trust %s '%s' before the lens lines: the trust lines follow them",
+                                        key, value);
     for (i = 0; i < *n_trust; i++)
         if (strcmp(key, TRUST_KEYS[i]) == 0)
-            return parse_failf(r, "trust %s '%s' appears twice (each trust key once: " TRUST_ORDER ")",
-                               key, value);
+            return lensrt_table_parse_failf(r, "trust %s '%s' appears twice (each trust key once: " TRUST_ORDER ")",
+                                            key, value);
     if (*n_trust == TRUST_LINES)
-        return parse_failf(r, "unknown trust key '%s' (value '%s') after the %d trust lines (" TRUST_ORDER ")",
-                           key, value, TRUST_LINES);
+        return lensrt_table_parse_failf(r, "unknown trust key '%s' (value '%s') after the %d trust lines (" TRUST_ORDER ")",
+                                        key, value, TRUST_LINES);
     if (strcmp(key, TRUST_KEYS[*n_trust]) != 0)
-        return parse_failf(r, "expected '%s' (trust line %d of %d: " TRUST_ORDER "), found trust %s '%s'",
-                           TRUST_FORMS[*n_trust], *n_trust + 1, TRUST_LINES, key, value);
+        return lensrt_table_parse_failf(r, "expected '%s' (trust line %d of %d: " TRUST_ORDER "), found trust %s '%s'",
+                                        TRUST_FORMS[*n_trust], *n_trust + 1, TRUST_LINES, key, value);
     if (r->n_tok != 3)
-        return parse_failf(r, "expected '%s' (3 fields), found %d fields", TRUST_FORMS[*n_trust], r->n_tok);
+        return lensrt_table_parse_failf(r, "expected '%s' (3 fields), found %d fields", TRUST_FORMS[*n_trust], r->n_tok);
     if (*n_trust == 1) {
-        decode_field(r->tok[2]);
+        lensrt_table_decode_field(r->tok[2]);
         snprintf(lens->psf_vs_exact_cell, sizeof lens->psf_vs_exact_cell, "%s", r->tok[2]);
     } else {
         const double lo = *n_trust == 0 ? PSF_VS_EXACT_MIN : PSF_TARGET_MIN;
         const double hi = *n_trust == 0 ? PSF_VS_EXACT_MAX : PSF_TARGET_MAX;
-        if (!parse_real(value, &v))
-            return parse_failf(r, "trust %s '%s' is not a finite number", key, value);
+        if (!lensrt_table_parse_real(value, &v))
+            return lensrt_table_parse_failf(r, "trust %s '%s' is not a finite number", key, value);
         if (!(v >= lo && v <= hi))
-            return parse_failf(r, "trust %s %s is out of range: expected a number in [%g, %g]", key, value, lo, hi);
+            return lensrt_table_parse_failf(r, "trust %s %s is out of range: expected a number in [%g, %g]", key, value, lo, hi);
         if (*n_trust == 0) lens->psf_vs_exact = v;
         else lens->psf_target = v;
     }
@@ -547,122 +174,52 @@ static lensrt_result read_ghost_line(reader *r, lensrt_lens lens, int n_trust, i
     const char *value = r->n_tok > 2 ? r->tok[2] : "";
     int i;
     if (n_systems)
-        return parse_failf(r, "ghost %s '%s' after a system: the ghost lines come before the first system", key,
-                           value);
+        return lensrt_table_parse_failf(r, "ghost %s '%s' after a system: the ghost lines come before the first system", key,
+                                        value);
     if (n_trust < TRUST_LINES)
-        return parse_failf(r, "ghost %s '%s' before the trust lines end: the ghost lines follow them", key, value);
+        return lensrt_table_parse_failf(r, "ghost %s '%s' before the trust lines end: the ghost lines follow them", key, value);
     for (i = 0; i < *n_ghost; i++)
         if (strcmp(key, GHOST_KEYS[i]) == 0)
-            return parse_failf(r, "ghost %s '%s' appears twice (each ghost key once: " GHOST_ORDER ")", key, value);
+            return lensrt_table_parse_failf(r, "ghost %s '%s' appears twice (each ghost key once: " GHOST_ORDER ")", key, value);
     if (*n_ghost == GHOST_LINES)
-        return parse_failf(r, "unknown ghost key '%s' (value '%s') after the %d ghost lines (" GHOST_ORDER ")", key,
-                           value, GHOST_LINES);
+        return lensrt_table_parse_failf(r, "unknown ghost key '%s' (value '%s') after the %d ghost lines (" GHOST_ORDER ")", key,
+                                        value, GHOST_LINES);
     if (strcmp(key, GHOST_KEYS[*n_ghost]) != 0)
-        return parse_failf(r, "expected '%s' (ghost line %d of %d: " GHOST_ORDER "), found ghost %s '%s'",
-                           GHOST_FORMS[*n_ghost], *n_ghost + 1, GHOST_LINES, key, value);
+        return lensrt_table_parse_failf(r, "expected '%s' (ghost line %d of %d: " GHOST_ORDER "), found ghost %s '%s'",
+                                        GHOST_FORMS[*n_ghost], *n_ghost + 1, GHOST_LINES, key, value);
     if (r->n_tok != 3)
-        return parse_failf(r, "expected '%s' (3 fields), found %d fields", GHOST_FORMS[*n_ghost], r->n_tok);
+        return lensrt_table_parse_failf(r, "expected '%s' (3 fields), found %d fields", GHOST_FORMS[*n_ghost], r->n_tok);
     switch (*n_ghost) {
     case 0: /* a model surface index */
-        if (!parse_int(value, 0, 1000000, &lens->ghost_first))
-            return parse_failf(r, "ghost first '%s' is not a surface index (an integer >= 0)", value);
+        if (!lensrt_table_parse_int(value, 0, 1000000, &lens->ghost_first))
+            return lensrt_table_parse_failf(r, "ghost first '%s' is not a surface index (an integer >= 0)", value);
         break;
     case 1: /* the second reflection lies behind the first */
-        if (!parse_int(value, 0, 1000000, &lens->ghost_second))
-            return parse_failf(r, "ghost second '%s' is not a surface index (an integer >= 0)", value);
+        if (!lensrt_table_parse_int(value, 0, 1000000, &lens->ghost_second))
+            return lensrt_table_parse_failf(r, "ghost second '%s' is not a surface index (an integer >= 0)", value);
         if (lens->ghost_second <= lens->ghost_first)
-            return parse_failf(r, "ghost second '%s' is not after ghost first %d (a ghost (i, j) needs i < j)", value,
-                               lens->ghost_first);
+            return lensrt_table_parse_failf(r, "ghost second '%s' is not after ghost first %d (a ghost (i, j) needs i < j)", value,
+                                            lens->ghost_first);
         break;
     case 2:
         if (strcmp(r->tok[2], "-") == 0) r->tok[2][0] = '\0';
-        decode_field(r->tok[2]);
+        lensrt_table_decode_field(r->tok[2]);
         if (!label_matches(r->tok[2], lens->ghost_first, lens->ghost_second))
-            return parse_failf(r, "ghost label '%s' does not number ghost first %d and ghost second %d: expected '%d-%d' "
+            return lensrt_table_parse_failf(r, "ghost label '%s' does not number ghost first %d and ghost second %d: expected '%d-%d' "
                                   "(or one less for a surface behind the stop surface the loader inserts: '%d-%d', "
                                   "'%d-%d')", r->tok[2], lens->ghost_first, lens->ghost_second, lens->ghost_first,
-                               lens->ghost_second, lens->ghost_first, lens->ghost_second - 1,
-                               lens->ghost_first > 0 ? lens->ghost_first - 1 : 0, lens->ghost_second - 1);
+                                            lens->ghost_second, lens->ghost_first, lens->ghost_second - 1,
+                                            lens->ghost_first > 0 ? lens->ghost_first - 1 : 0, lens->ghost_second - 1);
         snprintf(lens->ghost_label, sizeof lens->ghost_label, "%s", r->tok[2]);
         break;
     default:
         if (strcmp(value, "P_o") == 0) lens->ghost_side = LENSRT_SYSTEM_OBJECT;
         else if (strcmp(value, "P_s") == 0) lens->ghost_side = LENSRT_SYSTEM_SENSOR;
-        else return parse_failf(r, "ghost side '%s' is neither P_o nor P_s (the system that is the ghost half)", value);
+        else return lensrt_table_parse_failf(r, "ghost side '%s' is neither P_o nor P_s (the system that is the ghost half)", value);
         lens->ghost = 1;
         break;
     }
     ++*n_ghost;
-    return LENSRT_SUCCESS;
-}
-
-/* P_clip (ghost tables): the ghost side's inputs exactly (names, domains, transforms),
- * then pairs x_h<k> y_h<k> (unit 1: a housing crossing over its radius) or x_s<c> y_s<c>
- * (unit mm: a crossing of the stop plane). A unit may carry a description after a space
- * ("1 (over the radius)"), as the inputs' units do. */
-static int unit_is(const char *unit, const char *want)
-{
-    size_t n = strlen(want);
-    return strncmp(unit, want, n) == 0 && (unit[n] == '\0' || unit[n] == ' ');
-}
-
-static int pair_name(const char *name, char axis, char kind, char *index, size_t size)
-{
-    const char *d = name + 3;
-    if (name[0] != axis || name[1] != '_' || name[2] != kind || *d == '\0') return 0;
-    for (; *d; d++)
-        if (*d < '0' || *d > '9') return 0;
-    snprintf(index, size, "%s", name + 3);
-    return 1;
-}
-
-static lensrt_result check_clip(lensrt_context ctx, const char *file, lensrt_lens lens)
-{
-    const lensrt_system *c = &lens->p_clip;
-    const lensrt_system *g = lens->ghost_side == LENSRT_SYSTEM_OBJECT ? &lens->p_o : &lens->p_s;
-    const char *gname = lens->ghost_side == LENSRT_SYSTEM_OBJECT ? "P_o" : "P_s";
-    int i, q;
-    if (c->n_inputs != g->n_inputs)
-        return lensrt_fail(ctx, LENSRT_ERROR_PARSE,
-                           "%s: system P_clip: %d inputs, the ghost side %s has %d (P_clip takes exactly its inputs)",
-                           file, c->n_inputs, gname, g->n_inputs);
-    for (i = 0; i < c->n_inputs; i++) {
-        const lensrt_input *a = &c->inputs[i], *b = &g->inputs[i];
-        if (strcmp(a->name, b->name) != 0 || a->lo != b->lo || a->hi != b->hi || a->transform != b->transform ||
-            a->c != b->c || a->s != b->s)
-            return lensrt_fail(ctx, LENSRT_ERROR_PARSE,
-                               "%s: system P_clip: input %d '%s' [%.17g, %.17g] (transform %d, c %.17g, s %.17g) "
-                               "differs from the ghost side %s's '%s' [%.17g, %.17g] (transform %d, c %.17g, s %.17g)",
-                               file, i, a->name, a->lo, a->hi, a->transform, a->c, a->s, gname, b->name, b->lo,
-                               b->hi, b->transform, b->c, b->s);
-    }
-    if (c->n_outputs % 2 != 0)
-        return lensrt_fail(ctx, LENSRT_ERROR_PARSE,
-                           "%s: system P_clip: %d outputs, an odd count (outputs come in pairs x, y)", file,
-                           c->n_outputs);
-    for (q = 0; q < c->n_outputs / 2; q++) {
-        const lensrt_poly *x = &c->outputs[2 * q], *y = &c->outputs[2 * q + 1];
-        char ix[32], iy[32];
-        int stop;
-        if (pair_name(x->name, 'x', 'h', ix, sizeof ix)) stop = 0;
-        else if (pair_name(x->name, 'x', 's', ix, sizeof ix)) stop = 1;
-        else
-            return lensrt_fail(ctx, LENSRT_ERROR_PARSE,
-                               "%s: system P_clip: output %d '%s' (unit '%s'): expected x_h<k> (a housing, unit 1) or "
-                               "x_s<c> (a stop crossing, unit mm)", file, 2 * q, x->name, x->unit);
-        if (!pair_name(y->name, 'y', stop ? 's' : 'h', iy, sizeof iy) || strcmp(ix, iy) != 0)
-            return lensrt_fail(ctx, LENSRT_ERROR_PARSE,
-                               "%s: system P_clip: output %d '%s' follows '%s': expected its pair y_%c%s", file,
-                               2 * q + 1, y->name, x->name, stop ? 's' : 'h', ix);
-        if (!unit_is(x->unit, stop ? "mm" : "1") || !unit_is(y->unit, stop ? "mm" : "1"))
-            return lensrt_fail(ctx, LENSRT_ERROR_PARSE,
-                               "%s: system P_clip: pair %s, %s has units '%s', '%s': expected '%s' (%s)", file,
-                               x->name, y->name, x->unit, y->unit, stop ? "mm" : "1",
-                               stop ? "a stop crossing in mm" : "a housing crossing over its radius");
-        lens->clip_stop[q] = stop;
-        lens->n_stop_pairs += stop;
-    }
-    lens->n_clip_pairs = c->n_outputs / 2;
     return LENSRT_SUCCESS;
 }
 
@@ -699,7 +256,7 @@ static void lens_id_of(const char *file, char *id, size_t size)
     if (n > 10 && strncmp(base, "lens", 4) == 0 && strcmp(base + n - 6, ".table") == 0 && n - 10 < size) {
         size_t i;
         for (i = 4; i < n - 6; i++)
-            if (!ascii_alnum(base[i]) && base[i] != '-' && base[i] != '_') return;
+            if (!lensrt_table_ascii_alnum(base[i]) && base[i] != '-' && base[i] != '_') return;
         memcpy(id, base + 4, n - 10);
         id[n - 10] = '\0';
     }
@@ -815,8 +372,8 @@ lensrt_result lensrt_lens_load_text(lensrt_context ctx, const char *text, size_t
     r.p = text;
     r.end = text + size;
     // Header: the format name and version
-    if (!next_line(&r) || r.n_tok != 2 || strcmp(r.tok[0], "lensfit-poly-table") != 0 ||
-        !parse_int(r.tok[1], 1, 1000, &version))
+    if (!lensrt_table_next_line(&r) || r.n_tok != 2 || strcmp(r.tok[0], "lensfit-poly-table") != 0 ||
+        !lensrt_table_parse_int(r.tok[1], 1, 1000, &version))
         return lensrt_fail(ctx, LENSRT_ERROR_PARSE,
                            "%s:%d: not a lens table: expected 'lensfit-poly-table 5'", r.name, r.line);
     lens_id_of(r.name, id, sizeof id);
@@ -854,20 +411,20 @@ lensrt_result lensrt_lens_load_text(lensrt_context ctx, const char *text, size_t
     snprintf(lens->name, sizeof lens->name, "%s", r.name);
     // Lens facts, trust figures, then the two systems
     res = LENSRT_SUCCESS;
-    while (res == LENSRT_SUCCESS && next_line(&r)) {
+    while (res == LENSRT_SUCCESS && lensrt_table_next_line(&r)) {
         if (strcmp(r.tok[0], "lens") == 0) {
             if (n_trust || n_systems) {
-                res = parse_failf(&r, "lens %s '%s' after the %s: the lens lines come first",
-                                  r.n_tok > 1 ? r.tok[1] : "", r.n_tok > 2 ? r.tok[2] : "",
-                                  n_systems ? "systems" : "trust lines");
+                res = lensrt_table_parse_failf(&r, "lens %s '%s' after the %s: the lens lines come first",
+                                               r.n_tok > 1 ? r.tok[1] : "", r.n_tok > 2 ? r.tok[2] : "",
+                                               n_systems ? "systems" : "trust lines");
                 break;
             }
             n_lens++;
             res = read_lens_line(&r, lens, &seen);
         } else if (strcmp(r.tok[0], "trust") == 0) {
             if (n_ghost) {
-                res = parse_failf(&r, "trust %s '%s' after the ghost lines: the trust lines come first",
-                                  r.n_tok > 1 ? r.tok[1] : "", r.n_tok > 2 ? r.tok[2] : "");
+                res = lensrt_table_parse_failf(&r, "trust %s '%s' after the ghost lines: the trust lines come first",
+                                               r.n_tok > 1 ? r.tok[1] : "", r.n_tok > 2 ? r.tok[2] : "");
                 break;
             }
             res = read_trust_line(&r, lens, n_lens, n_systems, &n_trust);
@@ -876,58 +433,58 @@ lensrt_result lensrt_lens_load_text(lensrt_context ctx, const char *text, size_t
         } else if (strcmp(r.tok[0], "system") == 0) {
             lensrt_system *sys;
             if (n_trust < TRUST_LINES) {
-                res = parse_failf(&r, "missing trust line: expected '%s' (trust line %d of %d: " TRUST_ORDER
+                res = lensrt_table_parse_failf(&r, "missing trust line: expected '%s' (trust line %d of %d: " TRUST_ORDER
                                       "), found '%s %s'", TRUST_FORMS[n_trust], n_trust + 1, TRUST_LINES,
-                                  r.tok[0], r.n_tok > 1 ? r.tok[1] : "");
+                                               r.tok[0], r.n_tok > 1 ? r.tok[1] : "");
                 break;
             }
             if (n_ghost && n_ghost < GHOST_LINES) {
-                res = parse_failf(&r, "missing ghost line: expected '%s' (ghost line %d of %d: " GHOST_ORDER
+                res = lensrt_table_parse_failf(&r, "missing ghost line: expected '%s' (ghost line %d of %d: " GHOST_ORDER
                                       "), found '%s %s'", GHOST_FORMS[n_ghost], n_ghost + 1, GHOST_LINES,
-                                  r.tok[0], r.n_tok > 1 ? r.tok[1] : "");
+                                               r.tok[0], r.n_tok > 1 ? r.tok[1] : "");
                 break;
             }
             n_systems++;
             if (r.n_tok > 1 && strcmp(r.tok[1], "P_o") == 0) sys = &lens->p_o;
             else if (r.n_tok > 1 && strcmp(r.tok[1], "P_s") == 0) sys = &lens->p_s;
             else if (r.n_tok > 1 && strcmp(r.tok[1], "P_clip") == 0) sys = &lens->p_clip;
-            else { res = parse_fail(&r, "unknown system '%s' (P_o, P_s, or P_clip in a ghost table)", r.n_tok > 1 ? r.tok[1] : ""); break; }
-            if (sys->n_inputs) { res = parse_fail(&r, "system %s appears twice", sys->name); break; }
+            else { res = lensrt_table_parse_fail(&r, "unknown system '%s' (P_o, P_s, or P_clip in a ghost table)", r.n_tok > 1 ? r.tok[1] : ""); break; }
+            if (sys->n_inputs) { res = lensrt_table_parse_fail(&r, "system %s appears twice", sys->name); break; }
             if (sys == &lens->p_clip) {
                 // Only a ghost table clips, after its two systems, with 1..4 pairs
                 int n_out = 0;
                 if (!lens->ghost) {
-                    res = parse_failf(&r, "system P_clip '%s' in a table without ghost lines (P_clip belongs to a "
+                    res = lensrt_table_parse_failf(&r, "system P_clip '%s' in a table without ghost lines (P_clip belongs to a "
                                           "ghost table: ghost first, second, label and side before the systems)",
-                                      r.n_tok > 3 ? r.tok[3] : "");
+                                                   r.n_tok > 3 ? r.tok[3] : "");
                     break;
                 }
                 if (!lens->p_o.n_inputs || !lens->p_s.n_inputs) {
-                    res = parse_failf(&r, "system P_clip before system %s: P_clip comes third, after P_o and P_s",
-                                      !lens->p_o.n_inputs ? "P_o" : "P_s");
+                    res = lensrt_table_parse_failf(&r, "system P_clip before system %s: P_clip comes third, after P_o and P_s",
+                                                   !lens->p_o.n_inputs ? "P_o" : "P_s");
                     break;
                 }
-                if (r.n_tok == 4 && parse_int(r.tok[3], 0, 1000000, &n_out) && (n_out > 2 * LENSRT_MAX_CLIP_PAIRS || n_out % 2)) {
-                    res = parse_failf(&r, "system P_clip: %d outputs: expected an even count of 2..%d (pairs x, y; "
+                if (r.n_tok == 4 && lensrt_table_parse_int(r.tok[3], 0, 1000000, &n_out) && (n_out > 2 * LENSRT_MAX_CLIP_PAIRS || n_out % 2)) {
+                    res = lensrt_table_parse_failf(&r, "system P_clip: %d outputs: expected an even count of 2..%d (pairs x, y; "
                                           "at most %d clip tests)", n_out, 2 * LENSRT_MAX_CLIP_PAIRS, LENSRT_MAX_CLIP_PAIRS);
                     break;
                 }
             }
-            res = read_system(&r, sys, &pr[sys == &lens->p_o ? 0 : sys == &lens->p_s ? 1 : 2]);
+            res = lensrt_table_read_system(&r, sys, &pr[sys == &lens->p_o ? 0 : sys == &lens->p_s ? 1 : 2]);
         } else {
-            res = parse_fail(&r, "unexpected line starting with '%s'", r.tok[0]);
+            res = lensrt_table_parse_fail(&r, "unexpected line starting with '%s'", r.tok[0]);
         }
     }
     if (res == LENSRT_SUCCESS && (!lens->p_o.n_inputs || !lens->p_s.n_inputs))
         res = lensrt_fail(ctx, LENSRT_ERROR_PARSE, "%s:%d: the table ends without system %s (it needs P_o and P_s)",
                           r.name, r.line, !lens->p_o.n_inputs ? "P_o" : "P_s");
-    if (res == LENSRT_SUCCESS) res = check_system(ctx, r.name, &lens->p_o, P_O_INPUTS, P_O_OUTPUTS);
-    if (res == LENSRT_SUCCESS) res = check_system(ctx, r.name, &lens->p_s, P_S_INPUTS, P_S_OUTPUTS);
-    if (res == LENSRT_SUCCESS) res = check_shared_inputs(ctx, r.name, lens);
+    if (res == LENSRT_SUCCESS) res = lensrt_table_check_system(ctx, r.name, &lens->p_o, P_O_INPUTS, P_O_OUTPUTS);
+    if (res == LENSRT_SUCCESS) res = lensrt_table_check_system(ctx, r.name, &lens->p_s, P_S_INPUTS, P_S_OUTPUTS);
+    if (res == LENSRT_SUCCESS) res = lensrt_table_check_shared_inputs(ctx, r.name, lens);
     if (res == LENSRT_SUCCESS && n_ghost && n_ghost < GHOST_LINES)
         res = lensrt_fail(ctx, LENSRT_ERROR_PARSE, "%s: missing ghost line '%s' (ghost line %d of %d: " GHOST_ORDER ")",
                           r.name, GHOST_FORMS[n_ghost], n_ghost + 1, GHOST_LINES);
-    if (res == LENSRT_SUCCESS && lens->p_clip.n_inputs) res = check_clip(ctx, r.name, lens);
+    if (res == LENSRT_SUCCESS && lens->p_clip.n_inputs) res = lensrt_table_check_clip(ctx, r.name, lens);
     if (res == LENSRT_SUCCESS && (seen & 0x1f) != 0x1f)
         res = lensrt_fail(ctx, LENSRT_ERROR_PARSE,
                           "%s: missing lens line(s): focal_length_mm, stop_radius_max_mm, "
@@ -938,9 +495,9 @@ lensrt_result lensrt_lens_load_text(lensrt_context ctx, const char *text, size_t
                           "%s: lens radii must be positive (stop_radius_f1_mm %g, housing_first_mm %g, housing_last_mm %g)",
                           r.name, lens->stop_radius_f1_mm, lens->housing_first_mm, lens->housing_last_mm);
     // Last, the probes: the polynomials as read must give what lensfit computed
-    if (res == LENSRT_SUCCESS) res = check_probes(ctx, r.name, &lens->p_o, &pr[0]);
-    if (res == LENSRT_SUCCESS) res = check_probes(ctx, r.name, &lens->p_s, &pr[1]);
-    if (res == LENSRT_SUCCESS && lens->p_clip.n_inputs) res = check_probes(ctx, r.name, &lens->p_clip, &pr[2]);
+    if (res == LENSRT_SUCCESS) res = lensrt_table_check_probes(ctx, r.name, &lens->p_o, &pr[0]);
+    if (res == LENSRT_SUCCESS) res = lensrt_table_check_probes(ctx, r.name, &lens->p_s, &pr[1]);
+    if (res == LENSRT_SUCCESS && lens->p_clip.n_inputs) res = lensrt_table_check_probes(ctx, r.name, &lens->p_clip, &pr[2]);
     lensrt_free(ctx, pr);
     if (res != LENSRT_SUCCESS) {
         lensrt_lens_destroy(ctx, lens);
