@@ -300,10 +300,10 @@ static int open_egl(lensrt_gl *gl, lensrt_gl_platform platform, char *why, size_
             }
         {
             // Every device's reason, cut to the caller's buffer (size is never 0 here)
-            size_t n = strlen(reasons);
-            if (n >= size) n = size - 1;
-            memcpy(why, reasons, n);
-            why[n] = '\0';
+            size_t len = strlen(reasons);
+            if (len >= size) len = size - 1;
+            memcpy(why, reasons, len);
+            why[len] = '\0';
         }
         return 1;
     }
