@@ -44,6 +44,7 @@
 #endif
 
 #include "image_io.h"
+#include "../c_numbers.h"
 #include "../core/crc32.h"
 
 #include <errno.h>
@@ -74,7 +75,7 @@ static void png_set_error(char *err, size_t err_size, const char *fmt, ...)
     if (!err || err_size == 0)
         return;
     va_start(args, fmt);
-    vsnprintf(err, err_size, fmt, args);
+    lensrt_vsnprintf_c(err, err_size, fmt, args); /* numbers with a point, any locale */
     va_end(args);
 }
 

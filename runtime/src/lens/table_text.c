@@ -27,7 +27,7 @@ lensrt_result lensrt_table_parse_failf(reader *r, const char *fmt, ...)
     char msg[768];
     va_list args;
     va_start(args, fmt);
-    vsnprintf(msg, sizeof msg, fmt, args);
+    lensrt_vsnprintf_c(msg, sizeof msg, fmt, args); /* numbers with a point, any locale */
     va_end(args);
     return lensrt_fail(r->ctx, LENSRT_ERROR_PARSE, "%s:%d: %s", r->name, r->line, msg);
 }
