@@ -7,7 +7,6 @@ its --help and every subcommand's (recursively), formatted at 100 columns. The C
 """
 from __future__ import annotations
 
-import argparse
 import os
 import subprocess
 from pathlib import Path
@@ -19,42 +18,26 @@ ROOT = Path(__file__).resolve().parents[2]
 TOOLS = ROOT / "build" / "runtime" / "runtime"
 
 from lensfit.cli import build_parser  # noqa: E402  (after COLUMNS)
-
-
-def subparsers(parser: argparse.ArgumentParser):
-    for action in parser._actions:
-        if isinstance(action, argparse._SubParsersAction):
-            seen = set()
-            for name, sub in action.choices.items():
-                if id(sub) in seen:
-                    continue
-                seen.add(id(sub))
-                yield name, sub
+from lensfit.cli.parser import subcommands  # noqa: E402
 
 
 def fence(text: str) -> str:
     return "```text\n" + text.rstrip() + "\n```\n"
 
 
-def parser_pages(parser, path, level, out):
-    out.append(f"{'#' * level} `{' '.join(path)}`\n\n" + fence(parser.format_help()))
-    for name, sub in subparsers(parser):
-        parser_pages(sub, path + [name], min(level + 1, 4), out)
-
-
 parser = build_parser()
 parser.prog = "lensfit"
-subs = [name for name, _ in subparsers(parser)]
+subs = list(subcommands(parser))
 out = ["# Command-line reference\n",
        "Generated at build time (`docs/gen/cli_ref.py`) from the code: `lensfit`'s argparse "
        "parser (`lensfit.cli.build_parser()`) and the C tools' own `--help`. What the "
        "commands are for: [lensfit commands](../cli.md), [Render a PSF](../psf.md).\n",
        "lensfit subcommands: " + ", ".join(f"[`{s}`](#lensfit-{s})" for s in subs) + "\n"]
 out.append("## `lensfit` {#lensfit}\n\n" + fence(parser.format_help()))
-for name, sub in subparsers(parser):
+for name, sub in subcommands(parser).items():
     sub.prog = f"lensfit {name}"
     out.append(f"### `lensfit {name}` {{#lensfit-{name}}}\n\n" + fence(sub.format_help()))
-    for name2, sub2 in subparsers(sub):
+    for name2, sub2 in subcommands(sub).items():
         sub2.prog = f"lensfit {name} {name2}"
         out.append(f"#### `lensfit {name} {name2}`\n\n" + fence(sub2.format_help()))
 

@@ -4,12 +4,12 @@ as :func:, directives such as .. note::), only the words."""
 
 from __future__ import annotations
 
-import argparse
 import re
 
 import pytest
 
 from lensfit.cli import build_parser
+from lensfit.cli.parser import subcommands
 
 MARKUP = [
     ("double backquotes", re.compile(r"``")),
@@ -19,20 +19,15 @@ MARKUP = [
 ]
 
 
-def _subcommands(ap: argparse.ArgumentParser) -> dict[str, argparse.ArgumentParser]:
-    (action,) = [a for a in ap._actions if isinstance(a, argparse._SubParsersAction)]
-    return dict(action.choices)
-
-
 def _helps() -> list[tuple[str, str]]:
     ap = build_parser()
     out = [("lensfit", ap.format_help())]
-    out += [(f"lensfit {name}", p.format_help()) for name, p in _subcommands(ap).items()]
+    out += [(f"lensfit {name}", p.format_help()) for name, p in subcommands(ap).items()]
     return out
 
 
 def test_every_subcommand_has_a_help():
-    assert len(_subcommands(build_parser())) >= 14
+    assert len(subcommands(build_parser())) >= 14
 
 
 @pytest.mark.parametrize("command,text", _helps(), ids=[c for c, _ in _helps()])

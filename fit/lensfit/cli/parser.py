@@ -19,6 +19,18 @@ from lensfit.ghosts.enumerate import (
 )
 
 
+def subcommands(parser: argparse.ArgumentParser) -> dict[str, argparse.ArgumentParser]:
+    """A parser's subcommands by name (aliases once): what the docs' CLI page and the
+    --help test walk."""
+    out: dict[str, argparse.ArgumentParser] = {}
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            for name, sub in action.choices.items():
+                if all(sub is not s for s in out.values()):
+                    out[name] = sub
+    return out
+
+
 def build_parser() -> argparse.ArgumentParser:
     # What argparse prints is plain text: no reST (the module docstrings are for the API
     # docs; tests/fit/test_cli_help.py checks every subcommand's --help)
