@@ -161,12 +161,16 @@ def fill_holes(a_hat: np.ndarray, values: np.ndarray, mask: np.ndarray) -> np.nd
 def fit_tensor(a_hat: np.ndarray, v_hat: np.ndarray, values: np.ndarray, mask: np.ndarray,
                aperture_exps: np.ndarray, field_exps: np.ndarray, *,
                parity: tuple[int, int], fill: np.ndarray | None = None,
-               support: np.ndarray | None = None) -> TensorFit:
+               support: np.ndarray | None = None,
+               weights: np.ndarray | None = None) -> TensorFit:
     """Least-squares W for ``values`` (G, K) on the grid of field points ``v_hat`` (G, n_fv)
     times aperture points ``a_hat`` (K, 2), both normalised, over the cells where ``mask``
     (G, K) is True. ``parity`` (px, py): the output's parity in x and in y (field
     variable 0 is x-like, 1 is y-like). ``fill`` (G, K): guesses for the holes (default:
-    :func:`fill_holes`), where conjugate gradients start.
+    :func:`fill_holes`), where conjugate gradients start. ``weights`` (G, K), in (0, 1]
+    on the cells of ``mask``: each cell's residual is multiplied by its weight (default
+    1 everywhere); cells weighted below 1 are solved for by conjugate gradients as holes
+    are.
 
     ``support`` (n_a, n_v) bool: the pairs (aperture monomial, field monomial) allowed,
     a *staircase* (:func:`staircase_levels`): each field monomial is allowed with every
@@ -174,7 +178,7 @@ def fit_tensor(a_hat: np.ndarray, v_hat: np.ndarray, values: np.ndarray, mask: n
     over those pairs alone, and W is zero outside them."""
     with single_blas():
         return _fit_tensor(a_hat, v_hat, values, mask, aperture_exps, field_exps,
-                           parity=parity, fill=fill, support=support)
+                           parity=parity, fill=fill, support=support, weights=weights)
 
 
 def staircase_levels(aperture_exps: np.ndarray, support: np.ndarray) -> np.ndarray:
@@ -194,7 +198,8 @@ def staircase_levels(aperture_exps: np.ndarray, support: np.ndarray) -> np.ndarr
 def _fit_tensor(a_hat: np.ndarray, v_hat: np.ndarray, values: np.ndarray, mask: np.ndarray,
                 aperture_exps: np.ndarray, field_exps: np.ndarray, *,
                 parity: tuple[int, int], fill: np.ndarray | None,
-                support: np.ndarray | None = None) -> TensorFit:
+                support: np.ndarray | None = None,
+                weights: np.ndarray | None = None) -> TensorFit:
     values = np.asarray(values, dtype=np.float64)
     mask = np.asarray(mask, dtype=bool)
     G, K = values.shape
@@ -203,6 +208,11 @@ def _fit_tensor(a_hat: np.ndarray, v_hat: np.ndarray, values: np.ndarray, mask: 
                          f"a_hat {a_hat.shape}, v_hat {v_hat.shape}, mask {mask.shape}")
     if not np.all(np.isfinite(values[mask])):
         raise ValueError("fit_tensor: non-finite values in the cells to fit")
+    if weights is not None:
+        weights = np.asarray(weights, dtype=np.float64)
+        if weights.shape != mask.shape or not np.all((weights[mask] > 0) & (weights[mask] <= 1)):
+            raise ValueError("fit_tensor: weights must have the grid's shape and lie in "
+                             "(0, 1] on the cells to fit")
     B = design_matrix(a_hat, aperture_exps)  # (K, n_a)
     D = design_matrix(v_hat, field_exps)  # (G, n_v)
     a_deg = aperture_exps.sum(axis=1)
@@ -243,7 +253,12 @@ def _fit_tensor(a_hat: np.ndarray, v_hat: np.ndarray, values: np.ndarray, mask: 
     if holes and fill is None:
         fill = fill_holes(a_hat, values, mask)
     P = np.where(mask, values, 0.0 if fill is None else fill).T  # (K, G)
-    Mt = mask.T
+    # Each cell's weight in the normal equations (the square of its residual's weight)
+    Mt = mask.T.astype(np.float64)
+    partial = 0  # cells fitted with a weight below 1
+    if weights is not None:
+        Mt = np.where(mask, weights, 0.0).T ** 2
+        partial = int(np.count_nonzero(mask & (weights < 1.0)))
 
     def forward(Z: list[np.ndarray]) -> np.ndarray:
         out = np.zeros((K, G))
@@ -261,19 +276,19 @@ def _fit_tensor(a_hat: np.ndarray, v_hat: np.ndarray, values: np.ndarray, mask: 
 
     Z = adjoint(P)  # exact on a complete grid; else the fit to the filled grid
     iterations = 0
-    if holes:
-        # Conjugate gradients on adjoint(mask * forward(Z)) = adjoint(mask * values),
-        # from the fit to the filled grid. The slow directions are polynomials that live
-        # in the holes; CG_MAX_ITER stops it before it chases them far (measured on lens
-        # 0004's P_s, 9% holes: phi 3.4e-3 waves held-out after 300 iterations, 2.7e-3
-        # after 1000)
-        rhs = adjoint(np.where(Mt, P, 0.0))
-        r = [b - a for b, a in zip(rhs, adjoint(np.where(Mt, forward(Z), 0.0)), strict=True)]
+    if holes or partial:
+        # Conjugate gradients on adjoint(M * forward(Z)) = adjoint(M * values) (M: the
+        # cells' weights squared, 0 in holes), from the fit to the filled grid. The slow
+        # directions are polynomials that live in the holes; CG_MAX_ITER stops it before
+        # it chases them far (measured on lens 0004's P_s, 9% holes: phi 3.4e-3 waves
+        # held-out after 300 iterations, 2.7e-3 after 1000)
+        rhs = adjoint(Mt * P)
+        r = [b - a for b, a in zip(rhs, adjoint(Mt * forward(Z)), strict=True)]
         p = [x.copy() for x in r]
         rr = dot(r, r)
         rr0 = dot(rhs, rhs)
         while iterations < CG_MAX_ITER and rr > CG_TOL**2 * rr0:
-            Ap = adjoint(np.where(Mt, forward(p), 0.0))
+            Ap = adjoint(Mt * forward(p))
             alpha = rr / dot(p, Ap)
             Z = [z + alpha * x for z, x in zip(Z, p, strict=True)]
             r = [x - alpha * y for x, y in zip(r, Ap, strict=True)]
