@@ -118,6 +118,10 @@ def _features(aperture: np.ndarray, *others: np.ndarray) -> np.ndarray:
     return np.column_stack([aperture] + [1e6 * np.asarray(o) for o in others])
 
 
+# Fractions of the first guess tried, in turn, where the first guess's own ray fails
+START_SHRINK = (0.875, 0.75, 0.625, 0.5)
+
+
 # A Jacobian is kept from one step to the next while each step it gives cuts the miss at
 # least this much (the chord method: one trace a step instead of three; near the solution
 # a ray's miss is nearly linear in its start, and the kept Jacobian cuts it by 1e-2 to
@@ -153,6 +157,17 @@ def _newton(residual, p0: np.ndarray, scale: float):
     h = FD_STEP * scale
     idx = np.arange(n)
     r, valid = residual(idx, p)
+    # A start whose ray fails (misses a surface, or TIR) is moved towards the origin of
+    # the unknowns (P_o: the ray through the first vertex; P_s: the ray leaving the stop
+    # parallel to the axis) until its ray passes: the paraxial guess overshoots where
+    # the real pupil is far from the paraxial one (lens 0014, a fisheye: the chief ray's
+    # paraxial start at 55-64 degrees misses surface 7; at 0.75 of it Newton converges)
+    for f in START_SHRINK:
+        bad = np.nonzero(~valid)[0]
+        if bad.size == 0:
+            break
+        p[bad] = f * p0[bad]
+        r[bad], valid[bad] = residual(bad, p[bad])
     failed |= ~valid
     jac = np.zeros((n, 2, 2))
     stale = np.ones(n, dtype=bool)  # no Jacobian yet, or one to be computed afresh

@@ -177,7 +177,10 @@ def default_domain(lens: Lens, f_number: float | None = None, *,
     ``[lens]`` statement of the design (``f_number``, ``field_of_view_deg``: what the
     source or ``lensfit import`` wrote), the default: the image circle of 36 x 24 mm,
     the field that fills it (at most 60 degrees), focus from infinity to ten focal
-    lengths, the stop open to f/2 (or wide open when the lens is slower), 380-780 nm
+    lengths (from real rays: no further than the chief ray passes, and the image
+    circle the real image of the field's edge; an anamorphic lens's field narrowed in
+    both meridians at the squeeze's ratio), the stop open to f/2 (or wide open when the
+    lens is slower), 380-780 nm
     narrowed to the range every glass of the lens supports (:func:`fit_wavelengths`;
     an error naming the glasses when that leaves under 50 nm). A stated f-number wider
     than the stop opens is the widest stop; a stated field of view is the full diagonal
@@ -232,6 +235,22 @@ def default_domain(lens: Lens, f_number: float | None = None, *,
         field = field_deg
         h = min(h, 1.1 * max(efl_x * math.tan(math.radians(field)),
                              efl_y * math.tan(math.radians(field_y or field))))
+    if lens.anamorphic and field_deg is None:
+        # The frame's field of an anamorphic lens, from real rays too: in each meridian
+        # no further than the chief ray passes (lens 2003: its rear anamorphic group's
+        # housing at surface 18 stops the chief ray beyond 7.3 degrees in y, against the
+        # frame's 11.8; it misses or reflects totally beyond 10.3, and 30% of the
+        # frame's sensor-side grid had no ray), both narrowed together so that the
+        # field keeps the squeeze's ratio (the sensor domain is a disc), and the image
+        # circle the real image of the field's edge (the largest over the ellipse)
+        squeeze = math.tan(math.radians(field_y)) / math.tan(math.radians(field))
+        tan_x = min(math.tan(math.radians(passing_field(lens, field, "x"))),
+                    math.tan(math.radians(passing_field(lens, field_y, "y"))) / squeeze)
+        field = math.degrees(math.atan(tan_x))
+        field_y = math.degrees(math.atan(squeeze * tan_x))
+        r = anamorphic_image_radius(lens, field, field_y)
+        if r is not None and (r > h or IMAGE_MARGIN * r < h):
+            h = IMAGE_MARGIN * r
     if not lens.anamorphic:
         # Real rays, not paraxial ones: the field ends where the chief ray stops passing
         # (unless the field was asked for), and the image circle holds the real image of
@@ -362,16 +381,25 @@ def refuse_without_image(lens: Lens) -> None:
 IMAGE_MARGIN = 1.05
 
 
-def _chief_rays(lens: Lens, field_deg: np.ndarray, wavelength_nm: float = 550.0
-                ) -> tuple[np.ndarray, np.ndarray]:
+def _chief_rays(lens: Lens, field_deg: np.ndarray, wavelength_nm: float = 550.0,
+                meridian: str = "x") -> tuple[np.ndarray, np.ndarray]:
     """The chief rays (through the stop centre) of lights at infinity at field angles
-    ``field_deg`` in x: (image height on the nominal sensor (mm; NaN where the ray
-    fails), passes: the ray exists and passes every housing)."""
+    ``field_deg`` in ``meridian`` (x or y): (image height on the nominal sensor (mm; NaN
+    where the ray fails), passes: the ray exists and passes every housing)."""
+    sin = np.sin(np.radians(np.asarray(field_deg, dtype=np.float64)))
+    zero = np.zeros_like(sin)
+    return _chief_rays_xy(lens, *((sin, zero) if meridian == "x" else (zero, sin)),
+                          wavelength_nm)
+
+
+def _chief_rays_xy(lens: Lens, x_O: np.ndarray, y_O: np.ndarray, wavelength_nm: float
+                   ) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`_chief_rays` of lights at infinity in the directions (x_O, y_O) (direction
+    cosines)."""
     from lensfit.sample.aim import aim_object_side
     from lensfit.trace.tracer import Rays, Status, Step, trace
 
-    x_O = np.sin(np.radians(np.asarray(field_deg, dtype=np.float64)))
-    obj = aim_object_side(lens, x_O, 0.0, 0.0, 0.0, 0.0, wavelength_nm)
+    obj = aim_object_side(lens, x_O, y_O, 0.0, 0.0, 0.0, wavelength_nm)
     s, n = lens.stop_index, len(lens.surfaces)
     front = obj.ok & (obj.vignetting <= 1.0)
     pos = np.where(front[:, None], np.nan_to_num(obj.pos), [0.0, 0.0, lens.vertex_z[s]])
@@ -385,9 +413,10 @@ def _chief_rays(lens: Lens, field_deg: np.ndarray, wavelength_nm: float = 550.0
 CHIEF_WAVELENGTHS_NM = (450.0, 550.0, 650.0)
 
 
-def _chief_passes(lens: Lens, field_deg: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def _chief_passes(lens: Lens, field_deg: np.ndarray, meridian: str = "x"
+                  ) -> tuple[np.ndarray, np.ndarray]:
     """(largest image height over CHIEF_WAVELENGTHS_NM (mm), passes at every one)."""
-    runs = [_chief_rays(lens, field_deg, lam) for lam in CHIEF_WAVELENGTHS_NM]
+    runs = [_chief_rays(lens, field_deg, lam, meridian) for lam in CHIEF_WAVELENGTHS_NM]
     passes = np.logical_and.reduce([p for _, p in runs])
     heights = np.max([np.where(passes, h, 0.0) for h, _ in runs], axis=0)
     return np.where(passes, heights, np.nan), passes
@@ -400,13 +429,15 @@ def chief_image_radius(lens: Lens, field_deg: float) -> float | None:
     return float(heights[0]) if passes[0] else None
 
 
-def passing_field(lens: Lens, field_deg: float) -> float:
+def passing_field(lens: Lens, field_deg: float, meridian: str = "x") -> float:
     """The largest half field up to ``field_deg`` whose chief rays (every angle from the
     axis out to it, at each of CHIEF_WAVELENGTHS_NM) pass every housing, to 0.1 degree
     (a lens made for a smaller frame: lens 0007's chief ray fails behind the stop at the
-    36 x 24 mm frame's 39.8 degrees). ``field_deg`` itself when they all pass."""
+    36 x 24 mm frame's 39.8 degrees). ``field_deg`` itself when they all pass. The
+    angles are in ``meridian`` (x or y: an anamorphic lens's y field; lens 2003's chief
+    ray is clipped in its rear anamorphic group beyond 7.3 degrees in y)."""
     angles = np.linspace(0.0, field_deg, 241)
-    _, passes = _chief_passes(lens, angles)
+    _, passes = _chief_passes(lens, angles, meridian)
     if passes.all():
         return field_deg
     first = int(np.argmin(passes))
@@ -416,8 +447,28 @@ def passing_field(lens: Lens, field_deg: float) -> float:
     lo, hi = float(angles[first - 1]), float(angles[first])
     while hi - lo > 0.1:
         mid = 0.5 * (lo + hi)
-        if _chief_passes(lens, np.array([mid]))[1][0]:
+        if _chief_passes(lens, np.array([mid]), meridian)[1][0]:
             lo = mid
         else:
             hi = mid
     return lo
+
+
+# Azimuths at which the edge of an anamorphic lens's field (an ellipse in direction
+# cosines) is traced for its real image (anamorphic_image_radius); every 7.5 degrees of
+# a quadrant (the lenses are mirror-symmetric in x and in y)
+ELLIPSE_AZIMUTHS = 13
+
+
+def anamorphic_image_radius(lens: Lens, field_x_deg: float, field_y_deg: float
+                            ) -> float | None:
+    """How far from the axis the chief rays of the edge of the field ellipse (half fields
+    ``field_x_deg``, ``field_y_deg``) meet the nominal sensor, the largest over the
+    ellipse and CHIEF_WAVELENGTHS_NM (mm); None when one of them does not pass."""
+    a = np.linspace(0.0, 0.5 * math.pi, ELLIPSE_AZIMUTHS)
+    x_O = math.sin(math.radians(field_x_deg)) * np.cos(a)
+    y_O = math.sin(math.radians(field_y_deg)) * np.sin(a)
+    runs = [_chief_rays_xy(lens, x_O, y_O, lam) for lam in CHIEF_WAVELENGTHS_NM]
+    if not all(p.all() for _, p in runs):
+        return None
+    return float(max(np.max(h) for h, _ in runs))
