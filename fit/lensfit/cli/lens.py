@@ -160,20 +160,35 @@ def _print_default_domain(lens) -> None:
     the design's own where the lens file states it), or why it refuses the lens."""
     from lensfit.common.errors import LensError
     from lensfit.paraxial.paraxial import f_number_for_stop_radius
-    from lensfit.sample.domain import default_domain, field_cap_note, stated_design
+    from lensfit.sample.domain import (
+        declared_fit,
+        default_domain,
+        field_cap_note,
+        stated_design,
+    )
 
     try:
         d = default_domain(lens)
     except (InputError, LensError) as e:
         print(f"  {'default domain':20s}none: {e}")
         return
+    stated = stated_design(lens)
+    frame = "a 36 x 24 mm frame, as far as the chief ray passes"
     source = ("the lens file's [fit]" if declared_fit_keys(lens) else
-              "the design the lens file states" if stated_design(lens)
-              else "a 36 x 24 mm frame, as far as the chief ray passes")
+              "the design the lens file states" if len(stated) == 2 else
+              f"the f-number the lens file states; the field of {frame}"
+              if "f_number" in stated else
+              "the field of view the lens file states; f/2, or wide open if slower"
+              if stated else frame)
     field = f"{d.field_deg:.4g} deg" + (f" x {d.field_y_deg:.4g} deg" if d.field_y_deg else "")
-    print(f"  {'default domain':20s}f/{abs(f_number_for_stop_radius(lens, d.stop_radius_mm)):.3g}, "
+    f_n = abs(f_number_for_stop_radius(lens, d.stop_radius_mm))
+    print(f"  {'default domain':20s}f/{f_n:.3g}, "
           f"half field {field}, image circle {d.sensor_radius_mm:.4g} mm, sensor travel "
           f"{d.focus_min_mm:.4g} to {d.focus_max_mm:.4g} mm ({source})")
+    if ("f_number" in stated and "f_number" not in declared_fit(lens)
+            and d.stop_radius_mm == lens.stop_radius_max_mm and stated["f_number"] < f_n):
+        print(f"  {'':20s}the lens states f/{stated['f_number']:g}; its stop opens to "
+              f"f/{f_n:.3g} (paraxial, d line): fitted wide open")
     note = field_cap_note(lens, d)
     if note:
         print(f"  {'':20s}{note}")

@@ -1007,7 +1007,8 @@ def _num(v: float) -> str:
 
 def write_zmx(lens: Any) -> tuple[str, list[str]]:
     """The .zmx text (ASCII, sequential, lens units mm) of a loaded ``Lens``, and the
-    notes on what the format does not hold (coatings, glass labels, provenance). The
+    notes on what the format does not hold (coatings, glass labels, provenance, a field
+    of view of 180 degrees or more). The
     values are the loaded lens's own floats (scale applied), written with repr, so that
     importing the file gives the same lens. A semi-diameter is written as an aperture
     (fixed DIAM, solve 1, and CLAP) unless it is automatic (``aperture = "automatic"``):
@@ -1028,7 +1029,11 @@ def write_zmx(lens: Any) -> tuple[str, list[str]]:
         lines.append(f"FNUM {_num(info['f_number'])} 0")
     if "field_of_view_deg" in info:
         half = float(info["field_of_view_deg"]) / 2.0
-        lines += ["FTYP 0 0 2 1 0 0 0", "XFLN 0 0", f"YFLN 0 {_num(half)}"]
+        if half < 90.0:
+            lines += ["FTYP 0 0 2 1 0 0 0", "XFLN 0 0", f"YFLN 0 {_num(half)}"]
+        else:  # a fisheye's (0014 states 181 degrees): no angle field reaches 90 degrees
+            notes.append(f"field of view {_num(2.0 * half)} degrees not exported (a .zmx "
+                         "angle field is under 90 degrees from the axis)")
     # Design programs need wavelengths (Optiland refuses a file without a primary one):
     # the d, F and C lines in micrometres, d primary (lensfit's own range is the fit's)
     lines += [f"WAVM {k} {um} 1" for k, um in enumerate(EXPORT_WAVELENGTHS_UM, start=1)]

@@ -334,16 +334,26 @@ def stated_design(lens: Lens) -> dict[str, float]:
 
 def field_cap_note(lens: Lens, domain: Domain) -> str | None:
     """A line saying that the fitted field is narrower than the field of view the lens
-    file states (a fisheye's 180 degrees: the polynomials' scene-side field variables
-    are direction cosines, whose maps a single polynomial does not follow past
-    MAX_DEFAULT_FIELD_DEG), or None."""
+    file states, and why, or None. Why: the default's cap (a fisheye's 180 degrees: the
+    polynomials' scene-side field variables are direction cosines, whose maps a single
+    polynomial does not follow past MAX_DEFAULT_FIELD_DEG); or the chief ray, which
+    passes the housings no further (lens 0013's table: to 31.0 of its 31.7 degrees); or
+    neither, a narrower field asked for (``--field``, the lens file's ``[fit]``, or a fit
+    made before the lens file stated its field)."""
     half = stated_design(lens).get("field_deg")
     if half is None or half <= domain.field_deg + 1e-9:
         return None
-    return (f"the lens states a {2 * half:g} degree field of view; fitted over "
-            f"{2 * domain.field_deg:g} degrees (half field {domain.field_deg:g} degrees: a "
-            f"single polynomial in direction cosines is not fitted past "
-            f"{MAX_DEFAULT_FIELD_DEG:g} degrees by default; --field sets it)")
+    f = domain.field_deg
+    if abs(f - MAX_DEFAULT_FIELD_DEG) < 1e-9:
+        why = (f"a single polynomial in direction cosines is not fitted past "
+               f"{MAX_DEFAULT_FIELD_DEG:g} degrees by default; --field sets it")
+    elif f + 0.2 < 90.0 and chief_image_radius(lens, f + 0.2) is None:
+        why = "the chief ray passes the lens's housings no further"
+    else:
+        why = ("a narrower field asked for: --field, the lens file's [fit] field_deg, or a "
+               "fit made before the lens file stated its field")
+    return (f"the lens states a {2 * half:.4g} degree field of view; fitted over "
+            f"{2 * f:.4g} degrees (half field {f:.4g} degrees: {why})")
 
 
 def refuse_without_image(lens: Lens) -> None:

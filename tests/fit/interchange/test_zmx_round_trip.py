@@ -151,3 +151,17 @@ def test_round_trip_of_manufacturer_glasses():
     compare(lens, back, radius_ulps=0)
     assert [s.material_spec.get("material") for s in back.surfaces] == \
         ["air", "SCHOTT:N-BAK1", "HIKARI:J-LAF3", "air"]
+
+
+def test_stated_design_exported_and_a_fisheye_field_said():
+    """[lens] f_number and field_of_view_deg travel as FNUM and an angle field (0004: f/2.8,
+    75 degrees, its patent's); a fisheye's 180 degrees or more cannot be an angle field
+    (under 90 degrees from the axis): not written, and a note says so (0014: 181)."""
+    text, notes = write_zmx(load_lens("0004"))
+    info = parse_zmx(text, label="rt.zmx").data["lens"]
+    assert (info["f_number"], info["field_of_view_deg"]) == (2.8, 75.0)
+    assert not any("field of view" in n for n in notes)
+    text, notes = write_zmx(load_lens("0014"))
+    assert "YFLN" not in text and "FTYP" not in text
+    assert any("field of view 181.0 degrees not exported" in n for n in notes)
+    assert "field_of_view_deg" not in parse_zmx(text, label="rt.zmx").data["lens"]

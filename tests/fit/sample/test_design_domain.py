@@ -78,7 +78,9 @@ def test_a_stated_f_number_is_the_default_aperture(base):
 def test_a_fisheye_field_is_capped_and_said(base):
     """A stated 180 degree field is fitted at most over the direction-cosine field's
     default cap, and no further than the chief ray passes (0001's passes the housings
-    to about 31 degrees); field_cap_note says so with both figures."""
+    to about 20 degrees); field_cap_note says so with both figures and the reason: the
+    chief ray here, the cap for the fisheye 0014 (181 degrees stated, its chief ray
+    passing to the cap), a narrower field asked for otherwise."""
     lens = stated(base, field_of_view_deg=180.0)
     d = default_domain(lens)
     assert d.field_deg == pytest.approx(passing_field(lens, MAX_DEFAULT_FIELD_DEG))
@@ -87,7 +89,17 @@ def test_a_fisheye_field_is_capped_and_said(base):
     assert chief_image_radius(lens, d.field_deg) is not None
     assert chief_image_radius(lens, d.field_deg + 0.2) is None
     note = field_cap_note(lens, d)
-    assert note is not None and "180 degree" in note and f"{2 * d.field_deg:g}" in note
+    assert note is not None and "180 degree" in note and f"{2 * d.field_deg:.4g}" in note
+    assert "chief ray" in note and "direction cosines" not in note
+    fisheye = load_lens("0014")
+    d = default_domain(fisheye)
+    assert d.field_deg == MAX_DEFAULT_FIELD_DEG
+    note = field_cap_note(fisheye, d)
+    assert note is not None and "181 degree" in note and "120 degrees" in note
+    assert "direction cosines" in note and "chief ray" not in note
+    note = field_cap_note(fisheye, default_domain(fisheye, field_deg=30.0))
+    assert note is not None and "60 degrees (half field 30 degrees" in note
+    assert "narrower field asked for" in note
 
 
 @pytest.mark.parametrize("lens_id, words", [

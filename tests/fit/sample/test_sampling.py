@@ -365,7 +365,7 @@ def test_sensor_shift_in_front_of_the_last_surface_is_refused(lens0001):
 def test_the_grid_s_stop_points_are_rim_weighted_unless_the_rim_is_dead():
     """sample_grid's pilot (issue 41): lens 0001's rays pass near the stop's rim, so its
     stop points are rim-weighted (STOP_EDGE_SHARE); lens 0004's sensor-side rays beyond
-    90% of its f/2.64 stop miss the rear group at every field point (a dead rim), so its
+    90% of its f/2.8 stop (its stated design's) miss the rear group (a dead rim), so its
     grid is drawn uniform: exactly the points and field points of the uniform draw of
     the same seed. A grown grid draws its new stop points by the same law."""
     from lensfit.poly.tensor import symmetric_disc_points

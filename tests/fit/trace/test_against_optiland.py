@@ -164,7 +164,9 @@ def test_real_rays_agree(lens_id, tmp_path):
     lens = load_lens(lens_id)
     twin = twin_from_export(lens, tmp_path, LAM_NM)
     ep = paraxial(lens, wavelength_nm=LAM_NM).entrance_pupil.radius_mm
-    half_field = 0.5 * float(lens.provenance.get("field_of_view_deg", 30.0))
+    # 15 degrees for each: the fan is not aimed at the entrance pupil, and at 0.8 of 0004's
+    # stated 37.5 degree half field most of it misses the stop of the retrofocus
+    half_field = 15.0
     rng = np.random.default_rng(36)
     pos, dirs = [], []
     for field in (0.0, 0.5 * half_field, 0.8 * half_field):
