@@ -43,7 +43,8 @@ ARGS = ["fit", "0001", "--quick", "--no-timing", "--f-number", "8", "--no-progre
         "--allow-miss"]  # a --quick fit misses the 1% target at the field's edges (exit 3)
 # The cache tests' fits: the tensor method on test_fitting.py's small grid (TENSOR there;
 # ~1 s a fit of both systems)
-TINY = FitOptions(groups=150, aperture_points=64, aperture_degree=6, field_degrees=(2, 4),
+TINY = FitOptions(stop_pilot=False,
+                  groups=150, aperture_points=64, aperture_degree=6, field_degrees=(2, 4),
                   test_groups=40, test_per_group=8)
 
 

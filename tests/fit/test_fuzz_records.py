@@ -48,7 +48,8 @@ FUZZ = settings(max_examples=EXAMPLES or 100, derandomize=True, database=None,
                                        HealthCheck.function_scoped_fixture,
                                        HealthCheck.data_too_large])
 # test_fit_resume's small budgets: a fit of both systems in about a second
-TINY = FitOptions(groups=150, aperture_points=64, aperture_degree=6, field_degrees=(2, 4),
+TINY = FitOptions(stop_pilot=False,
+                  groups=150, aperture_points=64, aperture_degree=6, field_degrees=(2, 4),
                   test_groups=40, test_per_group=8)
 
 # Values put in place of a node: each a kind a reader must refuse or take unharmed

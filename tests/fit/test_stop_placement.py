@@ -304,7 +304,8 @@ def test_pupils_of_a_stop_in_glass_are_where_the_chief_ray_says(name):
 
 # Small budgets: f/8 and a 5 degree field (a singlet is far from diffraction-limited
 # wider), one tensor rung; ~1.5 s per lens with its PSF table
-SMALL = FitOptions(groups=500, aperture_points=64, field_degrees=(4, 6), aperture_degree=8,
+SMALL = FitOptions(stop_pilot=False,
+                   groups=500, aperture_points=64, field_degrees=(4, 6), aperture_degree=8,
                    test_groups=100)
 
 

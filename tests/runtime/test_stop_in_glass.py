@@ -54,7 +54,8 @@ LENSES = {
         {"shape": "sphere", "radius": -129.0, "thickness": 96.0, "material": "air",
          "semi_diameter": 12.0}],
 }
-SMALL = FitOptions(groups=500, aperture_points=64, field_degrees=(4, 6), aperture_degree=8,
+SMALL = FitOptions(stop_pilot=False,
+                   groups=500, aperture_points=64, field_degrees=(4, 6), aperture_degree=8,
                    test_groups=100)
 F_NUMBER, LAM, PIXELS, PITCH = 8.0, 550.0, 64, 0.004
 

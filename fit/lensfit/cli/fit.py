@@ -38,7 +38,8 @@ def _options(args: argparse.Namespace):
     if args.quick:
         extra.update(retry=False, max_terms=60, piston_terms=20, max_degree=7, phase_degree=8,
                      train_groups=600, train_per_group=8, test_groups=100, groups=1000,
-                     aperture_points=64, field_degrees=(4, 6), aperture_degree=8)
+                     aperture_points=64, field_degrees=(4, 6), aperture_degree=8,
+                     stop_pilot=False)
     try:  # FitOptions checks its values (--psf-target) and says which is wrong
         return FitOptions(**extra)
     except ValueError as e:

@@ -7,6 +7,7 @@ from collections.abc import Callable
 from typing import Protocol
 
 from lensfit.fitting.options import FitOptions
+from lensfit.fitting.pilot import PILOT_DEGREES, points_for_degree, stop_pilot
 from lensfit.fitting.pursuit import fit_system
 from lensfit.fitting.results import SystemFit
 from lensfit.fitting.tensor import OutOfReach, fit_system_growing
@@ -57,9 +58,12 @@ def fit_lens(lens: Lens, domain: Domain | None = None,
             continue
         t0 = time.perf_counter()
         seed = 2 * (options.seed * 7919 + salt)
+        stop_degree = options.aperture_degree
         if options.method == "tensor":
-            train = sample_grid(lens, domain, name, options.groups, options.aperture_points,
-                                seed=seed)
+            points = options.aperture_points
+            if options.stop_pilot:
+                stop_degree, points = _piloted(lens, domain, name, options, seed)
+            train = sample_grid(lens, domain, name, options.groups, points, seed=seed)
         else:
             train = sampler(lens, domain, options.train_groups, options.train_per_group,
                             seed=seed)
@@ -72,7 +76,8 @@ def fit_lens(lens: Lens, domain: Domain | None = None,
             try:
                 system, fits, train = fit_system_growing(lens, domain, name, inputs, outputs,
                                                          train, test, options, seed=seed,
-                                                         progress=progress)
+                                                         progress=progress,
+                                                         aperture_degree=stop_degree)
             except OutOfReach as e:
                 raise OutOfReach(f"{lens.source_file or lens.name}: cannot be fitted over "
                                  f"{describe_domain(lens, domain)}: {e}; a narrower field "
@@ -86,3 +91,24 @@ def fit_lens(lens: Lens, domain: Domain | None = None,
         if checkpoints is not None:
             checkpoints.save_system(results[-1])
     return results
+
+
+def _piloted(lens: Lens, domain: Domain, name: str, options: FitOptions, seed: int
+             ) -> tuple[int, int]:
+    """(stop degree, stop points) of system ``name``'s grid from its stop pilot
+    (:mod:`lensfit.fitting.pilot`): the degree the phase needs at the field's edges (never
+    below ``options.aperture_degree``, at most ``options.max_aperture_degree``) and the
+    points that determine it (at most ``options.max_aperture_points``). Raises
+    :class:`OutOfReach` when no stop degree comes within ten times the target."""
+    pilot = stop_pilot(lens, domain, name, options.phase_target_waves, seed=seed + 7)
+    if pilot.out_of_reach():
+        raise OutOfReach(f"{lens.source_file or lens.name}: cannot be fitted over "
+                         f"{describe_domain(lens, domain)}: {pilot.describe()}; a narrower "
+                         "field (--field) or a smaller stop (--f-number) needs fewer terms")
+    need = pilot.degree()
+    need = max(PILOT_DEGREES) if need is None else need
+    degree = min(max(options.aperture_degree, need), options.max_aperture_degree)
+    points = options.aperture_points
+    if degree > options.aperture_degree:
+        points = min(max(points, points_for_degree(degree)), options.max_aperture_points)
+    return degree, points

@@ -46,6 +46,11 @@ class FitOptions:
     # Fit once more with a tighter phase target when the PSF check misses the target by
     # a little (lensfit.pipeline.stage._tighter)
     retry: bool = True
+    # Measure the stop degree each system's phase needs before drawing its grid, start
+    # there (with the stop points it needs), and refuse at once a system no stop degree
+    # lensrt evaluates can bring near its target (lensfit.fitting.pilot); off for small
+    # budgets (--quick, tests), which keep the degrees they ask for
+    stop_pilot: bool = True
     # pursuit method
     max_degree: int = 9  # positions and transmittance
     phase_degree: int = 9  # phi: degree 11 measured no better at f/2 with 200 terms

@@ -36,7 +36,8 @@ def fit_system_tensor(name: str, inputs: tuple[Input, ...], outputs, train: Grid
                       test: Samples, options: FitOptions,
                       progress: Callable[[str], None] | None = None,
                       only: set[str] | None = None, refuse_out_of_reach: bool = False,
-                      far_weight: float | None = None) -> tuple[System, list[OutputFit]]:
+                      far_weight: float | None = None, aperture_degree: int | None = None
+                      ) -> tuple[System, list[OutputFit]]:
     """Fit every output of one system on grid samples by tensor least squares (module
     doc): per output, the field degrees of ``options.field_degrees`` in turn until the
     held-out error reaches the target (GROW_SHARE of it with ``options.prune``), then,
@@ -52,7 +53,8 @@ def fit_system_tensor(name: str, inputs: tuple[Input, ...], outputs, train: Grid
     fallbacks of their own): raise :class:`OutOfReach` for an output no degree brings
     near its target (:func:`_out_of_reach`). ``far_weight`` (a lens fit: FAR_WEIGHT):
     rays that exist but pass a housing by more than TRAIN_VIGNETTING are fitted too, at
-    this weight, rather than left as holes."""
+    this weight, rather than left as holes. ``aperture_degree``: the phase's stop degree
+    to start at (default ``options.aperture_degree``; the other outputs 4 less)."""
     te = test.subset(test.passes)
     if len(te) == 0:
         raise InputError(f"{name}: no held-out ray passes the lens")
@@ -94,7 +96,7 @@ def fit_system_tensor(name: str, inputs: tuple[Input, ...], outputs, train: Grid
             target, unit_err = options.target_tau, "1"
         else:
             target, unit_err = options.target_position_um, "um"
-        da = options.aperture_degree - (0 if phase else 4)
+        da = (aperture_degree or options.aperture_degree) - (0 if phase else 4)
         values = np.where(mask, train.outputs[:, :, j], 0.0)
         scale = _metric_scale(out, values, near)
         # Grow until the error leaves room to cut (GROW_SHARE of the target), or reaches
@@ -248,7 +250,8 @@ def _out_of_reach(rung_best: list[float], left: int, target: float, raised: bool
 
 def fit_system_growing(lens: Lens, domain: Domain, name: str, inputs: tuple[Input, ...],
                        outputs, train: GridSamples, test: Samples, options: FitOptions, *,
-                       seed: int, progress: Callable[[str], None] | None = None
+                       seed: int, progress: Callable[[str], None] | None = None,
+                       aperture_degree: int | None = None
                        ) -> tuple[System, list[OutputFit], GridSamples]:
     """:func:`fit_system_tensor`, then, while an output stops short of its goal for want
     of samples (``OutputFit.limit``), the grid doubled in that dimension (stop points up to
@@ -256,7 +259,8 @@ def fit_system_growing(lens: Lens, domain: Domain, name: str, inputs: tuple[Inpu
     new rays are traced) and those outputs fitted again, kept where they improve.
     Returns the system, its fits and the grid it ended with."""
     system, fits = fit_system_tensor(name, inputs, outputs, train, test, options, progress,
-                                     refuse_out_of_reach=True, far_weight=FAR_WEIGHT)
+                                     refuse_out_of_reach=True, far_weight=FAR_WEIGHT,
+                                     aperture_degree=aperture_degree)
     polys = {p.output: p for p in system.outputs}
     by_name = {f.name: f for f in fits}
     for step in range(1, 3):
@@ -277,7 +281,8 @@ def fit_system_growing(lens: Lens, domain: Domain, name: str, inputs: tuple[Inpu
                      f"{len(train.aperture)} stop points)")
         again, refits = fit_system_tensor(name, inputs, outputs, train, test, options,
                                           progress, only={f.name for f in short},
-                                          refuse_out_of_reach=True, far_weight=FAR_WEIGHT)
+                                          refuse_out_of_reach=True, far_weight=FAR_WEIGHT,
+                                          aperture_degree=aperture_degree)
         for p, f in zip(again.outputs, refits, strict=True):
             old = by_name[f.name]
             if ((f.reached and (not old.reached or f.terms < old.terms))

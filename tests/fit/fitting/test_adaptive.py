@@ -129,7 +129,8 @@ def test_the_grid_grows_where_the_stop_points_run_short(monkeypatch):
                                                  more * DOMAIN.stop_radius_mm]))
 
     monkeypatch.setattr(tensor_fit, "extend_grid", extend)
-    options = FitOptions(aperture_degree=4, max_aperture_degree=6, field_degrees=(2, 4),
+    options = FitOptions(stop_pilot=False,
+                         aperture_degree=4, max_aperture_degree=6, field_degrees=(2, 4),
                          target_waves=1e-6, target_position_um=1e-6, target_tau=1e-9,
                          groups=60, aperture_points=32, prune=False)
     labels: list[str] = []
@@ -246,7 +247,8 @@ def test_a_phase_no_degree_can_follow_is_refused_with_its_figures():
     gt = rng.integers(0, G, n)
     xt = np.column_stack([field[gt, :3], rt * np.cos(at), rt * np.sin(at), field[gt, 3]])
     test = Samples("P_o", xt, kinked(xt), gt, np.zeros(n), n)
-    options = FitOptions(aperture_degree=6, max_aperture_degree=8, field_degrees=(2, 4, 6, 8),
+    options = FitOptions(stop_pilot=False,
+                         aperture_degree=6, max_aperture_degree=8, field_degrees=(2, 4, 6, 8),
                          target_waves=1e-6, groups=G, aperture_points=128, prune=False)
     with pytest.raises(tensor_fit.OutOfReach, match=r"P_o phi_o reaches \S+ waves RMS on "
                        r"held-out rays at field degree [246] \(stop degree \d+\), against "

@@ -424,7 +424,8 @@ def test_tiny_aperture_at_infinity_with_high_degree_stays_finite(lens):
 # points per parity class: enough for the 10 monomials of a class at stop degree 6 and
 # the 15 at 8 (the stop degree may be raised once by 2)
 # The ladder alone: no cut and no growth of the grid (tests/fit/fitting/test_adaptive.py)
-TENSOR = FitOptions(groups=150, aperture_points=64, aperture_degree=6, field_degrees=(2, 4),
+TENSOR = FitOptions(stop_pilot=False,
+                    groups=150, aperture_points=64, aperture_degree=6, field_degrees=(2, 4),
                     test_groups=40, test_per_group=8, prune=False, max_groups=150,
                     max_aperture_points=64)
 FIELD_COLUMNS, STOP_COLUMNS = [0, 1, 2, 5], [3, 4]
