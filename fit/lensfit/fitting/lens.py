@@ -79,10 +79,7 @@ def fit_lens(lens: Lens, domain: Domain | None = None,
                                                          progress=progress,
                                                          aperture_degree=stop_degree)
             except OutOfReach as e:
-                raise OutOfReach(f"{lens.source_file or lens.name}: cannot be fitted over "
-                                 f"{describe_domain(lens, domain)}: {e}; a narrower field "
-                                 "(--field) or a smaller stop (--f-number) needs fewer "
-                                 "terms") from None
+                raise _refusal(lens, domain, str(e)) from None
         else:
             system, fits = fit_system(name, inputs, outputs, train, test, options, progress)
         t2 = time.perf_counter()
@@ -102,9 +99,7 @@ def _piloted(lens: Lens, domain: Domain, name: str, options: FitOptions, seed: i
     :class:`OutOfReach` when no stop degree comes within ten times the target."""
     pilot = stop_pilot(lens, domain, name, options.phase_target_waves, seed=seed + 7)
     if pilot.out_of_reach():
-        raise OutOfReach(f"{lens.source_file or lens.name}: cannot be fitted over "
-                         f"{describe_domain(lens, domain)}: {pilot.describe()}; a narrower "
-                         "field (--field) or a smaller stop (--f-number) needs fewer terms")
+        raise _refusal(lens, domain, pilot.describe())
     need = pilot.degree()
     need = max(PILOT_DEGREES) if need is None else need
     degree = min(max(options.aperture_degree, need), options.max_aperture_degree)
@@ -112,3 +107,11 @@ def _piloted(lens: Lens, domain: Domain, name: str, options: FitOptions, seed: i
     if degree > options.aperture_degree:
         points = min(max(points, points_for_degree(degree)), options.max_aperture_points)
     return degree, points
+
+
+def _refusal(lens: Lens, domain: Domain, why: str) -> OutOfReach:
+    """The one line `lensfit fit` exits 2 with for a lens out of reach: the lens file,
+    its domain, ``why`` and what to change."""
+    return OutOfReach(f"{lens.source_file or lens.name}: cannot be fitted over "
+                      f"{describe_domain(lens, domain)}: {why}; a narrower field (--field) "
+                      "or a smaller stop (--f-number) needs fewer terms")
