@@ -34,7 +34,7 @@ from lensfit.poly.polynomial import System
 from lensfit.poly.tensor import symmetric_disc_points
 from lensfit.prescription import load_lens
 from lensfit.sample import OUTPUTS_O, Domain, Samples, default_domain
-from lensfit.sample.rays import GridSamples
+from lensfit.sample.rays import TRAIN_VIGNETTING, GridSamples
 
 FIXTURES = Path(__file__).resolve().parents[1] / "fixtures" / "zmx"
 
@@ -283,3 +283,65 @@ def test_lensfit_fit_refuses_an_out_of_reach_lens_in_one_line(tmp_path, monkeypa
     assert "P_o phi_o reaches 0.227 waves" in err[-1] and "--field" in err[-1]
     assert not (tmp_path / "gen").exists() and not (tmp_path / "rep").exists()
     assert not (tmp_path / "build" / "fit-cache").exists()
+
+
+# --- rays beyond the housings (FAR_WEIGHT) ---------------------------------------------------
+
+def _far_case(share: float, seed: int = 5):
+    """The made-up P_o on 120 field points x 128 stop points, ``share`` of its cells
+    marked 1.3 times a housing's radius out (far, within FAR_VIGNETTING) and 5% beyond
+    FAR_VIGNETTING; held-out rays from the truth."""
+    rng = np.random.default_rng(seed)
+    s = math.sin(math.radians(DOMAIN.field_deg))
+    G = 120
+    r, a = np.sqrt(rng.random(G)) * s, rng.uniform(0, 2 * math.pi, G)
+    field = np.column_stack([r * np.cos(a), r * np.sin(a),
+                             rng.uniform(0, DOMAIN.inverse_distance_max, G),
+                             rng.uniform(400.0, 700.0, G)])
+    train = grid(field, symmetric_disc_points(rng, 128) * DOMAIN.stop_radius_mm)
+    u = rng.random(train.ok.shape)
+    train.vignetting[u < share] = 1.3
+    train.vignetting[u > 0.95] = 2.0
+    n = 400
+    rt = np.sqrt(rng.random(n)) * DOMAIN.stop_radius_mm
+    at = rng.uniform(0, 2 * math.pi, n)
+    g = rng.integers(0, G, n)
+    x = np.column_stack([field[g, :3], rt * np.cos(at), rt * np.sin(at), field[g, 3]])
+    return train, Samples("P_o", x, truth(x), g, np.zeros(n), n)
+
+
+def _phase(train, test, far_weight):
+    options = FitOptions(stop_pilot=False, aperture_degree=6, field_degrees=(2,),
+                         target_waves=1e-9, groups=120, aperture_points=128, prune=False)
+    system, _ = tensor_fit.fit_system_tensor("P_o", INPUTS, OUTPUTS_O, train, test, options,
+                                             only={"phi_o"}, far_weight=far_weight)
+    return system.outputs[0].coefficients
+
+
+def test_far_rays_are_fitted_where_they_fill_the_grid_and_only_there():
+    """Rays that exist beyond a housing are fitted at FAR_WEIGHT where they are at least
+    FAR_MIN_SHARE of the grid, and never beyond FAR_VIGNETTING: wild values (1 mm of
+    phase) in the cells a rule leaves out change nothing, bit for bit, while the same
+    wild values in cells the rule fits move the coefficients. The made-up phase is in
+    the fit's span, so wherever the cells hold the truth the fit recovers it (CG: 1e-9
+    relative, as for holes in tests/fit/poly/test_tensor.py)."""
+    assert 0 < tensor_fit.FAR_WEIGHT < 1 and tensor_fit.FAR_VIGNETTING > TRAIN_VIGNETTING
+    # 0.5% far cells: below FAR_MIN_SHARE, they stay holes
+    train, test = _far_case(0.005)
+    few = train.vignetting == 1.3
+    assert 0 < np.count_nonzero(few) < tensor_fit.FAR_MIN_SHARE * few.size
+    clean = _phase(train, test, tensor_fit.FAR_WEIGHT)
+    beyond = train.vignetting > tensor_fit.FAR_VIGNETTING
+    train.outputs[few | beyond, 3] += 1.0
+    assert np.array_equal(_phase(train, test, tensor_fit.FAR_WEIGHT), clean)
+    # 20% far cells: fitted; the truth there gives the truth back, wild values do not
+    train, test = _far_case(0.2)
+    many = train.vignetting == 1.3
+    beyond = train.vignetting > tensor_fit.FAR_VIGNETTING
+    fitted = _phase(train, test, tensor_fit.FAR_WEIGHT)
+    plain = _phase(train, test, None)
+    np.testing.assert_allclose(fitted, plain, rtol=0, atol=1e-9 * np.max(np.abs(plain)))
+    train.outputs[beyond, 3] += 1.0  # beyond FAR_VIGNETTING: never fitted
+    assert np.array_equal(_phase(train, test, tensor_fit.FAR_WEIGHT), fitted)
+    train.outputs[many, 3] += 1.0
+    assert np.max(np.abs(_phase(train, test, tensor_fit.FAR_WEIGHT) - fitted)) > 1e-3
