@@ -292,3 +292,33 @@ def test_committed_table_facts_are_the_lens_facts(committed_fits):
         assert systems.lens == lens_facts(lens)
         table = GENERATED_DIR / lens_folder_name(lens) / f"lens{lens_id}.table"
         assert read_table(table.read_text(encoding="utf-8")).trust == systems.trust
+
+
+def test_a_cell_window_is_pulled_until_its_corners_lie_in_the_fitted_disc():
+    """The PSF check evaluates P_s over its window's pixels, and P_s was fitted on the
+    sensor disc only: a window on the diagonal whose larger coordinate plus half its
+    width fits (a box test) can still reach outside the disc with its corner (lens
+    0003's field-corner window: 22.3 mm on a 21.6 mm disc, where P_s extrapolated to
+    2e-3 waves). A made-up window (centre proportional to the field angle, 1 mm wide)
+    starts just inside by the box test and outside by its corner: _inside pulls the
+    light (PULL at a time) until the corner is inside, and no further than one step."""
+    from lensfit.sample.domain import Domain
+
+    h, width = 21.6, 1.0
+    domain = Domain(field_deg=20.0, close_focus_mm=math.inf, stop_radius_mm=5.0,
+                    sensor_radius_mm=h, focus_min_mm=-0.1, focus_max_mm=0.1)
+    scale = (h - 0.5 * width - 0.05) / math.sqrt(2) / 10.0  # mm per degree on the diagonal
+
+    def window(label, field, distance, lam):
+        return width, (scale * field[0], scale * field[1])
+
+    field = (10.0, 10.0)
+    cx, cy = window("widest", field, math.inf, 550.0)[1]
+    assert max(abs(cx), abs(cy)) + 0.5 * width <= h  # the box test passed it
+    assert math.hypot(abs(cx) + 0.5 * width, abs(cy) + 0.5 * width) > h
+    inside, share = trust._inside(None, domain, field, ["widest"], [550.0], window)
+    cx, cy = window("widest", inside, math.inf, 550.0)[1]
+    assert math.hypot(abs(cx) + 0.5 * width, abs(cy) + 0.5 * width) <= h
+    assert share < 1.0
+    cx, cy = (c / trust.PULL for c in (cx, cy))  # one step less would not fit
+    assert math.hypot(abs(cx) + 0.5 * width, abs(cy) + 0.5 * width) > h
