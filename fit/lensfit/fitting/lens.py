@@ -100,6 +100,8 @@ def _piloted(lens: Lens, domain: Domain, name: str, options: FitOptions, seed: i
     pilot = stop_pilot(lens, domain, name, options.phase_target_waves, seed=seed + 7)
     if pilot.out_of_reach():
         raise _refusal(lens, domain, pilot.describe())
+    if not pilot.floors:  # no pilot field point had rays enough to tell: the defaults
+        return options.aperture_degree, options.aperture_points
     need = pilot.degree()
     need = max(PILOT_DEGREES) if need is None else need
     degree = min(max(options.aperture_degree, need), options.max_aperture_degree)
