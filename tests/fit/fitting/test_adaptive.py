@@ -91,6 +91,16 @@ def truth(x: np.ndarray) -> np.ndarray:
                             phi])
 
 
+def field_points(rng: np.random.Generator, n: int) -> np.ndarray:
+    """n field points (x_O, y_O, u_O, lambda) of DOMAIN: uniform on its field disc,
+    inverse distances and wavelengths uniform."""
+    s = math.sin(math.radians(DOMAIN.field_deg))
+    r, a = np.sqrt(rng.random(n)) * s, rng.uniform(0, 2 * math.pi, n)
+    return np.column_stack([r * np.cos(a), r * np.sin(a),
+                            rng.uniform(0, DOMAIN.inverse_distance_max, n),
+                            rng.uniform(400.0, 700.0, n)])
+
+
 def grid(field: np.ndarray, ap: np.ndarray) -> GridSamples:
     g, k = np.repeat(np.arange(len(field)), len(ap)), np.tile(np.arange(len(ap)), len(field))
     x = np.column_stack([field[g, :3], ap[k], field[g, 3]])
@@ -107,11 +117,7 @@ def test_the_grid_grows_where_the_stop_points_run_short(monkeypatch):
     truth), the phase alone is fitted again and meets its target. The other outputs,
     met at first, are not refitted."""
     rng = np.random.default_rng(1)
-    s = math.sin(math.radians(DOMAIN.field_deg))
-    r, a = np.sqrt(rng.random(60)) * s, rng.uniform(0, 2 * math.pi, 60)
-    field = np.column_stack([r * np.cos(a), r * np.sin(a),
-                             rng.uniform(0, DOMAIN.inverse_distance_max, 60),
-                             rng.uniform(400.0, 700.0, 60)])
+    field = field_points(rng, 60)
     train = grid(field, symmetric_disc_points(rng, 32) * DOMAIN.stop_radius_mm)
     n = 400
     rt = np.sqrt(rng.random(n)) * DOMAIN.stop_radius_mm
@@ -223,12 +229,8 @@ def test_a_phase_no_degree_can_follow_is_refused_with_its_figures():
     is raised once, and the output is refused as out of reach, naming the output, its
     error, degrees and target, before the highest field degree is tried."""
     rng = np.random.default_rng(3)
-    s = math.sin(math.radians(DOMAIN.field_deg))
     G = 120
-    r, a = np.sqrt(rng.random(G)) * s, rng.uniform(0, 2 * math.pi, G)
-    field = np.column_stack([r * np.cos(a), r * np.sin(a),
-                             rng.uniform(0, DOMAIN.inverse_distance_max, G),
-                             rng.uniform(400.0, 700.0, G)])
+    field = field_points(rng, G)
 
     def kinked(x: np.ndarray) -> np.ndarray:
         out = truth(x)
@@ -292,12 +294,8 @@ def _far_case(share: float, seed: int = 5):
     marked 1.3 times a housing's radius out (far, within FAR_VIGNETTING) and 5% beyond
     FAR_VIGNETTING; held-out rays from the truth."""
     rng = np.random.default_rng(seed)
-    s = math.sin(math.radians(DOMAIN.field_deg))
     G = 120
-    r, a = np.sqrt(rng.random(G)) * s, rng.uniform(0, 2 * math.pi, G)
-    field = np.column_stack([r * np.cos(a), r * np.sin(a),
-                             rng.uniform(0, DOMAIN.inverse_distance_max, G),
-                             rng.uniform(400.0, 700.0, G)])
+    field = field_points(rng, G)
     train = grid(field, symmetric_disc_points(rng, 128) * DOMAIN.stop_radius_mm)
     u = rng.random(train.ok.shape)
     train.vignetting[u < share] = 1.3
