@@ -5,15 +5,20 @@
  * lateral colour; the frame is 64 x 64 pixels of 5 um behind a pinhole of 10 mm.
  *
  *   shift-invariant: every node the same PSF, 3 channels mixing 3 wavelengths: the
- *     direct layer is the plain convolution of the input with PSF / axis power (float
+ *     direct layer is the plain convolution of the input with PSF / axis power, through
+ *     the layer's own stencil at whole-pixel landings (direct_stencil: the splat's and the
+ *     kernels' B-spline taps and the sharpening that undoes their spread; float
  *     rounding: 2e-6 of the largest value);
  *   axes: an off-centre frame of non-square pixels behind a pinhole of two focal lengths:
  *     the plain convolution again;
- *   energy: an even 16 x 16 PSF with lateral colour (sub-pixel shifts as phase ramps): a
- *     point near the axis keeps its power in every channel to 1e-5;
+ *   energy: an even 16 x 16 PSF with lateral colour (sub-pixel shifts by B-spline taps): a
+ *     point near the axis keeps its power in every channel to 1e-3 (issue 38's 0.1%: the
+ *     taps and the sharpening keep it exactly; the clamp at 0 of a lone point's faint
+ *     negative ring, where the sharpening turns a Gaussian's far tail, adds 3.2e-4), and
+ *     a smooth frame, which leaves nothing to clamp, to 1e-6;
  *   seams: node PSFs of widths and powers varying with field: each point's output is its
- *     own PSF, the hat-weighted blend of the node PSFs on its chief point, to 1e-4 of the
- *     peak, beside the node lines (cell borders) and inside cells;
+ *     own PSF, the hat-weighted blend of the node PSFs on its chief point (through the
+ *     stencil), to 1e-4 of the peak, beside the node lines (cell borders) and inside cells;
  *   distortion: a point's output has its centroid on the bank's interpolated chief point
  *     (lensrt_bank_psf's) within 0.02 px;
  *   threads: 1 and 3 threads give the same bits (distortion, lateral colour, 12 x 12);
@@ -41,6 +46,7 @@
 #define PI 3.14159265358979323846
 #define FOCAL 10.0
 #define PITCH 0.005
+#define STENCIL 7 /* direct_stencil's taps */
 enum { W = 64, H = 64 };
 static const double FX[5] = {-1.2, -0.6, 0.0, 0.6, 1.2}, FY[5] = {-1.0, -0.5, 0.0, 0.5, 1.0};
 static const double WL3[3] = {450.0, 550.0, 650.0}, WL1[1] = {550.0};
@@ -142,17 +148,58 @@ static double axis_power(lensrt_bank bank, const float *psf, size_t n)
     return s;
 }
 
+/* The direct layer's operator, per axis, on a light landing on a pixel centre and a
+ * kernel needing no shift (src/image/direct.c): the splat's quadratic B-spline taps
+ * B2(-1), B2(0), B2(1) = 1/8, 3/4, 1/8, the kernels' the same, and the sharpening that
+ * undoes their spread less a pixel's box's to second order, 1 + (5/12)(1 - cos omega):
+ * the taps -5/24, 1 + 5/12, -5/24. STENCIL taps, centre STENCIL / 2, into e. */
+static void direct_stencil(double e[STENCIL])
+{
+    const double b2[3] = {0.125, 0.75, 0.125}, sharp[3] = {-5.0 / 24.0, 1.0 + 5.0 / 12.0, -5.0 / 24.0};
+    double bb[5] = {0.0};
+    int i, j;
+    for (i = 0; i < 3; i++)
+        for (j = 0; j < 3; j++) bb[i + j] += b2[i] * b2[j];
+    for (i = 0; i < STENCIL; i++) e[i] = 0.0;
+    for (i = 0; i < 5; i++)
+        for (j = 0; j < 3; j++) e[i + j] += bb[i] * sharp[j];
+}
+
+/* psf (s x s) through direct_stencil on both axes into out ((s + 6) x (s + 6), its centre
+ * pixel the psf's). */
+static void stencil_psf(const double *psf, int s, double *out)
+{
+    double e[STENCIL];
+    const int n = s + STENCIL - 1;
+    int x, y, a, b;
+    direct_stencil(e);
+    for (y = 0; y < n; y++)
+        for (x = 0; x < n; x++) {
+            double v = 0.0;
+            for (b = 0; b < STENCIL; b++)
+                for (a = 0; a < STENCIL; a++) {
+                    const int px = x - a, py = y - b;
+                    if (px >= 0 && px < s && py >= 0 && py < s) v += e[a] * e[b] * psf[py * s + px];
+                }
+            out[y * n + x] = v;
+        }
+}
+
 /* ------------------------------------------------------ shift-invariant ----- */
 
 /* The largest distance of out from the plain convolution of in (nc planes of w x h) with
- * psf / ap (s x s, odd: pixel (a, b) at offset (a - s / 2, b - s / 2) from the light's
- * pixel), and the convolution's largest value into *big. */
-static double plain_convolution_error(const float *in, const float *out, int w, int h, int nc, const float *psf,
-                                      int s, double ap, double *big)
+ * psf through direct_stencil, / ap (psf s x s, odd: pixel (a, b) at offset (a - s / 2,
+ * b - s / 2) from the light's pixel), and the convolution's largest value into *big. */
+static double plain_convolution_error(const float *in, const float *out, int w, int h, int nc, const float *psf0,
+                                      int s0, double ap, double *big)
 {
-    double worst = 0.0;
+    const int s = s0 + STENCIL - 1;
+    double worst = 0.0, *psf = malloc((size_t)(s0 * s0 + s * s) * sizeof(double)), *p0 = psf + s * s;
     int c, x, y, a, b;
     *big = 0.0;
+    if (!psf) return INFINITY;
+    for (x = 0; x < s0 * s0; x++) p0[x] = psf0[x];
+    stencil_psf(p0, s0, psf);
     for (c = 0; c < nc; c++)
         for (y = 0; y < h; y++)
             for (x = 0; x < w; x++) {
@@ -161,12 +208,13 @@ static double plain_convolution_error(const float *in, const float *out, int w, 
                     for (a = 0; a < s; a++) {
                         const int sx = x - (a - s / 2), sy = y - (b - s / 2);
                         if (sx >= 0 && sx < w && sy >= 0 && sy < h)
-                            ref += (double)in[(c * h + sy) * w + sx] * (double)psf[b * s + a] / ap;
+                            ref += (double)in[(c * h + sy) * w + sx] * psf[b * s + a] / ap;
                     }
                 e = fabs((double)out[(c * h + y) * w + x] - ref);
                 worst = e > worst ? e : worst;
                 *big = ref > *big ? ref : *big;
             }
+    free(psf);
     return worst;
 }
 
@@ -276,8 +324,26 @@ static void test_energy(lensrt_context ctx)
     for (c = 0; c < NC; c++) {
         double sum = 0.0;
         for (p = 0; p < W * H; p++) sum += out[c * W * H + p];
-        CHECK(fabs(sum / 2.0 - 1.0) < 1e-5, "energy: channel %d keeps %.9g of the point's power", c, sum / 2.0);
+        CHECK(fabs(sum / 2.0 - 1.0) < 1e-3, "energy: channel %d keeps %.9g of the point's power", c, sum / 2.0);
         printf("test_image: energy: channel %d keeps %.9f\n", c, sum / 2.0);
+    }
+    // A smooth blob (a Gaussian of 4 pixels, its power far from the frame's edges): every
+    // output value is covered by light from around it, nothing is clamped, and the power
+    // is kept to float rounding
+    for (c = 0; c < NC; c++)
+        for (p = 0; p < W * H; p++) {
+            const double dx = p % W - 31.5, dy = p / W - 30.5;
+            in[c * W * H + p] = (float)exp(-(dx * dx + dy * dy) / 32.0);
+        }
+    CHECK_OK(ctx, lensrt_image_run(im, in, NC * W * H));
+    CHECK_OK(ctx, lensrt_image_get_layer(im, LENSRT_IMAGE_DIRECT, out, NC * W * H));
+    for (c = 0; c < NC; c++) {
+        double sum = 0.0, want = 0.0;
+        for (p = 0; p < W * H; p++) {
+            sum += out[c * W * H + p];
+            want += in[c * W * H + p];
+        }
+        CHECK(fabs(sum / want - 1.0) < 1e-6, "energy: channel %d keeps %.9g of a smooth blob's power", c, sum / want);
     }
 done:
     lensrt_image_destroy(im);
@@ -310,9 +376,10 @@ static void test_seams(lensrt_context ctx)
     static const int points[][2] = {{10, 14}, {11, 15}, {31, 31}, {32, 32}, {52, 48}, {53, 49}, {20, 40}, {42, 22},
                                     {3, 60}, {60, 3}};
     const kind k = {1.0, 1, 0.0, 0.0, 0.0};
-    enum { S = 11 };
+    enum { S = 11, SE = S + STENCIL - 1 };
     synth_bank sb;
     float node[25][S * S], *in = calloc(W * H, sizeof(float)), *out = malloc(W * H * sizeof(float));
+    double blend[S * S], own[SE * SE];
     lensrt_bank bank = make_bank(ctx, "seams", &k, S, 1, "channel", 0.0);
     lensrt_image im = bank ? make_image(ctx, bank, 1, NULL) : NULL;
     double ap, worst = 0.0;
@@ -333,17 +400,23 @@ static void test_seams(lensrt_context ctx)
         CHECK_OK(ctx, lensrt_image_run(im, in, W * H));
         CHECK_OK(ctx, lensrt_image_get_layer(im, LENSRT_IMAGE_DIRECT, out, W * H));
         in[j * W + i] = 0.0f;
-        // The point's own PSF: the hat-weighted blend of the node PSFs, on its pixel
+        // The point's own PSF: the hat-weighted blend of the node PSFs, through the
+        // stencil, on its pixel
         hat(FX, 5, tx, wx);
         hat(FY, 5, ty, wy);
+        for (x = 0; x < S * S; x++) {
+            int ix, iy;
+            blend[x] = 0.0;
+            for (iy = 0; iy < 5; iy++)
+                for (ix = 0; ix < 5; ix++) blend[x] += wx[ix] * wy[iy] * node[iy * 5 + ix][x] / ap;
+        }
+        stencil_psf(blend, S, own);
         for (y = 0; y < H; y++)
             for (x = 0; x < W; x++) {
-                const int a = x - i + S / 2, b = y - j + S / 2;
-                double ref = 0.0;
-                int ix, iy;
-                if (a >= 0 && a < S && b >= 0 && b < S)
-                    for (iy = 0; iy < 5; iy++)
-                        for (ix = 0; ix < 5; ix++) ref += wx[ix] * wy[iy] * node[iy * 5 + ix][b * S + a] / ap;
+                const int a = x - i + SE / 2, b = y - j + SE / 2;
+                // (a lone point: where the sharpening of the widest node PSFs, cut off by
+                // their 11-pixel windows, dips below 0, the layer's clamp at 0 holds)
+                const double ref = a >= 0 && a < SE && b >= 0 && b < SE && own[b * SE + a] > 0.0 ? own[b * SE + a] : 0.0;
                 peak = ref > peak ? ref : peak;
                 err = fabs(out[y * W + x] - ref) > err ? fabs(out[y * W + x] - ref) : err;
             }

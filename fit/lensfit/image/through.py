@@ -26,6 +26,7 @@ import numpy as np
 
 from lensfit.common.errors import InputError
 from lensfit.image.bank import (
+    PSF_MIN_HALF_FRAME_PX,
     RGB_WAVELENGTHS_NM,
     ensure_bank,
     frame_bank_spec,
@@ -34,10 +35,10 @@ from lensfit.image.bank import (
 from lensfit.image.frame import FrameError, Geometry, frame_geometry, read_frame
 
 DEFAULT_F_NUMBER = 8.0
-# The direct layer on a grid 3 times finer per axis, over 17 field points across the
-# frame: 3.1% from the per-pixel reference on lens 0001's corner at f/8 and 18.75 um
-# pixels (oversample 1 and 9 points: 12%; 2 and 17: 6.1%; 4 and 17: 2.6%; make bench)
-DEFAULT_OVERSAMPLE = 3
+# The direct layer on a grid 4 times finer per axis, over 17 field points across the
+# frame: 1.5-1.7% from every lit pixel's own PSF on lens 0001's corner at f/8 and
+# 18.75 um pixels (oversample 3: 2.5%; 2: 4.9-5.1%; docs/image.md, make bench)
+DEFAULT_OVERSAMPLE = 4
 DEFAULT_NODES = 17
 DEFAULT_DEPTH_SLICES = 4
 MAX_SPECTRAL_CHANNELS = 64
@@ -237,7 +238,9 @@ def through_lens(lens: str, input_path: str | Path, output: str | Path,
     corners = [(x, y) for x in (x0, x1) for y in (y0, y1)] + [(0.0, 0.0)]
     try:
         half = max(window_half_px(rt, handle, fine, corners, wavelengths, o.f_number,
-                                  o.focus_offset_mm, d, o.aperture) for d in distances)
+                                  o.focus_offset_mm, d, o.aperture,
+                                  min_half_px=PSF_MIN_HALF_FRAME_PX * o.oversample)
+                   for d in distances)
     except LensrtError as e:
         raise InputError(f"{table}: {e}") from None
     spec = frame_bank_spec("image", table, fine, f_number=o.f_number,

@@ -12,17 +12,20 @@
  *    the nodes' chief points by the bank reader's own rule, the Lagrange cubic in
  *    (t_x, t_y) through 4 x 4 nodes (lensrt_bank_psf: exact without distortion, a cubic
  *    in it). Node k's layer L_k receives the pixel's value times its weight at k,
- *    splatted bilinearly at the landing point (the 4 taps sum to 1: power is kept, and
- *    so is the centroid).
+ *    splatted at the landing point by the quadratic B-spline's 3 x 3 taps (they sum to
+ *    1: power is kept, and so is the centroid; their spread is 1/4 squared pixels per
+ *    axis wherever the point lands, undone in step 3).
  * 3. Kernels. Node k's kernel for channel c is
- *        K = sum_l w[c][l] PSF_{k,l}(shifted by chief_{k,l} - chief_{k,ref}) / norm_c,
+ *        K = S * sum_l w[c][l] PSF_{k,l}(shifted by chief_{k,l} - chief_{k,ref}) / norm_c,
  *        norm_c = sum_l w[c][l] axis_power[l],
  *    PSF_{k,l} being lensrt_bank_psf at the node's own field and wavelength l (the
  *    node's channel bit for bit), so a lossless axis keeps a pixel's value and
  *    vignetting and transmission come from the PSFs' own power. The sub-pixel shifts
  *    (lateral colour, and half a pixel along an axis of even PSF size, whose pixel
- *    centres lie half a pixel off its chief point) are bilinear taps, as the warp's
- *    splat (step 2): they keep each PSF's power and sign. Built once, at creation.
+ *    centres lie half a pixel off its chief point) are B-spline taps too. S (sharpen)
+ *    undoes, to second order in the pitch, the constant spread the two sets of taps add,
+ *    less the one a pixel's box has more than the point it is splatted as. Built once,
+ *    at creation.
  * 4. Convolution. Each node's layer covers only the landing points of its pixels (its
  *    <= 2 x 2 cells, warped); it is convolved with the kernel by FFT, padded to the full
  *    linear size (no wrap-around), two channels packed in one complex transform, and the
@@ -104,6 +107,21 @@ static void hat_cell(const double *g, int n, double t, int *cell, double *frac)
 static double hat_weight(int a, int cell, double frac)
 {
     return a == cell ? 1.0 - frac : a == cell + 1 ? frac : 0.0;
+}
+
+/* The quadratic B-spline's taps for a point at u on a grid of unit spacing: grid points
+ * *first .. *first + 2 get w[0 .. 2] = B2(point - u), B2 the centred quadratic B-spline
+ * (support 3, sum 1, >= 0). Unlike bilinear taps, whose spread f(1 - f) squared pixels
+ * swings with the fraction f, the spread about u is 1/4 squared pixels wherever u falls
+ * (a sampled B-spline keeps the B-spline's moments up to its degree): a constant blur,
+ * which the kernels undo (sharpen), not one that changes from pixel to pixel. */
+static void bspline_taps(double u, int *first, double w[3])
+{
+    const double g = floor(u + 0.5), t = u - g;
+    *first = (int)g - 1;
+    w[0] = 0.5 * (0.5 - t) * (0.5 - t);
+    w[1] = 0.75 - t * t;
+    w[2] = 0.5 * (0.5 + t) * (0.5 + t);
 }
 
 /* The bank reader's field weights (io/bank.c, field_weights), in t: the Lagrange
@@ -218,7 +236,7 @@ static int set_up_part(const struct lensrt_image_s *im, const struct image_direc
             p->j1 = j + 1;
         }
     if (p->i0 < 0 || p->j0 < 0) return 0;
-    // The landing points' box, one more pixel for the bilinear taps, cut to where a
+    // The landing points' box, one more pixel each side for the B-spline taps, cut to where a
     // kernel can still reach the frame
     for (c = 0; c < im->desc.n_channels; c++)
         for (j = p->j0; j < p->j1; j++)
@@ -229,10 +247,10 @@ static int set_up_part(const struct lensrt_image_s *im, const struct image_direc
                 vmin = u[1] < vmin ? u[1] : vmin;
                 vmax = u[1] > vmax ? u[1] : vmax;
             }
-    p->sx0 = (int)floor(umin);
-    p->sy0 = (int)floor(vmin);
-    sx1 = (int)floor(umax) + 1;
-    sy1 = (int)floor(vmax) + 1;
+    p->sx0 = (int)floor(umin + 0.5) - 1;
+    p->sy0 = (int)floor(vmin + 0.5) - 1;
+    sx1 = (int)floor(umax + 0.5) + 1;
+    sy1 = (int)floor(vmax + 0.5) + 1;
     if (p->sx0 < d->kcx - d->kw + 1) p->sx0 = d->kcx - d->kw + 1;
     if (p->sy0 < d->kcy - d->kh + 1) p->sy0 = d->kcy - d->kh + 1;
     if (sx1 > w - 1 + d->kcx) sx1 = w - 1 + d->kcx;
@@ -248,11 +266,50 @@ static int set_up_part(const struct lensrt_image_s *im, const struct image_direc
     return p->ow > 0 && p->oh > 0;
 }
 
+/* The blur the direct layer adds to every pixel's light, per axis in squared pixels of
+ * the bank's pitch: the splat's B-spline taps 1/4 and the kernels' 1/4 (bspline_taps),
+ * less the 1/12 by which a (sub-)pixel's box spreads its light more than a point at its
+ * centre, the point each is splatted as: 5/12 in all. In frequency omega (radians per
+ * pixel) the three multiply the light by sinc(omega/2)^3, sinc(omega/2)^3 and
+ * 1/sinc(omega/2), i.e. by 1 - (5/24) omega^2 + O(omega^4); sharpen() multiplies the
+ * kernels by 1 + (5/12)(1 - cos omega) = 1 + (5/24) omega^2 + O(omega^4), the taps
+ * -5/24, 1 + 5/12, -5/24 (sum 1: the kernel's power is kept). So the layer is right to
+ * second order in the pitch wherever each light lands, where bilinear taps blur by
+ * f (1 - f) - 1/12, which changes with the landing fraction f.
+ *
+ * Only to second order: the fourth-order taps of 1/sinc(omega/2)^5 (5 taps) were 10 times
+ * closer on Gaussian PSFs of 0.4-2 pixels, but worse on real lenses' PSFs, whose Airy
+ * cores are narrower than the bank's pitch (aliased: the higher order amplifies what the
+ * samples cannot hold). Measured on lens 0001 at f/8 against every lit pixel's own PSF
+ * (docs/image.md): the second-order taps 2.5% (oversample 3), the fourth-order 2.8-3.4%,
+ * bilinear taps 2.9-5.3%; sharpening by 1/3 or 1/2 instead of 5/12 was worse both ways. */
+static const double sharpen_taps[2] = {1.0 + 5.0 / 12.0, -5.0 / 24.0};
+
+/* n values of v (stride apart) through sharpen_taps, in place; line: n scratch. Taps off
+ * the ends read 0 (set_up_chiefs pads the kernels so that nothing spreads off them). */
+static void sharpen_line(double *v, int n, size_t stride, double *line)
+{
+    int i;
+    for (i = 0; i < n; i++) line[i] = v[(size_t)i * stride];
+    for (i = 0; i < n; i++) {
+        v[(size_t)i * stride] = sharpen_taps[0] * line[i] +
+                                sharpen_taps[1] * ((i >= 1 ? line[i - 1] : 0.0) + (i + 1 < n ? line[i + 1] : 0.0));
+    }
+}
+
+/* A kernel (kw x kh) through sharpen_taps along each axis; line: max(kw, kh) scratch. */
+static void sharpen(double *k, int kw, int kh, double *line)
+{
+    int i;
+    for (i = 0; i < kh; i++) sharpen_line(k + (size_t)i * (size_t)kw, kw, 1, line);
+    for (i = 0; i < kw; i++) sharpen_line(k + (size_t)i, kh, (size_t)kw, line);
+}
+
 /* Step 3: a part's kernels (see the top). shifts: n_channels x n_wavelengths x 2 pixel
  * shifts of this node (each wavelength's chief point from its channel's); acc: n_channels x kw x kh scratch, psf: the bank's size. */
 static lensrt_result build_kernels(struct lensrt_image_s *im, struct image_direct *d, node_part *p,
                                    const lensrt_bank_info *info, const double *shifts, const int *used,
-                                   double *acc, float *psf)
+                                   double *acc, double *line, float *psf)
 {
     const int nc = im->desc.n_channels, nl = im->n_wavelengths, bw = info->width, bh = info->height;
     const size_t kn = (size_t)d->kw * (size_t)d->kh, count = (size_t)bw * (size_t)bh;
@@ -265,37 +322,36 @@ static lensrt_result build_kernels(struct lensrt_image_s *im, struct image_direc
         if (!used[l]) continue;
         if ((res = node_psf(im, p->ix, p->iy, l, psf, count, chief)) != LENSRT_SUCCESS) return res;
         for (c = 0; c < nc; c++) {
-            // The PSF moved by (sx, sy) pixels, from the channel's chief point to its own:
-            // the whole-pixel part exactly, the fraction by the bilinear taps (1 - f, f) on
-            // each axis, as the warp's splat; they keep its power and never go below 0. A
+            // The PSF moved by (sx, sy) pixels, from the channel's chief point to its own,
+            // by the quadratic B-spline's 3 x 3 taps (bspline_taps: a constant spread of
+            // 1/4 squared pixels per axis, undone with the others by sharpen()). A
             // band-limited shift (a phase ramp) rings: these PSFs are box-filtered at the
-            // frame's pitch, not band-limited
-            // (a shift within 1e-9 pixels of a whole one is that one: rounding of chief
-            // points that agree)
-            const double sx0 = shifts[2 * ((size_t)c * (size_t)nl + (size_t)l)];
-            const double sy0 = shifts[2 * ((size_t)c * (size_t)nl + (size_t)l) + 1];
-            const double sx = fabs(sx0 - floor(sx0 + 0.5)) < 1e-9 ? floor(sx0 + 0.5) : sx0;
-            const double sy = fabs(sy0 - floor(sy0 + 0.5)) < 1e-9 ? floor(sy0 + 0.5) : sy0;
-            const int gx = (int)floor(sx), gy = (int)floor(sy);
-            const double fx = sx - gx, fy = sy - gy;
-            const double tap[4] = {(1 - fx) * (1 - fy), fx * (1 - fy), (1 - fx) * fy, fx * fy};
+            // frame's pitch, not band-limited; bilinear taps blur by f(1 - f), which
+            // changes with the shift
+            const double sx = shifts[2 * ((size_t)c * (size_t)nl + (size_t)l)];
+            const double sy = shifts[2 * ((size_t)c * (size_t)nl + (size_t)l) + 1];
             const double wc = im->channel_weights[(size_t)c * (size_t)nl + (size_t)l];
+            double tx[3], ty[3];
+            int gx, gy, a, b;
             double *k = acc + (size_t)c * kn;
             if (wc == 0.0) continue;
+            bspline_taps(sx, &gx, tx);
+            bspline_taps(sy, &gy, ty);
             for (j = 0; j < bh; j++)
                 for (i = 0; i < bw; i++) {
                     const double v = wc * (double)psf[(size_t)j * (size_t)bw + (size_t)i];
-                    int t;
-                    for (t = 0; t < 4; t++) {
-                        // The kernel grid is padded by the largest shift (set_up_chiefs):
-                        // a tap off it has weight 0
-                        const int x = i + ox + gx + t % 2, y = j + oy + gy + t / 2;
-                        if (tap[t] != 0.0 && x >= 0 && x < d->kw && y >= 0 && y < d->kh)
-                            k[(size_t)y * (size_t)d->kw + (size_t)x] += tap[t] * v;
-                    }
+                    if (v == 0.0) continue;
+                    for (b = 0; b < 3; b++)
+                        for (a = 0; a < 3; a++) {
+                            // The kernel grid is padded by the largest shift and the taps'
+                            // and sharpening's reach (set_up_chiefs): none falls off it
+                            const int x = i + ox + gx + a, y = j + oy + gy + b;
+                            k[(size_t)y * (size_t)d->kw + (size_t)x] += tx[a] * ty[b] * v;
+                        }
                 }
         }
     }
+    for (c = 0; c < nc; c++) sharpen(acc + (size_t)c * kn, d->kw, d->kh, line);
     // Each channel divided by its spectrum's power on the axis
     for (c = 0; c < nc; c++) {
         double norm = 0.0;
@@ -308,7 +364,7 @@ static lensrt_result build_kernels(struct lensrt_image_s *im, struct image_direc
 
 /* The scratch of the kernels' set-up (freed at its end). */
 typedef struct kernel_scratch {
-    double *shifts, *acc;
+    double *shifts, *acc, *line;
     float *psf;
     int *used;
 } kernel_scratch;
@@ -317,6 +373,7 @@ static void free_scratch(lensrt_context ctx, kernel_scratch *s)
 {
     lensrt_free(ctx, s->shifts);
     lensrt_free(ctx, s->acc);
+    lensrt_free(ctx, s->line);
     lensrt_free(ctx, s->psf);
     lensrt_free(ctx, s->used);
 }
@@ -330,7 +387,7 @@ static lensrt_result set_up_chiefs(struct lensrt_image_s *im, struct image_direc
     const int nl = im->n_wavelengths, nc = im->desc.n_channels, bw = info->width, bh = info->height;
     const double half_x = bw % 2 == 0 ? 0.5 : 0.0, half_y = bh % 2 == 0 ? 0.5 : 0.0;
     double most_x = 0.0, most_y = 0.0;
-    int l, c, k, any = 0;
+    int l, c, k;
     lensrt_result res;
     // The reference wavelength: the bank's nearest to 550 nm
     *ref = 0;
@@ -356,7 +413,6 @@ static lensrt_result set_up_chiefs(struct lensrt_image_s *im, struct image_direc
             const double sx = (cl[0] - cr[0]) / info->pixel_x_mm + half_x;
             const double sy = -(cl[1] - cr[1]) / info->pixel_y_mm + half_y;
             if (!s->used[l]) continue;
-            if (sx != 0.0 || sy != 0.0) any = 1;
             most_x = fabs(sx) > most_x ? fabs(sx) : most_x;
             most_y = fabs(sy) > most_y ? fabs(sy) : most_y;
         }
@@ -364,19 +420,15 @@ static lensrt_result set_up_chiefs(struct lensrt_image_s *im, struct image_direc
         return lensrt_fail(im->ctx, LENSRT_ERROR_OUT_OF_DOMAIN, "lensrt_image_create: the bank's chief points differ "
                            "by %g x %g pixels between its wavelengths; at most %d", most_x, most_y,
                            LENSRT_MAX_RESOLUTION / 4);
-    if (any) {
+    {
         // A channel's chief point is a mean of its wavelengths': a shift from it is at
-        // most twice the largest from the reference
-        const int pad_x = (int)ceil(2.0 * most_x) + 2, pad_y = (int)ceil(2.0 * most_y) + 2;
+        // most twice the largest from the reference; the B-spline taps reach one pixel
+        // beyond it, sharpen() one more, and one spare
+        const int pad_x = (int)ceil(2.0 * most_x) + 3, pad_y = (int)ceil(2.0 * most_y) + 3;
         d->kw = image_fft_good_size(bw + 2 * pad_x);
         d->kh = image_fft_good_size(bh + 2 * pad_y);
         d->kcx = pad_x + bw / 2;
         d->kcy = pad_y + bh / 2;
-    } else {
-        d->kw = bw;
-        d->kh = bh;
-        d->kcx = bw / 2;
-        d->kcy = bh / 2;
     }
     return LENSRT_SUCCESS;
 }
@@ -498,7 +550,8 @@ lensrt_result image_direct_create(struct lensrt_image_s *im)
     kn = (size_t)d->kw * (size_t)d->kh;
     d->kernels = lensrt_alloc(ctx, (size_t)(d->n_parts > 0 ? d->n_parts : 1) * (size_t)nc * kn * sizeof(float));
     s.acc = lensrt_alloc(ctx, (size_t)nc * kn * sizeof(double));
-    if (!d->kernels || !s.acc) {
+    s.line = lensrt_alloc(ctx, (size_t)(d->kw > d->kh ? d->kw : d->kh) * sizeof(double));
+    if (!d->kernels || !s.acc || !s.line) {
         res = DIRECT_OOM("the kernels");
         goto done;
     }
@@ -516,7 +569,7 @@ lensrt_result image_direct_create(struct lensrt_image_s *im)
             }
         }
         p->kernels = d->kernels + (size_t)k * (size_t)nc * kn;
-        if ((res = build_kernels(im, d, p, &info, s.shifts, s.used, s.acc, s.psf)) != LENSRT_SUCCESS)
+        if ((res = build_kernels(im, d, p, &info, s.shifts, s.used, s.acc, s.line, s.psf)) != LENSRT_SUCCESS)
             goto done;
     }
     // The slots' buffers: one node at a time per thread
@@ -561,34 +614,33 @@ static int splat(const struct lensrt_image_s *im, const struct image_direct *d, 
             for (c = 0; c < nc; c++) {
                 const float val = input[(size_t)c * im->plane + pix];
                 const float *land = d->land + 2 * ((size_t)c * im->plane + pix);
-                const float u = land[0] - (float)p->sx0, v = land[1] - (float)p->sy0;
-                const float fu = floorf(u), fv = floorf(v), ax = u - fu, ay = v - fv;
-                const int x0 = (int)fu, y0 = (int)fv;
-                const int inside = x0 >= 0 && x0 + 1 < sw && y0 >= 0 && y0 + 1 < sh;
+                double tx[3], ty[3];
+                int x0, y0, ta, tb;
                 float *l = layer + (size_t)c * lp;
-                float tap[4];
-                int t;
                 if (val == 0.0f) continue;
                 lit = 1;
-                // The bilinear taps (they sum to 1: the power and the centroid are kept)
-                tap[0] = (1.0f - ax) * (1.0f - ay) * wt;
-                tap[1] = ax * (1.0f - ay) * wt;
-                tap[2] = (1.0f - ax) * ay * wt;
-                tap[3] = ax * ay * wt;
-                if (inside) {
-                    // The usual case: all four taps in the layer
-                    float *q = l + (size_t)y0 * (size_t)sw + (size_t)x0;
-                    q[0] += val * tap[0];
-                    q[1] += val * tap[1];
-                    q[sw] += val * tap[2];
-                    q[sw + 1] += val * tap[3];
+                // The B-spline's 3 x 3 taps (bspline_taps: they sum to 1, so the power
+                // and the centroid are kept, and spread the light by a constant 1/4
+                // squared pixels per axis, which the kernels undo)
+                bspline_taps((double)land[0] - p->sx0, &x0, tx);
+                bspline_taps((double)land[1] - p->sy0, &y0, ty);
+                if (x0 >= 0 && x0 + 2 < sw && y0 >= 0 && y0 + 2 < sh) {
+                    // The usual case: all nine taps in the layer
+                    for (tb = 0; tb < 3; tb++) {
+                        float *q = l + (size_t)(y0 + tb) * (size_t)sw + (size_t)x0;
+                        const float vy = val * wt * (float)ty[tb];
+                        q[0] += vy * (float)tx[0];
+                        q[1] += vy * (float)tx[1];
+                        q[2] += vy * (float)tx[2];
+                    }
                     continue;
                 }
-                for (t = 0; t < 4; t++) {
-                    const int x = x0 + t % 2, y = y0 + t / 2;
-                    if (tap[t] != 0.0f && x >= 0 && x < sw && y >= 0 && y < sh)
-                        l[(size_t)y * (size_t)sw + (size_t)x] += val * tap[t];
-                }
+                for (tb = 0; tb < 3; tb++)
+                    for (ta = 0; ta < 3; ta++) {
+                        const int x = x0 + ta, y = y0 + tb;
+                        if (x >= 0 && x < sw && y >= 0 && y < sh)
+                            l[(size_t)y * (size_t)sw + (size_t)x] += val * wt * (float)(tx[ta] * ty[tb]);
+                    }
             }
         }
     }
@@ -672,7 +724,6 @@ lensrt_result image_direct_run(struct lensrt_image_s *im, const float *input, fl
     const size_t slot_fft = 2 * (d->max_fft + 1);
     double t_warp = 0.0, t_kernels = 0.0, t_convolve = 0.0, biggest = 0.0;
     int lit[DIRECT_MAX_SLOTS], first, n_nodes = 0;
-    size_t p;
     // The parts in batches of `slots`, each slot a node of its own; the slots' outputs
     // added in node order (the same sums whatever the threads)
     for (first = 0; first < d->n_parts; first += d->slots) {
@@ -727,16 +778,16 @@ lensrt_result image_direct_run(struct lensrt_image_s *im, const float *input, fl
             t_convolve += wall * (1.0 - share);
         }
     }
-    // Irradiance is >= 0: the input is, and so is every kernel (build_kernels), so the
-    // exact convolutions are; what the transforms' rounding leaves below 0 (about 1e-16
-    // of the largest value of a node's layer times its kernel's sum: values below -1e-6 of
-    // the largest are impossible) is clamped to 0. Every value is finite (finite input
-    // and kernels, sums of bounded products).
-    for (p = 0; p < (size_t)nc * im->plane; p++)
-        if (direct[p] < 0.0f) direct[p] = 0.0f;
     im->stats.seconds_warp = t_warp;
     im->stats.seconds_kernels = t_kernels;
     im->stats.seconds_convolve = t_convolve;
     im->stats.n_nodes = n_nodes;
     return LENSRT_SUCCESS;
+}
+
+void image_direct_clamp(float *layer, size_t n)
+{
+    size_t p;
+    for (p = 0; p < n; p++)
+        if (layer[p] < 0.0f) layer[p] = 0.0f;
 }

@@ -415,6 +415,7 @@ lensrt_result lensrt_image_run(lensrt_image im, const float *input, size_t count
     } else if ((res = image_direct_run(im, input, im->layers)) != LENSRT_SUCCESS) {
         return res;
     }
+    image_direct_clamp(im->layers, nc * plane);
     if ((res = image_flare_run(im, input, im->layers + 2 * nc * plane)) != LENSRT_SUCCESS) return res;
     // LENSRT_IMAGE_FLARE: the ghost layers' sum, in ghost order
     flare = im->layers + nc * plane;
