@@ -52,7 +52,7 @@ extern "C" {
  * when a program built against one header runs with a newer shared library, which the
  * versioned structs below allow within one major version. */
 #define LENSRT_VERSION_MAJOR 0
-#define LENSRT_VERSION_MINOR 11
+#define LENSRT_VERSION_MINOR 12
 #define LENSRT_VERSION_PATCH 0
 #define LENSRT_VERSION \
     ((uint32_t)LENSRT_VERSION_MAJOR * 1000000u + (uint32_t)LENSRT_VERSION_MINOR * 1000u + \
@@ -1113,14 +1113,23 @@ typedef struct lensrt_image_desc {
     /* The direct layer on a grid this many times finer per axis (1 .. 16; 0: 1), whose
      * pitch the bank's must be (the frame's pitch is the bank's times this): each
      * framebuffer pixel's light is spread evenly over its sub-pixels (a pixel is the
-     * light of its footprint), put through, and averaged back over each pixel. The
-     * splat's bilinear taps approximate a PSF about a pixel wide; against every lit
-     * pixel's own PSF (lens 0001, f/8, 18.75 um pixels) 1: 12%, 2: 6%, 3: 3% relative
-     * L2, at oversample^2 times the convolutions' cost (make bench, docs/image.md). */
+     * light of its footprint), put through, and averaged back over each pixel. Against
+     * every lit pixel's own PSF (lens 0001, f/8, 18.75 um pixels) 2: 5%, 3: 2.4%, 4:
+     * 1.5% relative L2, at oversample^2 times the convolutions' cost (make bench,
+     * docs/image.md). */
     int32_t oversample;
+    /* Since 0.12.0. LENSRT_IMAGE_MIRROR_X: the lens is mirror-symmetric about x = 0 (every
+     * lens lensfit fits is, about both axes) and the bank's field_x_deg are all >= 0: a
+     * field point at -x takes the bank's PSFs at +x mirrored in x, and its chief points'
+     * x negated, exactly (each window is centred on its chief point). The
+     * frame's field grid is the bank's with its mirror image. LENSRT_IMAGE_MIRROR_Y
+     * likewise in y. A bank over a quadrant is a quarter of the renders. 0: none. */
+    int32_t mirror;
 } lensrt_image_desc;
 #define LENSRT_IMAGE_DESC_INIT {sizeof(lensrt_image_desc), NULL, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, NULL, \
-                                NULL, 0, {0, 0, 0, 0, 0, 0, 0, 0}, 0, 0, 0, 0, 0}
+                                NULL, 0, {0, 0, 0, 0, 0, 0, 0, 0}, 0, 0, 0, 0, 0, 0}
+#define LENSRT_IMAGE_MIRROR_X 1
+#define LENSRT_IMAGE_MIRROR_Y 2
 
 /* What the last lensrt_image_run did, and what each part cost (wall seconds). */
 typedef struct lensrt_image_stats {

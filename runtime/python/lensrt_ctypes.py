@@ -808,7 +808,11 @@ class ImageDesc(Versioned):
                 ("ghosts", C.POINTER(C.c_void_p)), ("n_ghosts", C.c_int32),
                 ("aperture", Aperture), ("flare_threshold", C.c_double),
                 ("max_sources", C.c_int32), ("flare_target_error", C.c_double),
-                ("flare_downsample", C.c_int32), ("oversample", C.c_int32)]
+                ("flare_downsample", C.c_int32), ("oversample", C.c_int32),
+                ("mirror", C.c_int32)]
+
+
+IMAGE_MIRROR_X, IMAGE_MIRROR_Y = 1, 2
 
 
 class ImageStats(Versioned):
@@ -842,11 +846,12 @@ class Image:
                  n_channels: int = 0, ghosts: Sequence[C.c_void_p] = (),
                  aperture: dict[str, Any] | None = None, flare_threshold: float = 0.0,
                  max_sources: int = 0, flare_target_error: float = 0.0,
-                 flare_downsample: int = 0, oversample: int = 0) -> None:
+                 flare_downsample: int = 0, oversample: int = 0, mirror: int = 0) -> None:
         """``channel_weights``: (n_channels, bank wavelengths), or None for one channel per
         bank wavelength; ``aperture``: the ghost renders' (keys of Render's: shape,
         radius_mm, f_number, blades, blade_curvature, rotation_deg, slit_width_mm,
-        slit_separation_mm)."""
+        slit_separation_mm); ``mirror``: IMAGE_MIRROR_X | IMAGE_MIRROR_Y for a bank over
+        field >= 0 of a mirror-symmetric lens (0.12.0)."""
         rt = bank.rt
         lib = rt.lib
         _need(lib, "lensrt_image_create", since="0.11.0").argtypes = [
@@ -891,6 +896,7 @@ class Image:
         desc.flare_threshold, desc.max_sources = flare_threshold, max_sources
         desc.flare_target_error, desc.flare_downsample = flare_target_error, flare_downsample
         desc.oversample = oversample
+        desc.mirror = mirror  # a library before 0.12.0 refuses it when set (struct_size)
         handle = C.c_void_p()
         rt._check(lib.lensrt_image_create(rt.ctx, C.byref(desc), C.byref(handle)))
         self.handle = handle

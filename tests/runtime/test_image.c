@@ -22,6 +22,9 @@
  *   distortion: a point's output has its centroid on the bank's interpolated chief point
  *     (lensrt_bank_psf's) within 0.02 px;
  *   threads: 1 and 3 threads give the same bits (distortion, lateral colour, 12 x 12);
+ *   mirror: a lens symmetric about both axes (distortion, PSFs off their chief points
+ *     away from the axis): a bank over the quadrant x, y >= 0 with LENSRT_IMAGE_MIRROR_X |
+ *     _Y gives the whole grid's layer (1e-6 of the largest value); its refusals;
  *   refusals: a NaN or negative pixel, a wrong count, a frame wider than the field grid,
  *     a slice the bank lacks, bad weights, a direct lens as a ghost, a bad aperture, a
  *     bank of `registration chief`, struct_size 0,
@@ -59,6 +62,8 @@ typedef struct kind {
     double k_dist;   /* distortion: chief = f t (1 + k |t|^2) */
     double lateral;  /* lateral colour: pixels of x shift per wavelength step */
     double focal_y;  /* the chief points' focal length in y (0: FOCAL) */
+    double coma;     /* the Gaussian's centre off the chief point: pixels per unit tan(field),
+                        away from the axis (a PSF a mirror changes) */
 } kind;
 
 static double tan_deg(double deg)
@@ -71,18 +76,21 @@ static void kind_psf(const synth_bank *b, int ix, int iy, int l, float *out)
     const kind *k = b->user;
     const double sigma = k->sigma + (k->varying ? 0.3 * ix + 0.2 * iy : 0.0);
     const double power = k->varying ? 1.0 - 0.04 * ix - 0.03 * iy : 1.0;
+    const double ox = k->coma != 0.0 ? k->coma * tan_deg(b->fx_deg[ix]) : 0.0;
+    const double oy = k->coma != 0.0 ? k->coma * tan_deg(b->fy_deg[iy]) : 0.0;
     double sum = 0.0;
     int i, j;
     (void)l;
-    // Centred on the window's centre (the chief point): pixel i at offset i + 0.5 - w / 2
+    // Centred on the window's centre (the chief point), or coma's offset from it (+x
+    // right, +y up: row 0 at the top): pixel i at offset i + 0.5 - w / 2
     for (j = 0; j < b->h; j++)
         for (i = 0; i < b->w; i++) {
-            const double x = i + 0.5 - 0.5 * b->w, y = j + 0.5 - 0.5 * b->h;
+            const double x = i + 0.5 - 0.5 * b->w - ox, y = 0.5 * b->h - j - 0.5 - oy;
             sum += exp(-(x * x + y * y) / (2 * sigma * sigma));
         }
     for (j = 0; j < b->h; j++)
         for (i = 0; i < b->w; i++) {
-            const double x = i + 0.5 - 0.5 * b->w, y = j + 0.5 - 0.5 * b->h;
+            const double x = i + 0.5 - 0.5 * b->w - ox, y = 0.5 * b->h - j - 0.5 - oy;
             out[j * b->w + i] = (float)(power * exp(-(x * x + y * y) / (2 * sigma * sigma)) / sum);
         }
 }
@@ -95,9 +103,11 @@ static void kind_chief(const synth_bank *b, int ix, int iy, int l, double xy[2])
     xy[1] = (k->focal_y > 0.0 ? k->focal_y : FOCAL) * ty * d - 0.5 * k->lateral * (l - 1) * PITCH;
 }
 
-/* Write a bank of this kind and open it (NULL on failure, checked). */
-static lensrt_bank make_bank(lensrt_context ctx, const char *name, const kind *k, int size, int n_wl,
-                             const char *registration, double pitch_y)
+/* Write a bank of this kind over the field grid fx x fy (nx x ny degrees) and open it
+ * (NULL on failure, checked). */
+static lensrt_bank make_bank_grid(lensrt_context ctx, const char *name, const kind *k, int size, int n_wl,
+                                  const char *registration, double pitch_y, const double *fx, int nx,
+                                  const double *fy, int ny)
 {
     synth_bank sb;
     char folder[4200], index[4400];
@@ -108,10 +118,10 @@ static lensrt_bank make_bank(lensrt_context ctx, const char *name, const kind *k
     sb.pitch_y_mm = pitch_y;
     sb.n_wl = n_wl;
     sb.wl_nm = n_wl == 3 ? WL3 : WL1;
-    sb.nx = 5;
-    sb.ny = 5;
-    sb.fx_deg = FX;
-    sb.fy_deg = FY;
+    sb.nx = nx;
+    sb.ny = ny;
+    sb.fx_deg = fx;
+    sb.fy_deg = fy;
     sb.f_number = 8.0;
     sb.registration = registration;
     sb.psf = kind_psf;
@@ -121,6 +131,13 @@ static lensrt_bank make_bank(lensrt_context ctx, const char *name, const kind *k
     CHECK(synth_bank_write(&sb, folder, index, sizeof index), "cannot write the bank %s", folder);
     CHECK_OK(ctx, lensrt_bank_open(ctx, index, &bank));
     return bank;
+}
+
+/* Write a bank of this kind over the 5 x 5 field grid FX x FY and open it. */
+static lensrt_bank make_bank(lensrt_context ctx, const char *name, const kind *k, int size, int n_wl,
+                             const char *registration, double pitch_y)
+{
+    return make_bank_grid(ctx, name, k, size, n_wl, registration, pitch_y, FX, 5, FY, 5);
 }
 
 /* An image of the bank (NULL on failure, checked). */
@@ -222,7 +239,7 @@ static double plain_convolution_error(const float *in, const float *out, int w, 
 static void test_shift_invariant(lensrt_context ctx)
 {
     static const double weights[9] = {1.0, 0.2, 0.0, 0.1, 1.0, 0.1, 0.0, 0.3, 1.0};
-    const kind k = {1.3, 0, 0.0, 0.0, 0.0};
+    const kind k = {1.3, 0, 0.0, 0.0, 0.0, 0.0};
     enum { S = 9, NC = 3 };
     synth_bank sb;
     float psf[S * S], *in = malloc(NC * W * H * sizeof(float)), *out = malloc(NC * W * H * sizeof(float));
@@ -264,7 +281,7 @@ done:
  * direct layer is the plain convolution again. */
 static void test_axes(lensrt_context ctx)
 {
-    const kind k = {1.1, 0, 0.0, 0.0, 12.0};
+    const kind k = {1.1, 0, 0.0, 0.0, 12.0, 0.0};
     enum { S = 9, AW = 40, AH = 50 };
     synth_bank sb;
     float psf[S * S], *in = malloc(AW * AH * sizeof(float)), *out = malloc(AW * AH * sizeof(float));
@@ -310,7 +327,7 @@ done:
 static void test_energy(lensrt_context ctx)
 {
     static const double weights[9] = {1.0, 0.5, 0.0, 0.2, 1.0, 0.2, 0.0, 0.5, 1.0};
-    const kind k = {1.5, 0, 0.0, 0.37, 0.0};
+    const kind k = {1.5, 0, 0.0, 0.37, 0.0, 0.0};
     enum { NC = 3 };
     float *in = calloc(NC * W * H, sizeof(float)), *out = malloc(NC * W * H * sizeof(float));
     lensrt_bank bank = make_bank(ctx, "energy", &k, 16, 3, "channel", 0.0);
@@ -375,7 +392,7 @@ static void test_seams(lensrt_context ctx)
      * inside cells */
     static const int points[][2] = {{10, 14}, {11, 15}, {31, 31}, {32, 32}, {52, 48}, {53, 49}, {20, 40}, {42, 22},
                                     {3, 60}, {60, 3}};
-    const kind k = {1.0, 1, 0.0, 0.0, 0.0};
+    const kind k = {1.0, 1, 0.0, 0.0, 0.0, 0.0};
     enum { S = 11, SE = S + STENCIL - 1 };
     synth_bank sb;
     float node[25][S * S], *in = calloc(W * H, sizeof(float)), *out = malloc(W * H * sizeof(float));
@@ -437,7 +454,7 @@ done:
 static void test_distortion(lensrt_context ctx)
 {
     static const int points[][2] = {{5, 6}, {58, 7}, {32, 32}, {12, 50}, {55, 57}, {40, 20}};
-    const kind k = {1.2, 0, 150.0, 0.0, 0.0};
+    const kind k = {1.2, 0, 150.0, 0.0, 0.0, 0.0};
     enum { S = 11 };
     float *in = calloc(W * H, sizeof(float)), *out = malloc(W * H * sizeof(float)), psf[S * S];
     lensrt_bank bank = make_bank(ctx, "distortion", &k, S, 1, "channel", 0.0);
@@ -483,13 +500,84 @@ done:
     free(out);
 }
 
+/* --------------------------------------------------------------- mirror ----- */
+
+/* A lens mirror-symmetric about both axes (distortion, PSFs whose centres lie off the
+ * chief point away from the axis, widths growing with the field): the frame through the
+ * bank over the whole grid, and through the bank over its quadrant x, y >= 0 with
+ * LENSRT_IMAGE_MIRROR_X | _Y: the same layer (the mirrored nodes' kernels are the
+ * others' exactly, so the same sums: float rounding at most). And the refusals. */
+static void test_mirror(lensrt_context ctx)
+{
+    static const double weights[9] = {1.0, 0.2, 0.0, 0.1, 1.0, 0.1, 0.0, 0.3, 1.0};
+    static const double QX[3] = {0.0, 0.6, 1.2}, QY[3] = {0.0, 0.5, 1.0};
+    const kind k = {1.1, 0, 60.0, 0.0, 0.0, 40.0};
+    enum { NC = 3, S = 13 };
+    float *in = malloc(NC * W * H * sizeof(float)), *a = malloc(NC * W * H * sizeof(float)),
+          *b = malloc(NC * W * H * sizeof(float));
+    lensrt_bank full = make_bank_grid(ctx, "mirror-full", &k, S, 3, "channel", 0.0, FX, 5, FY, 5);
+    lensrt_bank quad = make_bank_grid(ctx, "mirror-quadrant", &k, S, 3, "channel", 0.0, QX, 3, QY, 3);
+    lensrt_image_desc d = LENSRT_IMAGE_DESC_INIT;
+    lensrt_image ia = NULL, ib = NULL;
+    double worst = 0.0, big = 0.0;
+    uint32_t seed = 4242;
+    int x;
+    if (!full || !quad || !in || !a || !b) goto done;
+    for (x = 0; x < NC * W * H; x++) {
+        seed = seed * 1664525u + 1013904223u;
+        in[x] = (seed >> 28) == 0 ? 50.0f : (float)(seed >> 8) / 16777216.0f; // points over a floor
+    }
+    ia = make_image(ctx, full, NC, weights);
+    d.bank = quad;
+    d.width = W;
+    d.height = H;
+    d.focal_x_mm = FOCAL;
+    d.n_channels = NC;
+    d.channel_weights = weights;
+    // Without the mirror, the quadrant's bank does not cover the frame
+    CHECK_RES(ctx, LENSRT_ERROR_OUT_OF_DOMAIN, lensrt_image_create(ctx, &d, &ib));
+    CHECK_MSG(ctx, "field_x spans");
+    d.mirror = LENSRT_IMAGE_MIRROR_X | LENSRT_IMAGE_MIRROR_Y;
+    CHECK_OK(ctx, lensrt_image_create(ctx, &d, &ib));
+    if (!ia || !ib) goto done;
+    CHECK_OK(ctx, lensrt_image_run(ia, in, NC * W * H));
+    CHECK_OK(ctx, lensrt_image_run(ib, in, NC * W * H));
+    CHECK_OK(ctx, lensrt_image_get_layer(ia, LENSRT_IMAGE_DIRECT, a, NC * W * H));
+    CHECK_OK(ctx, lensrt_image_get_layer(ib, LENSRT_IMAGE_DIRECT, b, NC * W * H));
+    for (x = 0; x < NC * W * H; x++) {
+        worst = fabs((double)a[x] - b[x]) > worst ? fabs((double)a[x] - b[x]) : worst;
+        big = a[x] > big ? a[x] : big;
+    }
+    CHECK(worst <= 1e-6 * big, "mirror: the quadrant's bank mirrored is %g (of %g) from the whole grid's", worst, big);
+    printf("test_image: mirror: a quadrant's bank mirrored gives the whole grid's layer to %.3g of its largest "
+           "value\n", worst / big);
+    // A bank with both signs needs no mirror; unknown bits
+    lensrt_image_destroy(ib);
+    ib = NULL;
+    d.bank = full;
+    CHECK_RES(ctx, LENSRT_ERROR_INVALID_ARGUMENT, lensrt_image_create(ctx, &d, &ib));
+    CHECK_MSG(ctx, "field_x_deg starts at -1.2");
+    d.bank = quad;
+    d.mirror = 4;
+    CHECK_RES(ctx, LENSRT_ERROR_INVALID_ARGUMENT, lensrt_image_create(ctx, &d, &ib));
+    CHECK_MSG(ctx, "mirror is 4");
+done:
+    lensrt_image_destroy(ia);
+    lensrt_image_destroy(ib);
+    lensrt_bank_close(full);
+    lensrt_bank_close(quad);
+    free(in);
+    free(a);
+    free(b);
+}
+
 /* --------------------------------------------------------------- threads ----- */
 
 /* The same frame through contexts of 1 and 3 threads: the same bits (nodes in batches,
  * added in node order). */
 static void test_threads(lensrt_context ctx)
 {
-    const kind k = {1.0, 1, 40.0, 0.3, 0.0};
+    const kind k = {1.0, 1, 40.0, 0.3, 0.0, 0.0};
     enum { NC = 3 };
     lensrt_context_init init = LENSRT_CONTEXT_INIT;
     lensrt_context one = NULL, three = NULL;
@@ -531,7 +619,7 @@ done:
 
 static void test_refusals(lensrt_context ctx)
 {
-    const kind k = {1.0, 0, 0.0, 0.0, 0.0};
+    const kind k = {1.0, 0, 0.0, 0.0, 0.0, 0.0};
     lensrt_bank bank = make_bank(ctx, "refusals", &k, 9, 3, "channel", 0.0);
     lensrt_bank chief_bank = make_bank(ctx, "chief", &k, 9, 3, "chief", 0.0);
     lensrt_image_desc d = LENSRT_IMAGE_DESC_INIT;
@@ -667,7 +755,7 @@ done:
 /* Without OpenEXR: the bank's index opens, its nodes do not, so nor does an image. */
 static void test_without_exr(lensrt_context ctx)
 {
-    const kind k = {1.0, 0, 0.0, 0.0, 0.0};
+    const kind k = {1.0, 0, 0.0, 0.0, 0.0, 0.0};
     synth_bank sb;
     char folder[4200], index[4400];
     lensrt_bank bank = NULL;
@@ -725,6 +813,7 @@ int main(int argc, char **argv)
         test_seams(ctx);
         test_distortion(ctx);
         test_threads(ctx);
+        test_mirror(ctx);
         test_refusals(ctx);
     } else {
         test_without_exr(ctx);

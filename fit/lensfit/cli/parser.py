@@ -270,8 +270,8 @@ def build_parser() -> argparse.ArgumentParser:
                         f"{DEFAULT_NODES})")
     p.add_argument("--oversample", type=int, default=DEFAULT_OVERSAMPLE,
                    help="the direct layer on a grid this many times finer per axis (1-16; "
-                        f"default {DEFAULT_OVERSAMPLE}: about 2%% from every pixel's own PSF "
-                        "on lens 0001 at f/8, 3: 2.5%%, 2: 5%%)")
+                        f"default {DEFAULT_OVERSAMPLE}: 1.5%% from every pixel's own PSF "
+                        "on lens 0001 at f/8, 3: 2.4%%, 2: 5%%)")
     p.add_argument("--target-error", type=float, default=0.01,
                    help="each bank node's relative L2 error estimate (default 0.01)")
     p.add_argument("--ghosts", default="none",

@@ -30,14 +30,15 @@ from lensfit.image.bank import (
     RGB_WAVELENGTHS_NM,
     ensure_bank,
     frame_bank_spec,
+    frame_mirror,
     window_half_px,
 )
 from lensfit.image.frame import FrameError, Geometry, frame_geometry, read_frame
 
 DEFAULT_F_NUMBER = 8.0
 # The direct layer on a grid 4 times finer per axis, over 17 field points across the
-# frame: 1.5-1.7% from every lit pixel's own PSF on lens 0001's corner at f/8 and
-# 18.75 um pixels (oversample 3: 2.5%; 2: 4.9-5.1%; docs/image.md, make bench)
+# frame: 1.5% from every lit pixel's own PSF on lens 0001's corner at f/8 and 18.75 um
+# pixels (oversample 3: 2.4%; 2: 4.9-5.1%; docs/image.md, make bench)
 DEFAULT_OVERSAMPLE = 4
 DEFAULT_NODES = 17
 DEFAULT_DEPTH_SLICES = 4
@@ -243,10 +244,11 @@ def through_lens(lens: str, input_path: str | Path, output: str | Path,
                    for d in distances)
     except LensrtError as e:
         raise InputError(f"{table}: {e}") from None
+    mirror = frame_mirror(geometry, o.aperture)
     spec = frame_bank_spec("image", table, fine, f_number=o.f_number,
                            focus_offset_mm=o.focus_offset_mm, distances_mm=distances,
                            wavelengths_nm=wavelengths, half_px=half, nodes_x=o.nodes_x,
-                           aperture=o.aperture, target_error=o.target_error)
+                           aperture=o.aperture, target_error=o.target_error, mirror=mirror)
     index, bank_cost = ensure_bank(spec, table, o.cache, scheduler=o.scheduler, workers=o.workers,
                                    progress=o.progress, say=say)
     seconds["bank"] = time.perf_counter() - t
@@ -280,7 +282,8 @@ def through_lens(lens: str, input_path: str | Path, output: str | Path,
                             aperture={"f_number": o.f_number, **o.aperture},
                             flare_threshold=o.flare_threshold, max_sources=o.max_sources,
                             flare_target_error=o.flare_target_error,
-                            flare_downsample=o.flare_downsample, oversample=o.oversample)
+                            flare_downsample=o.flare_downsample, oversample=o.oversample,
+                            mirror=mirror)
                 img.run(planes)
             except LensrtError as e:
                 raise InputError(f"{frame.path} through {table}: {e}") from None

@@ -1,8 +1,8 @@
 /* The direct layer (image.h; lensrt.h, LENSRT_IMAGE_DIRECT): every pixel's light through
  * its own field point's PSF, as a sum of FFT convolutions, one per bank node.
  *
- * 1. Nodes and weights. The slice's field grid (field_x_deg x field_y_deg) is the set of
- *    nodes. Input pixel (i, j) sees the pinhole field (atan(x / f_x), atan(y / f_y)), so
+ * 1. Nodes and weights. The slice's field grid (field_x_deg x field_y_deg, with its
+ *    mirror image where desc.mirror asks: image.h) is the set of nodes. Input pixel (i, j) sees the pinhole field (atan(x / f_x), atan(y / f_y)), so
  *    in t = tan(field) its coordinates are simply (x / f_x, y / f_y): linear in i and j.
  *    Its weight at node (a, b) is the bilinear hat function over the grid in t,
  *    hat_a(t_x) hat_b(t_y): a partition of unity, continuous across the cells (no
@@ -157,22 +157,45 @@ static const image_fft_plan *plan_for(lensrt_context ctx, struct image_direct *d
     return d->plans[d->n_plans] ? d->plans[d->n_plans++] : NULL;
 }
 
-/* The chief point of node (ix, iy) at wavelength l (the node's own: exact at a node), and
- * its PSF into psf when not NULL (else into scratch). */
+/* The chief point of node (ix, iy) of the frame's field grid at wavelength l (the bank
+ * node's own: exact at a node), and its PSF into psf (the bank's size): a node of the
+ * grid's mirror image (image.h, desc.mirror) takes its bank node's PSF mirrored and its
+ * chief point's coordinate negated, exactly (the windows are odd, centred on it). */
 static lensrt_result node_psf(struct lensrt_image_s *im, int ix, int iy, int l, float *psf, size_t count,
                               double chief[2])
 {
     lensrt_bank_query q = LENSRT_BANK_QUERY_INIT;
     lensrt_bank_info info = LENSRT_BANK_INFO_INIT;
     lensrt_result res;
+    int i, j;
     if ((res = lensrt_bank_get_info(im->desc.bank, &info)) != LENSRT_SUCCESS) return res;
-    q.field_x_deg = info.field_x_deg[ix];
-    q.field_y_deg = info.field_y_deg[iy];
+    q.field_x_deg = info.field_x_deg[im->bank_x[ix]];
+    q.field_y_deg = info.field_y_deg[im->bank_y[iy]];
     q.wavelength_nm = im->wavelengths_nm[l];
     q.f_number = im->desc.f_number;
     q.focus_offset_mm = im->desc.focus_offset_mm;
     q.distance_mm = im->desc.distance_mm;
-    return lensrt_bank_psf(im->desc.bank, &q, psf, count, chief);
+    if ((res = lensrt_bank_psf(im->desc.bank, &q, psf, count, chief)) != LENSRT_SUCCESS) return res;
+    if (im->sign_x[ix] < 0) {
+        chief[0] = -chief[0];
+        for (j = 0; j < info.height; j++)
+            for (i = 0; i < info.width / 2; i++) {
+                float *row = psf + (size_t)j * (size_t)info.width, t = row[i];
+                row[i] = row[info.width - 1 - i];
+                row[info.width - 1 - i] = t;
+            }
+    }
+    if (im->sign_y[iy] < 0) {
+        chief[1] = -chief[1];
+        for (j = 0; j < info.height / 2; j++)
+            for (i = 0; i < info.width; i++) {
+                float *a = psf + (size_t)j * (size_t)info.width + (size_t)i;
+                float *b = psf + (size_t)(info.height - 1 - j) * (size_t)info.width + (size_t)i, t = *a;
+                *a = *b;
+                *b = t;
+            }
+    }
+    return LENSRT_SUCCESS;
 }
 
 /* Step 1 and 2's fixed parts: the hat cells of every column and row, and every pixel's
@@ -476,8 +499,8 @@ lensrt_result image_direct_create(struct lensrt_image_s *im)
     if ((res = lensrt_bank_get_info(im->desc.bank, &info)) != LENSRT_SUCCESS) return res;
     d = im->direct = lensrt_calloc(ctx, 1, sizeof *d);
     if (!d) return DIRECT_OOM("the direct layer");
-    d->nx = info.n_field_x;
-    d->ny = info.n_field_y;
+    d->nx = im->grid_nx;
+    d->ny = im->grid_ny;
     nodes = (size_t)d->nx * (size_t)d->ny;
     // The grid in t = tan(field), the hat cells and landing points, the nodes' chief points
     d->tx = lensrt_alloc(ctx, (size_t)d->nx * sizeof(double));
@@ -498,8 +521,8 @@ lensrt_result image_direct_create(struct lensrt_image_s *im)
         res = DIRECT_OOM("the field grid and the landing points");
         goto done;
     }
-    for (i = 0; i < d->nx; i++) d->tx[i] = tan_deg(info.field_x_deg[i]);
-    for (i = 0; i < d->ny; i++) d->ty[i] = tan_deg(info.field_y_deg[i]);
+    for (i = 0; i < d->nx; i++) d->tx[i] = tan_deg(im->grid_x_deg[i]);
+    for (i = 0; i < d->ny; i++) d->ty[i] = tan_deg(im->grid_y_deg[i]);
     if ((res = set_up_chiefs(im, d, &info, &s, chief, &ref)) != LENSRT_SUCCESS) goto done;
     // Each channel's chief point at each node, for its warp: its wavelengths' chief points
     // weighted by the channel's light there (w[c][l] times the axis PSF's power), so that

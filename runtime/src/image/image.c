@@ -144,6 +144,57 @@ static lensrt_result copy_weights(struct lensrt_image_s *im, const double *w)
     return LENSRT_SUCCESS;
 }
 
+/* One axis of the frame's field grid: the bank's n angles deg (ascending), with their
+ * mirror images (the negatives of those > 0, in front) when mirror; into im's block. */
+static int grid_axis(const double *deg, int n, int mirror, double *grid, int *bank, int *sign)
+{
+    int m = 0, i;
+    if (mirror)
+        for (i = n - 1; i >= 0; i--)
+            if (deg[i] > 0.0) {
+                grid[m] = -deg[i];
+                bank[m] = i;
+                sign[m] = -1;
+                m++;
+            }
+    for (i = 0; i < n; i++) {
+        grid[m + i] = deg[i];
+        bank[m + i] = i;
+        sign[m + i] = 1;
+    }
+    return m + n;
+}
+
+/* The frame's field grid (image.h) from the bank's and desc.mirror. */
+static lensrt_result make_grid(struct lensrt_image_s *im, const lensrt_bank_info *info)
+{
+    const int mx = (im->desc.mirror & LENSRT_IMAGE_MIRROR_X) != 0, my = (im->desc.mirror & LENSRT_IMAGE_MIRROR_Y) != 0;
+    const size_t n = 2 * ((size_t)info->n_field_x + (size_t)info->n_field_y);
+    unsigned char *block;
+    if (im->desc.mirror & ~(LENSRT_IMAGE_MIRROR_X | LENSRT_IMAGE_MIRROR_Y))
+        return lensrt_fail(im->ctx, LENSRT_ERROR_INVALID_ARGUMENT, "lensrt_image_desc: mirror is %d; it must be 0 or "
+                           "LENSRT_IMAGE_MIRROR_X (1) | LENSRT_IMAGE_MIRROR_Y (2)", (int)im->desc.mirror);
+    if (mx && info->field_x_deg[0] < 0.0)
+        return lensrt_fail(im->ctx, LENSRT_ERROR_INVALID_ARGUMENT, "lensrt_image_desc: mirror asks for LENSRT_IMAGE_MIRROR_X "
+                           "but the bank's field_x_deg starts at %g (< 0): a bank with both signs needs no mirror",
+                           info->field_x_deg[0]);
+    if (my && info->field_y_deg[0] < 0.0)
+        return lensrt_fail(im->ctx, LENSRT_ERROR_INVALID_ARGUMENT, "lensrt_image_desc: mirror asks for LENSRT_IMAGE_MIRROR_Y "
+                           "but the bank's field_y_deg starts at %g (< 0): a bank with both signs needs no mirror",
+                           info->field_y_deg[0]);
+    block = lensrt_alloc(im->ctx, n * (sizeof(double) + 2 * sizeof(int)));
+    if (!block) return lensrt_fail(im->ctx, LENSRT_ERROR_OUT_OF_MEMORY, "lensrt_image_create: out of memory");
+    im->grid_x_deg = (double *)block;
+    im->grid_y_deg = im->grid_x_deg + 2 * (size_t)info->n_field_x;
+    im->bank_x = (int *)(im->grid_y_deg + 2 * (size_t)info->n_field_y);
+    im->bank_y = im->bank_x + 2 * (size_t)info->n_field_x;
+    im->sign_x = im->bank_y + 2 * (size_t)info->n_field_y;
+    im->sign_y = im->sign_x + 2 * (size_t)info->n_field_x;
+    im->grid_nx = grid_axis(info->field_x_deg, info->n_field_x, mx, im->grid_x_deg, im->bank_x, im->sign_x);
+    im->grid_ny = grid_axis(info->field_y_deg, info->n_field_y, my, im->grid_y_deg, im->bank_y, im->sign_y);
+    return LENSRT_SUCCESS;
+}
+
 /* The bank: registration channel, the slice present, the frame's pinhole fields inside
  * the field grid, and the axis's power at each wavelength. */
 static lensrt_result check_bank(struct lensrt_image_s *im, const lensrt_bank_info *info)
@@ -167,16 +218,19 @@ static lensrt_result check_bank(struct lensrt_image_s *im, const lensrt_bank_inf
     fx[1] = pinhole_deg(d->center_x_mm + half_x, d->focal_x_mm);
     fy[0] = pinhole_deg(d->center_y_mm - half_y, im->focal_y_mm);
     fy[1] = pinhole_deg(d->center_y_mm + half_y, im->focal_y_mm);
-    if (fx[0] < info->field_x_deg[0] || fx[1] > info->field_x_deg[info->n_field_x - 1])
+    if ((res = make_grid(im, info)) != LENSRT_SUCCESS) return res;
+    if (fx[0] < im->grid_x_deg[0] || fx[1] > im->grid_x_deg[im->grid_nx - 1])
         return lensrt_fail(im->ctx, LENSRT_ERROR_OUT_OF_DOMAIN, "lensrt_image_desc: the frame's field_x spans [%.9g, "
                            "%.9g] deg (corner pixel centres through the pinhole, focal_x_mm %g); the bank's field_x_deg "
-                           "grid covers [%.9g, %.9g]", fx[0], fx[1], d->focal_x_mm, info->field_x_deg[0],
-                           info->field_x_deg[info->n_field_x - 1]);
-    if (fy[0] < info->field_y_deg[0] || fy[1] > info->field_y_deg[info->n_field_y - 1])
+                           "grid covers [%.9g, %.9g]%s", fx[0], fx[1], d->focal_x_mm, im->grid_x_deg[0],
+                           im->grid_x_deg[im->grid_nx - 1],
+                           d->mirror & LENSRT_IMAGE_MIRROR_X ? " with its mirror image" : "");
+    if (fy[0] < im->grid_y_deg[0] || fy[1] > im->grid_y_deg[im->grid_ny - 1])
         return lensrt_fail(im->ctx, LENSRT_ERROR_OUT_OF_DOMAIN, "lensrt_image_desc: the frame's field_y spans [%.9g, "
                            "%.9g] deg (corner pixel centres through the pinhole, focal_y_mm %g); the bank's field_y_deg "
-                           "grid covers [%.9g, %.9g]", fy[0], fy[1], im->focal_y_mm, info->field_y_deg[0],
-                           info->field_y_deg[info->n_field_y - 1]);
+                           "grid covers [%.9g, %.9g]%s", fy[0], fy[1], im->focal_y_mm, im->grid_y_deg[0],
+                           im->grid_y_deg[im->grid_ny - 1],
+                           d->mirror & LENSRT_IMAGE_MIRROR_Y ? " with its mirror image" : "");
     // The slice (the bank's message names the value and lists its own) and the axis's
     // power: the sum of the PSF's pixels at field (0, 0), each wavelength
     im->axis_power = lensrt_calloc(im->ctx, (size_t)im->n_wavelengths, sizeof(double));
@@ -377,6 +431,7 @@ void lensrt_image_destroy(lensrt_image im)
     lensrt_free(ctx, im->channel_weights);
     lensrt_free(ctx, im->ghosts);
     lensrt_free(ctx, im->axis_power);
+    lensrt_free(ctx, im->grid_x_deg); /* the grid's block */
     lensrt_free(ctx, im->layers);
     lensrt_free(ctx, im->sources);
     lensrt_free(ctx, im);

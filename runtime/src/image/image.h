@@ -27,6 +27,13 @@ struct lensrt_image_s {
                                     (0, 0) over oversample^2 (owned; image.c), the power of
                                     the axis PSF in frame pixels: both layers are divided by
                                     it, so a lossless axis keeps a pixel's value */
+    /* The frame's field grid (image.c, check_bank): the bank's field_x_deg (field_y_deg)
+     * with its mirror image where desc.mirror asks; grid node i takes the bank's node
+     * bank_x[i], mirrored in x when sign_x[i] < 0 (one owned block; the fine object
+     * shares it) */
+    int grid_nx, grid_ny;
+    double *grid_x_deg, *grid_y_deg;
+    int *bank_x, *bank_y, *sign_x, *sign_y;
     size_t plane;                /* width x height */
     int n_layers;                /* 2 + n_ghosts */
     float *layers;               /* n_layers x n_channels x plane, zero before a run */
