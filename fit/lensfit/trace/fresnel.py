@@ -256,23 +256,27 @@ def _coated_propagating(
     cos_out = np.sqrt(cos_out_sq)
     r_sum = np.zeros(np.shape(cos_i))
     t_sum = np.zeros(np.shape(cos_i))
+    # Each layer's phase thickness and its cosine, sine and sinc, once for both
+    # polarisations (the trigonometry is most of this function's time)
+    layers = []
+    for n_k, d_k, cos_sq_k in zip(reversed(ns), reversed(ds), reversed(cos_sq), strict=True):
+        cos_k = np.sqrt(cos_sq_k)
+        k0d = k0 * d_k
+        delta = k0d * n_k * cos_k
+        cos_d, sin_d = np.cos(delta), np.sin(delta)
+        # Off-diagonal elements over i, as in coated_reflectance (sinc finite at 0)
+        small = np.abs(delta) < _SINC_SERIES_LIMIT
+        d2 = delta * delta
+        sinc = np.where(small, 1.0 - d2 / 6.0 + d2 * d2 / 120.0,
+                        sin_d / np.where(small, 1.0, delta))
+        layers.append((n_k, cos_k, k0d, cos_d, sin_d, sinc))
     for pol in ("s", "p"):
         # Admittances: s eta = n cos, p zeta = cos / n
         eta_in = n1 * cos_i if pol == "s" else cos_i / n1
         eta_out = n2 * cos_out if pol == "s" else cos_out / n2
         br, bi = np.ones(np.shape(cos_i)), np.zeros(np.shape(cos_i))
         cr, ci = eta_out, np.zeros(np.shape(cos_i))
-        for n_k, d_k, cos_sq_k in zip(reversed(ns), reversed(ds), reversed(cos_sq),
-                                      strict=True):
-            cos_k = np.sqrt(cos_sq_k)
-            k0d = k0 * d_k
-            delta = k0d * n_k * cos_k
-            cos_d, sin_d = np.cos(delta), np.sin(delta)
-            # Off-diagonal elements over i, as in coated_reflectance (sinc finite at 0)
-            small = np.abs(delta) < _SINC_SERIES_LIMIT
-            d2 = delta * delta
-            sinc = np.where(small, 1.0 - d2 / 6.0 + d2 * d2 / 120.0,
-                            sin_d / np.where(small, 1.0, delta))
+        for n_k, cos_k, k0d, cos_d, sin_d, sinc in layers:
             m12 = k0d * sinc if pol == "s" else k0d * sinc * (n_k * n_k)
             m21 = (n_k * cos_k) * sin_d if pol == "s" else (cos_k / n_k) * sin_d
             # (B, C) <- [[cos, i m12], [i m21, cos]] (B, C)
