@@ -377,7 +377,7 @@ def poly_front_flux(p_o: System, light: dict[str, float], pts: np.ndarray,
     central differences on the polynomial; (x_o, y_o) on the first surface stand in for
     p in the near light's 1 / |w . L| (their difference moves it by < 1e-6)."""
     d, e = FLUX_STEP_COSINE, FLUX_STEP_MM
-    col = p_o.output_names.index("phi_o")
+    p_o = p_o.select(["phi_o"])  # the one output the differences take
     # The differences' centres moved inside the fitted domain by their steps where a
     # light or a stop point lies on its edge (a stop point on the rim of the stop disc:
     # x_a + e would be outside it), so no stencil leaves the domain
@@ -389,12 +389,20 @@ def poly_front_flux(p_o: System, light: dict[str, float], pts: np.ndarray,
     light = dict(light, x_O=float(inward("x_O", light["x_O"], d)),
                  y_O=float(inward("y_O", light["y_O"], d)))
     pts = np.column_stack([inward("x_a", pts[:, 0], e), inward("y_a", pts[:, 1], e)])
-    # P_o specialised once per shifted light (four of them), evaluated at four stop shifts
-    lights = {(dx, dy): p_o.specialise(dict(light, x_O=light["x_O"] + dx, y_O=light["y_O"] + dy))
-              for dx, dy in ((d, 0), (-d, 0), (0, d), (0, -d))}
+    # P_o specialised once per shifted light (four of them), evaluated at the four stop
+    # shifts in one call (each row of a polynomial's evaluation is its own)
+    n = len(pts)
+    shifts = ((e, 0.0), (-e, 0.0), (0.0, e), (0.0, -e))
+    shifted = np.concatenate([pts + s for s in shifts])
+    values = {}
+    for dx, dy in ((d, 0), (-d, 0), (0, d), (0, -d)):
+        lit = p_o.specialise(dict(light, x_O=light["x_O"] + dx, y_O=light["y_O"] + dy))
+        got = _evaluate(lit, {"x_a": shifted[:, 0], "y_a": shifted[:, 1]})[0]
+        for k, (ex, ey) in enumerate(shifts):
+            values[dx, dy, ex, ey] = got[k * n:(k + 1) * n]
 
     def phi(dx: float, dy: float, ex: float, ey: float) -> np.ndarray:
-        return _evaluate(lights[(dx, dy)], {"x_a": pts[:, 0] + ex, "y_a": pts[:, 1] + ey})[col]
+        return values[dx, dy, ex, ey]
 
     def mixed(dx: float, dy: float, ex: float, ey: float) -> np.ndarray:
         return (phi(dx, dy, ex, ey) - phi(dx, dy, -ex, -ey) - phi(-dx, -dy, ex, ey)
@@ -727,8 +735,8 @@ def exact_psf_nodes(lens: Lens, *, stop_radius_mm: float, aperture_xy_mm: np.nda
                     distance_mm: float = math.inf, wavelength_nm: float,
                     focus_offset_mm: float = 0.0, width: int, height: int, width_mm: float,
                     height_mm: float = 0.0, center_x_mm: float = 0.0,
-                    center_y_mm: float = 0.0, nodes: int = 9
-                    ) -> tuple[np.ndarray, np.ndarray]:
+                    center_y_mm: float = 0.0, nodes: int = 9,
+                    facts: LensFacts | None = None) -> tuple[np.ndarray, np.ndarray]:
     """:func:`exact_psf` ("pupils" clipping) with exact rays from each stop point to a
     ``nodes`` x ``nodes`` grid of Chebyshev nodes spanning the window, and the sensor-side
     outputs (x_i, y_i, tau_i, phi_i) interpolated to the pixels by the tensor polynomial
@@ -739,13 +747,14 @@ def exact_psf_nodes(lens: Lens, *, stop_radius_mm: float, aperture_xy_mm: np.nda
 
     Returns (U (height, width), used (N,)): the stop points that entered the sum are
     those in the disc whose object-side ray passes and whose every node ray exists; a
-    comparison with :func:`poly_psf` should pass it ``aperture_xy_mm[used]``."""
+    comparison with :func:`poly_psf` should pass it ``aperture_xy_mm[used]``. ``facts``:
+    ``lens_facts(lens)``, when the caller has it."""
     if not (isinstance(nodes, int) and nodes >= 2):
         raise ValueError(f"nodes = {nodes!r}: expected at least 2 Chebyshev nodes per axis")
     lam, xs, ys, ap, inside, x_O, y_O, u_O, z_s = _checked_inputs(
         stop_radius_mm, aperture_xy_mm, field_deg, distance_mm, wavelength_nm,
         focus_offset_mm, width, height, width_mm, height_mm, center_x_mm, center_y_mm)
-    facts = lens_facts(lens)
+    facts = facts or lens_facts(lens)
     used = np.zeros(len(ap), dtype=bool)
     idx = np.nonzero(inside)[0]
     def aim(xa: np.ndarray, ya: np.ndarray, guess: np.ndarray | None = None) -> Aimed:
@@ -1087,7 +1096,8 @@ def _wavefront(lens: Lens, stop_radius_mm: float, lam: float,
 
     def rms(z_s: float) -> float:
         xc, yc = _chief_image(lens, chief, field_deg, lam, z_s)
-        sen = aim_sensor_side(lens, xc, yc, z_s, ap[:, 0], ap[:, 1], lam)
+        # Without the vignetting's history: phi_i is the same, its trace cheaper
+        sen = aim_sensor_side(lens, xc, yc, z_s, ap[:, 0], ap[:, 1], lam, vignetting=False)
         w = (phi_o + sen.outputs[:, 3])[sen.ok]
         a = np.column_stack([np.ones(len(w)), ap[sen.ok]])
         residual = w - a @ np.linalg.lstsq(a, w, rcond=None)[0]

@@ -227,7 +227,7 @@ def psf_vs_exact(lens: Lens, systems: Sequence[System], domain: Domain, *,
                 for name, field, distance in fields]
     cells = []
     for label, radius in stops:
-        n_f = _f_number(lens, radius)
+        n_f = facts.stop_radius_f1_mm / radius  # _f_number
         focus = focus_of[label]
         for fname, field, distance, where, share in plan:
             if label not in where:
@@ -246,7 +246,7 @@ def psf_vs_exact(lens: Lens, systems: Sequence[System], domain: Domain, *,
                               focus_offset_mm=focus, width=pixels, height=pixels,
                               width_mm=width, center_x_mm=centre[0], center_y_mm=centre[1])
                 exact, used = psf.exact_psf_nodes(lens, aperture_xy_mm=pts, nodes=NODES,
-                                                  **common)
+                                                  facts=facts, **common)
                 poly = psf.poly_psf(systems, facts=facts, aperture_xy_mm=pts[used], **common)
                 ie, ip = np.abs(exact) ** 2, np.abs(poly) ** 2
                 norm = float(np.linalg.norm(ie))
