@@ -10,8 +10,9 @@ summed over the same stop points (a sunflower set, so Monte Carlo noise cancels 
 the transport differs):
 
 * the exact one, :func:`lensfit.psf.psf.exact_psf_nodes` (every ray traced in float64; the
-  sensor-side rays of each stop point traced to a Chebyshev grid over the window and
-  interpolated, which agrees with tracing every pair to ~1e-8);
+  sensor-side rays of each stop point aimed at a Chebyshev grid over the window and
+  interpolated through where they land, which agrees with tracing every pair to ~1e-8
+  (3.5e-7 at a 2.7 mm window, the every-pair trace's own Newton noise));
 * the polynomial one, :func:`lensfit.psf.psf.poly_psf` (the fitted P_o and P_s),
 
 and the cell's figure is the relative L2 distance of the intensities,
