@@ -768,15 +768,26 @@ def exact_psf_nodes(lens: Lens, *, stop_radius_mm: float, aperture_xy_mm: np.nda
     used[idx] = True
     k_wave = 2.0 * math.pi / (lam * 1e-6)
     u = np.zeros((height, width), dtype=np.complex128)
+    # The points whose x_i, y_i lie inside the last surface's housing at every pixel
+    # skip its test: each polynomial's value is at most the sum of its coefficients'
+    # magnitudes (|T_k| <= 1 over the window), and those bound (x_i, y_i) within the
+    # housing (the margin: that sum's rounding)
+    bound = np.abs(out[:2]).sum(axis=(2, 3)) * (1.0 + 1e-12)
+    clear = bound[0] ** 2 + bound[1] ** 2 < facts.housing_last_mm**2
     step = max(1, SUM_PAIRS // (width * height))
-    for a in range(0, len(idx), step):
-        sl = slice(a, a + step)
-        # (outputs, points, rows, columns) at the pixel centres: the polynomials'
-        # columns evaluated, then their rows (two matrix products)
-        x_i, y_i, tau_i, phi_i = wy @ (out[:, sl] @ wx.T)
-        _add_phasors(u, x_i**2 + y_i**2 <= facts.housing_last_mm**2,
-                     tau_o[sl, None, None] * tau_i, k_wave * (phi_o[sl, None, None] + phi_i),
-                     axis=0)
+    for points in (np.nonzero(clear)[0], np.nonzero(~clear)[0]):
+        for a in range(0, len(points), step):
+            sl = points[a:a + step]
+            if clear[sl[0]]:
+                # tau_i and phi_i at the pixel centres (outputs, points, rows, columns): the
+                # polynomials' columns evaluated, then their rows (two matrix products)
+                tau_i, phi_i = wy @ (out[2:, sl] @ wx.T)
+                ok = None
+            else:
+                x_i, y_i, tau_i, phi_i = wy @ (out[:, sl] @ wx.T)
+                ok = x_i**2 + y_i**2 <= facts.housing_last_mm**2
+            _add_phasors(u, ok, tau_o[sl, None, None] * tau_i,
+                         k_wave * (phi_o[sl, None, None] + phi_i), axis=0)
     return u, used
 
 
@@ -787,13 +798,15 @@ def exact_psf_nodes(lens: Lens, *, stop_radius_mm: float, aperture_xy_mm: np.nda
 SUM_PAIRS = 1 << 14
 
 
-def _add_phasors(u: np.ndarray, ok: np.ndarray, power: np.ndarray, phase: np.ndarray,
-                 axis: int) -> None:
+def _add_phasors(u: np.ndarray, ok: np.ndarray | None, power: np.ndarray,
+                 phase: np.ndarray, axis: int) -> None:
     """u += the sum over the points' ``axis`` (0 or -1) of sqrt(power) exp(i phase)
-    where ``ok``, as a real sum of cosines and one of sines (a complex exp and product
-    cost twice as much). ``power`` and ``phase`` are overwritten."""
+    where ``ok`` (None: everywhere), as a real sum of cosines and one of sines (a
+    complex exp and product cost twice as much). ``power`` and ``phase`` are
+    overwritten."""
     amp = np.sqrt(np.maximum(power, 0.0, out=power), out=power)  # a fit may dip below 0
-    amp *= ok
+    if ok is not None:
+        amp *= ok
     shape, spec = ((len(amp), -1), "jp,jp->p") if axis == 0 else ((-1, amp.shape[-1]),
                                                                   "pj,pj->p")
     amp, phase = amp.reshape(shape), phase.reshape(shape)
@@ -974,12 +987,22 @@ def poly_psf(systems: Sequence[System], *, facts: LensFacts | None = None,
     clip_parts = _separable_parts(clip_s, {}, pix, ap_cols) if clip_s is not None else None
     for p0 in range(0, width * height, tile_pix):
         ps = slice(p0, p0 + tile_pix)
+        # Bounds of |x_i| and |y_i| over the pixel tile, per point: the sum of its terms'
+        # magnitudes, each column's largest over the tile (the margin: their rounding)
+        bx, by = (np.abs(c) @ np.abs(r[ps]).max(axis=0) * (1.0 + 1e-12) for r, c in parts[:2])
+        clear = bx**2 + by**2 < facts.housing_last_mm**2
         for a in range(0, len(pts), tile_pts):
             sl = slice(a, a + tile_pts)
-            # (pixels, points) of the tile
-            x_i, y_i, tau_i, phi_i = (r[ps] @ c[sl].T for r, c in parts)
-            ok = x_i**2 + y_i**2 <= facts.housing_last_mm**2
+            # (pixels, points) of the tile; where every point's bound lies inside the
+            # last surface's housing, without its test
+            if np.all(clear[sl]):
+                tau_i, phi_i = (r[ps] @ c[sl].T for r, c in parts[2:])
+                ok = None
+            else:
+                x_i, y_i, tau_i, phi_i = (r[ps] @ c[sl].T for r, c in parts)
+                ok = x_i**2 + y_i**2 <= facts.housing_last_mm**2
             if clip_parts is not None:
+                ok = np.ones(tau_i.shape, dtype=bool) if ok is None else ok
                 ok &= clip_passes(clip_s, np.stack([r[ps] @ c[sl].T for r, c in clip_parts]),
                                   stop_radius_mm)
             _add_phasors(u[ps], ok, tau_o[sl] * tau_i, k_wave * (phi_o[sl] + phi_i), axis=-1)
