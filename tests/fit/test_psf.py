@@ -246,6 +246,40 @@ def test_poly_psf_is_the_sum_of_system_evaluate(lens, fit, cut):
                      **{**kw, "focus_offset_mm": 50.0})
 
 
+@pytest.mark.parametrize("func, bounds", [
+    (lambda x: (x - 0.3) ** 2, (-1.0, 2.0)),  # parabolic steps from the start
+    (lambda x: abs(x - 0.123456), (0.0, 1.0)),  # a kink: golden steps
+    (lambda x: math.cos(3 * x) + 0.1 * x, (-2.0, 4.0)),
+    (lambda x: 1.0, (0.0, 1.0)),  # flat
+])
+def test_bounded_minimum_steps_as_scipy(func, bounds):
+    """psf._bounded_minimum, which best_focus_offsets runs side by side for several stops,
+    is scipy's bounded minimizer: every x it asks for and the minimum, bit for bit."""
+    from scipy.optimize import minimize_scalar
+
+    theirs: list[float] = []
+    best = minimize_scalar(lambda x: theirs.append(x) or func(x), bounds=bounds,
+                           method="bounded", options={"xatol": 1e-7})
+    ours, search = [], psf._bounded_minimum(bounds, 1e-7)
+    x = next(search)
+    try:
+        while True:
+            ours.append(x)
+            x = search.send(func(x))
+    except StopIteration as done:
+        assert done.value == best.x
+    assert ours == theirs
+
+
+def test_best_focus_offsets_side_by_side_are_each_stops_own(lens, f8):
+    """best_focus_offsets of several stops (their rays aimed together) is
+    best_focus_offset of each alone, bit for bit."""
+    radii = [f8[0], stop_radius_for_f_number(lens, 4.0)]
+    both = psf.best_focus_offsets(lens, radii, LAMBDA_NM)
+    assert both[0] == f8[1]
+    assert both[1] == psf.best_focus_offset(lens, radii[1], LAMBDA_NM)
+
+
 def test_geometric_image_point_and_best_focus(lens, f8):
     assert psf.geometric_image_point(lens, (0.0, 0.0)) == pytest.approx((0.0, 0.0), abs=1e-12)
     # A light up and to the right (negative field angles: the chief ray falls towards the

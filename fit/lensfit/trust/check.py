@@ -185,11 +185,12 @@ def psf_vs_exact(lens: Lens, systems: Sequence[System], domain: Domain, *,
             continue
         if r < domain.stop_radius_mm:
             stops.append((f"f/{n:g}", r))
-    # One focus per stop: its own best focus at 550 nm (or the one given), in the range
-    focus_of = {}
-    for label, radius in stops:
-        focus = psf.best_focus_offset(lens, radius, 550.0) if focus_mm is None else focus_mm
-        focus_of[label] = min(max(focus, domain.focus_min_mm), domain.focus_max_mm)
+    # One focus per stop: its own best focus at 550 nm (or the one given), in the range;
+    # the stops' searches side by side (psf.best_focus_offsets)
+    focus = (psf.best_focus_offsets(lens, [r for _, r in stops], 550.0) if focus_mm is None
+             else [focus_mm] * len(stops))
+    focus_of = {label: min(max(z, domain.focus_min_mm), domain.focus_max_mm)
+                for (label, _), z in zip(stops, focus, strict=True)}
     # Wavelengths outside a narrow fitted band are replaced by its nearest edge
     lams = sorted({min(max(float(lam), domain.wavelength_min_nm),
                        domain.wavelength_max_nm) for lam in wavelengths})
