@@ -181,6 +181,23 @@ def test_cos_sin_by_table_is_numpys_to_the_phases_rounding():
     assert np.all(np.abs(sin - np.sin(phase)) <= bound)
 
 
+def test_aim_object_side_without_outputs_aims_the_same_rays(lens):
+    """aim_object_side(outputs=False) (the flux's neighbour rays and the PSF check's
+    windows, which want only where the rays go) skips the final trace's Fresnel loss
+    and history: the same rays bit for bit (the Fresnel loss does not steer a ray), the
+    same phi_o, tau_o 1 and the vignetting unknown."""
+    pts = psf.sunflower_points(200, 12.0)  # wide open, off axis
+    x_o, y_o = psf.light_direction(-12.0, 5.0)
+    full = aim_object_side(lens, x_o, y_o, 0.0, pts[:, 0], pts[:, 1], 480.0)
+    bare = aim_object_side(lens, x_o, y_o, 0.0, pts[:, 0], pts[:, 1], 480.0, outputs=False)
+    assert np.array_equal(full.ok, bare.ok)
+    for a, b in ((full.unknowns, bare.unknowns), (full.pos, bare.pos), (full.dir, bare.dir),
+                 (full.outputs[:, 3], bare.outputs[:, 3])):
+        assert np.array_equal(a[full.ok], b[full.ok])
+    assert np.all(bare.outputs[bare.ok, 2] == 1.0) and np.all(full.outputs[full.ok, 2] < 1.0)
+    assert np.all(np.isnan(bare.vignetting))
+
+
 def test_poly_front_flux_matches_the_exact_rays(lens, fit):
     """The fit's own mapping (phi_o's mixed derivative by the light's direction and the
     stop point) against the exact rays' crossings of the vertex plane, off axis at f/2:

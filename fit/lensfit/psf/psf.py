@@ -747,15 +747,18 @@ def exact_psf_nodes(lens: Lens, *, stop_radius_mm: float, aperture_xy_mm: np.nda
     facts = facts or lens_facts(lens)
     used = np.zeros(len(ap), dtype=bool)
     idx = np.nonzero(inside)[0]
-    def aim(xa: np.ndarray, ya: np.ndarray, guess: np.ndarray | None = None) -> Aimed:
-        return aim_object_side(lens, x_O, y_O, u_O, xa, ya, lam, guess=guess)
-    obj = aim(ap[idx, 0], ap[idx, 1])
+    def neighbours(xa: np.ndarray, ya: np.ndarray, guess: np.ndarray | None = None
+                   ) -> Aimed:
+        """The flux's rays: only where they cross z = 0 counts (no Fresnel loss)."""
+        return aim_object_side(lens, x_O, y_O, u_O, xa, ya, lam, guess=guess,
+                               outputs=False)
+    obj = aim_object_side(lens, x_O, y_O, u_O, ap[idx, 0], ap[idx, 1], lam)
     pass_o = _passes(obj, facts.housing_first_mm, "pupils")
     idx, phi_o, tau_o = idx[pass_o], obj.outputs[pass_o, 3], obj.outputs[pass_o, 2]
     slopes = obj.dir[pass_o, :2] / obj.dir[pass_o, 2:]  # leaving the stop
     # The flux's neighbour rays, aimed from each central ray's own Jacobian
     near = _flux_guesses(lens, x_O, y_O, u_O, lam, ap[idx], obj.unknowns[pass_o])
-    flux = exact_front_flux(aim, x_O, y_O, u_O, ap[idx], guess=near)
+    flux = exact_front_flux(neighbours, x_O, y_O, u_O, ap[idx], guess=near)
     good = np.isfinite(flux)
     idx, phi_o, tau_o = idx[good], phi_o[good], tau_o[good] * flux[good]
     slopes = slopes[good]

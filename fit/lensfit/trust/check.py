@@ -151,7 +151,7 @@ def _windows(lens: Lens, radius: float, field: tuple[float, float], distance: fl
     u_O = 0.0 if math.isinf(distance) else 1.0 / distance
     lam_rays = np.repeat(lam, len(pts))
     obj = psf.aim_object_side(lens, x_O, y_O, u_O, np.tile(pts[:, 0], len(lam)),
-                              np.tile(pts[:, 1], len(lam)), lam_rays)
+                              np.tile(pts[:, 1], len(lam)), lam_rays, outputs=False)
     rays = psf._rear_trace(lens, obj, lam_rays, end_z)
     ok = (obj.ok & (rays.status == Status.OK)).reshape(len(lam), -1)
     out = []
