@@ -181,6 +181,23 @@ def test_cos_sin_by_table_is_numpys_to_the_phases_rounding():
     assert np.all(np.abs(sin - np.sin(phase)) <= bound)
 
 
+def test_aim_object_side_without_outputs_aims_the_same_rays(lens):
+    """aim_object_side(outputs=False) (the flux's neighbour rays and the PSF check's
+    windows, which want only where the rays go) skips the final trace's Fresnel loss
+    and history: the same rays bit for bit (the Fresnel loss does not steer a ray), the
+    same phi_o, tau_o 1 and the vignetting unknown."""
+    pts = psf.sunflower_points(200, 12.0)  # wide open, off axis
+    x_o, y_o = psf.light_direction(-12.0, 5.0)
+    full = aim_object_side(lens, x_o, y_o, 0.0, pts[:, 0], pts[:, 1], 480.0)
+    bare = aim_object_side(lens, x_o, y_o, 0.0, pts[:, 0], pts[:, 1], 480.0, outputs=False)
+    assert np.array_equal(full.ok, bare.ok)
+    for a, b in ((full.unknowns, bare.unknowns), (full.pos, bare.pos), (full.dir, bare.dir),
+                 (full.outputs[:, 3], bare.outputs[:, 3])):
+        assert np.array_equal(a[full.ok], b[full.ok])
+    assert np.all(bare.outputs[bare.ok, 2] == 1.0) and np.all(full.outputs[full.ok, 2] < 1.0)
+    assert np.all(np.isnan(bare.vignetting))
+
+
 def test_poly_front_flux_matches_the_exact_rays(lens, fit):
     """The fit's own mapping (phi_o's mixed derivative by the light's direction and the
     stop point) against the exact rays' crossings of the vertex plane, off axis at f/2:
@@ -200,9 +217,13 @@ def test_poly_front_flux_matches_the_exact_rays(lens, fit):
     assert np.all(np.abs(got / want - 1.0) < 1e-3), got / want
 
 
-def test_poly_psf_is_the_sum_of_system_evaluate(lens, fit):
+@pytest.mark.parametrize("cut", [False, True])
+def test_poly_psf_is_the_sum_of_system_evaluate(lens, fit, cut):
     """poly_psf factors each term into pixel and aperture parts; it must equal the plain
-    sum over System.evaluate (to rounding: phases ~1e5 rad, so ~1e-10 relative)."""
+    sum over System.evaluate (to rounding: phases ~1e5 rad, so ~1e-10 relative). With
+    ``cut`` the last surface's housing is the median of the pairs' |x_i, y_i|, so that
+    poly_psf's bound of them (which skips the housing's test) does not clear the points
+    and about half the pairs are clipped; without, it clears them all."""
     systems, _ = fit
     p_o, p_s = systems
     rng = np.random.default_rng(7)
@@ -210,27 +231,70 @@ def test_poly_psf_is_the_sum_of_system_evaluate(lens, fit):
     kw = dict(stop_radius_mm=3.0, field_deg=(2.0, 1.0), wavelength_nm=600.0,
               focus_offset_mm=0.3, width=3, height=2, width_mm=0.03, center_x_mm=-3.5,
               center_y_mm=-1.7)
-    u = psf.poly_psf(systems, facts=lens_facts(lens), aperture_xy_mm=ap, **kw)
-    ap = ap[np.hypot(ap[:, 0], ap[:, 1]) <= 3.0]
+    inside = np.hypot(ap[:, 0], ap[:, 1]) <= 3.0
+    xs, ys = psf.pixel_centres(3, 2, 0.03, 0.0, -3.5, -1.7)
+    sen = {(row, col): p_s.evaluate(np.column_stack([
+        np.full(inside.sum(), x), np.full(inside.sum(), y), np.full(inside.sum(), 0.3),
+        ap[inside], np.full(inside.sum(), 600.0)]))
+        for row, y in enumerate(ys) for col, x in enumerate(xs)}
+    facts = lens_facts(lens)
+    if cut:
+        r_i = np.concatenate([np.hypot(v[:, 0], v[:, 1]) for v in sen.values()])
+        facts = dataclasses.replace(facts, housing_last_mm=float(np.median(r_i)))
+    u = psf.poly_psf(systems, facts=facts, aperture_xy_mm=ap, **kw)
+    ap = ap[inside]
     x_o, y_o = psf.light_direction(2.0, 1.0)
     o = p_o.evaluate(np.column_stack([np.full(len(ap), x_o), np.full(len(ap), y_o),
                                       np.zeros(len(ap)), ap, np.full(len(ap), 600.0)]))
     # Each point's flux per stop area (tested against exact rays on its own)
     o[:, 2] *= psf.poly_front_flux(p_o, {"x_O": x_o, "y_O": y_o, "u_O": 0.0, "lambda": 600.0},
                                    ap, o[:, 0], o[:, 1])
-    xs, ys = psf.pixel_centres(3, 2, 0.03, 0.0, -3.5, -1.7)
-    for row, y in enumerate(ys):
-        for col, x in enumerate(xs):
-            s = p_s.evaluate(np.column_stack([np.full(len(ap), x), np.full(len(ap), y),
-                                              np.full(len(ap), 0.3), ap,
-                                              np.full(len(ap), 600.0)]))
-            want = np.sum(np.sqrt(o[:, 2] * s[:, 2])
-                          * np.exp(2j * np.pi / 600e-6 * (o[:, 3] + s[:, 3])))
-            assert abs(u[row, col] - want) <= 1e-9 * np.sum(np.sqrt(o[:, 2] * s[:, 2]))
+    clipped = 0
+    for (row, col), s in sen.items():
+        ok = s[:, 0] ** 2 + s[:, 1] ** 2 <= facts.housing_last_mm**2
+        clipped += np.count_nonzero(~ok)
+        want = np.sum(np.where(ok, np.sqrt(o[:, 2] * s[:, 2])
+                               * np.exp(2j * np.pi / 600e-6 * (o[:, 3] + s[:, 3])), 0.0))
+        assert abs(u[row, col] - want) <= 1e-9 * np.sum(np.sqrt(o[:, 2] * s[:, 2]))
+    assert (clipped > 0.4 * len(ap) * len(sen)) if cut else clipped == 0
     # Outside the fitted domain is refused, naming the input
     with pytest.raises(ValueError, match="P_s: input z_S = 50 mm .* outside the fitted"):
         psf.poly_psf(systems, facts=lens_facts(lens), aperture_xy_mm=ap,
                      **{**kw, "focus_offset_mm": 50.0})
+
+
+@pytest.mark.parametrize("func, bounds", [
+    (lambda x: (x - 0.3) ** 2, (-1.0, 2.0)),  # parabolic steps from the start
+    (lambda x: abs(x - 0.123456), (0.0, 1.0)),  # a kink: golden steps
+    (lambda x: math.cos(3 * x) + 0.1 * x, (-2.0, 4.0)),
+    (lambda x: 1.0, (0.0, 1.0)),  # flat
+])
+def test_bounded_minimum_steps_as_scipy(func, bounds):
+    """psf._bounded_minimum, which best_focus_offsets runs side by side for several stops,
+    is scipy's bounded minimizer: every x it asks for and the minimum, bit for bit."""
+    from scipy.optimize import minimize_scalar
+
+    theirs: list[float] = []
+    best = minimize_scalar(lambda x: theirs.append(x) or func(x), bounds=bounds,
+                           method="bounded", options={"xatol": 1e-7})
+    ours, search = [], psf._bounded_minimum(bounds, 1e-7)
+    x = next(search)
+    try:
+        while True:
+            ours.append(x)
+            x = search.send(func(x))
+    except StopIteration as done:
+        assert done.value == best.x
+    assert ours == theirs
+
+
+def test_best_focus_offsets_side_by_side_are_each_stops_own(lens, f8):
+    """best_focus_offsets of several stops (their rays aimed together) is
+    best_focus_offset of each alone, bit for bit."""
+    radii = [f8[0], stop_radius_for_f_number(lens, 4.0)]
+    both = psf.best_focus_offsets(lens, radii, LAMBDA_NM)
+    assert both[0] == f8[1]
+    assert both[1] == psf.best_focus_offset(lens, radii[1], LAMBDA_NM)
 
 
 def test_geometric_image_point_and_best_focus(lens, f8):

@@ -12,6 +12,7 @@ table on a quick fit, and the committed fits' figures checked from fresh points.
 
 from __future__ import annotations
 
+import dataclasses
 import itertools
 import math
 
@@ -25,6 +26,7 @@ from lensfit.paraxial import stop_radius_for_f_number
 from lensfit.paraxial.facts import lens_facts
 from lensfit.prescription import load_lens
 from lensfit.psf import psf
+from lensfit.sample.aim import aim_sensor_side
 from lensfit.trust import check as trust
 
 LAMBDA_NM = 550.0
@@ -75,6 +77,35 @@ def test_exact_psf_nodes_agrees_with_every_pair_traced(lens, field):
     assert err < 1e-6, err
     # exact_psf(nodes=N) is the same computation
     assert np.array_equal(psf.exact_psf(lens, nodes=trust.NODES, **kw), nodes)
+
+
+def test_exact_psf_nodes_clips_at_the_last_housing_as_every_pair(lens):
+    """The last surface's housing cut through the beam (its radius the median of the
+    rays' |x_i, y_i|, so about half the pairs are clipped): exact_psf_nodes, which tests
+    x_i, y_i only for the stop points whose polynomials' bound reaches the housing,
+    against every pair traced and tested (exact_psf), as in the test above. Bound 1e-6
+    as there: the clip's edge moves by the interpolation's ~1e-10 mm, a pixel's share
+    of a pair crossing it"""
+    r = stop_radius_for_f_number(lens, 8.0)
+    field = (7.0, -4.0)
+    z_s = psf.best_focus_offset(lens, r, LAMBDA_NM)
+    x_c, y_c = psf.geometric_image_point(lens, field, math.inf, LAMBDA_NM, z_s)
+    pts = psf.sunflower_points(300, r)
+    sen = aim_sensor_side(lens, x_c, y_c, z_s, pts[:, 0], pts[:, 1], LAMBDA_NM)
+    radius = float(np.median(np.hypot(sen.outputs[:, 0], sen.outputs[:, 1])))
+    last = dataclasses.replace(lens.surfaces[-1], semi_diameter_mm=radius)
+    cut = dataclasses.replace(lens, surfaces=(*lens.surfaces[:-1], last))
+    assert lens_facts(cut).housing_last_mm == radius
+    kw = dict(stop_radius_mm=r, aperture_xy_mm=pts, field_deg=field, wavelength_nm=LAMBDA_NM,
+              focus_offset_mm=z_s, width=16, height=16,
+              width_mm=8 * airy_radius_mm(LAMBDA_NM, 8.0), center_x_mm=x_c, center_y_mm=y_c)
+    every_pair = psf.exact_psf(cut, **kw)
+    nodes, used = psf.exact_psf_nodes(cut, nodes=trust.NODES, **kw)
+    whole, _ = psf.exact_psf_nodes(lens, nodes=trust.NODES, **kw)
+    # The housing takes a large share of the light, and the nodes' PSF follows it
+    assert np.linalg.norm(whole - every_pair) > 0.2 * np.linalg.norm(every_pair)
+    err = np.linalg.norm(nodes - every_pair) / np.linalg.norm(every_pair)
+    assert err < 1e-6, err
 
 
 def test_exact_psf_nodes_refuses_a_bad_node_count(lens):

@@ -265,7 +265,7 @@ def aim_object_side(lens: Lens, x_O: np.ndarray, y_O: np.ndarray, u_O: np.ndarra
                     x_a: np.ndarray, y_a: np.ndarray, wavelength_nm: np.ndarray, *,
                     fd_scale_mm: float | None = None,
                     guess: np.ndarray | None = None, path: list[Step] | None = None,
-                    history: bool = False) -> Aimed:
+                    history: bool = False, outputs: bool = True) -> Aimed:
     """P_o exactly, one row per ray: the ray from the scene point (direction cosines x_O,
     y_O from the first vertex, inverse distance u_O in 1/mm, 0 = infinity) through the
     stop point (x_a, y_a) (mm) at ``wavelength_nm``. Inputs broadcast to one length.
@@ -280,7 +280,10 @@ def aim_object_side(lens: Lens, x_O: np.ndarray, y_O: np.ndarray, u_O: np.ndarra
     from the start plane to the stop plane, e.g. a ghost's half that reflects twice
     before it reaches the stop (:mod:`lensfit.sample.ghost`); the start plane, the
     paraxial guess and the retry are those of the direct path. With ``history``,
-    ``Aimed.history`` holds the ray's position after each step."""
+    ``Aimed.history`` holds the ray's position after each step. Without ``outputs`` the
+    final trace has no Fresnel loss and no history, for a caller that wants only where
+    the rays go (``ok``, ``unknowns``, ``pos``, ``dir``): ``Aimed.outputs`` then hold only
+    phi_o (x_o, y_o 0 and tau_o 1) and ``vignetting`` is NaN."""
     s = lens.stop_index  # 0: P_o is the straight line to the stop plane, traced as any
     xo, yo, ug, xa, ya, lam = (np.array(v, dtype=np.float64) for v in np.broadcast_arrays(
         x_O, y_O, u_O, x_a, y_a, wavelength_nm))
@@ -326,10 +329,16 @@ def aim_object_side(lens: Lens, x_O: np.ndarray, y_O: np.ndarray, u_O: np.ndarra
         return out.pos[:, :2] - ap[idx], ok, out, start
 
     def final(idx, p):
-        """The converged rays again, with Fresnel loss and the history."""
+        """The converged rays again, with Fresnel loss and the history (with
+        ``outputs``)."""
         hist: list[np.ndarray] = []
-        r, valid, out, start = residual(idx, p, hist, fresnel=True)
-        vig = _vignetting(lens, hist, path, len(idx))
+        r, valid, out, start = residual(idx, p, hist if outputs or history else None,
+                                        fresnel=outputs)
+        if outputs or history:
+            vig = _vignetting(lens, hist, path, len(idx))
+        else:
+            vig = np.full(len(idx), np.nan)
+            hist = [np.zeros((len(idx), 3))]  # x_o, y_o: 0
         # OPL relative to d_O, without cancellation
         ui = ug[idx, None]
         wi = w[idx]
@@ -337,9 +346,9 @@ def aim_object_side(lens: Lens, x_O: np.ndarray, y_O: np.ndarray, u_O: np.ndarra
                - 2 * np.einsum("ij,ij->i", start, wi))
         rel /= np.linalg.norm(ui * start - wi, axis=1) + 1.0
         phi = out.opl_mm + rel
-        outputs = np.stack([hist[0][:, 0], hist[0][:, 1], out.transmittance, phi], axis=1)
+        values = np.stack([hist[0][:, 0], hist[0][:, 1], out.transmittance, phi], axis=1)
         steps = np.stack(hist, axis=1) if history else None
-        return r, valid, outputs, vig, out.pos, out.dir, steps
+        return r, valid, values, vig, out.pos, out.dir, steps
 
     # Paraxial first guess: the ray through the image of the stop point in the
     # entrance pupil (per meridian, at the d line)

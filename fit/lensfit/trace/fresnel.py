@@ -32,6 +32,7 @@ from numpy.typing import ArrayLike, NDArray
 
 __all__ = [
     "coated_reflectance",
+    "coated_power_reflectance",
     "fresnel_amplitudes",
     "fresnel_reflectance",
     "quarter_wave_thickness_nm",
@@ -186,6 +187,26 @@ def coated_reflectance(
     waves inside layers (frustrated TIR) are handled with complex phases. An empty stack
     reproduces the bare interface.
     """
+    return _coated(n1, n2, cos_i, layer_n, layer_thickness_nm, wavelength_nm, True)
+
+
+def coated_power_reflectance(
+    n1: ArrayLike,
+    n2: ArrayLike,
+    cos_i: ArrayLike,
+    layer_n: Sequence[ArrayLike],
+    layer_thickness_nm: Sequence[ArrayLike],
+    wavelength_nm: ArrayLike,
+) -> FloatArray:
+    """R of :func:`coated_reflectance`, bit for bit, without computing T (the tracer's
+    Fresnel loss takes R alone)."""
+    return _coated(n1, n2, cos_i, layer_n, layer_thickness_nm, wavelength_nm, False)[0]
+
+
+def _coated(n1: ArrayLike, n2: ArrayLike, cos_i: ArrayLike, layer_n: Sequence[ArrayLike],
+            layer_thickness_nm: Sequence[ArrayLike], wavelength_nm: ArrayLike,
+            with_t: bool) -> tuple[FloatArray, FloatArray]:
+    """:func:`coated_reflectance`; without ``with_t`` T is not computed (returned as R)."""
     if len(layer_n) != len(layer_thickness_nm):
         raise ValueError(
             f"coated_reflectance: {len(layer_n)} layer indices but "
@@ -211,7 +232,7 @@ def coated_reflectance(
     cos_out_sq = _cos_sq_in_medium(n1_a, n2_a, cos_a)
     cos_sq = [_cos_sq_in_medium(n1_a, n_k, cos_a) for n_k in ns]
     if np.all(cos_out_sq >= 0.0) and all(np.all(c >= 0.0) for c in cos_sq):
-        return _coated_propagating(n1_a, n2_a, cos_a, k0, ns, ds, cos_out_sq, cos_sq)
+        return _coated_propagating(n1_a, n2_a, cos_a, k0, ns, ds, cos_out_sq, cos_sq, with_t)
 
     # Admittances of the outer media: s uses eta = n cos (fields E, H), p uses the dual
     # zeta = cos / n (fields H, E). The incident medium is lossless and propagating.
@@ -248,36 +269,48 @@ def coated_reflectance(
 def _coated_propagating(
     n1: FloatArray, n2: FloatArray, cos_i: FloatArray, k0: FloatArray,
     ns: list[FloatArray], ds: list[FloatArray], cos_out_sq: FloatArray,
-    cos_sq: list[FloatArray],
+    cos_sq: list[FloatArray], with_t: bool = True,
 ) -> tuple[FloatArray, FloatArray]:
     """:func:`coated_reflectance` where every cosine is real (no evanescent wave): the
     same characteristic matrices, with B = br + i bi and C = cr + i ci in real arrays
-    (the matrices' diagonal is real, their off-diagonal purely imaginary)."""
+    (the matrices' diagonal is real, their off-diagonal purely imaginary). Without
+    ``with_t`` T is not computed (R is returned in its place)."""
     cos_out = np.sqrt(cos_out_sq)
     r_sum = np.zeros(np.shape(cos_i))
-    t_sum = np.zeros(np.shape(cos_i))
+    t_sum = np.zeros(np.shape(cos_i)) if with_t else r_sum
+    # Each layer's phase thickness and its cosine, sine and sinc, once for both
+    # polarisations (the trigonometry is most of this function's time)
+    layers = []
+    for n_k, d_k, cos_sq_k in zip(reversed(ns), reversed(ds), reversed(cos_sq), strict=True):
+        cos_k = np.sqrt(cos_sq_k)
+        k0d = k0 * d_k
+        delta = k0d * n_k * cos_k
+        cos_d, sin_d = np.cos(delta), np.sin(delta)
+        # Off-diagonal elements over i, as in coated_reflectance (sinc finite at 0)
+        small = np.abs(delta) < _SINC_SERIES_LIMIT
+        d2 = delta * delta
+        sinc = np.where(small, 1.0 - d2 / 6.0 + d2 * d2 / 120.0,
+                        sin_d / np.where(small, 1.0, delta))
+        layers.append((n_k, cos_k, k0d, cos_d, sin_d, sinc))
     for pol in ("s", "p"):
         # Admittances: s eta = n cos, p zeta = cos / n
         eta_in = n1 * cos_i if pol == "s" else cos_i / n1
         eta_out = n2 * cos_out if pol == "s" else cos_out / n2
-        br, bi = np.ones(np.shape(cos_i)), np.zeros(np.shape(cos_i))
-        cr, ci = eta_out, np.zeros(np.shape(cos_i))
-        for n_k, d_k, cos_sq_k in zip(reversed(ns), reversed(ds), reversed(cos_sq),
-                                      strict=True):
-            cos_k = np.sqrt(cos_sq_k)
-            k0d = k0 * d_k
-            delta = k0d * n_k * cos_k
-            cos_d, sin_d = np.cos(delta), np.sin(delta)
-            # Off-diagonal elements over i, as in coated_reflectance (sinc finite at 0)
-            small = np.abs(delta) < _SINC_SERIES_LIMIT
-            d2 = delta * delta
-            sinc = np.where(small, 1.0 - d2 / 6.0 + d2 * d2 / 120.0,
-                            sin_d / np.where(small, 1.0, delta))
+        br = bi = cr = ci = None  # (B, C) = (1, eta_out) behind the stack
+        for n_k, cos_k, k0d, cos_d, sin_d, sinc in layers:
             m12 = k0d * sinc if pol == "s" else k0d * sinc * (n_k * n_k)
             m21 = (n_k * cos_k) * sin_d if pol == "s" else (cos_k / n_k) * sin_d
-            # (B, C) <- [[cos, i m12], [i m21, cos]] (B, C)
-            br, bi, cr, ci = (cos_d * br - m12 * ci, cos_d * bi + m12 * cr,
-                              cos_d * cr - m21 * bi, cos_d * ci + m21 * br)
+            # (B, C) <- [[cos, i m12], [i m21, cos]] (B, C); the first layer's product
+            # with (1, eta_out) written out (the same values: x * 1 and x -/+ 0 are x, up
+            # to the sign of a zero, which R and T square away)
+            if br is None:
+                br, bi, cr, ci = cos_d, m12 * eta_out, cos_d * eta_out, m21
+            else:
+                br, bi, cr, ci = (cos_d * br - m12 * ci, cos_d * bi + m12 * cr,
+                                  cos_d * cr - m21 * bi, cos_d * ci + m21 * br)
+        if br is None:  # no layer
+            br, bi = np.ones(np.shape(cos_i)), np.zeros(np.shape(cos_i))
+            cr, ci = eta_out, np.zeros(np.shape(cos_i))
         # R = |eta_in B - C|^2 / |eta_in B + C|^2, T = 4 eta_in eta_out / |eta_in B + C|^2
         # (zero den: an invisible stack at grazing incidence, R = 0 and T = 1)
         den = (eta_in * br + cr) ** 2 + (eta_in * bi + ci) ** 2
@@ -285,8 +318,9 @@ def _coated_propagating(
         den1 = np.where(ok, den, 1.0)
         num = (eta_in * br - cr) ** 2 + (eta_in * bi - ci) ** 2
         r_sum += np.where(ok, num / den1, 0.0)
-        t_sum += np.where(ok, np.where(eta_in != 0.0, 4.0 * eta_in * eta_out / den1, 0.0),
-                          1.0)
+        if with_t:
+            t_sum += np.where(ok, np.where(eta_in != 0.0, 4.0 * eta_in * eta_out / den1, 0.0),
+                              1.0)
     return 0.5 * r_sum, 0.5 * t_sum
 
 

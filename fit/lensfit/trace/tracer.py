@@ -306,8 +306,7 @@ def _reflectance(n1: np.ndarray, n2: np.ndarray, cos_i: np.ndarray,
     ``layer_n`` and thicknesses ``layer_nm`` from the incident side)."""
     if not layer_n:
         return fresnel.fresnel_reflectance(n1, n2, cos_i)
-    r, _t = fresnel.coated_reflectance(n1, n2, cos_i, layer_n, layer_nm, lam)
-    return r
+    return fresnel.coated_power_reflectance(n1, n2, cos_i, layer_n, layer_nm, lam)
 
 
 class _Live:

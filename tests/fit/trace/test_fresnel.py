@@ -14,6 +14,7 @@ import pytest
 from numpy.typing import ArrayLike
 
 from lensfit.trace.fresnel import (
+    coated_power_reflectance,
     coated_reflectance,
     fresnel_amplitudes,
     fresnel_reflectance,
@@ -425,3 +426,20 @@ def test_reflect_direction() -> None:
     z = np.array([0.0, 0.0, 1.0])
     np.testing.assert_array_equal(reflect_direction(np.array([0.0, 0.0, -1.0]), z), z)
     assert reflect_direction(d, z).shape == (n, 3)
+
+
+@pytest.mark.parametrize("n1, n2, layers", [
+    (1.0, 1.62, [(1.38, 99.6)]),  # one layer, the lensdb's coatings
+    (1.62, 1.0, [(1.38, 99.6)]),  # from glass: total reflection beyond the critical angle
+    (1.0, 1.7, [(1.38, 99.6), (2.1, 60.0), (1.46, 120.0)]),
+    (1.5, 1.0, []),
+])
+def test_coated_power_reflectance_is_coated_reflectances_r(n1, n2, layers):
+    """The tracer's R (coated_power_reflectance: T not computed, the first layer's
+    product with the exit fields written out) is coated_reflectance's, bit for bit."""
+    rng = np.random.default_rng(5)
+    cos_i = np.concatenate([rng.uniform(0.0, 1.0, 5000), [0.0, 1.0]])
+    lam = rng.uniform(400.0, 700.0, len(cos_i))
+    ln, ld = [n for n, _ in layers], [d for _, d in layers]
+    r, _ = coated_reflectance(n1, n2, cos_i, ln, ld, lam)
+    assert np.array_equal(coated_power_reflectance(n1, n2, cos_i, ln, ld, lam), r)
