@@ -2,8 +2,9 @@
  * its own field point's PSF, as a sum of FFT convolutions, one per bank node.
  *
  * 1. Nodes and weights. The slice's field grid (field_x_deg x field_y_deg, with its
- *    mirror image where desc.mirror asks: image.h) is the set of nodes. Input pixel (i, j) sees the pinhole field (atan(x / f_x), atan(y / f_y)), so
- *    in t = tan(field) its coordinates are simply (x / f_x, y / f_y): linear in i and j.
+ *    mirror image where desc.mirror asks: image.h) is the set of nodes. Input pixel
+ *    (i, j) sees the pinhole field (atan(x / f_x), atan(y / f_y)), so in t = tan(field)
+ *    its coordinates are simply (x / f_x, y / f_y): linear in i and j.
  *    Its weight at node (a, b) is the bilinear hat function over the grid in t,
  *    hat_a(t_x) hat_b(t_y): a partition of unity, continuous across the cells (no
  *    seams), separable (one weight per column and one per row), non-zero at <= 4 nodes.
@@ -160,7 +161,7 @@ static const image_fft_plan *plan_for(lensrt_context ctx, struct image_direct *d
 /* The chief point of node (ix, iy) of the frame's field grid at wavelength l (the bank
  * node's own: exact at a node), and its PSF into psf (the bank's size): a node of the
  * grid's mirror image (image.h, desc.mirror) takes its bank node's PSF mirrored and its
- * chief point's coordinate negated, exactly (the windows are odd, centred on it). */
+ * chief point's coordinate negated, exactly (each window is centred on its chief point). */
 static lensrt_result node_psf(struct lensrt_image_s *im, int ix, int iy, int l, float *psf, size_t count,
                               double chief[2])
 {
@@ -259,8 +260,8 @@ static int set_up_part(const struct lensrt_image_s *im, const struct image_direc
             p->j1 = j + 1;
         }
     if (p->i0 < 0 || p->j0 < 0) return 0;
-    // The landing points' box, one more pixel each side for the B-spline taps, cut to where a
-    // kernel can still reach the frame
+    // The landing points' box, one more pixel each side for the B-spline taps, cut to
+    // where a kernel can still reach the frame
     for (c = 0; c < im->desc.n_channels; c++)
         for (j = p->j0; j < p->j1; j++)
             for (i = p->i0; i < p->i1; i++) {
