@@ -82,17 +82,15 @@ def window_half_px(rt: Any, lens: Any, geometry: Geometry, fields: list[tuple[fl
     return int(math.ceil(half))
 
 
-MIRROR_X, MIRROR_Y = 1, 2  # lensrt_image_desc.mirror's bits (LENSRT_IMAGE_MIRROR_X, _Y)
-
-
-def frame_mirror(geometry: Geometry, aperture: dict[str, Any]) -> int:
-    """The axes whose field sign a frame's bank can leave to lensrt_image's mirror: those
-    the frame spans both signs of, when the aperture is a circle (lensfit's lenses are
-    mirror-symmetric about both axes; a polygon of blades may not be)."""
+def frame_mirror(geometry: Geometry, aperture: dict[str, Any]) -> tuple[bool, bool]:
+    """Whether a frame's bank can leave the sign of field x (and of y) to lensrt_image's
+    mirror (lensrt_image_desc.mirror): on each axis the frame spans both signs of, when
+    the aperture is a circle (lensfit's lenses are mirror-symmetric about both axes; a
+    polygon of blades may not be)."""
     if aperture.get("shape", "circle") != "circle":
-        return 0
+        return False, False
     (x0, x1), (y0, y1) = geometry.edge_fields_deg()
-    return (MIRROR_X if x0 < 0.0 < x1 else 0) | (MIRROR_Y if y0 < 0.0 < y1 else 0)
+    return x0 < 0.0 < x1, y0 < 0.0 < y1
 
 
 def _half_grid(lo_deg: float, hi_deg: float, n: int) -> list[float]:
@@ -107,8 +105,8 @@ def _half_grid(lo_deg: float, hi_deg: float, n: int) -> list[float]:
 def frame_bank_spec(name: str, table: Path, geometry: Geometry, *, f_number: float,
                     focus_offset_mm: float, distances_mm: tuple[float, ...],
                     wavelengths_nm: tuple[float, ...], half_px: int, nodes_x: int,
-                    aperture: dict[str, Any], target_error: float, mirror: int = 0
-                    ) -> dict[str, Any]:
+                    aperture: dict[str, Any], target_error: float,
+                    mirror: tuple[bool, bool] = (False, False)) -> dict[str, Any]:
     """The bank spec (as lensfit.banks.spec reads it) for a frame; along the axes of
     ``mirror`` (:func:`frame_mirror`) only its field points >= 0 (lensrt_image mirrors
     them: a centred frame's bank is a quarter of the renders)."""
@@ -117,8 +115,8 @@ def frame_bank_spec(name: str, table: Path, geometry: Geometry, *, f_number: flo
     pixels = 2 * half_px + 1
     # The axis is a node too (lensrt_image divides by the axis PSF's power): a frame off
     # the axis gets one more field point there
-    fx = _half_grid(x0, x1, nx) if mirror & MIRROR_X else list(tan_grid(x0, x1, nx))
-    fy = _half_grid(y0, y1, ny) if mirror & MIRROR_Y else list(tan_grid(y0, y1, ny))
+    fx = _half_grid(x0, x1, nx) if mirror[0] else list(tan_grid(x0, x1, nx))
+    fy = _half_grid(y0, y1, ny) if mirror[1] else list(tan_grid(y0, y1, ny))
     fx = sorted(set(fx) | ({0.0} if not x0 <= 0.0 <= x1 else set()))
     fy = sorted(set(fy) | ({0.0} if not y0 <= 0.0 <= y1 else set()))
     spec: dict[str, Any] = {

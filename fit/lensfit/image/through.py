@@ -186,7 +186,15 @@ def through_lens(lens: str, input_path: str | Path, output: str | Path,
     or a .table) and write ``output`` (module doc)."""
     import os
 
-    from lensrt_ctypes import LIBRARY, Bank, Image, Lensrt, LensrtError
+    from lensrt_ctypes import (
+        IMAGE_MIRROR_X,
+        IMAGE_MIRROR_Y,
+        LIBRARY,
+        Bank,
+        Image,
+        Lensrt,
+        LensrtError,
+    )
 
     from lensfit.banks.run import resolve_table
     from lensfit.banks.spec import SpecError
@@ -283,7 +291,8 @@ def through_lens(lens: str, input_path: str | Path, output: str | Path,
                             flare_threshold=o.flare_threshold, max_sources=o.max_sources,
                             flare_target_error=o.flare_target_error,
                             flare_downsample=o.flare_downsample, oversample=o.oversample,
-                            mirror=mirror)
+                            mirror=(IMAGE_MIRROR_X if mirror[0] else 0)
+                            | (IMAGE_MIRROR_Y if mirror[1] else 0))
                 img.run(planes)
             except LensrtError as e:
                 raise InputError(f"{frame.path} through {table}: {e}") from None

@@ -149,7 +149,7 @@ def test_a_centred_frame_mirrors_a_quadrants_bank(tmp_path, monkeypatch):
                 oversample=2, ghosts=None, workers=0, progress=False)
     mirrored = through_lens("0001", frame, tmp_path / "m.exr",
                             Options(cache=str(tmp_path / "cm"), **opts))
-    monkeypatch.setattr(through, "frame_mirror", lambda geometry, aperture: 0)
+    monkeypatch.setattr(through, "frame_mirror", lambda geometry, aperture: (False, False))
     whole = through_lens("0001", frame, tmp_path / "w.exr",
                          Options(cache=str(tmp_path / "cw"), **opts))
     assert (mirrored.bank["nodes"], whole.bank["nodes"]) == (4, 9)
