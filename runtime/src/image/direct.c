@@ -23,7 +23,7 @@
  *    node's channel bit for bit), so a lossless axis keeps a pixel's value and
  *    vignetting and transmission come from the PSFs' own power. The sub-pixel shifts
  *    (lateral colour, and half a pixel along an axis of even PSF size, whose pixel
- *    centres lie half a pixel off its chief point) are B-spline taps too. S (sharpen)
+ *    centres lie half a pixel off its chief point) are B-spline taps too. S (taps.c)
  *    undoes, to second order in the pitch, the constant spread the two sets of taps add,
  *    less the one a pixel's box has more than the point it is splatted as. Built once,
  *    at creation.
@@ -37,6 +37,7 @@
 
 #include "../internal.h"
 #include "fft.h"
+#include "taps.h"
 
 #include <math.h>
 #include <string.h>
@@ -108,21 +109,6 @@ static void hat_cell(const double *g, int n, double t, int *cell, double *frac)
 static double hat_weight(int a, int cell, double frac)
 {
     return a == cell ? 1.0 - frac : a == cell + 1 ? frac : 0.0;
-}
-
-/* The quadratic B-spline's taps for a point at u on a grid of unit spacing: grid points
- * *first .. *first + 2 get w[0 .. 2] = B2(point - u), B2 the centred quadratic B-spline
- * (support 3, sum 1, >= 0). Unlike bilinear taps, whose spread f(1 - f) squared pixels
- * swings with the fraction f, the spread about u is 1/4 squared pixels wherever u falls
- * (a sampled B-spline keeps the B-spline's moments up to its degree): a constant blur,
- * which the kernels undo (sharpen), not one that changes from pixel to pixel. */
-static void bspline_taps(double u, int *first, double w[3])
-{
-    const double g = floor(u + 0.5), t = u - g;
-    *first = (int)g - 1;
-    w[0] = 0.5 * (0.5 - t) * (0.5 - t);
-    w[1] = 0.75 - t * t;
-    w[2] = 0.5 * (0.5 + t) * (0.5 + t);
 }
 
 /* The bank reader's field weights (io/bank.c, field_weights), in t: the Lagrange
@@ -290,45 +276,6 @@ static int set_up_part(const struct lensrt_image_s *im, const struct image_direc
     return p->ow > 0 && p->oh > 0;
 }
 
-/* The blur the direct layer adds to every pixel's light, per axis in squared pixels of
- * the bank's pitch: the splat's B-spline taps 1/4 and the kernels' 1/4 (bspline_taps),
- * less the 1/12 by which a (sub-)pixel's box spreads its light more than a point at its
- * centre, the point each is splatted as: 5/12 in all. In frequency omega (radians per
- * pixel) the three multiply the light by sinc(omega/2)^3, sinc(omega/2)^3 and
- * 1/sinc(omega/2), i.e. by 1 - (5/24) omega^2 + O(omega^4); sharpen() multiplies the
- * kernels by 1 + (5/12)(1 - cos omega) = 1 + (5/24) omega^2 + O(omega^4), the taps
- * -5/24, 1 + 5/12, -5/24 (sum 1: the kernel's power is kept). So the layer is right to
- * second order in the pitch wherever each light lands, where bilinear taps blur by
- * f (1 - f) - 1/12, which changes with the landing fraction f.
- *
- * Only to second order: the fourth-order taps of 1/sinc(omega/2)^5 (5 taps) were 10 times
- * closer on Gaussian PSFs of 0.4-2 pixels, but worse on real lenses' PSFs, whose Airy
- * cores are narrower than the bank's pitch (aliased: the higher order amplifies what the
- * samples cannot hold). Measured on lens 0001 at f/8 against every lit pixel's own PSF
- * (docs/image.md): the second-order taps 2.5% (oversample 3), the fourth-order 2.8-3.4%,
- * bilinear taps 2.9-5.3%; sharpening by 1/3 or 1/2 instead of 5/12 was worse both ways. */
-static const double sharpen_taps[2] = {1.0 + 5.0 / 12.0, -5.0 / 24.0};
-
-/* n values of v (stride apart) through sharpen_taps, in place; line: n scratch. Taps off
- * the ends read 0 (set_up_chiefs pads the kernels so that nothing spreads off them). */
-static void sharpen_line(double *v, int n, size_t stride, double *line)
-{
-    int i;
-    for (i = 0; i < n; i++) line[i] = v[(size_t)i * stride];
-    for (i = 0; i < n; i++) {
-        v[(size_t)i * stride] = sharpen_taps[0] * line[i] +
-                                sharpen_taps[1] * ((i >= 1 ? line[i - 1] : 0.0) + (i + 1 < n ? line[i + 1] : 0.0));
-    }
-}
-
-/* A kernel (kw x kh) through sharpen_taps along each axis; line: max(kw, kh) scratch. */
-static void sharpen(double *k, int kw, int kh, double *line)
-{
-    int i;
-    for (i = 0; i < kh; i++) sharpen_line(k + (size_t)i * (size_t)kw, kw, 1, line);
-    for (i = 0; i < kw; i++) sharpen_line(k + (size_t)i, kh, (size_t)kw, line);
-}
-
 /* Step 3: a part's kernels (see the top). shifts: n_channels x n_wavelengths x 2 pixel
  * shifts of this node (each wavelength's chief point from its channel's); acc: n_channels x kw x kh scratch, psf: the bank's size. */
 static lensrt_result build_kernels(struct lensrt_image_s *im, struct image_direct *d, node_part *p,
@@ -347,8 +294,8 @@ static lensrt_result build_kernels(struct lensrt_image_s *im, struct image_direc
         if ((res = node_psf(im, p->ix, p->iy, l, psf, count, chief)) != LENSRT_SUCCESS) return res;
         for (c = 0; c < nc; c++) {
             // The PSF moved by (sx, sy) pixels, from the channel's chief point to its own,
-            // by the quadratic B-spline's 3 x 3 taps (bspline_taps: a constant spread of
-            // 1/4 squared pixels per axis, undone with the others by sharpen()). A
+            // by the quadratic B-spline's 3 x 3 taps (image_bspline_taps: a constant spread of
+            // 1/4 squared pixels per axis, undone with the others by image_sharpen()). A
             // band-limited shift (a phase ramp) rings: these PSFs are box-filtered at the
             // frame's pitch, not band-limited; bilinear taps blur by f(1 - f), which
             // changes with the shift
@@ -359,8 +306,8 @@ static lensrt_result build_kernels(struct lensrt_image_s *im, struct image_direc
             int gx, gy, a, b;
             double *k = acc + (size_t)c * kn;
             if (wc == 0.0) continue;
-            bspline_taps(sx, &gx, tx);
-            bspline_taps(sy, &gy, ty);
+            image_bspline_taps(sx, &gx, tx);
+            image_bspline_taps(sy, &gy, ty);
             for (j = 0; j < bh; j++)
                 for (i = 0; i < bw; i++) {
                     const double v = wc * (double)psf[(size_t)j * (size_t)bw + (size_t)i];
@@ -375,7 +322,7 @@ static lensrt_result build_kernels(struct lensrt_image_s *im, struct image_direc
                 }
         }
     }
-    for (c = 0; c < nc; c++) sharpen(acc + (size_t)c * kn, d->kw, d->kh, line);
+    for (c = 0; c < nc; c++) image_sharpen(acc + (size_t)c * kn, d->kw, d->kh, line);
     // Each channel divided by its spectrum's power on the axis
     for (c = 0; c < nc; c++) {
         double norm = 0.0;
@@ -447,7 +394,7 @@ static lensrt_result set_up_chiefs(struct lensrt_image_s *im, struct image_direc
     {
         // A channel's chief point is a mean of its wavelengths': a shift from it is at
         // most twice the largest from the reference; the B-spline taps reach one pixel
-        // beyond it, sharpen() one more, and one spare
+        // beyond it, image_sharpen() one more, and one spare
         const int pad_x = (int)ceil(2.0 * most_x) + 3, pad_y = (int)ceil(2.0 * most_y) + 3;
         d->kw = image_fft_good_size(bw + 2 * pad_x);
         d->kh = image_fft_good_size(bh + 2 * pad_y);
@@ -643,11 +590,11 @@ static int splat(const struct lensrt_image_s *im, const struct image_direct *d, 
                 float *l = layer + (size_t)c * lp;
                 if (val == 0.0f) continue;
                 lit = 1;
-                // The B-spline's 3 x 3 taps (bspline_taps: they sum to 1, so the power
+                // The B-spline's 3 x 3 taps (image_bspline_taps: they sum to 1, so the power
                 // and the centroid are kept, and spread the light by a constant 1/4
                 // squared pixels per axis, which the kernels undo)
-                bspline_taps((double)land[0] - p->sx0, &x0, tx);
-                bspline_taps((double)land[1] - p->sy0, &y0, ty);
+                image_bspline_taps((double)land[0] - p->sx0, &x0, tx);
+                image_bspline_taps((double)land[1] - p->sy0, &y0, ty);
                 if (x0 >= 0 && x0 + 2 < sw && y0 >= 0 && y0 + 2 < sh) {
                     // The usual case: all nine taps in the layer
                     for (tb = 0; tb < 3; tb++) {
